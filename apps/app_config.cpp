@@ -1,0 +1,48 @@
+// AppConfig loading/dumping through io::ConfigFile and each section's visit().
+#include "apps/app_config.hpp"
+
+#include "io/error.hpp"
+
+namespace hisnegs::apps {
+
+void AppConfig::validate() const {
+  volume.validate();
+  sparse_grid.validate();
+  synth.validate();
+  camera.validate();
+  raymarch.validate();
+  splat.validate();
+  train.validate();
+  gmf.validate();
+}
+
+AppConfig load_app_config(const std::optional<std::filesystem::path>& path) {
+  AppConfig config;
+  if (path) {
+    const io::ConfigFile file = io::ConfigFile::load(*path);
+    file.check_sections({"volume", "sparse_grid", "synth", "camera", "raymarch", "splat", "train", "gmf"});
+    config.for_each_section([&](const char* name, auto& options) { file.read(name, options); });
+    try {
+      config.validate();
+    } catch (const io::InputError& e) {
+      throw io::InputError(path->string() + ": " + e.what());
+    }
+  } else {
+    config.validate();
+  }
+  return config;
+}
+
+std::string dump_app_config(AppConfig config) {
+  io::ConfigWriter writer;
+  bool first = true;
+  config.for_each_section([&](const char* name, auto& options) {
+    if (!first) writer.blank_line();
+    first = false;
+    writer.begin_section(name);
+    options.visit(writer);
+  });
+  return writer.str();
+}
+
+}  // namespace hisnegs::apps

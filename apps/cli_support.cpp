@@ -1,0 +1,139 @@
+// run_cli and the shared option helpers of the hisnegs command line.
+#include "apps/cli_support.hpp"
+
+#include <algorithm>
+#include <cstdio>
+#include <iostream>
+#include <sstream>
+
+#include "io/error.hpp"
+
+namespace hisnegs::apps {
+
+AppConfig& GlobalOptions::config() {
+  if (!config_) {
+    config_ = load_app_config(config_path.empty() ? std::nullopt
+                                                  : std::optional<std::filesystem::path>(config_path));
+  }
+  return *config_;
+}
+
+void VolumeOverrides::add_to(CLI::App* command) {
+  command->add_option("--spacing", spacing_um, "voxel size x,y,z in um (overrides the file)")->delimiter(',');
+  command->add_option("--channel", channel, "channel of a multi-channel stack (0-based)");
+  command->add_option("--normalization", normalization, "minmax | percentile (default from config)");
+  command->add_option("--aspect", aspect, "physical | shape (report Eq. 9)");
+}
+
+void VolumeOverrides::apply(io::VolumeOptions& options) const {
+  if (!spacing_um.empty()) options.spacing_um = spacing_um;
+  if (channel) options.channel = *channel;
+  if (!normalization.empty()) {
+    if (normalization == "minmax") {
+      options.normalization.method = io::NormalizationMethod::kMinMax;
+    } else if (normalization == "percentile") {
+      options.normalization.method = io::NormalizationMethod::kPercentile;
+    } else {
+      throw io::InputError("--normalization = '" + normalization + "': expected minmax|percentile");
+    }
+  }
+  if (!aspect.empty()) {
+    if (aspect == "physical") {
+      options.aspect = io::AspectMode::kPhysical;
+    } else if (aspect == "shape") {
+      options.aspect = io::AspectMode::kShape;
+    } else {
+      throw io::InputError("--aspect = '" + aspect + "': expected physical|shape");
+    }
+  }
+  if (!spacing_um.empty() && spacing_um.size() != 3) {
+    throw io::InputError("--spacing: expected 3 values x,y,z, got " + std::to_string(spacing_um.size()));
+  }
+  options.validate();
+}
+
+std::string format_seconds(double seconds) {
+  char buf[64];
+  if (seconds < 1.0) {
+    std::snprintf(buf, sizeof buf, "%.1f ms", seconds * 1e3);
+  } else if (seconds < 120.0) {
+    std::snprintf(buf, sizeof buf, "%.2f s", seconds);
+  } else {
+    std::snprintf(buf, sizeof buf, "%.1f min", seconds / 60.0);
+  }
+  return buf;
+}
+
+std::string format_bytes(double bytes) {
+  char buf[64];
+  if (bytes < 1024.0 * 1024.0) {
+    std::snprintf(buf, sizeof buf, "%.1f KiB", bytes / 1024.0);
+  } else if (bytes < 1024.0 * 1024.0 * 1024.0) {
+    std::snprintf(buf, sizeof buf, "%.1f MiB", bytes / (1024.0 * 1024.0));
+  } else {
+    std::snprintf(buf, sizeof buf, "%.2f GiB", bytes / (1024.0 * 1024.0 * 1024.0));
+  }
+  return buf;
+}
+
+namespace {
+// Error messages are one line: fold any newline a library put into them.
+std::string one_line(std::string s) {
+  for (char& c : s) {
+    if (c == '\n' || c == '\r') c = ' ';
+  }
+  return s;
+}
+}  // namespace
+
+int run_cli(int argc, char** argv) {
+  CLI::App app{"hisnegs: Gaussian Mixture Field fitting and soft-MIP Gaussian splatting of microscopy volumes",
+               "hisnegs"};
+  app.set_version_flag("--version", std::string("hisnegs ") + HISNEGS_VERSION);
+  app.require_subcommand(1);
+  GlobalOptions global;
+  app.add_option("--config", global.config_path, "YAML config (default: built-in = configs/default.yaml)");
+  app.add_flag("-q,--quiet", global.quiet, "no progress output");
+  add_demo_command(app, global);
+  add_synth_command(app, global);
+  add_info_command(app, global);
+  add_vdb_command(app, global);
+  add_config_command(app, global);
+  add_bench_command(app, global);
+  // CLI11 would only say "a subcommand is required" for a misspelt command: name it.
+  for (int i = 1; i < argc; ++i) {
+    const std::string arg = argv[i];
+    if (arg == "--config") {
+      ++i;
+      continue;
+    }
+    if (arg.empty() || arg[0] == '-') continue;
+    const auto subs = app.get_subcommands([](const CLI::App*) { return true; });
+    if (std::none_of(subs.begin(), subs.end(), [&](const CLI::App* sub) { return sub->check_name(arg); })) {
+      std::string names;
+      for (const auto* sub : subs) names += (names.empty() ? "" : ", ") + sub->get_name();
+      std::cerr << "hisnegs: error: unknown command '" << arg << "'; expected one of " << names << "\n";
+      return 2;
+    }
+    break;
+  }
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    if (e.get_exit_code() == 0) return app.exit(e);  // --help, --version
+    std::cerr << "hisnegs: error: " << one_line(e.what()) << " (see hisnegs --help)\n";
+    return 2;
+  } catch (const io::InputError& e) {
+    std::cerr << "hisnegs: error: " << one_line(e.what()) << "\n";
+    return 2;
+  } catch (const std::bad_alloc&) {
+    std::cerr << "hisnegs: error: out of memory\n";
+    return 1;
+  } catch (const std::exception& e) {
+    std::cerr << "hisnegs: internal error: " << one_line(e.what()) << "\n";
+    return 1;
+  }
+  return 0;
+}
+
+}  // namespace hisnegs::apps

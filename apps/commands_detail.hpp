@@ -1,0 +1,21 @@
+// Pieces shared by several hisnegs commands (e.g. `demo` reuses `synth` and `vdb`).
+// Each prints its own progress line unless quiet.
+#pragma once
+
+#include <filesystem>
+
+#include "io/load_volume.hpp"
+#include "io/sparse_grid.hpp"
+#include "io/synthetic_neuron.hpp"
+
+namespace hisnegs::apps {
+
+// Generates the synthetic stack and writes it as uint16 TIFF with its spacing.
+io::Volume write_synthetic_stack(const std::filesystem::path& out, const io::SyntheticNeuronOptions& options,
+                                 bool quiet);
+
+// Loads + normalizes `volume_path`, builds the sparse grid and writes it to `out`.
+io::SparseGrid write_sparse_grid(const std::filesystem::path& volume_path, const io::VolumeOptions& volume,
+                                 const io::SparseGridOptions& sparse, const std::filesystem::path& out, bool quiet);
+
+}  // namespace hisnegs::apps

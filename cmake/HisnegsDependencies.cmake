@@ -1,0 +1,25 @@
+# All third-party packages, from Debian. Order matters: TBB's own config and
+# Ceres (whose SuiteSparse lookup loads TBB) must come before OpenVDB, whose
+# bundled FindTBB.cmake would otherwise define TBB::tbb half-way.
+find_package(Threads REQUIRED)
+find_package(TBB CONFIG REQUIRED)
+find_package(Eigen3 3.4 REQUIRED NO_MODULE)
+find_package(Ceres REQUIRED)
+find_path(HISNEGS_OPENVDB_CMAKE_DIR FindOpenVDB.cmake
+  PATHS /usr/lib/x86_64-linux-gnu/cmake/OpenVDB /usr/lib/cmake/OpenVDB /usr/local/lib/cmake/OpenVDB
+        /usr/lib/aarch64-linux-gnu/cmake/OpenVDB)
+if(HISNEGS_OPENVDB_CMAKE_DIR)
+  list(APPEND CMAKE_MODULE_PATH ${HISNEGS_OPENVDB_CMAKE_DIR})
+endif()
+find_package(OpenVDB REQUIRED)
+find_package(TIFF REQUIRED)
+find_package(PNG REQUIRED)
+find_package(GIF REQUIRED)
+find_package(CLI11 CONFIG REQUIRED)
+find_package(yaml-cpp CONFIG REQUIRED)
+find_package(nlohmann_json 3 CONFIG REQUIRED)
+find_package(hwy CONFIG REQUIRED)
+find_package(benchmark CONFIG REQUIRED)
+if(BUILD_TESTING)
+  find_package(GTest CONFIG REQUIRED)
+endif()

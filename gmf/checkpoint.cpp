@@ -1,0 +1,338 @@
+// Checkpoint <-> PLY table mapping (parameters, `comment hisnegs` metadata) and
+// save / load on top of io::read_ply / io::write_ply. No PLY parsing here.
+#include "gmf/checkpoint.hpp"
+
+#include <cctype>
+#include <charconv>
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <stdexcept>
+#include <string_view>
+
+#include "io/error.hpp"
+
+namespace hisnegs::gmf {
+namespace fs = std::filesystem;
+
+namespace {
+
+constexpr std::string_view kPrefix = "hisnegs";
+constexpr std::string_view kVertex = "vertex";
+constexpr std::string_view kFormatVersion = "format_version";
+constexpr std::string_view kVolumeShape = "volume_shape";
+constexpr std::string_view kSpacing = "spacing_um";
+constexpr std::string_view kAspect = "aspect";
+constexpr std::string_view kNormalization = "normalization";
+constexpr std::array<std::string_view, 5> kKnownKeys = {kFormatVersion, kVolumeShape, kSpacing, kAspect,
+                                                        kNormalization};
+
+bool is_known_key(std::string_view key) {
+  for (std::string_view k : kKnownKeys) {
+    if (k == key) return true;
+  }
+  return false;
+}
+
+bool is_blank(char c) { return std::isspace(static_cast<unsigned char>(c)) != 0; }
+
+bool is_token(std::string_view s) {
+  if (s.empty()) return false;
+  for (char c : s) {
+    const auto u = static_cast<unsigned char>(c);
+    if (u <= 0x20 || u == 0x7f) return false;
+  }
+  return true;
+}
+
+bool has_line_break(std::string_view s) { return s.find_first_of("\r\n") != std::string_view::npos; }
+
+// "nan", "inf", "-inf" or the shortest decimal that reads back to the same double.
+std::string format_number(double v) {
+  if (std::isnan(v)) return "nan";
+  if (std::isinf(v)) return v > 0 ? "inf" : "-inf";
+  char buf[64];
+  const auto res = std::to_chars(buf, buf + sizeof buf, v);
+  return std::string(buf, res.ptr);
+}
+
+std::vector<std::string_view> split_ws(std::string_view s) {
+  std::vector<std::string_view> out;
+  std::size_t i = 0;
+  while (i < s.size()) {
+    while (i < s.size() && is_blank(s[i])) ++i;
+    const std::size_t start = i;
+    while (i < s.size() && !is_blank(s[i])) ++i;
+    if (i > start) out.push_back(s.substr(start, i - start));
+  }
+  return out;
+}
+
+template <class T>
+bool parse_number(std::string_view token, T& out) {
+  const char* end = token.data() + token.size();
+  const auto res = std::from_chars(token.data(), end, out);
+  return res.ec == std::errc{} && res.ptr == end;
+}
+
+// ----- writing -----
+
+void check_positive3(std::string_view key, const std::array<double, 3>& v) {
+  for (double x : v) {
+    if (!std::isfinite(x) || !(x > 0.0)) {
+      throw std::invalid_argument("checkpoint metadata " + std::string(key) + ": " + format_number(x) +
+                                  " is not a finite positive number");
+    }
+  }
+}
+
+std::string join3(const std::array<double, 3>& v) {
+  return format_number(v[0]) + " " + format_number(v[1]) + " " + format_number(v[2]);
+}
+
+std::string comment(std::string_view key, const std::string& value) {
+  std::string c = std::string(kPrefix) + " " + std::string(key);
+  if (!value.empty()) c += " " + value;
+  return c;
+}
+
+std::vector<std::string> meta_comments(const CheckpointMeta& meta) {
+  if (meta.format_version != kCheckpointFormatVersion) {
+    throw std::invalid_argument("checkpoint metadata format_version " + std::to_string(meta.format_version) +
+                                ": this build writes only version " +
+                                std::to_string(kCheckpointFormatVersion));
+  }
+  std::vector<std::string> out;
+  out.push_back(comment(kFormatVersion, std::to_string(meta.format_version)));
+  if (meta.volume_shape_zyx) {
+    const auto& s = *meta.volume_shape_zyx;
+    for (int n : s) {
+      if (n <= 0) {
+        throw std::invalid_argument("checkpoint metadata volume_shape: " + std::to_string(n) +
+                                    " is not a positive size");
+      }
+    }
+    out.push_back(comment(kVolumeShape,
+                          std::to_string(s[0]) + " " + std::to_string(s[1]) + " " + std::to_string(s[2])));
+  }
+  if (meta.spacing_um) {
+    check_positive3(kSpacing, *meta.spacing_um);
+    out.push_back(comment(kSpacing, join3(*meta.spacing_um)));
+  }
+  if (meta.aspect) {
+    check_positive3(kAspect, *meta.aspect);
+    out.push_back(comment(kAspect, join3(*meta.aspect)));
+  }
+  if (!meta.normalization.empty()) {
+    if (has_line_break(meta.normalization)) {
+      throw std::invalid_argument("checkpoint metadata normalization contains a line break");
+    }
+    out.push_back(comment(kNormalization, meta.normalization));
+  }
+  for (const auto& [key, value] : meta.extra) {
+    if (!is_token(key) || is_known_key(key)) {
+      throw std::invalid_argument("checkpoint metadata extra key '" + key +
+                                  "' must be one token without blanks and not a known key");
+    }
+    if (has_line_break(value)) {
+      throw std::invalid_argument("checkpoint metadata extra '" + key + "' contains a line break");
+    }
+    out.push_back(comment(key, value));
+  }
+  return out;
+}
+
+// The first Gaussian a checkpoint may not hold: a non-finite parameter or an
+// all-zero quaternion (R(q) undefined). Problem text like "scale_1 is nan".
+struct Invalid {
+  std::size_t index = 0;
+  std::string problem;
+};
+
+std::optional<Invalid> first_invalid(const GaussianMixture& mixture) {
+  for (std::size_t k = 0; k < mixture.size(); ++k) {
+    const std::array<float, kGaussianParamCount> v = to_array(mixture[k]);
+    // Fast scan (no early exit, vectorizable); the slow loop below names the culprit.
+    bool ok = !(v[6] == 0.0f && v[7] == 0.0f && v[8] == 0.0f && v[9] == 0.0f);
+    for (float x : v) ok &= std::isfinite(x);
+    if (ok) continue;
+    for (std::size_t j = 0; j < kGaussianParamCount; ++j) {
+      if (!std::isfinite(v[j])) return Invalid{k, std::string(kGaussianParamNames[j]) + " is " + format_number(v[j])};
+    }
+    return Invalid{k, "rotation rot_0..rot_3 is all zero"};
+  }
+  return std::nullopt;
+}
+
+// ----- reading -----
+
+// Parses three numbers of type T, each must satisfy `valid`; fails naming the key.
+template <class T, class Valid>
+std::array<T, 3> parse3(const fs::path& source, std::string_view key, std::string_view value,
+                        const char* expected, Valid valid) {
+  const std::vector<std::string_view> tok = split_ws(value);
+  std::array<T, 3> out{};
+  bool ok = tok.size() == 3;
+  for (std::size_t i = 0; ok && i < 3; ++i) ok = parse_number(tok[i], out[i]) && valid(out[i]);
+  if (!ok) {
+    io::fail_input(source, "comment hisnegs " + std::string(key) + ": expected " + expected + ", got '" +
+                               std::string(value) + "'");
+  }
+  return out;
+}
+
+CheckpointMeta parse_meta(const io::PlyTable& table, const fs::path& source) {
+  CheckpointMeta meta;
+  bool seen_version = false, seen_norm = false;
+  for (const std::string& c : table.comments) {
+    std::string_view s = c;
+    if (!s.starts_with(kPrefix)) continue;
+    s.remove_prefix(kPrefix.size());
+    if (!s.empty() && !is_blank(s[0])) continue;  // "hisnegsfoo": someone else's comment
+    while (!s.empty() && is_blank(s[0])) s.remove_prefix(1);
+    std::size_t key_end = 0;
+    while (key_end < s.size() && !is_blank(s[key_end])) ++key_end;
+    const std::string_view key = s.substr(0, key_end);
+    std::string_view value = s.substr(key_end);
+    if (!value.empty()) value.remove_prefix(1);  // the one blank after the key
+    if (key.empty()) io::fail_input(source, "comment 'hisnegs' without a key");
+
+    const auto once = [&](bool seen) {
+      if (seen) io::fail_input(source, "comment hisnegs " + std::string(key) + " appears twice");
+    };
+    if (key == kFormatVersion) {
+      once(seen_version);
+      seen_version = true;
+      const std::vector<std::string_view> tok = split_ws(value);
+      int version = 0;
+      if (tok.size() != 1 || !parse_number(tok[0], version) || version < 1) {
+        io::fail_input(source, "comment hisnegs format_version: expected a positive integer, got '" +
+                                   std::string(value) + "'");
+      }
+      if (version > kCheckpointFormatVersion) {
+        io::fail_input(source, "checkpoint format_version " + std::to_string(version) +
+                                   " is newer than this build supports (" +
+                                   std::to_string(kCheckpointFormatVersion) + ")");
+      }
+      meta.format_version = version;
+    } else if (key == kVolumeShape) {
+      once(meta.volume_shape_zyx.has_value());
+      meta.volume_shape_zyx = parse3<int>(source, key, value, "three positive integers Z Y X",
+                                          [](int n) { return n > 0; });
+    } else if (key == kSpacing || key == kAspect) {
+      auto& field = key == kSpacing ? meta.spacing_um : meta.aspect;
+      once(field.has_value());
+      field = parse3<double>(source, key, value, "three finite positive numbers x y z",
+                             [](double v) { return std::isfinite(v) && v > 0.0; });
+    } else if (key == kNormalization) {
+      once(seen_norm);
+      seen_norm = true;
+      meta.normalization = std::string(value);
+    } else {
+      meta.extra.emplace_back(std::string(key), std::string(value));
+    }
+  }
+  return meta;
+}
+
+}  // namespace
+
+io::PlyTable checkpoint_to_ply(const GaussianMixture& mixture, const CheckpointMeta& meta) {
+  io::PlyTable table;
+  table.comments = meta_comments(meta);
+  if (const std::optional<Invalid> bad = first_invalid(mixture)) {
+    throw std::invalid_argument("gaussian " + std::to_string(bad->index) + ": " + bad->problem);
+  }
+  std::vector<io::PlyProperty> props;
+  for (std::string_view name : kGaussianParamNames) props.push_back({std::string(name), io::PlyType::kFloat32});
+  io::PlyElement vertex(std::string(kVertex), static_cast<std::int64_t>(mixture.size()), std::move(props));
+  // The rows are exactly GaussianParams' 11 packed floats (static_asserts in the header).
+  static_assert(sizeof(GaussianParams) == kGaussianParamCount * sizeof(float));
+  if (!mixture.empty()) std::memcpy(vertex.bytes().data(), mixture.data(), vertex.bytes().size());
+  table.elements.push_back(std::move(vertex));
+  return table;
+}
+
+Checkpoint checkpoint_from_ply(const io::PlyTable& table, const fs::path& source) {
+  Checkpoint out;
+  // Metadata first: a newer format_version may mean the rows do not follow this layout.
+  out.meta = parse_meta(table, source);
+
+  const io::PlyElement* vertex = table.find(kVertex);
+  if (!vertex) io::fail_input(source, "no 'vertex' element (not a hisnegs checkpoint)");
+  std::array<std::size_t, kGaussianParamCount> offset{};
+  std::array<bool, kGaussianParamCount> is_double{};
+  for (std::size_t j = 0; j < kGaussianParamCount; ++j) {
+    const std::string_view name = kGaussianParamNames[j];
+    const std::optional<std::size_t> p = vertex->find_property(name);
+    if (!p) {
+      io::fail_input(source, "vertex element has no property '" + std::string(name) +
+                                 "' (a checkpoint needs x y z scale_0 scale_1 scale_2 rot_0 rot_1 rot_2 "
+                                 "rot_3 intensity_logit)");
+    }
+    const io::PlyType type = vertex->properties()[*p].type;
+    if (type != io::PlyType::kFloat32 && type != io::PlyType::kFloat64) {
+      io::fail_input(source, "vertex property '" + std::string(name) + "' has type " +
+                                 std::string(io::to_string(type)) + ", expected float or double");
+    }
+    offset[j] = vertex->offset(*p);
+    is_double[j] = type == io::PlyType::kFloat64;
+  }
+
+  const auto count = static_cast<std::size_t>(vertex->count());
+  out.mixture.resize(count);
+  const std::byte* src = vertex->bytes().data();
+  const std::size_t stride = vertex->row_size();
+  bool native = stride == sizeof(GaussianParams);
+  for (std::size_t j = 0; j < kGaussianParamCount; ++j) native = native && !is_double[j] && offset[j] == 4 * j;
+  if (native && count > 0) {
+    // The file's rows are GaussianParams already (what save_checkpoint writes): one copy.
+    std::memcpy(static_cast<void*>(out.mixture.data()), src, count * stride);
+  } else {
+    for (std::size_t k = 0; k < count; ++k, src += stride) {
+      std::array<float, kGaussianParamCount> v;
+      for (std::size_t j = 0; j < kGaussianParamCount; ++j) {
+        double d;
+        if (is_double[j]) {
+          std::memcpy(&d, src + offset[j], sizeof d);
+        } else {
+          float f;
+          std::memcpy(&f, src + offset[j], sizeof f);
+          d = f;
+        }
+        // Checked before narrowing: the message shows the file's value, and an
+        // out-of-range cast to float would be undefined behaviour.
+        if (!std::isfinite(d) || std::abs(d) > std::numeric_limits<float>::max()) {
+          const auto where = "vertex " + std::to_string(k) + ": " + std::string(kGaussianParamNames[j]);
+          if (!std::isfinite(d)) io::fail_input(source, where + " is " + format_number(d));
+          io::fail_input(source, where + " = " + format_number(d) + " is outside the float32 range");
+        }
+        v[j] = static_cast<float>(d);
+      }
+      out.mixture[k] = from_array(v);
+      if (v[6] == 0.0f && v[7] == 0.0f && v[8] == 0.0f && v[9] == 0.0f) {
+        io::fail_input(source, "vertex " + std::to_string(k) + ": rotation rot_0..rot_3 is all zero");
+      }
+    }
+  }
+  // The general layout was checked row by row above; this finds the first
+  // non-finite value or all-zero quaternion of the native layout.
+  if (const std::optional<Invalid> bad = first_invalid(out.mixture)) {
+    io::fail_input(source, "vertex " + std::to_string(bad->index) + ": " + bad->problem);
+  }
+  return out;
+}
+
+void save_checkpoint(const fs::path& path, const GaussianMixture& mixture, const CheckpointMeta& meta) {
+  io::PlyTable table;
+  try {
+    table = checkpoint_to_ply(mixture, meta);
+  } catch (const std::invalid_argument& e) {
+    throw std::invalid_argument(io::describe(path, std::string("cannot save checkpoint: ") + e.what()));
+  }
+  io::write_ply(path, table);
+}
+
+Checkpoint load_checkpoint(const fs::path& path) { return checkpoint_from_ply(io::read_ply(path), path); }
+
+}  // namespace hisnegs::gmf

@@ -1,0 +1,78 @@
+// The checkpoint file (CONVENTIONS "Files → Checkpoint"): the mapping between a
+// GaussianMixture plus its metadata and io's generic PLY table, and saving /
+// loading it. Does not parse PLY itself (io/ply.hpp) nor know about fitting.
+#pragma once
+
+#include <array>
+#include <filesystem>
+#include <optional>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "gmf/gaussian_mixture.hpp"
+#include "io/ply.hpp"
+
+namespace hisnegs::gmf {
+
+// The newest checkpoint format this build reads and the one it writes.
+inline constexpr int kCheckpointFormatVersion = 1;
+
+// What a checkpoint records besides the Gaussians, one `comment hisnegs KEY VALUE`
+// header line each (absent optionals / an empty normalization write no line).
+struct CheckpointMeta {
+  int format_version = kCheckpointFormatVersion;  // "comment hisnegs format_version 1"
+  std::optional<std::array<int, 3>> volume_shape_zyx;  // "volume_shape Z Y X", each > 0
+  std::optional<std::array<double, 3>> spacing_um;     // "spacing_um sx sy sz", µm, finite > 0
+  std::optional<std::array<double, 3>> aspect;         // "aspect ax ay az", world half-extents, finite > 0
+  std::string normalization;  // "normalization minmax 0 254": free text after the key, verbatim
+  // Any other "comment hisnegs KEY VALUE" line, in file order. KEY is one token
+  // (no whitespace, not a known key); VALUE is the rest of the line after one
+  // blank, verbatim (may be empty, no line breaks).
+  std::vector<std::pair<std::string, std::string>> extra;
+
+  friend bool operator==(const CheckpointMeta&, const CheckpointMeta&) = default;
+};
+
+struct Checkpoint {
+  GaussianMixture mixture;
+  CheckpointMeta meta;
+};
+
+// Builds the checkpoint's PLY table: one `vertex` element with K rows of float
+// properties x y z scale_0 scale_1 scale_2 rot_0 rot_1 rot_2 rot_3
+// intensity_logit (log-scales; rot = w x y z) and the `hisnegs` comments in the
+// order format_version, volume_shape, spacing_um, aspect, normalization, extra.
+// Doubles are written in the shortest form that reads back bit-identical.
+// Throws std::invalid_argument ("gaussian 17: scale_1 is nan") for a
+// non-finite parameter or an all-zero quaternion, and for metadata it could not
+// read back (format_version other than kCheckpointFormatVersion, a non-positive
+// shape / spacing / aspect, a line break, a bad or known key in `extra`).
+[[nodiscard]] io::PlyTable checkpoint_to_ply(const GaussianMixture& mixture, const CheckpointMeta& meta);
+
+// The inverse of checkpoint_to_ply for any table read from `source` (named in
+// messages). Accepts the properties in any order, as float or double, next to
+// extra properties (e.g. a 3DGS viewer's f_dc_0) and extra elements, all
+// ignored; comments not starting with "hisnegs" are ignored; a missing
+// format_version line means version 1. K = 0 (an empty `vertex` element) is a
+// valid, empty model. Throws io::InputError, one line "SOURCE: problem", for: no
+// `vertex` element, a missing required property or one of another type, a
+// non-finite value ("vertex 17: scale_1 is nan"), a double outside float range,
+// an all-zero quaternion, a format_version newer than kCheckpointFormatVersion
+// (or < 1), a malformed value of a known key ("comment hisnegs volume_shape ...")
+// or a known key given twice.
+[[nodiscard]] Checkpoint checkpoint_from_ply(const io::PlyTable& table, const std::filesystem::path& source);
+
+// Writes a checkpoint atomically (temp file + rename) as binary little-endian
+// PLY. Throws std::invalid_argument "PATH: ..." as checkpoint_to_ply does
+// (nothing is written then), io::InputError / std::runtime_error if the file
+// cannot be written.
+void save_checkpoint(const std::filesystem::path& path, const GaussianMixture& mixture,
+                     const CheckpointMeta& meta);
+
+// Reads a checkpoint written by save_checkpoint (or by another tool using the
+// same properties). Throws io::InputError naming the file for every problem of
+// io::read_ply and checkpoint_from_ply.
+[[nodiscard]] Checkpoint load_checkpoint(const std::filesystem::path& path);
+
+}  // namespace hisnegs::gmf

@@ -1,0 +1,66 @@
+// Non-inline parts of gaussian_mixture.hpp: array conversion, the brute-force
+// reference evaluator and summary statistics. No file formats, no fitting.
+#include "gmf/gaussian_mixture.hpp"
+
+#include <algorithm>
+#include <bit>
+#include <limits>
+
+namespace hisnegs::gmf {
+
+std::array<float, kGaussianParamCount> to_array(const GaussianParams& g) {
+  // 11 packed floats (static_asserts in the header), so a bit cast is exact.
+  return std::bit_cast<std::array<float, kGaussianParamCount>>(g);
+}
+
+GaussianParams from_array(const std::array<float, kGaussianParamCount>& values) {
+  return std::bit_cast<GaussianParams>(values);
+}
+
+double evaluate_mixture(const GaussianMixture& mixture, const Eigen::Vector3d& x_world) {
+  double f = 0.0;
+  for (const GaussianParams& g : mixture) {
+    // dᵀ Σ⁻¹ d with Σ⁻¹ = R diag(1/s²) Rᵀ: rotate d into the Gaussian's frame and
+    // divide by s, which avoids inverting Σ (ill-conditioned for flat Gaussians).
+    const Eigen::Matrix3d r = rotation_matrix<double>(g);
+    const Eigen::Vector3d d =
+        x_world - Eigen::Vector3d(g.mean[0], g.mean[1], g.mean[2]);
+    const Eigen::Vector3d local = (r.transpose() * d).cwiseQuotient(scales<double>(g));
+    f += intensity<double>(g) * std::exp(-0.5 * local.squaredNorm());
+  }
+  return f;
+}
+
+MixtureStats compute_stats(const GaussianMixture& mixture) {
+  MixtureStats stats;
+  stats.count = mixture.size();
+  if (mixture.empty()) return stats;
+  for (ParamRange& r : stats.params) {
+    r.min = std::numeric_limits<double>::infinity();
+    r.max = -std::numeric_limits<double>::infinity();
+  }
+  stats.intensity_min = std::numeric_limits<double>::infinity();
+  stats.intensity_max = -std::numeric_limits<double>::infinity();
+  for (const GaussianParams& g : mixture) {
+    const std::array<float, kGaussianParamCount> v = to_array(g);
+    for (std::size_t j = 0; j < kGaussianParamCount; ++j) {
+      ParamRange& r = stats.params[j];
+      r.min = std::min(r.min, static_cast<double>(v[j]));
+      r.max = std::max(r.max, static_cast<double>(v[j]));
+      r.mean += v[j];
+    }
+    const Eigen::Vector3d s = scales<double>(g);
+    for (int i = 0; i < 3; ++i) stats.mean_scale[i] += s[i];
+    const double a = intensity<double>(g);
+    stats.intensity_min = std::min(stats.intensity_min, a);
+    stats.intensity_max = std::max(stats.intensity_max, a);
+    stats.intensity_mean += a;
+  }
+  const double n = static_cast<double>(mixture.size());
+  for (ParamRange& r : stats.params) r.mean /= n;
+  for (double& s : stats.mean_scale) s /= n;
+  stats.intensity_mean /= n;
+  return stats;
+}
+
+}  // namespace hisnegs::gmf

@@ -1,0 +1,177 @@
+// The Gaussian mixture itself: per-Gaussian parameters as CONVENTIONS "Gaussians"
+// defines them, the container, the closed-form helpers (sigmoid, scales, R(q), Σ),
+// a brute-force reference evaluator and summary statistics. No file formats
+// (gmf/checkpoint.hpp), no fitting, no rendering.
+#pragma once
+
+#include <Eigen/Core>
+#include <array>
+#include <cmath>
+#include <concepts>
+#include <cstddef>
+#include <span>
+#include <stdexcept>
+#include <string_view>
+#include <type_traits>
+#include <vector>
+
+namespace hisnegs::gmf {
+
+// One Gaussian, world units (CONVENTIONS "Gaussians", report Eq. 1):
+// centre μ = mean, s = exp(log_scale), q = rotation = (w, x, y, z) normalized
+// before use (need not be unit, must not be zero), a = sigmoid(intensity_logit).
+// Trivially copyable, 11 packed floats in checkpoint property order (also used
+// by the CUDA back end). Defaults: a unit Gaussian at the origin, a = 0.5.
+struct GaussianParams {
+  std::array<float, 3> mean{0.0f, 0.0f, 0.0f};
+  std::array<float, 3> log_scale{0.0f, 0.0f, 0.0f};
+  std::array<float, 4> rotation{1.0f, 0.0f, 0.0f, 0.0f};  // w x y z
+  float intensity_logit = 0.0f;
+};
+inline constexpr std::size_t kGaussianParamCount = 11;
+static_assert(std::is_trivially_copyable_v<GaussianParams> && std::is_standard_layout_v<GaussianParams>);
+static_assert(sizeof(GaussianParams) == kGaussianParamCount * sizeof(float),
+              "GaussianParams must be 11 packed floats");
+
+// Names of the 11 parameters in memory order; they are also the checkpoint's
+// PLY property names (scale_i hold log-scales, rot_0 is w).
+inline constexpr std::array<std::string_view, kGaussianParamCount> kGaussianParamNames = {
+    "x", "y", "z", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3", "intensity_logit"};
+
+// The parameters as an array in kGaussianParamNames order, and back.
+[[nodiscard]] std::array<float, kGaussianParamCount> to_array(const GaussianParams& g);
+[[nodiscard]] GaussianParams from_array(const std::array<float, kGaussianParamCount>& values);
+
+// K Gaussians, contiguous (data() can be copied to a device as K × 44 bytes).
+class GaussianMixture {
+ public:
+  using value_type = GaussianParams;
+  using iterator = std::vector<GaussianParams>::iterator;
+  using const_iterator = std::vector<GaussianParams>::const_iterator;
+
+  GaussianMixture() = default;
+  explicit GaussianMixture(std::vector<GaussianParams> gaussians) : gaussians_(std::move(gaussians)) {}
+
+  [[nodiscard]] std::size_t size() const { return gaussians_.size(); }
+  [[nodiscard]] bool empty() const { return gaussians_.empty(); }
+  void reserve(std::size_t n) { gaussians_.reserve(n); }
+  void push_back(const GaussianParams& g) { gaussians_.push_back(g); }
+  // New Gaussians are default GaussianParams.
+  void resize(std::size_t n) { gaussians_.resize(n); }
+  void clear() { gaussians_.clear(); }
+
+  [[nodiscard]] const GaussianParams& operator[](std::size_t k) const { return gaussians_[k]; }
+  [[nodiscard]] GaussianParams& operator[](std::size_t k) { return gaussians_[k]; }
+  [[nodiscard]] const GaussianParams* data() const { return gaussians_.data(); }
+  [[nodiscard]] GaussianParams* data() { return gaussians_.data(); }
+  [[nodiscard]] std::span<const GaussianParams> params() const { return gaussians_; }
+  [[nodiscard]] std::span<GaussianParams> params() { return gaussians_; }
+
+  [[nodiscard]] const_iterator begin() const { return gaussians_.begin(); }
+  [[nodiscard]] const_iterator end() const { return gaussians_.end(); }
+  [[nodiscard]] iterator begin() { return gaussians_.begin(); }
+  [[nodiscard]] iterator end() { return gaussians_.end(); }
+
+ private:
+  std::vector<GaussianParams> gaussians_;
+};
+
+// ----- closed-form helpers (T = float or double) -----
+
+// 1 / (1 + exp(-logit)), evaluated without overflow for any finite logit
+// (exp is only taken of a non-positive number).
+template <std::floating_point T>
+[[nodiscard]] inline T sigmoid(T logit) {
+  if (logit >= T(0)) return T(1) / (T(1) + std::exp(-logit));
+  const T e = std::exp(logit);
+  return e / (T(1) + e);
+}
+
+// Peak intensity a = sigmoid(intensity_logit).
+template <std::floating_point T = double>
+[[nodiscard]] inline T intensity(const GaussianParams& g) {
+  return sigmoid(static_cast<T>(g.intensity_logit));
+}
+
+// Standard deviations along the Gaussian's own axes, s = exp(log_scale), world units.
+template <std::floating_point T = double>
+[[nodiscard]] inline Eigen::Matrix<T, 3, 1> scales(const GaussianParams& g) {
+  return {std::exp(static_cast<T>(g.log_scale[0])), std::exp(static_cast<T>(g.log_scale[1])),
+          std::exp(static_cast<T>(g.log_scale[2]))};
+}
+
+// q / |q| as (w, x, y, z). Throws std::invalid_argument for q = 0 (which a
+// checkpoint can never hold) or a non-finite q.
+template <std::floating_point T = double>
+[[nodiscard]] inline Eigen::Matrix<T, 4, 1> normalized_quaternion(const Eigen::Matrix<T, 4, 1>& q_wxyz) {
+  const T norm = q_wxyz.norm();
+  if (!(norm > T(0)) || !std::isfinite(norm)) {
+    throw std::invalid_argument("quaternion (w, x, y, z) has no direction: its norm is zero or not finite");
+  }
+  return q_wxyz / norm;
+}
+template <std::floating_point T = double>
+[[nodiscard]] inline Eigen::Matrix<T, 4, 1> normalized_quaternion(const GaussianParams& g) {
+  return normalized_quaternion<T>(Eigen::Matrix<T, 4, 1>(g.rotation[0], g.rotation[1], g.rotation[2],
+                                                         g.rotation[3]));
+}
+
+// R(q) for q = (w, x, y, z), normalized here first (throws like
+// normalized_quaternion). Columns are the Gaussian's axes in world coordinates.
+template <std::floating_point T = double>
+[[nodiscard]] inline Eigen::Matrix<T, 3, 3> rotation_matrix(const Eigen::Matrix<T, 4, 1>& q_wxyz) {
+  const Eigen::Matrix<T, 4, 1> q = normalized_quaternion<T>(q_wxyz);
+  const T w = q[0], x = q[1], y = q[2], z = q[3];
+  Eigen::Matrix<T, 3, 3> r;
+  r << T(1) - T(2) * (y * y + z * z), T(2) * (x * y - w * z), T(2) * (x * z + w * y),  //
+      T(2) * (x * y + w * z), T(1) - T(2) * (x * x + z * z), T(2) * (y * z - w * x),   //
+      T(2) * (x * z - w * y), T(2) * (y * z + w * x), T(1) - T(2) * (x * x + y * y);
+  return r;
+}
+template <std::floating_point T = double>
+[[nodiscard]] inline Eigen::Matrix<T, 3, 3> rotation_matrix(const GaussianParams& g) {
+  return rotation_matrix<T>(Eigen::Matrix<T, 4, 1>(g.rotation[0], g.rotation[1], g.rotation[2], g.rotation[3]));
+}
+
+// Σ = R(q) diag(s²) R(q)ᵀ = M Mᵀ with M = R diag(s), world units². Positive
+// definite for finite parameters and exactly symmetric (the upper triangle is
+// computed and mirrored, so Σ_ij and Σ_ji never differ in the last bit).
+template <std::floating_point T = double>
+[[nodiscard]] inline Eigen::Matrix<T, 3, 3> covariance(const GaussianParams& g) {
+  const Eigen::Matrix<T, 3, 3> m = rotation_matrix<T>(g) * scales<T>(g).asDiagonal();
+  Eigen::Matrix<T, 3, 3> sigma;
+  for (int i = 0; i < 3; ++i) {
+    for (int j = i; j < 3; ++j) sigma(i, j) = sigma(j, i) = m.row(i).dot(m.row(j));
+  }
+  return sigma;
+}
+
+// f(x) = Σ_k a_k exp(-½ (x-μ_k)ᵀ Σ_k⁻¹ (x-μ_k)) at world point x (report Eq. 1),
+// brute force over all K Gaussians in double precision. The reference the fast
+// evaluators are tested against; O(K) per call. 0 for an empty mixture.
+// Throws std::invalid_argument if a Gaussian has a zero quaternion.
+[[nodiscard]] double evaluate_mixture(const GaussianMixture& mixture, const Eigen::Vector3d& x_world);
+
+// ----- summary statistics (`hisnegs info`) -----
+
+struct ParamRange {
+  double min = 0.0;
+  double max = 0.0;
+  double mean = 0.0;
+};
+
+// All fields are 0 for an empty mixture.
+struct MixtureStats {
+  std::size_t count = 0;
+  // Raw stored values, one entry per parameter in kGaussianParamNames order
+  // (so scale_i are log-scales and rot_i unnormalized quaternion components).
+  std::array<ParamRange, kGaussianParamCount> params{};
+  std::array<double, 3> mean_scale{};  // mean of s = exp(log_scale) per axis, world units
+  double intensity_min = 0.0;          // min of a = sigmoid(intensity_logit)
+  double intensity_max = 0.0;
+  double intensity_mean = 0.0;
+};
+
+[[nodiscard]] MixtureStats compute_stats(const GaussianMixture& mixture);
+
+}  // namespace hisnegs::gmf

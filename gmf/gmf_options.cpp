@@ -1,0 +1,20 @@
+// GmfOptions::validate.
+#include "gmf/gmf_options.hpp"
+
+namespace hisnegs::gmf {
+
+void GmfOptions::validate() const {
+  constexpr const char* s = "gmf";
+  io::require_in_range(s, "gaussians", gaussians, 1, 1e7);
+  io::require_positive(s, "time_budget_s", time_budget_s);
+  io::require_in_range(s, "rounds", rounds, 1, 1000);
+  io::require_in_range(s, "iterations_per_round", iterations_per_round, 1, 100000);
+  io::require_positive(s, "mahalanobis_cutoff", mahalanobis_cutoff);
+  io::require_in_range(s, "prune_intensity", prune_intensity, 0.0, 0.999999);
+  io::require_in_range(s, "split_scale", split_scale, 1e-6, 0.999999);
+  io::require_in_range(s, "split_offset", split_offset, 0.0, 2.0);
+  io::require_in_range(s, "background_weight", background_weight, 0.0, 1e9);
+  io::require_positive(s, "adam_learning_rate", adam_learning_rate);
+}
+
+}  // namespace hisnegs::gmf

@@ -1,0 +1,51 @@
+// Options of the GMF stage (config section `gmf`): budget, optimizer choice,
+// stopping, density control. Consumed by the Ceres fit (gmf/fit.*).
+#pragma once
+
+#include <cstdint>
+#include <string>
+
+#include "io/config.hpp"
+
+namespace hisnegs::gmf {
+
+enum class Optimizer { kLevenbergMarquardt, kLevenbergMarquardtCgnr, kDogleg, kLbfgs, kAdam };
+
+struct GmfOptions {
+  int gaussians = 20000;                          // Gaussian budget K for init and density control, [1, 10^7]
+  Optimizer optimizer = Optimizer::kLevenbergMarquardt;  // lm | lm-cgnr | dogleg | lbfgs | adam
+  double time_budget_s = 300.0;                   // wall-clock limit of the whole fit, seconds, > 0
+  int rounds = 6;                                 // density-control rounds (solve, split/clone/prune), [1, 1000]
+  int iterations_per_round = 25;                  // solver iterations per round, [1, 100000]
+  double mahalanobis_cutoff = 16.0;               // δ: support of a Gaussian is dᵀΣ⁻¹d <= δ (4σ), > 0
+  double prune_intensity = 0.01;                  // prune Gaussians with a_k below this, [0, 1)
+  double split_scale = 0.8;                       // Eq. 17: s_new = split_scale * s_old, (0, 1)
+  double split_offset = 0.5;                      // Eq. 17: mu_new = mu_old ± split_offset * s_old, [0, 2]
+  double background_weight = 1.0;                 // residual weight of background samples (x 1/fraction), >= 0
+  double adam_learning_rate = 0.01;               // Adam baseline step size, > 0
+  std::uint64_t seed = 0;                         // init jitter and sampling seed
+
+  void validate() const;  // throws InputError("gmf.FIELD = VALUE: rule")
+  template <class V>
+  void visit(V&& v) {
+    v("gaussians", gaussians);
+    v("optimizer", optimizer,
+      io::EnumNames<Optimizer>{{"lm", Optimizer::kLevenbergMarquardt},
+                               {"lm-cgnr", Optimizer::kLevenbergMarquardtCgnr},
+                               {"dogleg", Optimizer::kDogleg},
+                               {"lbfgs", Optimizer::kLbfgs},
+                               {"adam", Optimizer::kAdam}});
+    v("time_budget_s", time_budget_s);
+    v("rounds", rounds);
+    v("iterations_per_round", iterations_per_round);
+    v("mahalanobis_cutoff", mahalanobis_cutoff);
+    v("prune_intensity", prune_intensity);
+    v("split_scale", split_scale);
+    v("split_offset", split_offset);
+    v("background_weight", background_weight);
+    v("adam_learning_rate", adam_learning_rate);
+    v("seed", seed);
+  }
+};
+
+}  // namespace hisnegs::gmf

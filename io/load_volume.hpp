@@ -1,0 +1,45 @@
+// From a TIFF path to a normalized, aspect-corrected volume in one call, driven
+// by the `volume` config section. Composes tiff_stack and volume; adds no math.
+#pragma once
+
+#include <filesystem>
+#include <vector>
+
+#include "io/config.hpp"
+#include "io/volume.hpp"
+
+namespace hisnegs::io {
+
+// Config section `volume`.
+struct VolumeOptions {
+  NormalizationOptions normalization;           // method: minmax | percentile, percentile_lo/hi in %
+  AspectMode aspect = AspectMode::kPhysical;    // physical | shape (report Eq. 9)
+  std::vector<double> spacing_um;               // [] = from the file; else [sx, sy, sz] µm, each > 0
+  int channel = -1;                             // channel of multi-channel files, -1 = none (error if needed)
+  double foreground_threshold = 0.2;            // relative level for the "foreground fraction" statistic, (0, 1)
+
+  void validate() const;  // throws InputError("volume.FIELD = VALUE: rule")
+  template <class V>
+  void visit(V&& v) {
+    v("normalization", normalization.method,
+      EnumNames<NormalizationMethod>{{"minmax", NormalizationMethod::kMinMax},
+                                     {"percentile", NormalizationMethod::kPercentile}});
+    v("percentile_lo", normalization.percentile_lo);
+    v("percentile_hi", normalization.percentile_hi);
+    v("aspect", aspect, EnumNames<AspectMode>{{"physical", AspectMode::kPhysical}, {"shape", AspectMode::kShape}});
+    v("spacing_um", spacing_um);
+    v("channel", channel);
+    v("foreground_threshold", foreground_threshold);
+  }
+};
+
+struct LoadedVolume {
+  Volume volume;     // normalized to [0, 1]
+  WorldFrame frame;  // CONVENTIONS index <-> world map with the aspect scales
+};
+
+// Reads the TIFF stack at `path`, normalizes it and computes its world frame.
+// Throws InputError naming the file for any bad input.
+LoadedVolume load_volume(const std::filesystem::path& path, const VolumeOptions& options);
+
+}  // namespace hisnegs::io

@@ -1,0 +1,93 @@
+// Sparse OpenVDB form of a normalized volume: a `volume` FloatGrid holding the
+// foreground (voxels above a threshold) dilated by a band, an optional
+// `background` grid with a random subsample of the rest, the CONVENTIONS
+// index->world transform, and .vdb read/write with metadata. OpenVDB itself is
+// hidden here (see io/detail/vdb_grids.hpp for code that needs the grids).
+#pragma once
+
+#include <Eigen/Core>
+#include <array>
+#include <cstdint>
+#include <filesystem>
+#include <map>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "io/volume.hpp"
+
+namespace hisnegs::io {
+
+// How a volume becomes sparse (config section `sparse_grid`).
+struct SparseGridOptions {
+  double threshold = 0.05;           // normalized value above which a voxel is foreground, [0, 1)
+  int band_voxels = 2;               // dilation of the foreground, steps of the 26-neighbourhood, [0, 32]
+  double background_fraction = 0.0;  // share of the remaining voxels sampled into `background`, [0, 1]
+  std::uint64_t seed = 0;            // seed of the background subsample
+
+  void validate() const;  // throws InputError("sparse_grid.FIELD = VALUE: rule")
+  template <class V>
+  void visit(V&& v) {
+    v("threshold", threshold);
+    v("band_voxels", band_voxels);
+    v("background_fraction", background_fraction);
+    v("seed", seed);
+  }
+};
+
+// What a .vdb written by hisnegs records about its source volume.
+struct SparseGridMeta {
+  std::array<int, 3> shape_xyz{0, 0, 0};          // X, Y, Z of the source stack
+  std::array<double, 3> spacing_um{1.0, 1.0, 1.0};
+  Eigen::Vector3d aspect{1, 1, 1};                // world half-extents
+  Normalization normalization;
+  std::string source;
+  SparseGridOptions options;                      // how it was built
+};
+
+class SparseGrid {
+ public:
+  struct Impl;  // defined in io/detail/vdb_grids.hpp
+  SparseGrid();
+  explicit SparseGrid(std::shared_ptr<Impl> impl);
+
+  [[nodiscard]] std::int64_t active_voxels() const;      // in `volume` (foreground + band)
+  [[nodiscard]] std::int64_t background_voxels() const;  // in `background` (0 when not sampled)
+  [[nodiscard]] std::int64_t leaf_count() const;          // 8^3 leaves of `volume`
+  [[nodiscard]] std::size_t memory_bytes() const;         // both grids, as OpenVDB counts it
+  [[nodiscard]] const SparseGridMeta& meta() const;
+  [[nodiscard]] WorldFrame frame() const;                 // the CONVENTIONS frame of the source stack
+  // Value stored at integer voxel (x, y, z) of `volume` and whether it is active.
+  [[nodiscard]] float value(int x, int y, int z, bool* active = nullptr) const;
+
+  [[nodiscard]] const Impl& impl() const { return *impl_; }
+
+ private:
+  std::shared_ptr<Impl> impl_;
+};
+
+// Builds the sparse grids from a (normalized) volume. TBB-parallel over 8^3 bricks.
+// Throws InputError if options are invalid.
+SparseGrid build_sparse_grid(const Volume& volume, const Eigen::Vector3d& aspect, const SparseGridOptions& options);
+
+// Writes `volume` (+ `background`) grids with metadata, atomically.
+void write_vdb(const std::filesystem::path& path, const SparseGrid& grid);
+// Reads a .vdb written by write_vdb. Throws InputError naming the file if it is not
+// a VDB, lacks a float grid named `volume`, or its metadata are missing/invalid.
+SparseGrid read_vdb(const std::filesystem::path& path);
+
+// A look at any .vdb (not only hisnegs'): one entry per grid.
+struct VdbGridSummary {
+  std::string name;
+  std::string value_type;
+  std::string grid_class;
+  std::int64_t active_voxels = 0;
+  std::int64_t leaf_count = 0;
+  std::size_t memory_bytes = 0;
+  std::array<int, 3> bbox_min{0, 0, 0}, bbox_max{0, 0, 0};  // active index bounding box
+  std::array<double, 3> voxel_size{1, 1, 1};                // world units
+  std::map<std::string, std::string> metadata;
+};
+std::vector<VdbGridSummary> inspect_vdb(const std::filesystem::path& path);
+
+}  // namespace hisnegs::io

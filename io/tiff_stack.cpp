@@ -1,0 +1,793 @@
+// TIFF stack reading, inspection and writing on libtiff: page layout, decoding into float32, atomic writes.
+// Metadata text parsing and the spacing precedence live in detail/tiff_metadata.cpp; normalization in volume.cpp.
+#include "io/tiff_stack.hpp"
+
+#include <fcntl.h>
+#include <tiffio.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <cmath>
+#include <cstdarg>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <fstream>
+#include <limits>
+#include <memory>
+#include <mutex>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "io/atomic_file.hpp"
+#include "io/detail/tiff_metadata.hpp"
+#include "io/error.hpp"
+
+namespace hisnegs::io {
+namespace fs = std::filesystem;
+
+namespace {
+
+constexpr double kGiB = 1024.0 * 1024.0 * 1024.0;
+
+// ---------------------------------------------------------------------------
+// libtiff diagnostics: never printed, the last error is appended to our message.
+
+struct TiffMessages {
+  std::string last_error;
+  std::string last_warning;
+  int errors = 0;
+};
+
+// The TiffMessages of the handle this thread is working with, for the few
+// libtiff diagnostics that are not tied to a handle (they use the global handler).
+thread_local TiffMessages* t_active_messages = nullptr;
+
+std::string format_message(const char* module, const char* fmt, va_list ap) {
+  char text[512];
+  std::vsnprintf(text, sizeof text, fmt, ap);
+  std::string out = module && *module ? std::string(module) + ": " + text : std::string(text);
+  for (char& c : out) {
+    if (c == '\n' || c == '\r') c = ' ';
+  }
+  return out;
+}
+
+int on_tiff_error(TIFF*, void* user, const char* module, const char* fmt, va_list ap) {
+  auto* m = static_cast<TiffMessages*>(user);
+  m->last_error = format_message(module, fmt, ap);
+  ++m->errors;
+  return 1;  // handled: do not call the global (stderr) handlers
+}
+
+int on_tiff_warning(TIFF*, void* user, const char* module, const char* fmt, va_list ap) {
+  static_cast<TiffMessages*>(user)->last_warning = format_message(module, fmt, ap);
+  return 1;
+}
+
+TIFFErrorHandler g_previous_error_handler = nullptr;
+TIFFErrorHandler g_previous_warning_handler = nullptr;
+
+void on_global_error(const char* module, const char* fmt, va_list ap) {
+  if (t_active_messages) {
+    t_active_messages->last_error = format_message(module, fmt, ap);
+    ++t_active_messages->errors;
+  } else if (g_previous_error_handler) {
+    g_previous_error_handler(module, fmt, ap);
+  }
+}
+
+void on_global_warning(const char* module, const char* fmt, va_list ap) {
+  if (t_active_messages) {
+    t_active_messages->last_warning = format_message(module, fmt, ap);
+  } else if (g_previous_warning_handler) {
+    g_previous_warning_handler(module, fmt, ap);
+  }
+}
+
+// Global handlers catch handle-less diagnostics while one of our handles is
+// active on this thread and forward everything else to the previous handlers.
+void install_global_handlers() {
+  static std::once_flag once;
+  std::call_once(once, [] {
+    g_previous_error_handler = TIFFSetErrorHandler(on_global_error);
+    g_previous_warning_handler = TIFFSetWarningHandler(on_global_warning);
+  });
+}
+
+// An open TIFF with its diagnostics. Not movable: libtiff holds &messages_.
+class TiffHandle {
+ public:
+  // Takes ownership of `fd`. `mode` is "r", "w" or "w8"; `name` is for messages.
+  TiffHandle(int fd, const fs::path& name, const char* mode, double max_single_alloc_bytes)
+      : name_(name.string()), previous_active_(t_active_messages) {
+    install_global_handlers();
+    t_active_messages = &messages_;
+    TIFFOpenOptions* opts = TIFFOpenOptionsAlloc();
+    TIFFOpenOptionsSetErrorHandlerExtR(opts, on_tiff_error, &messages_);
+    TIFFOpenOptionsSetWarningHandlerExtR(opts, on_tiff_warning, &messages_);
+    if (max_single_alloc_bytes > 0 && max_single_alloc_bytes < 9e18) {
+      TIFFOpenOptionsSetMaxSingleMemAlloc(opts, static_cast<tmsize_t>(max_single_alloc_bytes));
+    }
+    tif_ = TIFFFdOpenExt(fd, name.c_str(), mode, opts);
+    TIFFOpenOptionsFree(opts);
+    if (!tif_) ::close(fd);
+  }
+  ~TiffHandle() {
+    close();
+    t_active_messages = previous_active_;
+  }
+  TiffHandle(const TiffHandle&) = delete;
+  TiffHandle& operator=(const TiffHandle&) = delete;
+
+  [[nodiscard]] TIFF* get() const { return tif_; }
+  void close() {
+    if (tif_) TIFFClose(tif_);
+    tif_ = nullptr;
+  }
+  [[nodiscard]] const TiffMessages& messages() const { return messages_; }
+  // " (libtiff: ...)" with the last error (or warning), or "".
+  [[nodiscard]] std::string detail() const {
+    std::string text = messages_.last_error.empty() ? messages_.last_warning : messages_.last_error;
+    if (text.starts_with(name_ + ": ")) text.erase(0, name_.size() + 2);  // our message names the file already
+    return text.empty() ? std::string() : " (libtiff: " + text + ")";
+  }
+
+ private:
+  TIFF* tif_ = nullptr;
+  std::string name_;
+  TiffMessages messages_;
+  TiffMessages* previous_active_;
+};
+
+// ---------------------------------------------------------------------------
+// Memory limit for hostile headers.
+
+// Bytes a read may allocate: HISNEGS_MAX_ALLOC_GB (GiB) if set, else MemAvailable.
+double allocation_limit_bytes(std::string* what) {
+  if (const char* env = std::getenv("HISNEGS_MAX_ALLOC_GB"); env && *env) {
+    const std::optional<double> gib = detail::parse_double(env);
+    if (!gib || !std::isfinite(*gib) || *gib <= 0) {
+      throw InputError(std::string("HISNEGS_MAX_ALLOC_GB=") + env + " is not a positive number of GiB");
+    }
+    *what = "HISNEGS_MAX_ALLOC_GB";
+    return *gib * kGiB;
+  }
+  std::ifstream meminfo("/proc/meminfo");
+  std::string key;
+  double kb = 0;
+  std::string unit;
+  while (meminfo >> key >> kb >> unit) {
+    if (key == "MemAvailable:") {
+      *what = "MemAvailable; set HISNEGS_MAX_ALLOC_GB to change it";
+      return kb * 1024.0;
+    }
+  }
+  *what = "unknown";
+  return std::numeric_limits<double>::infinity();
+}
+
+std::string gib_text(double bytes) {
+  char text[64];
+  std::snprintf(text, sizeof text, "%.2f GiB", bytes / kGiB);
+  return text;
+}
+
+void check_allocation(const fs::path& path, double bytes, const std::string& what) {
+  std::string limit_source;
+  const double limit = allocation_limit_bytes(&limit_source);
+  if (bytes > limit) {
+    fail_input(path, "would need " + gib_text(bytes) + " for " + what + " but the limit is " +
+                         gib_text(limit) + " (" + limit_source + ")");
+  }
+}
+
+// ---------------------------------------------------------------------------
+// Page format.
+
+struct PageFormat {
+  std::uint32_t width = 0, height = 0;
+  std::uint16_t bits = 0, sample_format = SAMPLEFORMAT_UINT, samples = 1;
+  std::uint16_t photometric = PHOTOMETRIC_MINISBLACK;
+  bool operator==(const PageFormat&) const = default;
+};
+
+PageFormat read_page_format(TIFF* tif) {
+  PageFormat f;
+  TIFFGetField(tif, TIFFTAG_IMAGEWIDTH, &f.width);
+  TIFFGetField(tif, TIFFTAG_IMAGELENGTH, &f.height);
+  TIFFGetFieldDefaulted(tif, TIFFTAG_BITSPERSAMPLE, &f.bits);
+  TIFFGetFieldDefaulted(tif, TIFFTAG_SAMPLEFORMAT, &f.sample_format);
+  TIFFGetFieldDefaulted(tif, TIFFTAG_SAMPLESPERPIXEL, &f.samples);
+  if (!TIFFGetField(tif, TIFFTAG_PHOTOMETRIC, &f.photometric)) f.photometric = PHOTOMETRIC_MINISBLACK;
+  return f;
+}
+
+std::string sample_format_text(const PageFormat& f) {
+  const std::string bits = std::to_string(f.bits) + "-bit ";
+  switch (f.sample_format) {
+    case SAMPLEFORMAT_UINT:
+    case SAMPLEFORMAT_VOID: return bits + "unsigned integer";
+    case SAMPLEFORMAT_INT: return bits + "signed integer";
+    case SAMPLEFORMAT_IEEEFP: return bits + "float";
+    case SAMPLEFORMAT_COMPLEXINT: return bits + "complex integer";
+    case SAMPLEFORMAT_COMPLEXIEEEFP: return bits + "complex float";
+    default: return bits + "sample format " + std::to_string(f.sample_format);
+  }
+}
+
+std::string format_text(const PageFormat& f) {
+  return std::to_string(f.width) + "x" + std::to_string(f.height) + " " + sample_format_text(f) +
+         (f.samples > 1 ? " x" + std::to_string(f.samples) + " samples" : "");
+}
+
+SampleType sample_type_of(const fs::path& path, const PageFormat& f) {
+  const bool unsigned_int = f.sample_format == SAMPLEFORMAT_UINT || f.sample_format == SAMPLEFORMAT_VOID;
+  if (unsigned_int && f.bits == 8) return SampleType::kUint8;
+  if (unsigned_int && f.bits == 16) return SampleType::kUint16;
+  if (f.sample_format == SAMPLEFORMAT_IEEEFP && f.bits == 32) return SampleType::kFloat32;
+  fail_input(path, "unsupported sample format: " + sample_format_text(f) +
+                       "; expected 8/16-bit unsigned or 32-bit float");
+}
+
+void check_photometric(const fs::path& path, std::uint16_t photometric) {
+  switch (photometric) {
+    case PHOTOMETRIC_MINISBLACK:
+    case PHOTOMETRIC_RGB: return;
+    case PHOTOMETRIC_MINISWHITE: fail_input(path, "unsupported photometric interpretation: min-is-white (inverted grey)");
+    case PHOTOMETRIC_PALETTE: fail_input(path, "unsupported photometric interpretation: palette colour");
+    case PHOTOMETRIC_YCBCR: fail_input(path, "unsupported photometric interpretation: YCbCr");
+    case PHOTOMETRIC_SEPARATED: fail_input(path, "unsupported photometric interpretation: separated (CMYK)");
+    default:
+      fail_input(path, "unsupported photometric interpretation " + std::to_string(photometric) +
+                           "; expected min-is-black grey or RGB");
+  }
+}
+
+std::size_t bytes_of(SampleType type) {
+  switch (type) {
+    case SampleType::kUint8: return 1;
+    case SampleType::kUint16: return 2;
+    case SampleType::kFloat32: return 4;
+  }
+  return 4;
+}
+
+std::string compression_name(std::uint16_t compression) {
+  if (const TIFFCodec* codec = TIFFFindCODEC(compression)) return codec->name;
+  return "compression " + std::to_string(compression);
+}
+
+// ---------------------------------------------------------------------------
+// Stack layout: which page holds (z, channel), from ImageJ / OME-XML / nothing.
+
+struct StackLayout {
+  PageFormat format;
+  SampleType type = SampleType::kUint8;
+  int pages = 0;          // IFDs in the file
+  int page_channels = 1;  // channels stored as separate pages
+  int nz = 0;
+  int stride_z = 1;       // page = z * stride_z + page_channel * stride_c
+  int stride_c = 0;
+  VoxelSpacing spacing;
+  std::string compression;
+  bool tiled = false;
+  bool bigtiff = false;
+  [[nodiscard]] int channels() const { return format.samples * page_channels; }
+};
+
+// Reads the header of the current (first) directory. Checks everything that
+// inspect and read share; `options.channel` is only range-checked here.
+StackLayout analyse_stack(TIFF* tif, const TiffHandle& handle, const fs::path& path,
+                          const TiffReadOptions& options) {
+  StackLayout s;
+  const tdir_t pages = TIFFNumberOfDirectories(tif);
+  // A broken IFD chain (a truncated file) ends the count early with an error:
+  // never read a prefix of the stack as if it were all of it.
+  if (handle.messages().errors > 0) fail_input(path, "is truncated or damaged" + handle.detail());
+  if (pages == 0) fail_input(path, "has no readable pages" + handle.detail());
+  if (pages > static_cast<tdir_t>(std::numeric_limits<int>::max())) fail_input(path, "has too many pages");
+  s.pages = static_cast<int>(pages);
+  s.format = read_page_format(tif);
+  if (s.format.width == 0 || s.format.height == 0) {
+    fail_input(path, "has an empty first page (" + std::to_string(s.format.width) + "x" +
+                         std::to_string(s.format.height) + ")");
+  }
+  if (s.format.width > static_cast<std::uint32_t>(std::numeric_limits<int>::max()) ||
+      s.format.height > static_cast<std::uint32_t>(std::numeric_limits<int>::max())) {
+    fail_input(path, "has a page too large to index (" + std::to_string(s.format.width) + "x" +
+                         std::to_string(s.format.height) + ")");
+  }
+  s.type = sample_type_of(path, s.format);
+  check_photometric(path, s.format.photometric);
+  if (s.format.samples == 0) fail_input(path, "has SamplesPerPixel = 0");
+  std::uint32_t depth = 1;
+  if (TIFFGetField(tif, TIFFTAG_IMAGEDEPTH, &depth) && depth > 1) {
+    fail_input(path, "has volumetric tiles (ImageDepth = " + std::to_string(depth) + "), which are not supported");
+  }
+  std::uint16_t compression = COMPRESSION_NONE;
+  TIFFGetFieldDefaulted(tif, TIFFTAG_COMPRESSION, &compression);
+  s.compression = compression_name(compression);
+  s.tiled = TIFFIsTiled(tif) != 0;
+  s.bigtiff = TIFFIsBigTIFF(tif) != 0;
+
+  // Metadata text: OME-XML or ImageJ in the first page's ImageDescription.
+  std::optional<detail::OmePixels> ome;
+  std::optional<detail::ImageJDescription> imagej;
+  const char* description = nullptr;
+  if (TIFFGetField(tif, TIFFTAG_IMAGEDESCRIPTION, &description) && description) {
+    const std::string_view text(description);
+    try {
+      if (detail::is_ome_xml(text)) {
+        ome = detail::parse_ome_pixels(text);
+      } else if (detail::is_imagej_description(text)) {
+        imagej = detail::parse_imagej_description(text);
+      }
+    } catch (const InputError& e) {
+      fail_input(path, e.what());
+    }
+  }
+
+  // Page order. C, Z, T counts as long long: hostile descriptions must not overflow.
+  const long long samples = s.format.samples;
+  long long c_pages = 1, nz = s.pages, nt = 1;
+  if (ome) {
+    if (static_cast<std::uint32_t>(ome->size_x) != s.format.width ||
+        static_cast<std::uint32_t>(ome->size_y) != s.format.height) {
+      fail_input(path, "OME-XML SizeX x SizeY = " + std::to_string(ome->size_x) + "x" +
+                           std::to_string(ome->size_y) + " does not match the first page (" +
+                           std::to_string(s.format.width) + "x" + std::to_string(s.format.height) + ")");
+    }
+    // OME counts RGB samples in SizeC; such channels share a page.
+    c_pages = (samples > 1 && ome->size_c % samples == 0) ? ome->size_c / samples : ome->size_c;
+    nz = ome->size_z;
+    nt = ome->size_time;
+    const long long planes = c_pages * nz * nt;
+    if (planes > s.pages) {
+      fail_input(path, "OME-XML describes " + std::to_string(planes) + " planes (SizeZ=" + std::to_string(nz) +
+                           ", SizeC=" + std::to_string(ome->size_c) + ", SizeT=" + std::to_string(nt) +
+                           ") but the file has " + std::to_string(s.pages) + " pages");
+    }
+    // Strides: the letters after "XY" are ordered fastest first.
+    long long stride = 1, stride_z = 1, stride_c = 1;
+    for (char axis : ome->dimension_order.substr(2)) {
+      if (axis == 'Z') stride_z = stride, stride *= nz;
+      if (axis == 'C') stride_c = stride, stride *= c_pages;
+      if (axis == 'T') stride *= nt;
+    }
+    s.stride_z = static_cast<int>(stride_z);
+    s.stride_c = static_cast<int>(stride_c);
+  } else if (imagej) {
+    c_pages = imagej->channels.value_or(1);
+    nt = imagej->frames.value_or(1);
+    const long long images = imagej->images.value_or(s.pages);
+    if (imagej->slices) {
+      nz = *imagej->slices;
+    } else if (images % (c_pages * nt) == 0) {
+      nz = images / (c_pages * nt);
+    } else {
+      nz = 0;  // reported as a mismatch below
+    }
+    if (c_pages * nz * nt != images) {
+      fail_input(path, "ImageJ description: channels=" + std::to_string(c_pages) + " x slices=" +
+                           std::to_string(nz) + " x frames=" + std::to_string(nt) +
+                           " does not equal images=" + std::to_string(images));
+    }
+    if (images != s.pages) {
+      fail_input(path, "ImageJ description says images=" + std::to_string(images) + " but the file has " +
+                           std::to_string(s.pages) + " pages" +
+                           (s.pages == 1 ? " (ImageJ's contiguous layout for files over 4 GiB is not "
+                                           "supported; save as BigTIFF or OME-TIFF)"
+                                         : ""));
+    }
+    // Hyperstack order XYCZT: page = (t * Z + z) * C + c.
+    s.stride_c = 1;
+    s.stride_z = static_cast<int>(c_pages);
+  }
+  if (nt > 1) {
+    fail_input(path, "has " + std::to_string(nt) + " time points (" + (ome ? "OME SizeT" : "ImageJ frames") +
+                         "=" + std::to_string(nt) + "); expected a single 3D stack");
+  }
+  if (c_pages * samples > std::numeric_limits<int>::max()) fail_input(path, "has too many channels");
+  s.page_channels = static_cast<int>(c_pages);
+  s.nz = static_cast<int>(nz);
+  if (options.channel && *options.channel >= s.channels()) {
+    fail_input(path, "channel " + std::to_string(*options.channel) + " is out of range: the file has " +
+                         std::to_string(s.channels()) + " channel" + (s.channels() > 1 ? "s" : "") +
+                         " (0.." + std::to_string(s.channels() - 1) + ")");
+  }
+
+  detail::SpacingEvidence evidence;
+  evidence.user_um = options.spacing_um;
+  evidence.ome = ome ? &*ome : nullptr;
+  evidence.imagej = imagej ? &*imagej : nullptr;
+  float x_res = 0, y_res = 0;
+  std::uint16_t res_unit = RESUNIT_INCH;
+  if (TIFFGetField(tif, TIFFTAG_XRESOLUTION, &x_res)) evidence.x_resolution = x_res;
+  if (TIFFGetField(tif, TIFFTAG_YRESOLUTION, &y_res)) evidence.y_resolution = y_res;
+  if (TIFFGetField(tif, TIFFTAG_RESOLUTIONUNIT, &res_unit)) evidence.resolution_unit = res_unit;
+  try {
+    s.spacing = detail::resolve_spacing(evidence);
+  } catch (const InputError& e) {
+    fail_input(path, std::string(e.what()) + "; pass the spacing explicitly (--spacing) to override");
+  }
+  return s;
+}
+
+// Opens `path` for reading after the file checks; throws InputError if libtiff refuses it.
+std::unique_ptr<TiffHandle> open_for_read(const fs::path& path) {
+  require_regular_file(path);
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) fail_input(path, std::string("cannot open: ") + std::strerror(errno));
+  std::string limit_source;
+  auto handle = std::make_unique<TiffHandle>(fd, path, "r", allocation_limit_bytes(&limit_source));
+  if (!handle->get()) fail_input(path, "is not a readable TIFF file" + handle->detail());
+  return handle;
+}
+
+// ---------------------------------------------------------------------------
+// Decoding.
+
+// dst[i] = src[(i * stride + offset)] for i < count; memcpy keeps it alias-safe
+// and unaligned-safe, and compiles to plain loads.
+template <class T>
+void convert_samples(const unsigned char* src, std::size_t stride, std::size_t offset, float* dst,
+                     std::size_t count) {
+  src += offset * sizeof(T);
+  for (std::size_t i = 0; i < count; ++i) {
+    T v;
+    std::memcpy(&v, src + i * stride * sizeof(T), sizeof(T));
+    dst[i] = static_cast<float>(v);
+  }
+}
+
+void convert(SampleType type, const unsigned char* src, std::size_t stride, std::size_t offset, float* dst,
+             std::size_t count) {
+  switch (type) {
+    case SampleType::kUint8: convert_samples<std::uint8_t>(src, stride, offset, dst, count); break;
+    case SampleType::kUint16: convert_samples<std::uint16_t>(src, stride, offset, dst, count); break;
+    case SampleType::kFloat32: convert_samples<float>(src, stride, offset, dst, count); break;
+  }
+}
+
+// A growable byte buffer reused for every strip/tile of the whole read.
+class DecodeBuffer {
+ public:
+  unsigned char* reserve(const fs::path& path, double bytes) {
+    if (bytes > static_cast<double>(size_)) {
+      check_allocation(path, bytes, "one decoded strip or tile");
+      data_.reset(new unsigned char[static_cast<std::size_t>(bytes)]);
+      size_ = static_cast<std::size_t>(bytes);
+    }
+    return data_.get();
+  }
+
+ private:
+  std::unique_ptr<unsigned char[]> data_;
+  std::size_t size_ = 0;
+};
+
+// Decodes sample `sample` of the current directory (page `page`) into `dst` (ny*nx floats).
+void decode_page(TIFF* tif, const TiffHandle& handle, const fs::path& path, int page, const StackLayout& s,
+                 int sample, float* dst, DecodeBuffer& buffer) {
+  const std::size_t nx = s.format.width, ny = s.format.height;
+  const std::size_t bytes = bytes_of(s.type);
+  std::uint16_t compression = COMPRESSION_NONE;
+  TIFFGetFieldDefaulted(tif, TIFFTAG_COMPRESSION, &compression);
+  if (!TIFFIsCODECConfigured(compression)) {
+    fail_input(path, "page " + std::to_string(page) + " uses " + compression_name(compression) +
+                         " compression, which this libtiff build cannot decode");
+  }
+  std::uint16_t planar = PLANARCONFIG_CONTIG;
+  TIFFGetFieldDefaulted(tif, TIFFTAG_PLANARCONFIG, &planar);
+  const bool separate = planar == PLANARCONFIG_SEPARATE && s.format.samples > 1;
+  const auto plane = static_cast<std::uint16_t>(separate ? sample : 0);
+  const std::size_t stride = separate ? 1 : s.format.samples;  // samples per pixel in the buffer
+  const std::size_t offset = separate ? 0 : static_cast<std::size_t>(sample);
+  auto fail_read = [&](const std::string& what) {
+    fail_input(path, "cannot decode page " + std::to_string(page) + " " + what + handle.detail());
+  };
+
+  if (TIFFIsTiled(tif)) {
+    std::uint32_t tw = 0, th = 0;
+    TIFFGetField(tif, TIFFTAG_TILEWIDTH, &tw);
+    TIFFGetField(tif, TIFFTAG_TILELENGTH, &th);
+    if (tw == 0 || th == 0) fail_read("(tile size " + std::to_string(tw) + "x" + std::to_string(th) + ")");
+    const double need = static_cast<double>(tw) * th * stride * bytes;
+    unsigned char* buf = buffer.reserve(path, need);
+    const auto need_bytes = static_cast<tmsize_t>(need);
+    for (std::uint32_t ty = 0; ty < ny; ty += th) {
+      for (std::uint32_t tx = 0; tx < nx; tx += tw) {
+        const std::uint32_t tile = TIFFComputeTile(tif, tx, ty, 0, plane);
+        if (TIFFReadEncodedTile(tif, tile, buf, need_bytes) < need_bytes) {
+          fail_read("tile " + std::to_string(tile));
+        }
+        const std::size_t rows = std::min<std::size_t>(th, ny - ty);
+        const std::size_t cols = std::min<std::size_t>(tw, nx - tx);
+        for (std::size_t r = 0; r < rows; ++r) {
+          convert(s.type, buf + r * tw * stride * bytes, stride, offset, dst + (ty + r) * nx + tx, cols);
+        }
+      }
+    }
+    return;
+  }
+
+  std::uint32_t rows_per_strip = 0;
+  TIFFGetFieldDefaulted(tif, TIFFTAG_ROWSPERSTRIP, &rows_per_strip);
+  if (rows_per_strip == 0 || rows_per_strip > ny) rows_per_strip = static_cast<std::uint32_t>(ny);
+  unsigned char* buf = buffer.reserve(path, static_cast<double>(rows_per_strip) * nx * stride * bytes);
+  for (std::uint32_t row = 0; row < ny; row += rows_per_strip) {
+    const std::size_t rows = std::min<std::size_t>(rows_per_strip, ny - row);
+    const auto need = static_cast<tmsize_t>(rows * nx * stride * bytes);
+    const std::uint32_t strip = TIFFComputeStrip(tif, row, plane);
+    if (TIFFReadEncodedStrip(tif, strip, buf, need) < need) fail_read("strip " + std::to_string(strip));
+    convert(s.type, buf, stride, offset, dst + row * nx, rows * nx);
+  }
+}
+
+const char* non_finite_text(float v) { return std::isnan(v) ? "NaN" : (v > 0 ? "+Inf" : "-Inf"); }
+
+}  // namespace
+
+// ---------------------------------------------------------------------------
+// Public API.
+
+void TiffReadOptions::validate() const {
+  if (channel && *channel < 0) {
+    throw InputError("channel = " + std::to_string(*channel) + " is invalid: must be >= 0");
+  }
+  if (spacing_um) {
+    static const char* const kAxis[3] = {"x", "y", "z"};
+    for (int a = 0; a < 3; ++a) {
+      const double v = (*spacing_um)[static_cast<std::size_t>(a)];
+      if (!std::isfinite(v) || v <= 0) {
+        throw InputError("spacing_um " + std::string(kAxis[a]) + " = " + std::to_string(v) +
+                         " is invalid: must be finite and > 0 (µm)");
+      }
+    }
+  }
+}
+
+void TiffWriteOptions::validate() const {
+  TiffReadOptions spacing_check;
+  spacing_check.spacing_um = spacing_um;
+  spacing_check.validate();
+}
+
+TiffStackInfo inspect_tiff_stack(const fs::path& path, const TiffReadOptions& options) {
+  options.validate();
+  const std::unique_ptr<TiffHandle> handle = open_for_read(path);
+  const StackLayout s = analyse_stack(handle->get(), *handle, path, options);
+  TiffStackInfo info;
+  info.nx = static_cast<int>(s.format.width);
+  info.ny = static_cast<int>(s.format.height);
+  info.nz = s.nz;
+  info.channels = s.channels();
+  info.type = s.type;
+  info.spacing = s.spacing;
+  info.compression = s.compression;
+  info.tiled = s.tiled;
+  info.bigtiff = s.bigtiff;
+  info.pages = s.pages;
+  return info;
+}
+
+Volume read_tiff_stack(const fs::path& path, const TiffReadOptions& options) {
+  options.validate();
+  const std::unique_ptr<TiffHandle> handle = open_for_read(path);
+  TIFF* tif = handle->get();
+  const StackLayout s = analyse_stack(tif, *handle, path, options);
+
+  if (s.channels() > 1 && !options.channel) {
+    fail_input(path, "has " + std::to_string(s.channels()) + " channels; choose one with --channel (0.." +
+                         std::to_string(s.channels() - 1) + ")");
+  }
+  if (s.nz < 2) {
+    if (s.pages == 1) fail_input(path, "is a single 2D image (1 page); expected a 3D stack");
+    fail_input(path, "has a single Z slice (" + std::to_string(s.pages) + " pages, " +
+                         std::to_string(s.channels()) + " channels); expected a 3D stack");
+  }
+  const int channel = options.channel.value_or(0);
+  const int page_channel = channel / s.format.samples;
+  const int sample = channel % s.format.samples;
+
+  const int nx = static_cast<int>(s.format.width), ny = static_cast<int>(s.format.height);
+  check_allocation(path, 4.0 * nx * ny * s.nz,
+                   std::to_string(nx) + "x" + std::to_string(ny) + "x" + std::to_string(s.nz) + " float32 voxels");
+
+  // z of each page we need (-1: another channel).
+  std::vector<int> z_of_page(static_cast<std::size_t>(s.pages), -1);
+  int last_page = 0;
+  for (int z = 0; z < s.nz; ++z) {
+    const int page = z * s.stride_z + page_channel * s.stride_c;
+    z_of_page[static_cast<std::size_t>(page)] = z;
+    last_page = std::max(last_page, page);
+  }
+
+  Volume volume;
+  volume.nx = nx;
+  volume.ny = ny;
+  volume.nz = s.nz;
+  volume.stored_as = s.type;
+  volume.spacing = s.spacing;
+  volume.normalization = Normalization{};
+  volume.source = path.string();
+  volume.voxels.resize(volume.size());
+
+  DecodeBuffer buffer;
+  const std::size_t page_voxels = static_cast<std::size_t>(nx) * ny;
+  for (int page = 0; page <= last_page; ++page) {
+    if (page > 0 && (!TIFFReadDirectory(tif) || handle->messages().errors > 0)) {
+      fail_input(path, "cannot read page " + std::to_string(page) + " of " + std::to_string(s.pages) +
+                           handle->detail());
+    }
+    const PageFormat f = read_page_format(tif);
+    if (!(f == s.format)) {
+      fail_input(path, "page " + std::to_string(page) + " is " + format_text(f) + " but page 0 is " +
+                           format_text(s.format) + "; all pages must match");
+    }
+    const int z = z_of_page[static_cast<std::size_t>(page)];
+    if (z < 0) continue;
+    float* dst = volume.voxels.data() + static_cast<std::size_t>(z) * page_voxels;
+    decode_page(tif, *handle, path, page, s, sample, dst, buffer);
+    if (handle->messages().errors > 0) {
+      fail_input(path, "cannot decode page " + std::to_string(page) + handle->detail());
+    }
+    if (s.type == SampleType::kFloat32) {
+      const float* bad = std::find_if(dst, dst + page_voxels, [](float v) { return !std::isfinite(v); });
+      if (bad != dst + page_voxels) {
+        const auto i = static_cast<std::size_t>(bad - dst);
+        fail_input(path, "voxel (x=" + std::to_string(i % nx) + ", y=" + std::to_string(i / nx) +
+                             ", z=" + std::to_string(z) + ") is " + non_finite_text(*bad) +
+                             "; float stacks must be finite");
+      }
+    }
+  }
+  return volume;
+}
+
+namespace {
+
+// Checks that every value can be stored as `type` without change; throws
+// InputError naming the first voxel that cannot. Returns (min, max).
+std::pair<float, float> check_writable(const fs::path& path, std::span<const float> voxels, int nx, int ny,
+                                       SampleType type) {
+  const double hi = type == SampleType::kUint8 ? 255.0 : 65535.0;
+  float lo_seen = std::numeric_limits<float>::infinity(), hi_seen = -lo_seen;
+  for (std::size_t i = 0; i < voxels.size(); ++i) {
+    const float v = voxels[i];
+    std::string problem;
+    if (!std::isfinite(v)) {
+      problem = std::string(non_finite_text(v)) + "; TIFF stacks must hold finite values";
+    } else if (type != SampleType::kFloat32 && (v < 0 || v > hi || v != std::floor(v))) {
+      problem = std::to_string(v) + ", which does not fit " + std::string(to_string(type)) + " (integers 0.." +
+                std::to_string(static_cast<int>(hi)) + "); values are never clamped or rounded";
+    }
+    if (!problem.empty()) {
+      const std::size_t plane = static_cast<std::size_t>(nx) * ny;
+      fail_input(path, "voxel (x=" + std::to_string(i % nx) + ", y=" + std::to_string(i % plane / nx) +
+                           ", z=" + std::to_string(i / plane) + ") is " + problem);
+    }
+    lo_seen = std::min(lo_seen, v);
+    hi_seen = std::max(hi_seen, v);
+  }
+  return {lo_seen, hi_seen};
+}
+
+std::string number_text(double v, int digits) {
+  char text[64];
+  std::snprintf(text, sizeof text, "%.*g", digits, v);
+  return text;
+}
+
+template <class T>
+void pack_samples(const float* src, std::size_t count, unsigned char* dst) {
+  for (std::size_t i = 0; i < count; ++i) {
+    const T v = static_cast<T>(src[i]);
+    std::memcpy(dst + i * sizeof(T), &v, sizeof(T));
+  }
+}
+
+}  // namespace
+
+void write_tiff_stack(const fs::path& path, std::span<const float> voxels, int nx, int ny, int nz,
+                      const TiffWriteOptions& options) {
+  options.validate();
+  if (nx < 1 || ny < 1 || nz < 1) {
+    throw std::invalid_argument("write_tiff_stack: shape " + std::to_string(nx) + "x" + std::to_string(ny) + "x" +
+                                std::to_string(nz) + " must be at least 1x1x1");
+  }
+  const std::size_t page_voxels = static_cast<std::size_t>(nx) * ny;
+  if (voxels.size() != page_voxels * nz) {
+    throw std::invalid_argument("write_tiff_stack: " + std::to_string(voxels.size()) + " voxels for shape " +
+                                std::to_string(nx) + "x" + std::to_string(ny) + "x" + std::to_string(nz));
+  }
+  const auto [lo, hi] = check_writable(path, voxels, nx, ny, options.type);
+
+  const std::size_t bytes = bytes_of(options.type);
+  const std::size_t row_bytes = static_cast<std::size_t>(nx) * bytes;
+  // Classic TIFF offsets are 32-bit; leave room for IFDs and the description.
+  const bool bigtiff = static_cast<double>(voxels.size()) * bytes > 3.5 * kGiB;
+  // One strip per page unless a page exceeds ~8 MiB: bounded buffers, and
+  // ImageJ/tifffile read multi-strip pages just as well.
+  const std::size_t rows_per_strip =
+      std::clamp<std::size_t>((std::size_t{8} << 20) / row_bytes, 1, static_cast<std::size_t>(ny));
+
+  std::string description = "ImageJ=1.11a\nimages=" + std::to_string(nz) + "\nslices=" + std::to_string(nz) + "\n";
+  if (options.spacing_um) {
+    description += "unit=um\nspacing=" + number_text((*options.spacing_um)[2], 17) + "\n";
+  }
+  description += "min=" + number_text(lo, 9) + "\nmax=" + number_text(hi, 9) + "\n";
+
+  AtomicFile file(path);
+  const int fd = ::open(file.temp_path().c_str(), O_RDWR | O_CREAT | O_TRUNC | O_CLOEXEC, 0666);
+  if (fd < 0) fail_input(path, std::string("cannot open for writing: ") + std::strerror(errno));
+  TiffHandle handle(fd, path, bigtiff ? "w8" : "w", 0);
+  TIFF* tif = handle.get();
+  if (!tif) fail_input(path, "cannot create TIFF file" + handle.detail());
+  auto fail_write = [&](const std::string& what) {
+    throw std::runtime_error(describe(path, "cannot write " + what + handle.detail()));
+  };
+
+  std::vector<unsigned char> strip(rows_per_strip * row_bytes);
+  for (int z = 0; z < nz; ++z) {
+    TIFFSetField(tif, TIFFTAG_SUBFILETYPE, 0);
+    TIFFSetField(tif, TIFFTAG_IMAGEWIDTH, static_cast<std::uint32_t>(nx));
+    TIFFSetField(tif, TIFFTAG_IMAGELENGTH, static_cast<std::uint32_t>(ny));
+    TIFFSetField(tif, TIFFTAG_BITSPERSAMPLE, static_cast<std::uint16_t>(8 * bytes));
+    TIFFSetField(tif, TIFFTAG_SAMPLESPERPIXEL, static_cast<std::uint16_t>(1));
+    TIFFSetField(tif, TIFFTAG_SAMPLEFORMAT,
+                 options.type == SampleType::kFloat32 ? SAMPLEFORMAT_IEEEFP : SAMPLEFORMAT_UINT);
+    TIFFSetField(tif, TIFFTAG_PHOTOMETRIC, PHOTOMETRIC_MINISBLACK);
+    TIFFSetField(tif, TIFFTAG_PLANARCONFIG, PLANARCONFIG_CONTIG);
+    TIFFSetField(tif, TIFFTAG_ROWSPERSTRIP, static_cast<std::uint32_t>(rows_per_strip));
+    if (options.deflate) {
+      TIFFSetField(tif, TIFFTAG_COMPRESSION, COMPRESSION_ADOBE_DEFLATE);
+      // Horizontal differencing helps integer images a lot and every reader has
+      // it; the floating-point predictor is left out because ImageJ lacks it.
+      if (options.type != SampleType::kFloat32) TIFFSetField(tif, TIFFTAG_PREDICTOR, PREDICTOR_HORIZONTAL);
+    } else {
+      TIFFSetField(tif, TIFFTAG_COMPRESSION, COMPRESSION_NONE);
+    }
+    if (options.spacing_um) {
+      // ImageJ calibration: pixels per `unit`, ResolutionUnit none.
+      TIFFSetField(tif, TIFFTAG_XRESOLUTION, 1.0 / (*options.spacing_um)[0]);
+      TIFFSetField(tif, TIFFTAG_YRESOLUTION, 1.0 / (*options.spacing_um)[1]);
+      TIFFSetField(tif, TIFFTAG_RESOLUTIONUNIT, RESUNIT_NONE);
+    }
+    if (z == 0) TIFFSetField(tif, TIFFTAG_IMAGEDESCRIPTION, description.c_str());
+    TIFFSetField(tif, TIFFTAG_SOFTWARE, "hisnegs");
+
+    const float* page = voxels.data() + static_cast<std::size_t>(z) * page_voxels;
+    for (std::size_t row = 0, s = 0; row < static_cast<std::size_t>(ny); row += rows_per_strip, ++s) {
+      const std::size_t rows = std::min(rows_per_strip, static_cast<std::size_t>(ny) - row);
+      const std::size_t count = rows * static_cast<std::size_t>(nx);
+      const float* src = page + row * static_cast<std::size_t>(nx);
+      switch (options.type) {
+        case SampleType::kUint8: pack_samples<std::uint8_t>(src, count, strip.data()); break;
+        case SampleType::kUint16: pack_samples<std::uint16_t>(src, count, strip.data()); break;
+        case SampleType::kFloat32: pack_samples<float>(src, count, strip.data()); break;
+      }
+      const auto size = static_cast<tmsize_t>(count * bytes);
+      if (TIFFWriteEncodedStrip(tif, static_cast<std::uint32_t>(s), strip.data(), size) != size) {
+        fail_write("page " + std::to_string(z));
+      }
+    }
+    if (!TIFFWriteDirectory(tif)) fail_write("the directory of page " + std::to_string(z));
+  }
+  handle.close();
+  if (handle.messages().errors > 0) fail_write("the file");
+  file.commit();
+}
+
+void write_tiff_stack(const fs::path& path, const Volume& volume, const TiffWriteOptions& options) {
+  TiffWriteOptions effective = options;
+  const bool known = std::any_of(volume.spacing.source.begin(), volume.spacing.source.end(),
+                                 [](SpacingSource s) { return s != SpacingSource::kDefault; });
+  if (!effective.spacing_um && known) effective.spacing_um = volume.spacing.um;
+  write_tiff_stack(path, volume.voxels, volume.nx, volume.ny, volume.nz, effective);
+}
+
+}  // namespace hisnegs::io

@@ -1,0 +1,61 @@
+// validate() of the splat-layer option structs.
+#include "splat/splat_options.hpp"
+
+namespace hisnegs::splat {
+
+void CameraOptions::validate() const {
+  constexpr const char* s = "camera";
+  io::require_in_range(s, "width", width, 8, 16384);
+  io::require_in_range(s, "height", height, 8, 16384);
+  io::require_in_range(s, "fov_deg", fov_deg, 1e-3, 179.999);
+  io::require_positive(s, "near", near);
+  if (!(far > near)) io::fail_option(s, "far", std::to_string(far), "must be greater than camera.near");
+  io::require_positive(s, "orbit_radius", orbit_radius);
+}
+
+void RaymarchOptions::validate() const {
+  constexpr const char* s = "raymarch";
+  io::require_in_range(s, "step_voxels", step_voxels, 1e-6, 4.0);
+  io::require_in_range(s, "samples", samples, 2, 100000);
+  io::require_in_range(s, "t_near", t_near, 0.0, 1e6);
+  if (!(t_far > t_near)) io::fail_option(s, "t_far", std::to_string(t_far), "must be greater than raymarch.t_near");
+}
+
+void SplatOptions::validate() const {
+  constexpr const char* s = "splat";
+  io::require_positive(s, "beta", beta);
+  io::require_positive(s, "mahalanobis_cutoff", mahalanobis_cutoff);
+  io::require_in_range(s, "low_pass", low_pass, 0.0, 100.0);
+  if (tile_size != 8 && tile_size != 16 && tile_size != 32) {
+    io::fail_option(s, "tile_size", std::to_string(tile_size), "must be 8, 16 or 32");
+  }
+  io::require_in_range(s, "chunk_size", chunk_size, 1, 1e7);
+}
+
+void TrainOptions::validate() const {
+  constexpr const char* s = "train";
+  io::require_in_range(s, "epochs", epochs, 1, 1e7);
+  io::require_positive(s, "lr_initial", lr_initial);
+  io::require_in_range(s, "lr_final", lr_final, 1e-300, lr_initial);
+  io::require_positive(s, "beta_start", beta_start);
+  io::require_in_range(s, "beta_end", beta_end, beta_start, 1e9);
+  io::require_in_range(s, "beta_warmup_epochs", beta_warmup_epochs, 0, epochs);
+  io::require_in_range(s, "foreground_weight", foreground_weight, 1.0, 1e6);
+  for (auto [name, value] : {std::pair{"lambda_ssim", lambda_ssim}, std::pair{"lambda_edge", lambda_edge},
+                             std::pair{"lambda_intensity", lambda_intensity}, std::pair{"lambda_scale", lambda_scale}}) {
+    io::require_in_range(s, name, value, 0.0, 1e6);
+  }
+  io::require_positive(s, "scale_min", scale_min);
+  if (!(scale_max > scale_min)) io::fail_option(s, "scale_max", std::to_string(scale_max), "must exceed train.scale_min");
+  io::require_in_range(s, "densify_every", densify_every, 1, 1e9);
+  io::require_in_range(s, "densify_from", densify_from, 0, 1e9);
+  io::require_in_range(s, "densify_until", densify_until, densify_from, 1e9);
+  io::require_in_range(s, "prune_every", prune_every, 1, 1e9);
+  io::require_in_range(s, "prune_intensity", prune_intensity, 0.0, 0.999999);
+  io::require_in_range(s, "max_gaussians", max_gaussians, 1, 1e8);
+  io::require_in_range(s, "save_every", save_every, 1, 1e9);
+  io::require_in_range(s, "views_per_step", views_per_step, 1, 1e6);
+  io::require_in_range(s, "crop_size", crop_size, 0, 16384);
+}
+
+}  // namespace hisnegs::splat

@@ -1,0 +1,133 @@
+// Options of the rendering and training stages, one struct per config section:
+// `camera`, `raymarch`, `splat`, `train` (report Table 1 and Table 4). Only
+// definitions, defaults and validation; the code that uses them lives beside.
+#pragma once
+
+#include <cstdint>
+#include <string>
+
+#include "io/config.hpp"
+
+namespace hisnegs::splat {
+
+// Pinhole camera and orbit (CONVENTIONS "Cameras").
+struct CameraOptions {
+  int width = 256;            // image width, pixels, [8, 16384]
+  int height = 256;           // image height, pixels, [8, 16384]
+  double fov_deg = 50.0;      // horizontal field of view, degrees, (0, 180)
+  double near = 0.01;         // near clipping distance, world units, > 0
+  double far = 10.0;          // far clipping distance, world units, > near
+  double orbit_radius = 2.5;  // orbit camera distance from the origin, world units, > 0
+
+  void validate() const;
+  template <class V>
+  void visit(V&& v) {
+    v("width", width);
+    v("height", height);
+    v("fov_deg", fov_deg);
+    v("near", near);
+    v("far", far);
+    v("orbit_radius", orbit_radius);
+  }
+};
+
+enum class RaymarchMode { kExact, kReport };
+
+// Ground-truth ray marching (CONVENTIONS "Ground-truth MIP").
+struct RaymarchOptions {
+  RaymarchMode mode = RaymarchMode::kExact;  // exact | report
+  double step_voxels = 0.5;   // exact mode step, in units of the smallest world voxel size, (0, 4]
+  int samples = 200;          // report mode: number of samples per ray, [2, 100000]
+  double t_near = 0.5;        // report mode: first sample distance, world units, >= 0
+  double t_far = 6.0;         // report mode: last sample distance, world units, > t_near
+
+  void validate() const;
+  template <class V>
+  void visit(V&& v) {
+    v("mode", mode, io::EnumNames<RaymarchMode>{{"exact", RaymarchMode::kExact}, {"report", RaymarchMode::kReport}});
+    v("step_voxels", step_voxels);
+    v("samples", samples);
+    v("t_near", t_near);
+    v("t_far", t_far);
+  }
+};
+
+enum class MipMode { kSoft, kHard };
+
+// Soft/hard-MIP splatting (report Eq. 2-8, §9.3).
+struct SplatOptions {
+  MipMode mode = MipMode::kSoft;      // soft | hard
+  double beta = 50.0;                 // soft-MIP sharpness β, > 0
+  double mahalanobis_cutoff = 16.0;   // δ: a Gaussian touches pixels with dᵀΣ⁻¹d <= δ, > 0
+  double low_pass = 0.0;              // 2D dilation added to Σ_2D diagonal, pixels², >= 0 (report: none)
+  int tile_size = 16;                 // rasterizer tile edge, pixels, one of 8, 16, 32
+  int chunk_size = 4096;              // Gaussians per batch (report Table 1), [1, 10^7]
+
+  void validate() const;
+  template <class V>
+  void visit(V&& v) {
+    v("mode", mode, io::EnumNames<MipMode>{{"soft", MipMode::kSoft}, {"hard", MipMode::kHard}});
+    v("beta", beta);
+    v("mahalanobis_cutoff", mahalanobis_cutoff);
+    v("low_pass", low_pass);
+    v("tile_size", tile_size);
+    v("chunk_size", chunk_size);
+  }
+};
+
+// Stage-2 training (report §6, Tables 1 and 4).
+struct TrainOptions {
+  int epochs = 2000;                 // training epochs, [1, 10^7]
+  double lr_initial = 3e-3;          // Adam learning rate at epoch 0, > 0
+  double lr_final = 1e-5;            // learning rate at the last epoch (cosine decay), (0, lr_initial]
+  double beta_start = 10.0;          // β at epoch 0, > 0
+  double beta_end = 50.0;            // β after warm-up, >= beta_start
+  int beta_warmup_epochs = 500;      // linear β warm-up length, [0, epochs]
+  double foreground_weight = 5.0;    // w_fg of the weighted MSE (Eq. 11), >= 1
+  double lambda_ssim = 0.2;          // weight of 1 - SSIM (Eq. 12), >= 0
+  double lambda_edge = 0.1;          // weight of the Sobel edge loss (Eq. 13), >= 0
+  double lambda_intensity = 0.01;    // weight of the histogram KL (Eq. 14), >= 0
+  double lambda_scale = 1.0;         // weight of the scale regularizer (Eq. 15), >= 0
+  double scale_min = 0.001;          // s_min of Eq. 15, world units, > 0
+  double scale_max = 0.5;            // s_max of Eq. 15, world units, > scale_min
+  int densify_every = 100;           // split/clone period, epochs, >= 1
+  int densify_from = 100;            // first epoch of split/clone, >= 0
+  int densify_until = 1500;          // last epoch of split/clone, >= densify_from
+  int prune_every = 25;              // prune period, epochs, >= 1
+  double prune_intensity = 0.01;     // prune a_k below this, [0, 1)
+  int max_gaussians = 100000;        // cap on K during density control, >= 1
+  int save_every = 100;              // checkpoint period, epochs, >= 1
+  int views_per_step = 1;            // mini-batch of views per optimizer step, >= 1
+  int crop_size = 0;                 // random square crop edge, pixels (0 = whole image)
+  std::uint64_t seed = 0;            // view shuffling, crops, density control
+
+  void validate() const;
+  template <class V>
+  void visit(V&& v) {
+    v("epochs", epochs);
+    v("lr_initial", lr_initial);
+    v("lr_final", lr_final);
+    v("beta_start", beta_start);
+    v("beta_end", beta_end);
+    v("beta_warmup_epochs", beta_warmup_epochs);
+    v("foreground_weight", foreground_weight);
+    v("lambda_ssim", lambda_ssim);
+    v("lambda_edge", lambda_edge);
+    v("lambda_intensity", lambda_intensity);
+    v("lambda_scale", lambda_scale);
+    v("scale_min", scale_min);
+    v("scale_max", scale_max);
+    v("densify_every", densify_every);
+    v("densify_from", densify_from);
+    v("densify_until", densify_until);
+    v("prune_every", prune_every);
+    v("prune_intensity", prune_intensity);
+    v("max_gaussians", max_gaussians);
+    v("save_every", save_every);
+    v("views_per_step", views_per_step);
+    v("crop_size", crop_size);
+    v("seed", seed);
+  }
+};
+
+}  // namespace hisnegs::splat

@@ -1,0 +1,82 @@
+// End-to-end runs of the hisnegs executable: help, synth -> info -> vdb -> info,
+// config dump, demo, and the io benchmark suite on a tiny stack.
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+
+#include "tests/test_support.hpp"
+
+namespace hisnegs {
+namespace {
+namespace fs = std::filesystem;
+using testing::run_hisnegs;
+
+TEST(Cli, HelpListsCommandsAndExitsZero) {
+  const auto r = run_hisnegs({"--help"});
+  EXPECT_EQ(r.exit_code, 0);
+  for (const char* c : {"demo", "synth", "info", "vdb", "config", "bench"}) {
+    EXPECT_NE(r.out.find(c), std::string::npos) << c;
+  }
+  EXPECT_EQ(run_hisnegs({}).exit_code, 2);  // a subcommand is required
+}
+
+TEST(Cli, SynthInfoVdbChain) {
+  testing::ScratchDir dir;
+  const auto tif = dir / "s.tif";
+  auto r = run_hisnegs({"synth", "-o", tif, "--seed", "3", "--shape", "24,64,80"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  r = run_hisnegs({"info", tif});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("Z=24 Y=64 X=80"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("uint16"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("ImageJ"), std::string::npos) << r.out;  // spacing came from the file
+  EXPECT_NE(r.out.find("foreground"), std::string::npos) << r.out;
+
+  r = run_hisnegs({"vdb", tif, "-o", dir / "s.vdb", "--band", "1"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  r = run_hisnegs({"info", dir / "s.vdb"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("grid 'volume'"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("band_voxels"), std::string::npos) << r.out;
+}
+
+TEST(Cli, SameSeedSameFile) {
+  testing::ScratchDir dir;
+  ASSERT_EQ(run_hisnegs({"-q", "synth", "-o", dir / "a.tif", "--shape", "16,40,40"}).exit_code, 0);
+  ASSERT_EQ(run_hisnegs({"-q", "synth", "-o", dir / "b.tif", "--shape", "16,40,40"}).exit_code, 0);
+  std::ifstream a(dir / "a.tif", std::ios::binary), b(dir / "b.tif", std::ios::binary);
+  const std::string sa((std::istreambuf_iterator<char>(a)), {}), sb((std::istreambuf_iterator<char>(b)), {});
+  EXPECT_EQ(sa, sb);
+}
+
+TEST(Cli, ConfigDumpReloads) {
+  testing::ScratchDir dir;
+  const auto r = run_hisnegs({"config"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  testing::write_text(dir / "dump.yaml", r.out);
+  const auto again = run_hisnegs({"--config", dir / "dump.yaml", "config"});
+  ASSERT_EQ(again.exit_code, 0) << again.err;
+  EXPECT_EQ(again.out, r.out);
+}
+
+TEST(Cli, DemoWritesItsOutputs) {
+  testing::ScratchDir dir;
+  testing::write_text(dir / "small.yaml", "synth:\n  nx: 48\n  ny: 48\n  nz: 16\n");
+  const auto r = run_hisnegs({"--config", dir / "small.yaml", "demo", "-o", dir / "demo"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_TRUE(fs::exists(dir / "demo" / "volume.tif"));
+  EXPECT_TRUE(fs::exists(dir / "demo" / "volume.vdb"));
+}
+
+TEST(Cli, IoBenchmarkSuiteRuns) {
+  testing::ScratchDir dir;
+  ASSERT_EQ(run_hisnegs({"-q", "synth", "-o", dir / "s.tif", "--shape", "16,32,32"}).exit_code, 0);
+  const auto r = run_hisnegs({"bench", "io", "--volume", dir / "s.tif", "--benchmark_min_time=0.01"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("io/load_and_normalize/s.tif"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("io/build_sparse_grid/s.tif"), std::string::npos) << r.out;
+}
+
+}  // namespace
+}  // namespace hisnegs

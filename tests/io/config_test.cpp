@@ -1,0 +1,135 @@
+// Tests of io/config: typed reads, unknown keys/sections, type errors with
+// file:line, enum names, and that the writer's YAML reads back identically.
+#include "io/config.hpp"
+
+#include <gtest/gtest.h>
+
+#include "io/error.hpp"
+
+namespace hisnegs::io {
+namespace {
+
+enum class Mode { kA, kB };
+
+struct Demo {
+  int n = 1;
+  double x = 0.5;
+  bool flag = false;
+  std::string name = "abc";
+  std::array<double, 3> v{1, 2, 3};
+  std::vector<double> list;
+  std::uint64_t seed = 0;
+  Mode mode = Mode::kA;
+  template <class V>
+  void visit(V&& vis) {
+    vis("n", n);
+    vis("x", x);
+    vis("flag", flag);
+    vis("name", name);
+    vis("v", v);
+    vis("list", list);
+    vis("seed", seed);
+    vis("mode", mode, EnumNames<Mode>{{"a", Mode::kA}, {"b", Mode::kB}});
+  }
+};
+
+std::string error_of(const std::string& yaml) {
+  try {
+    Demo d;
+    ConfigFile::parse(yaml, "cfg.yaml").read("demo", d);
+  } catch (const InputError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+TEST(Config, ReadsEveryTypeAndKeepsDefaults) {
+  Demo d;
+  ConfigFile::parse("demo:\n  n: 7\n  x: 3e-3\n  flag: true\n  v: [4, 5, 6.5]\n  list: []\n  seed: 18446744073709551615\n  mode: b\n",
+                    "cfg.yaml")
+      .read("demo", d);
+  EXPECT_EQ(d.n, 7);
+  EXPECT_DOUBLE_EQ(d.x, 3e-3);
+  EXPECT_TRUE(d.flag);
+  EXPECT_EQ(d.name, "abc");  // absent: default kept
+  EXPECT_EQ(d.v, (std::array<double, 3>{4, 5, 6.5}));
+  EXPECT_TRUE(d.list.empty());
+  EXPECT_EQ(d.seed, 18446744073709551615ull);
+  EXPECT_EQ(d.mode, Mode::kB);
+}
+
+TEST(Config, AbsentSectionKeepsDefaults) {
+  Demo d;
+  ConfigFile::parse("other: {}\n", "cfg.yaml").read("demo", d);
+  EXPECT_EQ(d.n, 1);
+}
+
+TEST(Config, UnknownKeyNamesFileLineAndSuggests) {
+  const std::string e = error_of("demo:\n  n: 2\n  nmae: x\n");
+  EXPECT_NE(e.find("cfg.yaml:3"), std::string::npos) << e;
+  EXPECT_NE(e.find("unknown key 'demo.nmae'"), std::string::npos) << e;
+  EXPECT_NE(e.find("did you mean 'name'"), std::string::npos) << e;
+}
+
+TEST(Config, WrongTypesAreErrorsNamingTheKey) {
+  EXPECT_NE(error_of("demo:\n  n: 1.5\n").find("demo.n: expected an integer, got '1.5'"), std::string::npos);
+  EXPECT_NE(error_of("demo:\n  x: abc\n").find("demo.x: expected a number"), std::string::npos);
+  EXPECT_NE(error_of("demo:\n  x: .nan\n").find("finite"), std::string::npos);
+  EXPECT_NE(error_of("demo:\n  flag: 1\n").find("expected true or false"), std::string::npos);
+  EXPECT_NE(error_of("demo:\n  v: [1, 2]\n").find("exactly 3"), std::string::npos);
+  EXPECT_NE(error_of("demo:\n  n: [1, 2]\n").find("expected a single value"), std::string::npos);
+  EXPECT_NE(error_of("demo:\n  mode: c\n").find("expected one of a|b, got 'c'"), std::string::npos);
+  EXPECT_NE(error_of("demo:\n  seed: -1\n").find("non-negative"), std::string::npos);
+  EXPECT_NE(error_of("demo: 5\n").find("must be a map"), std::string::npos);
+  EXPECT_NE(error_of("demo: [\n").find("invalid YAML"), std::string::npos);
+}
+
+TEST(Config, UnknownSectionIsAnError) {
+  const ConfigFile f = ConfigFile::parse("demo: {}\ncamrea: {}\n", "cfg.yaml");
+  try {
+    f.check_sections({"demo", "camera"});
+    FAIL();
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("unknown section 'camrea' (did you mean 'camera'?)"), std::string::npos)
+        << e.what();
+  }
+}
+
+TEST(Config, WriterOutputReadsBackIdentically) {
+  Demo d;
+  d.n = -3;
+  d.x = 0.1234567891;
+  d.flag = true;
+  d.name = "hello world";
+  d.v = {0.5, -1e-7, 3};
+  d.list = {1, 2};
+  d.seed = 42;
+  d.mode = Mode::kB;
+  ConfigWriter w;
+  w.begin_section("demo");
+  d.visit(w);
+  Demo back;
+  ConfigFile::parse(w.str(), "dump").read("demo", back);
+  EXPECT_EQ(back.n, d.n);
+  EXPECT_DOUBLE_EQ(back.x, d.x);
+  EXPECT_EQ(back.flag, d.flag);
+  EXPECT_EQ(back.name, d.name);
+  EXPECT_EQ(back.v, d.v);
+  EXPECT_EQ(back.list, d.list);
+  EXPECT_EQ(back.seed, d.seed);
+  EXPECT_EQ(back.mode, d.mode);
+}
+
+TEST(Config, RangeHelpersNameSectionFieldAndValue) {
+  try {
+    require_in_range("camera", "width", 3, 8, 100);
+    FAIL();
+  } catch (const InputError& e) {
+    EXPECT_EQ(std::string(e.what()), "camera.width = 3: must be in [8, 100]");
+  }
+  EXPECT_THROW(require_positive("a", "b", 0.0), InputError);
+  EXPECT_NO_THROW(require_positive("a", "b", 1e-9));
+}
+
+}  // namespace
+}  // namespace hisnegs::io

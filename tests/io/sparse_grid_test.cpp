@@ -1,0 +1,218 @@
+// Tests of io/sparse_grid: the CONVENTIONS transform, threshold + band topology,
+// values, the background subsample, and bit-exact .vdb round trips.
+#include "io/sparse_grid.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+
+#include "io/detail/vdb_grids.hpp"
+#include "io/error.hpp"
+#include "tests/test_support.hpp"
+
+namespace hisnegs::io {
+namespace {
+
+Volume zeros(int nx, int ny, int nz) {
+  Volume v;
+  v.nx = nx;
+  v.ny = ny;
+  v.nz = nz;
+  v.voxels.assign(v.size(), 0.0f);
+  v.source = "test";
+  v.normalization.method = NormalizationMethod::kMinMax;
+  return v;
+}
+
+Volume random_sparse(int nx, int ny, int nz, double density, std::uint64_t seed) {
+  Volume v = zeros(nx, ny, nz);
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  for (float& x : v.voxels) x = u(rng) < density ? u(rng) : 0.01f * u(rng);
+  return v;
+}
+
+TEST(SparseGrid, TransformMapsIndexToConventionsWorld) {
+  const Volume v = zeros(20, 12, 6);
+  const Eigen::Vector3d aspect(1.0, 0.6, 0.3);
+  const SparseGrid g = build_sparse_grid(v, aspect, SparseGridOptions{});
+  const WorldFrame frame(20, 12, 6, aspect);
+  for (const auto& ijk : {openvdb::Coord(0, 0, 0), openvdb::Coord(19, 11, 5), openvdb::Coord(7, 3, 2)}) {
+    const openvdb::Vec3d w = g.impl().volume->transform().indexToWorld(ijk);
+    const Eigen::Vector3d expect = frame.world_from_index(Eigen::Vector3d(ijk.x(), ijk.y(), ijk.z()));
+    EXPECT_NEAR(w.x(), expect.x(), 1e-12);
+    EXPECT_NEAR(w.y(), expect.y(), 1e-12);
+    EXPECT_NEAR(w.z(), expect.z(), 1e-12);
+  }
+}
+
+TEST(SparseGrid, OneVoxelDilatesToA26NeighbourhoodCube) {
+  Volume v = zeros(16, 16, 16);
+  v.at(5, 6, 7) = 0.9f;
+  v.at(6, 6, 7) = 0.02f;  // below threshold but inside the band: keeps its value
+  SparseGridOptions o;
+  o.threshold = 0.5;
+  o.band_voxels = 1;
+  const SparseGrid g = build_sparse_grid(v, Eigen::Vector3d::Ones(), o);
+  EXPECT_EQ(g.active_voxels(), 27);
+  bool active = false;
+  EXPECT_FLOAT_EQ(g.value(5, 6, 7, &active), 0.9f);
+  EXPECT_TRUE(active);
+  EXPECT_FLOAT_EQ(g.value(6, 6, 7, &active), 0.02f);
+  EXPECT_TRUE(active);
+  (void)g.value(7, 6, 7, &active);
+  EXPECT_FALSE(active);
+}
+
+TEST(SparseGrid, BandIsClippedToTheStack) {
+  Volume v = zeros(10, 10, 10);
+  v.at(0, 0, 0) = 1.0f;
+  SparseGridOptions o;
+  o.threshold = 0.5;
+  o.band_voxels = 2;
+  const SparseGrid g = build_sparse_grid(v, Eigen::Vector3d::Ones(), o);
+  EXPECT_EQ(g.active_voxels(), 27);  // 3^3: the part of the 5^3 cube inside the stack
+  const auto bbox = g.impl().volume->evalActiveVoxelBoundingBox();
+  EXPECT_EQ(bbox.min(), openvdb::Coord(0, 0, 0));
+  EXPECT_EQ(bbox.max(), openvdb::Coord(2, 2, 2));
+}
+
+TEST(SparseGrid, ActiveValuesEqualTheVolumeAndCoverTheForeground) {
+  const Volume v = random_sparse(37, 29, 11, 0.02, 3);
+  SparseGridOptions o;
+  o.threshold = 0.3;
+  o.band_voxels = 1;
+  const SparseGrid g = build_sparse_grid(v, Eigen::Vector3d(1, 0.8, 0.3), o);
+  std::int64_t checked = 0;
+  for (auto it = g.impl().volume->cbeginValueOn(); it; ++it) {
+    const openvdb::Coord c = it.getCoord();
+    ASSERT_EQ(*it, v.at(c.x(), c.y(), c.z()));
+    ++checked;
+  }
+  EXPECT_EQ(checked, g.active_voxels());
+  for (int z = 0; z < v.nz; ++z)
+    for (int y = 0; y < v.ny; ++y)
+      for (int x = 0; x < v.nx; ++x) {
+        if (v.at(x, y, z) > 0.3f) {
+          bool active = false;
+          (void)g.value(x, y, z, &active);
+          ASSERT_TRUE(active) << x << " " << y << " " << z;
+        }
+      }
+}
+
+TEST(SparseGrid, BackgroundSubsampleIsSeededDisjointAndOfTheRightSize) {
+  const Volume v = random_sparse(64, 64, 16, 0.01, 5);
+  SparseGridOptions o;
+  o.threshold = 0.5;
+  o.band_voxels = 1;
+  o.background_fraction = 0.05;
+  o.seed = 11;
+  const SparseGrid a = build_sparse_grid(v, Eigen::Vector3d::Ones(), o);
+  const SparseGrid b = build_sparse_grid(v, Eigen::Vector3d::Ones(), o);
+  EXPECT_EQ(a.background_voxels(), b.background_voxels());
+  const double rest = static_cast<double>(v.size() - a.active_voxels());
+  const double sd = std::sqrt(rest * 0.05 * 0.95);
+  EXPECT_NEAR(static_cast<double>(a.background_voxels()), rest * 0.05, 5 * sd);
+  auto fg = a.impl().volume->getConstAccessor();
+  auto bg_b = b.impl().background->getConstAccessor();
+  for (auto it = a.impl().background->cbeginValueOn(); it; ++it) {
+    ASSERT_FALSE(fg.isValueOn(it.getCoord()));
+    ASSERT_TRUE(bg_b.isValueOn(it.getCoord()));  // same seed, same samples
+    ASSERT_EQ(*it, v.at(it.getCoord().x(), it.getCoord().y(), it.getCoord().z()));
+  }
+  o.seed = 12;
+  const SparseGrid c = build_sparse_grid(v, Eigen::Vector3d::Ones(), o);
+  std::int64_t same = 0;
+  auto bg_c = c.impl().background->getConstAccessor();
+  for (auto it = a.impl().background->cbeginValueOn(); it; ++it) same += bg_c.isValueOn(it.getCoord());
+  EXPECT_LT(same, a.background_voxels() / 2);  // another seed draws other voxels
+}
+
+TEST(SparseGrid, VdbRoundTripIsBitExact) {
+  testing::ScratchDir dir;
+  Volume v = random_sparse(40, 30, 12, 0.03, 7);
+  v.spacing.um = {0.3296, 0.3296, 0.9988};
+  v.normalization = Normalization{NormalizationMethod::kPercentile, 3.0, 1870.0, 0};
+  v.source = "some/stack.tif";
+  SparseGridOptions o;
+  o.threshold = 0.2;
+  o.background_fraction = 0.01;
+  o.seed = 4;
+  const Eigen::Vector3d aspect(1.0, 0.75, 0.2);
+  const SparseGrid g = build_sparse_grid(v, aspect, o);
+  write_vdb(dir / "g.vdb", g);
+  EXPECT_EQ(dir.entries().size(), 1u);  // no temp file left
+  const SparseGrid r = read_vdb(dir / "g.vdb");
+  EXPECT_EQ(r.active_voxels(), g.active_voxels());
+  EXPECT_EQ(r.background_voxels(), g.background_voxels());
+  auto acc = r.impl().volume->getConstAccessor();
+  for (auto it = g.impl().volume->cbeginValueOn(); it; ++it) {
+    ASSERT_TRUE(acc.isValueOn(it.getCoord()));
+    ASSERT_EQ(acc.getValue(it.getCoord()), *it);
+  }
+  const SparseGridMeta& m = r.meta();
+  EXPECT_EQ(m.shape_xyz, (std::array<int, 3>{40, 30, 12}));
+  EXPECT_EQ(m.spacing_um, v.spacing.um);
+  EXPECT_EQ(m.aspect, aspect);
+  EXPECT_EQ(m.normalization.method, NormalizationMethod::kPercentile);
+  EXPECT_EQ(m.normalization.raw_lo, 3.0);
+  EXPECT_EQ(m.normalization.raw_hi, 1870.0);
+  EXPECT_EQ(m.source, "some/stack.tif");
+  EXPECT_EQ(m.options.threshold, 0.2);
+  EXPECT_EQ(m.options.seed, 4u);
+  EXPECT_TRUE(r.frame().voxel_size().isApprox(WorldFrame(40, 30, 12, aspect).voxel_size()));
+}
+
+TEST(SparseGrid, InspectListsGridsAndMetadata) {
+  testing::ScratchDir dir;
+  const Volume v = random_sparse(32, 32, 8, 0.01, 9);
+  SparseGridOptions o;
+  o.threshold = 0.5;
+  o.band_voxels = 0;
+  o.background_fraction = 0.02;
+  write_vdb(dir / "g.vdb", build_sparse_grid(v, Eigen::Vector3d::Ones(), o));
+  const auto grids = inspect_vdb(dir / "g.vdb");
+  ASSERT_EQ(grids.size(), 2u);
+  const bool volume_first = grids[0].name == "volume";
+  const VdbGridSummary& vol = grids[volume_first ? 0 : 1];
+  const VdbGridSummary& bg = grids[volume_first ? 1 : 0];
+  EXPECT_EQ(vol.name, "volume");
+  EXPECT_EQ(vol.value_type, "float");
+  EXPECT_GT(vol.active_voxels, 0);
+  ASSERT_EQ(vol.metadata.count("normalization"), 1u);
+  EXPECT_EQ(vol.metadata.at("normalization"), "minmax");
+  EXPECT_EQ(bg.name, "background");
+  EXPECT_GT(bg.active_voxels, 0);
+}
+
+TEST(SparseGrid, BadFilesAreOneLineInputErrors) {
+  testing::ScratchDir dir;
+  testing::write_text(dir / "text.vdb", "this is not a vdb file\n");
+  for (const auto& p : {dir / "text.vdb", dir / "missing.vdb", dir.path()}) {
+    try {
+      (void)read_vdb(p);
+      FAIL() << "expected InputError for " << p;
+    } catch (const InputError& e) {
+      const std::string what = e.what();
+      EXPECT_NE(what.find(p.string()), std::string::npos) << what;
+      EXPECT_EQ(what.find('\n'), std::string::npos) << what;
+    }
+  }
+}
+
+TEST(SparseGrid, OptionsAreValidated) {
+  SparseGridOptions o;
+  o.threshold = 1.5;
+  EXPECT_THROW(o.validate(), InputError);
+  o = SparseGridOptions{};
+  o.band_voxels = -1;
+  EXPECT_THROW(o.validate(), InputError);
+  o = SparseGridOptions{};
+  o.background_fraction = 2.0;
+  EXPECT_THROW(o.validate(), InputError);
+}
+
+}  // namespace
+}  // namespace hisnegs::io
