@@ -6,6 +6,8 @@
 #include <algorithm>
 #include <cctype>
 #include <cerrno>
+#include <cmath>
+#include <cstdlib>
 #include <charconv>
 #include <cstdio>
 #include <cstring>
@@ -275,7 +277,18 @@ bool parse_ascii_value(std::string_view token, S& out) {
   const char* end = token.data() + token.size();
   if constexpr (std::is_floating_point_v<S>) {
     const auto res = std::from_chars(token.data(), end, out);
-    return res.ec == std::errc{} && res.ptr == end;
+    if (res.ptr != end) return false;
+    if (res.ec == std::errc::result_out_of_range) {
+      // Underflow ("1e-50" in a float column) rounds to 0 or a denormal, as any
+      // reader does; overflow ("1e39") stays an error.
+      const std::string copy(token);
+      char* stop = nullptr;
+      const long double v = std::strtold(copy.c_str(), &stop);
+      if (stop != copy.c_str() + copy.size() || !(std::abs(v) <= std::numeric_limits<S>::max())) return false;
+      out = static_cast<S>(v);
+      return true;
+    }
+    return res.ec == std::errc{};
   } else {
     std::int64_t v = 0;
     const auto res = std::from_chars(token.data(), end, v);
@@ -355,6 +368,13 @@ class PlyReader {
     while (next_line()) {
       const std::vector<std::string_view> tok = split_ws(line_);
       if (tok.empty()) fail_line("empty header line");
+      // After this, names and comments quoted in messages are printable.
+      if (std::any_of(line_.begin(), line_.end(), [](char c) {
+            const auto u = static_cast<unsigned char>(c);
+            return (u < 0x20 && c != '\t') || u == 0x7f;
+          })) {
+        fail_line("control character");
+      }
       const std::string_view key = tok[0];
       if (key == "format") {
         if (have_format) fail_line("second format line");

@@ -8,6 +8,7 @@
 
 #include <algorithm>
 #include <cerrno>
+#include <charconv>
 #include <cmath>
 #include <cstdarg>
 #include <cstdio>
@@ -50,7 +51,8 @@ std::string format_message(const char* module, const char* fmt, va_list ap) {
   std::vsnprintf(text, sizeof text, fmt, ap);
   std::string out = module && *module ? std::string(module) + ": " + text : std::string(text);
   for (char& c : out) {
-    if (c == '\n' || c == '\r') c = ' ';
+    const auto u = static_cast<unsigned char>(c);
+    if (u < 0x20 || u == 0x7F) c = ' ';  // one printable line
   }
   return out;
 }
@@ -175,6 +177,14 @@ std::string gib_text(double bytes) {
   return text;
 }
 
+// An integer-valued count held in a double: exact digits while the double is
+// exact, else 3 significant digits ("8e+27") rather than spurious ones.
+std::string count_text(double count) {
+  char text[64];
+  std::snprintf(text, sizeof text, count < 9e15 ? "%.0f" : "%.3g", count);
+  return text;
+}
+
 void check_allocation(const fs::path& path, double bytes, const std::string& what) {
   std::string limit_source;
   const double limit = allocation_limit_bytes(&limit_source);
@@ -187,6 +197,7 @@ void check_allocation(const fs::path& path, double bytes, const std::string& wha
 // ---------------------------------------------------------------------------
 // Page format.
 
+// What every page must share with the first one.
 struct PageFormat {
   std::uint32_t width = 0, height = 0;
   std::uint16_t bits = 0, sample_format = SAMPLEFORMAT_UINT, samples = 1;
@@ -200,16 +211,29 @@ PageFormat read_page_format(TIFF* tif) {
   TIFFGetField(tif, TIFFTAG_IMAGELENGTH, &f.height);
   TIFFGetFieldDefaulted(tif, TIFFTAG_BITSPERSAMPLE, &f.bits);
   TIFFGetFieldDefaulted(tif, TIFFTAG_SAMPLEFORMAT, &f.sample_format);
+  // "void" (undefined) data is read as unsigned, as libtiff's default does.
+  if (f.sample_format == SAMPLEFORMAT_VOID) f.sample_format = SAMPLEFORMAT_UINT;
   TIFFGetFieldDefaulted(tif, TIFFTAG_SAMPLESPERPIXEL, &f.samples);
   if (!TIFFGetField(tif, TIFFTAG_PHOTOMETRIC, &f.photometric)) f.photometric = PHOTOMETRIC_MINISBLACK;
   return f;
 }
 
+std::string photometric_text(std::uint16_t photometric) {
+  switch (photometric) {
+    case PHOTOMETRIC_MINISBLACK: return "min-is-black grey";
+    case PHOTOMETRIC_MINISWHITE: return "min-is-white (inverted grey)";
+    case PHOTOMETRIC_RGB: return "RGB";
+    case PHOTOMETRIC_PALETTE: return "palette colour";
+    case PHOTOMETRIC_YCBCR: return "YCbCr";
+    case PHOTOMETRIC_SEPARATED: return "separated (CMYK)";
+    default: return "photometric " + std::to_string(photometric);
+  }
+}
+
 std::string sample_format_text(const PageFormat& f) {
   const std::string bits = std::to_string(f.bits) + "-bit ";
   switch (f.sample_format) {
-    case SAMPLEFORMAT_UINT:
-    case SAMPLEFORMAT_VOID: return bits + "unsigned integer";
+    case SAMPLEFORMAT_UINT: return bits + "unsigned integer";
     case SAMPLEFORMAT_INT: return bits + "signed integer";
     case SAMPLEFORMAT_IEEEFP: return bits + "float";
     case SAMPLEFORMAT_COMPLEXINT: return bits + "complex integer";
@@ -219,12 +243,12 @@ std::string sample_format_text(const PageFormat& f) {
 }
 
 std::string format_text(const PageFormat& f) {
-  return std::to_string(f.width) + "x" + std::to_string(f.height) + " " + sample_format_text(f) +
-         (f.samples > 1 ? " x" + std::to_string(f.samples) + " samples" : "");
+  return std::to_string(f.width) + "x" + std::to_string(f.height) + ", " + sample_format_text(f) + ", " +
+         photometric_text(f.photometric) + ", " + std::to_string(f.samples) + " sample(s) per pixel";
 }
 
 SampleType sample_type_of(const fs::path& path, const PageFormat& f) {
-  const bool unsigned_int = f.sample_format == SAMPLEFORMAT_UINT || f.sample_format == SAMPLEFORMAT_VOID;
+  const bool unsigned_int = f.sample_format == SAMPLEFORMAT_UINT;
   if (unsigned_int && f.bits == 8) return SampleType::kUint8;
   if (unsigned_int && f.bits == 16) return SampleType::kUint16;
   if (f.sample_format == SAMPLEFORMAT_IEEEFP && f.bits == 32) return SampleType::kFloat32;
@@ -233,17 +257,9 @@ SampleType sample_type_of(const fs::path& path, const PageFormat& f) {
 }
 
 void check_photometric(const fs::path& path, std::uint16_t photometric) {
-  switch (photometric) {
-    case PHOTOMETRIC_MINISBLACK:
-    case PHOTOMETRIC_RGB: return;
-    case PHOTOMETRIC_MINISWHITE: fail_input(path, "unsupported photometric interpretation: min-is-white (inverted grey)");
-    case PHOTOMETRIC_PALETTE: fail_input(path, "unsupported photometric interpretation: palette colour");
-    case PHOTOMETRIC_YCBCR: fail_input(path, "unsupported photometric interpretation: YCbCr");
-    case PHOTOMETRIC_SEPARATED: fail_input(path, "unsupported photometric interpretation: separated (CMYK)");
-    default:
-      fail_input(path, "unsupported photometric interpretation " + std::to_string(photometric) +
-                           "; expected min-is-black grey or RGB");
-  }
+  if (photometric == PHOTOMETRIC_MINISBLACK || photometric == PHOTOMETRIC_RGB) return;
+  fail_input(path, "unsupported photometric interpretation: " + photometric_text(photometric) +
+                       "; expected min-is-black grey or RGB");
 }
 
 std::size_t bytes_of(SampleType type) {
@@ -255,9 +271,10 @@ std::size_t bytes_of(SampleType type) {
   return 4;
 }
 
+// libtiff's codec name ("None", "LZW", "AdobeDeflate", ...) or "unknown (N)".
 std::string compression_name(std::uint16_t compression) {
   if (const TIFFCodec* codec = TIFFFindCODEC(compression)) return codec->name;
-  return "compression " + std::to_string(compression);
+  return "unknown (" + std::to_string(compression) + ")";
 }
 
 // ---------------------------------------------------------------------------
@@ -330,7 +347,9 @@ StackLayout analyse_stack(TIFF* tif, const TiffHandle& handle, const fs::path& p
     }
   }
 
-  // Page order. C, Z, T counts as long long: hostile descriptions must not overflow.
+  // Page order. Counts are long long and their products are formed in double
+  // (exact below 2^53, and larger ones cannot match a page count): hostile
+  // descriptions must not overflow.
   const long long samples = s.format.samples;
   long long c_pages = 1, nz = s.pages, nt = 1;
   if (ome) {
@@ -344,9 +363,10 @@ StackLayout analyse_stack(TIFF* tif, const TiffHandle& handle, const fs::path& p
     c_pages = (samples > 1 && ome->size_c % samples == 0) ? ome->size_c / samples : ome->size_c;
     nz = ome->size_z;
     nt = ome->size_time;
-    const long long planes = c_pages * nz * nt;
+    const double planes = static_cast<double>(c_pages) * static_cast<double>(nz) * static_cast<double>(nt);
     if (planes > s.pages) {
-      fail_input(path, "OME-XML describes " + std::to_string(planes) + " planes (SizeZ=" + std::to_string(nz) +
+      fail_input(path, "OME-XML describes " + count_text(planes) +
+                           " planes (SizeZ=" + std::to_string(nz) +
                            ", SizeC=" + std::to_string(ome->size_c) + ", SizeT=" + std::to_string(nt) +
                            ") but the file has " + std::to_string(s.pages) + " pages");
     }
@@ -370,7 +390,8 @@ StackLayout analyse_stack(TIFF* tif, const TiffHandle& handle, const fs::path& p
     } else {
       nz = 0;  // reported as a mismatch below
     }
-    if (c_pages * nz * nt != images) {
+    if (static_cast<double>(c_pages) * static_cast<double>(nz) * static_cast<double>(nt) !=
+        static_cast<double>(images)) {
       fail_input(path, "ImageJ description: channels=" + std::to_string(c_pages) + " x slices=" +
                            std::to_string(nz) + " x frames=" + std::to_string(nt) +
                            " does not equal images=" + std::to_string(images));
@@ -477,8 +498,8 @@ void decode_page(TIFF* tif, const TiffHandle& handle, const fs::path& path, int 
   std::uint16_t compression = COMPRESSION_NONE;
   TIFFGetFieldDefaulted(tif, TIFFTAG_COMPRESSION, &compression);
   if (!TIFFIsCODECConfigured(compression)) {
-    fail_input(path, "page " + std::to_string(page) + " uses " + compression_name(compression) +
-                         " compression, which this libtiff build cannot decode");
+    fail_input(path, "page " + std::to_string(page) + " uses compression scheme " + compression_name(compression) +
+                         ", which this libtiff build cannot decode");
   }
   std::uint16_t planar = PLANARCONFIG_CONTIG;
   TIFFGetFieldDefaulted(tif, TIFFTAG_PLANARCONFIG, &planar);
@@ -676,10 +697,12 @@ std::pair<float, float> check_writable(const fs::path& path, std::span<const flo
   return {lo_seen, hi_seen};
 }
 
-std::string number_text(double v, int digits) {
+// Shortest text that parses back to exactly `v` ("0.9988", not "0.99880000000000002").
+template <class T>
+std::string number_text(T v) {
   char text[64];
-  std::snprintf(text, sizeof text, "%.*g", digits, v);
-  return text;
+  const auto result = std::to_chars(text, text + sizeof text, v);
+  return std::string(text, result.ptr);
 }
 
 template <class T>
@@ -717,9 +740,9 @@ void write_tiff_stack(const fs::path& path, std::span<const float> voxels, int n
 
   std::string description = "ImageJ=1.11a\nimages=" + std::to_string(nz) + "\nslices=" + std::to_string(nz) + "\n";
   if (options.spacing_um) {
-    description += "unit=um\nspacing=" + number_text((*options.spacing_um)[2], 17) + "\n";
+    description += "unit=um\nspacing=" + number_text((*options.spacing_um)[2]) + "\n";
   }
-  description += "min=" + number_text(lo, 9) + "\nmax=" + number_text(hi, 9) + "\n";
+  description += "min=" + number_text(lo) + "\nmax=" + number_text(hi) + "\n";
 
   AtomicFile file(path);
   const int fd = ::open(file.temp_path().c_str(), O_RDWR | O_CREAT | O_TRUNC | O_CLOEXEC, 0666);

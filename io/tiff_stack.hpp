@@ -31,11 +31,15 @@ struct TiffReadOptions {
 // X/YResolution in pixels per the description's `unit=` for x, y) >
 // X/YResolution with ResolutionUnit = centimeter > 1 µm. ResolutionUnit inch
 // without an ImageJ unit is display DPI and ignored.
+// Channels: SamplesPerPixel > 1, ImageJ hyperstacks (`channels=`, page =
+// (t*Z + z)*C + c) and OME-XML SizeC (page order from DimensionOrder; the first
+// <Pixels> image only, starting at page 0; TiffData elements are not consulted).
 // Throws InputError("PATH: what is wrong"), one line, for every unusable file:
 // not a TIFF or truncated (libtiff's last error is appended), fewer than 2
 // pages, unsupported sample formats, pages of differing shape or type, several
 // channels without options.channel, several time points, NaN/Inf voxels, or a
-// volume larger than the memory limit (MemAvailable, or HISNEGS_MAX_ALLOC_GB).
+// volume larger than the memory limit (checked before allocating: /proc/meminfo
+// MemAvailable, or the environment variable HISNEGS_MAX_ALLOC_GB in GiB).
 [[nodiscard]] Volume read_tiff_stack(const std::filesystem::path& path,
                                      const TiffReadOptions& options = {});
 
@@ -48,7 +52,8 @@ struct TiffWriteOptions {
   // X/YResolution = 1/s pixels per µm, `unit=um`, `spacing=` z. X/Y round-trip
   // through TIFF's float rationals (about 7 significant digits), z exactly.
   std::optional<std::array<double, 3>> spacing_um = std::nullopt;
-  // Adobe deflate compression (with the horizontal or floating-point predictor).
+  // Adobe deflate compression; integer types add the horizontal predictor,
+  // float32 none (ImageJ cannot read the floating-point predictor).
   bool deflate = false;
   // Throws InputError naming the field, its value and the rule broken.
   void validate() const;
@@ -61,7 +66,9 @@ struct TiffWriteOptions {
 // description ("ImageJ=1.11a\nimages=N\nslices=N\n[unit=um\nspacing=z\n]min=..\nmax=..\n")
 // so ImageJ/Fiji/tifffile open it as a stack. Throws InputError naming the path
 // and the first offending voxel for NaN/Inf values (any type) or values that do
-// not fit an integer type; std::invalid_argument if voxels.size() != nx*ny*nz.
+// not fit an integer type (checked before anything is created); std::invalid_argument
+// if voxels.size() != nx*ny*nz; std::runtime_error naming the path if writing fails
+// (disk full, ...). The target is untouched and no temporary file remains on any throw.
 void write_tiff_stack(const std::filesystem::path& path, std::span<const float> voxels, int nx,
                       int ny, int nz, const TiffWriteOptions& options = {});
 

@@ -37,7 +37,8 @@ std::string ascii_lower(std::string_view s) {
 std::string printable(std::string_view s) {
   std::string out;
   for (char c : s.substr(0, 40)) {
-    out += (c == '\n' || c == '\r' || c == '\t') ? ' ' : c;
+    const auto u = static_cast<unsigned char>(c);
+    out += (u < 0x20 || u == 0x7F) ? '?' : c;  // control bytes would garble a terminal line
   }
   if (s.size() > 40) out += "...";
   return out;

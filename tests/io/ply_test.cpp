@@ -209,6 +209,17 @@ TEST(PlyRead, AsciiRowsMaySpanLinesAndEndWithWhitespace) {
   EXPECT_EQ(t.find("face"), nullptr);
 }
 
+TEST(PlyRead, AsciiUnderflowRoundsLikeAnyReader) {
+  ScratchDir dir;
+  write_text(dir / "u.ply",
+             "ply\nformat ascii 1.0\nelement v 1\nproperty float f\nproperty double d\nend_header\n"
+             "1e-50 -1e-400\n");
+  const PlyTable t = read_ply(dir / "u.ply");
+  const PlyElement& v = t.elements.at(0);
+  EXPECT_EQ(v.value(0, 0), 0.0);
+  EXPECT_EQ(v.value(0, 1), 0.0);
+}
+
 TEST(PlyRead, CrlfHeaderLinesAreAccepted) {
   ScratchDir dir;
   write_text(dir / "c.ply",
@@ -332,6 +343,8 @@ std::vector<BadPly> bad_plys() {
       {"malformed_line", "ply\nformat ascii 1.0\nelephant vertex 3\nend_header\n",
        "header line 3: malformed header line (unknown keyword 'elephant') in 'elephant vertex 3'"},
       {"empty_header_line", "ply\nformat ascii 1.0\n\nend_header\n", "header line 3: empty header line"},
+      {"control_character", "ply\nformat ascii 1.0\nelement vertex 1\nproperty float\x01 x\nend_header\n",
+       "header line 4: control character in 'property float\\x01 x'"},
       {"unknown_type", "ply\nformat ascii 1.0\nelement vertex 1\nproperty float16 x\nend_header\n",
        "header line 4: unknown property type 'float16'"},
       {"missing_end_header", "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\n",
@@ -360,6 +373,8 @@ std::vector<BadPly> bad_plys() {
       {"binary_trailing_bytes", binary_vertices(1, 3) + "abc", "3 unexpected bytes after the last element"},
       {"ascii_cut_short", kAsciiXY + "1.0 2.0 3.0 4.0 5.0\n", "ascii data cut short"},
       {"ascii_bad_value", kAsciiXY + "1.0 abc 3.0 4.0 5.0 6.0\n", "line 7: 'abc' is not a valid float for vertex 0 property y"},
+      {"ascii_float_overflow", "ply\nformat ascii 1.0\nelement vertex 1\nproperty float c\nend_header\n1e39\n",
+       "'1e39' is not a valid float"},
       {"ascii_int_out_of_range",
        "ply\nformat ascii 1.0\nelement vertex 1\nproperty uchar c\nend_header\n256\n",
        "'256' is not a valid uchar"},

@@ -738,6 +738,18 @@ TEST(TiffStackBadInput, TimeSeries) {
   expect_input_error(dir / "t.tif", "has 2 time points");
 }
 
+TEST(TiffStackBadInput, HostileCountsInMetadataDoNotOverflow) {
+  ScratchDir dir;
+  Fixture f;
+  f.description = "<OME><Pixels SizeX='7' SizeY='5' SizeZ='2000000000' SizeC='2000000000' SizeT='2000000000' "
+                  "DimensionOrder='XYZCT'/></OME>";
+  write_fixture(dir / "ome.tif", f);
+  expect_input_error(dir / "ome.tif", "OME-XML describes 8e+27 planes");
+  f.description = "ImageJ=1.11a\nimages=3\nchannels=2000000000\nslices=2000000000\nframes=2000000000\n";
+  write_fixture(dir / "ij.tif", f);
+  expect_input_error(dir / "ij.tif", "does not equal images=3");
+}
+
 TEST(TiffStackBadInput, ImageCountDisagreesWithPages) {
   ScratchDir dir;
   Fixture f;
