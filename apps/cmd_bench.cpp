@@ -18,13 +18,17 @@ void add_bench_command(CLI::App& app, GlobalOptions& global) {
   struct Args {
     std::string suite;
     std::string volume;
+    std::vector<int> sizes{256};
   };
   auto args = std::make_shared<Args>();
-  cmd->add_option("SUITE", args->suite, "io")->required();
+  cmd->add_option("SUITE", args->suite, "io | gt")->required();
+  cmd->add_option("--sizes", args->sizes, "gt: image sizes (default 256)")->delimiter(',');
   cmd->add_option("--volume", args->volume, "TIFF stack to measure (default: a synthetic stack written to a temp folder)");
   cmd->allow_extras();
   cmd->callback([cmd, args, &global] {
-    if (args->suite != "io") throw io::InputError("bench: unknown suite '" + args->suite + "'; expected io");
+    if (args->suite != "io" && args->suite != "gt") {
+      throw io::InputError("bench: unknown suite '" + args->suite + "'; expected io|gt");
+    }
     std::filesystem::path volume = args->volume;
     std::filesystem::path temp;
     if (volume.empty()) {
@@ -34,7 +38,14 @@ void add_bench_command(CLI::App& app, GlobalOptions& global) {
     } else {
       io::require_regular_file(volume);
     }
-    bench::register_io_benchmarks(volume);
+    if (args->suite == "io") {
+      bench::register_io_benchmarks(volume);
+    } else {
+      for (int size : args->sizes) {
+        if (size < 8 || size > 16384) throw io::InputError("--sizes: " + std::to_string(size) + " is outside [8, 16384]");
+        bench::register_gt_benchmarks(volume, size);
+      }
+    }
     std::vector<std::string> extra = cmd->remaining();
     std::vector<char*> argv;
     std::string program = "hisnegs bench";

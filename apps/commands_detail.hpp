@@ -7,6 +7,9 @@
 #include "io/load_volume.hpp"
 #include "io/sparse_grid.hpp"
 #include "io/synthetic_neuron.hpp"
+#include "splat/backend.hpp"
+#include "splat/camera.hpp"
+#include "splat/splat_options.hpp"
 
 namespace hisnegs::apps {
 
@@ -17,5 +20,12 @@ io::Volume write_synthetic_stack(const std::filesystem::path& out, const io::Syn
 // Loads + normalizes `volume_path`, builds the sparse grid and writes it to `out`.
 io::SparseGrid write_sparse_grid(const std::filesystem::path& volume_path, const io::VolumeOptions& volume,
                                  const io::SparseGridOptions& sparse, const std::filesystem::path& out, bool quiet);
+
+// Ray-marches `cameras` and writes DIR/{cameras.json, mips.tif, previews/NNN.png,
+// meta.json}; `label` names the set in progress lines.
+void write_ground_truth_set(const std::filesystem::path& dir, const std::string& label,
+                            const splat::CameraSet& cameras, const io::LoadedVolume& loaded,
+                            const std::string& volume_path, const splat::RaymarchOptions& raymarch,
+                            splat::Backend backend, bool quiet);
 
 }  // namespace hisnegs::apps

@@ -13,7 +13,10 @@ if(NOT _hisnegs_cuda STREQUAL "OFF")
     if(NOT DEFINED CMAKE_CUDA_ARCHITECTURES)
       set(CMAKE_CUDA_ARCHITECTURES "90-real;75-virtual")
     endif()
-    set(CMAKE_CUDA_STANDARD 20)
+    # .cu files are C++17: CMake 3.25 cannot ask nvcc for C++20 (and would otherwise
+    # inherit CXX_STANDARD 20 and fail). Device code and the headers it includes
+    # (splat/*_kernel.hpp, splat/cuda/*) are written to C++17.
+    set(CMAKE_CUDA_STANDARD 17)
     set(CMAKE_CUDA_STANDARD_REQUIRED ON)
     enable_language(CUDA)
     find_package(CUDAToolkit REQUIRED)

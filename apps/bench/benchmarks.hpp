@@ -10,4 +10,8 @@ namespace hisnegs::apps::bench {
 // Loading, normalizing and sparsifying `volume` (a TIFF stack).
 void register_io_benchmarks(const std::filesystem::path& volume);
 
+// Ground-truth MIPs of the 30 evaluation views at size × size, both modes, CPU and
+// (when available) CUDA; iterations = whole orbits, counter median_ms_per_view.
+void register_gt_benchmarks(const std::filesystem::path& volume, int size);
+
 }  // namespace hisnegs::apps::bench

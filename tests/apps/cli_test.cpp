@@ -78,5 +78,66 @@ TEST(Cli, IoBenchmarkSuiteRuns) {
   EXPECT_NE(r.out.find("io/build_sparse_grid/s.tif"), std::string::npos) << r.out;
 }
 
+TEST(Cli, GtBenchmarkSuiteRuns) {
+  testing::ScratchDir dir;
+  ASSERT_EQ(run_hisnegs({"-q", "synth", "-o", dir / "s.tif", "--shape", "16,32,32"}).exit_code, 0);
+  const auto r = run_hisnegs({"bench", "gt", "--volume", dir / "s.tif", "--sizes", "16"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("gt/cpu/exact/s.tif/16"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("median_ms_per_view"), std::string::npos) << r.out;
+}
+
+}  // namespace
+}  // namespace hisnegs
+
+namespace hisnegs {
+namespace {
+
+TEST(CliGt, WritesCamerasStackPreviewsAndMeta) {
+  testing::ScratchDir dir;
+  ASSERT_EQ(run_hisnegs({"-q", "synth", "-o", dir / "s.tif", "--shape", "16,48,48"}).exit_code, 0);
+  auto r = run_hisnegs({"gt", dir / "s.tif", "-o", dir / "gt", "--size", "32", "--backend", "cpu"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  for (const char* set : {"train", "eval"}) {
+    const fs::path d = dir / "gt" / set;
+    EXPECT_TRUE(fs::exists(d / "cameras.json")) << set;
+    EXPECT_TRUE(fs::exists(d / "mips.tif")) << set;
+    EXPECT_TRUE(fs::exists(d / "meta.json")) << set;
+  }
+  EXPECT_TRUE(fs::exists(dir / "gt" / "train" / "previews" / "105.png"));
+  EXPECT_TRUE(fs::exists(dir / "gt" / "eval" / "previews" / "029.png"));
+  r = run_hisnegs({"info", dir / "gt" / "eval" / "mips.tif"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("Z=30 Y=32 X=32"), std::string::npos) << r.out;
+  // Re-render the eval views from the written cameras file: identical stack.
+  r = run_hisnegs({"-q", "gt", dir / "s.tif", "-o", dir / "again", "--cameras", dir / "gt" / "eval" / "cameras.json",
+                   "--backend", "cpu"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  std::ifstream a(dir / "gt" / "eval" / "mips.tif", std::ios::binary), b(dir / "again" / "mips.tif", std::ios::binary);
+  EXPECT_EQ(std::string(std::istreambuf_iterator<char>(a), {}), std::string(std::istreambuf_iterator<char>(b), {}));
+}
+
+TEST(CliGt, CustomOrbitAndBadInputs) {
+  testing::ScratchDir dir;
+  ASSERT_EQ(run_hisnegs({"-q", "synth", "-o", dir / "s.tif", "--shape", "16,48,48"}).exit_code, 0);
+  auto r = run_hisnegs({"-q", "gt", dir / "s.tif", "-o", dir / "c", "--elevations", "-90,0,90", "--ring-views", "4",
+                        "--size", "16", "--mode", "report"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_TRUE(fs::exists(dir / "c" / "previews" / "011.png"));
+  testing::write_text(dir / "bad.json", R"({"width": 8, "height": 8, "fx": 8, "fy": 8, "cx": 4, "cy": 4,
+    "near": 0.01, "far": 10, "views": [{"name": "a", "R": [[1,0,0],[0,1,0],[0,0,2]], "T": [0,0,2.5]}]})");
+  r = run_hisnegs({"gt", dir / "s.tif", "-o", dir / "bad", "--cameras", dir / "bad.json"});
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("views[0].R: not a rotation"), std::string::npos) << r.err;
+  EXPECT_FALSE(fs::exists(dir / "bad" / "mips.tif"));
+  r = run_hisnegs({"gt", dir / "s.tif", "-o", dir / "bad", "--mode", "fast"});
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("--mode"), std::string::npos) << r.err;
+  r = run_hisnegs({"gt", dir / "s.tif", "-o", dir / "bad", "--size", "2"});
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("camera.width = 2"), std::string::npos) << r.err;
+  EXPECT_EQ(testing::count_lines(r.err), 1) << r.err;
+}
+
 }  // namespace
 }  // namespace hisnegs
