@@ -76,16 +76,6 @@ std::string format_bytes(double bytes) {
   return buf;
 }
 
-namespace {
-// Error messages are one line: fold any newline a library put into them.
-std::string one_line(std::string s) {
-  for (char& c : s) {
-    if (c == '\n' || c == '\r') c = ' ';
-  }
-  return s;
-}
-}  // namespace
-
 int run_cli(int argc, char** argv) {
   CLI::App app{"hisnegs: Gaussian Mixture Field fitting and soft-MIP Gaussian splatting of microscopy volumes",
                "hisnegs"};
@@ -122,16 +112,16 @@ int run_cli(int argc, char** argv) {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
     if (e.get_exit_code() == 0) return app.exit(e);  // --help, --version
-    std::cerr << "hisnegs: error: " << one_line(e.what()) << " (see hisnegs --help)\n";
+    std::cerr << "hisnegs: error: " << io::printable(e.what()) << " (see hisnegs --help)\n";
     return 2;
   } catch (const io::InputError& e) {
-    std::cerr << "hisnegs: error: " << one_line(e.what()) << "\n";
+    std::cerr << "hisnegs: error: " << io::printable(e.what()) << "\n";
     return 2;
   } catch (const std::bad_alloc&) {
     std::cerr << "hisnegs: error: out of memory\n";
     return 1;
   } catch (const std::exception& e) {
-    std::cerr << "hisnegs: internal error: " << one_line(e.what()) << "\n";
+    std::cerr << "hisnegs: internal error: " << io::printable(e.what()) << "\n";
     return 1;
   }
   return 0;

@@ -6,6 +6,7 @@
 #include <filesystem>
 #include <stdexcept>
 #include <string>
+#include <string_view>
 
 namespace hisnegs::io {
 
@@ -25,6 +26,20 @@ class InputError : public std::runtime_error {
 // Throws InputError("PATH: message").
 [[noreturn]] inline void fail_input(const std::filesystem::path& path, const std::string& message) {
   throw InputError(describe(path, message));
+}
+
+// `text` made fit for a one-line message: line breaks and tabs become spaces,
+// other control bytes '?', and text longer than `max_chars` is cut with "...".
+// For library messages (OpenVDB, libtiff, JSON) and hostile file content.
+[[nodiscard]] inline std::string printable(std::string_view text, std::size_t max_chars = 1000) {
+  std::string out;
+  out.reserve(text.size() < max_chars ? text.size() : max_chars + 3);
+  for (std::size_t i = 0; i < text.size() && i < max_chars; ++i) {
+    const auto u = static_cast<unsigned char>(text[i]);
+    out += (u == '\n' || u == '\r' || u == '\t') ? ' ' : ((u < 0x20 || u == 0x7F) ? '?' : text[i]);
+  }
+  if (text.size() > max_chars) out += "...";
+  return out;
 }
 
 // Checks that `path` names an existing regular file; throws InputError naming it

@@ -188,23 +188,8 @@ struct FileCloser {
 };
 using FilePtr = std::unique_ptr<std::FILE, FileCloser>;
 
-// A header line for a one-line message: control bytes escaped, long lines cut.
-std::string quote(std::string_view line) {
-  constexpr std::size_t kMax = 120;
-  std::string out = "'";
-  for (std::size_t i = 0; i < line.size() && i < kMax; ++i) {
-    const auto u = static_cast<unsigned char>(line[i]);
-    if (u < 0x20 || u == 0x7f) {
-      char buf[8];
-      std::snprintf(buf, sizeof buf, "\\x%02x", u);
-      out += buf;
-    } else {
-      out += line[i];
-    }
-  }
-  if (line.size() > kMax) out += "...";
-  return out + "'";
-}
+// A header line for a one-line message: control bytes replaced, long lines cut.
+std::string quote(std::string_view line) { return "'" + printable(line, 120) + "'"; }
 
 std::vector<std::string_view> split_ws(std::string_view s) {
   std::vector<std::string_view> out;

@@ -277,12 +277,7 @@ SparseGrid read_vdb(const std::filesystem::path& path) {
     if (file.hasGrid("background")) impl->background = openvdb::gridPtrCast<FloatGrid>(file.readGrid("background"));
     file.close();
   } catch (const openvdb::Exception& e) {
-    // OpenVDB messages can span lines; keep ours to one.
-    std::string what = e.what();
-    for (char& c : what) {
-      if (c == '\n') c = ' ';
-    }
-    fail_input(path, "not a readable OpenVDB file: " + what);
+    fail_input(path, "not a readable OpenVDB file: " + printable(e.what()));  // OpenVDB messages can span lines
   }
   if (!impl->background) {
     impl->background = FloatGrid::create(0.0f);
@@ -336,11 +331,7 @@ std::vector<VdbGridSummary> inspect_vdb(const std::filesystem::path& path) {
     }
     file.close();
   } catch (const openvdb::Exception& e) {
-    std::string what = e.what();
-    for (char& c : what) {
-      if (c == '\n') c = ' ';
-    }
-    fail_input(path, "not a readable OpenVDB file: " + what);
+    fail_input(path, "not a readable OpenVDB file: " + printable(e.what()));  // OpenVDB messages can span lines
   }
   return out;
 }

@@ -49,12 +49,7 @@ thread_local TiffMessages* t_active_messages = nullptr;
 std::string format_message(const char* module, const char* fmt, va_list ap) {
   char text[512];
   std::vsnprintf(text, sizeof text, fmt, ap);
-  std::string out = module && *module ? std::string(module) + ": " + text : std::string(text);
-  for (char& c : out) {
-    const auto u = static_cast<unsigned char>(c);
-    if (u < 0x20 || u == 0x7F) c = ' ';  // one printable line
-  }
-  return out;
+  return printable(module && *module ? std::string(module) + ": " + text : std::string(text));
 }
 
 int on_tiff_error(TIFF*, void* user, const char* module, const char* fmt, va_list ap) {

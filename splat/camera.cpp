@@ -175,11 +175,7 @@ CameraSet read_cameras_json(const std::filesystem::path& path) {
   try {
     j = Json::parse(in);
   } catch (const Json::exception& e) {
-    std::string what = e.what();
-    for (char& c : what) {
-      if (c == '\n') c = ' ';
-    }
-    io::fail_input(path, "invalid JSON: " + what);
+    io::fail_input(path, "invalid JSON: " + io::printable(e.what()));
   }
   const JsonReader r(path);
   if (!j.is_object()) r.fail("top level", "expected an object");

@@ -34,15 +34,7 @@ std::string ascii_lower(std::string_view s) {
 }
 
 // Keeps error messages single-line and short even for hostile metadata.
-std::string printable(std::string_view s) {
-  std::string out;
-  for (char c : s.substr(0, 40)) {
-    const auto u = static_cast<unsigned char>(c);
-    out += (u < 0x20 || u == 0x7F) ? '?' : c;  // control bytes would garble a terminal line
-  }
-  if (s.size() > 40) out += "...";
-  return out;
-}
+std::string printable(std::string_view s) { return io::printable(s, 40); }
 
 // Appends the UTF-8 encoding of `cp` (used for XML character references).
 void append_utf8(std::string& out, std::uint32_t cp) {

@@ -344,7 +344,7 @@ std::vector<BadPly> bad_plys() {
        "header line 3: malformed header line (unknown keyword 'elephant') in 'elephant vertex 3'"},
       {"empty_header_line", "ply\nformat ascii 1.0\n\nend_header\n", "header line 3: empty header line"},
       {"control_character", "ply\nformat ascii 1.0\nelement vertex 1\nproperty float\x01 x\nend_header\n",
-       "header line 4: control character in 'property float\\x01 x'"},
+       "header line 4: control character in 'property float? x'"},
       {"unknown_type", "ply\nformat ascii 1.0\nelement vertex 1\nproperty float16 x\nend_header\n",
        "header line 4: unknown property type 'float16'"},
       {"missing_end_header", "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\n",
