@@ -55,10 +55,10 @@ void info_tiff(const std::filesystem::path& path, GlobalOptions& global, const V
   io::Volume raw = io::read_tiff_stack(path, read);
   const double t_read = watch.lap();
   const io::VolumeStats raw_stats = io::compute_stats(raw, options.foreground_threshold);
-  io::Volume volume = raw;
   watch.lap();
-  io::normalize(volume, options.normalization);
+  io::normalize(raw, options.normalization);  // in place: the raw statistics are taken
   const double t_norm = watch.lap();
+  const io::Volume& volume = raw;
 
   print_row("file", path.string());
   print_row("format", std::string("TIFF") + (header.bigtiff ? " (BigTIFF)" : "") + ", " + std::to_string(header.pages) +

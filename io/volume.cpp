@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <initializer_list>
 #include <limits>
 #include <sstream>
 
@@ -138,16 +139,24 @@ void throw_nonfinite(const Volume& vol, std::size_t i) {
   fail_input(vol.source, s.str());
 }
 
-// Value at percentile p (0..100) of v, linear interpolation between order statistics.
-double percentile_of(std::vector<float> v, double p) {
-  if (v.empty()) return 0.0;
-  const double pos = p / 100.0 * static_cast<double>(v.size() - 1);
-  const std::size_t k = static_cast<std::size_t>(std::floor(pos));
-  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(k), v.end());
-  const double a = v[k];
-  if (k + 1 >= v.size()) return a;
-  const double b = *std::min_element(v.begin() + static_cast<std::ptrdiff_t>(k) + 1, v.end());
-  return a + (pos - static_cast<double>(k)) * (b - a);
+// Values at percentiles ps (0..100, ascending) of v, each interpolated linearly
+// between order statistics. One copy; successive nth_element calls, each on the
+// part of the array above the previous one, so the whole costs O(n) per percentile.
+std::vector<double> percentiles_of(std::vector<float> v, std::initializer_list<double> ps) {
+  std::vector<double> out;
+  if (v.empty()) return std::vector<double>(ps.size(), 0.0);
+  auto first = v.begin();
+  for (const double p : ps) {
+    const double pos = p / 100.0 * static_cast<double>(v.size() - 1);
+    const std::size_t k = static_cast<std::size_t>(std::floor(pos));
+    const auto kth = v.begin() + static_cast<std::ptrdiff_t>(k);
+    std::nth_element(first, kth, v.end());
+    const double a = *kth;
+    const double b = k + 1 < v.size() ? *std::min_element(kth + 1, v.end()) : a;
+    out.push_back(a + (pos - static_cast<double>(k)) * (b - a));
+    first = kth;
+  }
+  return out;
 }
 
 }  // namespace
@@ -167,8 +176,9 @@ void normalize(Volume& volume, const NormalizationOptions& options) {
 
   double lo = mm.lo, hi = mm.hi;
   if (options.method == NormalizationMethod::kPercentile) {
-    lo = percentile_of(volume.voxels, options.percentile_lo);
-    hi = percentile_of(volume.voxels, options.percentile_hi);
+    const std::vector<double> p = percentiles_of(volume.voxels, {options.percentile_lo, options.percentile_hi});
+    lo = p[0];
+    hi = p[1];
     if (!(hi > lo)) {
       std::ostringstream s;
       s << "percentiles " << options.percentile_lo << " and " << options.percentile_hi
@@ -234,19 +244,11 @@ VolumeStats compute_stats(const Volume& volume, double fg_rel) {
   st.stddev = std::sqrt(std::max(0.0, acc.sum2 / n - st.mean * st.mean));
   st.nonzero_fraction = static_cast<double>(acc.nonzero) / n;
   st.foreground_fraction = static_cast<double>(acc.fg) / n;
-  // Percentiles from one sorted copy (info is not a hot path).
-  std::vector<float> sorted = volume.voxels;
-  std::sort(sorted.begin(), sorted.end());
-  auto pct = [&](double p) {
-    const double pos = p / 100.0 * (n - 1);
-    const std::size_t k = static_cast<std::size_t>(pos);
-    const double a = sorted[k], b = sorted[std::min(k + 1, sorted.size() - 1)];
-    return a + (pos - static_cast<double>(k)) * (b - a);
-  };
-  st.p01 = pct(1);
-  st.p50 = pct(50);
-  st.p99 = pct(99);
-  st.p999 = pct(99.9);
+  const std::vector<double> p = percentiles_of(volume.voxels, {1.0, 50.0, 99.0, 99.9});
+  st.p01 = p[0];
+  st.p50 = p[1];
+  st.p99 = p[2];
+  st.p999 = p[3];
   return st;
 }
 
