@@ -1,0 +1,80 @@
+// build_brick_index: per-Gaussian support boxes -> (brick, Gaussian) pairs -> CSR.
+#include "gmf/brick_index.hpp"
+
+#include <tbb/combinable.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <cmath>
+#include <utility>
+
+#include "gmf/gaussian_math.hpp"
+
+namespace hisnegs::gmf {
+
+BrickIndex build_brick_index(const GaussianMixture& mixture, const SampleSet& samples, const io::WorldFrame& frame,
+                             double cutoff) {
+  // Dense map from brick coordinates to the sample bricks there (a foreground and a
+  // background leaf may share an origin): CSR over the brick grid.
+  const Eigen::Vector3i n = frame.shape();
+  const int nb[3] = {(n.x() + 7) / 8, (n.y() + 7) / 8, (n.z() + 7) / 8};
+  const std::size_t cells = static_cast<std::size_t>(nb[0]) * nb[1] * nb[2];
+  std::vector<std::uint32_t> cell_begin(cells + 1, 0), cell_bricks(samples.bricks());
+  auto cell_of = [&](const std::array<int, 3>& o) {
+    return (static_cast<std::size_t>(o[2] / 8) * nb[1] + o[1] / 8) * nb[0] + o[0] / 8;
+  };
+  for (const auto& o : samples.brick_origin) ++cell_begin[cell_of(o) + 1];
+  for (std::size_t c = 0; c < cells; ++c) cell_begin[c + 1] += cell_begin[c];
+  {
+    std::vector<std::uint32_t> fill(cell_begin.begin(), cell_begin.end() - 1);
+    for (std::size_t b = 0; b < samples.bricks(); ++b) cell_bricks[fill[cell_of(samples.brick_origin[b])]++] = static_cast<std::uint32_t>(b);
+  }
+
+  tbb::combinable<std::vector<std::pair<std::uint32_t, std::uint32_t>>> pairs;
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, mixture.size(), 256), [&](const auto& r) {
+    auto& local = pairs.local();
+    for (std::size_t k = r.begin(); k != r.end(); ++k) {
+      const GaussianParams& p = mixture[k];
+      const double mean[3] = {p.mean[0], p.mean[1], p.mean[2]};
+      const double ls[3] = {p.log_scale[0], p.log_scale[1], p.log_scale[2]};
+      const double q[4] = {p.rotation[0], p.rotation[1], p.rotation[2], p.rotation[3]};
+      GaussianFrame<double> f;
+      prepare_gaussian(mean, ls, q, static_cast<double>(p.intensity_logit), f);
+      double half[3];
+      support_half_extents(f, cutoff, half);
+      const Eigen::Vector3d lo = frame.index_from_world(Eigen::Vector3d(mean[0] - half[0], mean[1] - half[1], mean[2] - half[2]));
+      const Eigen::Vector3d hi = frame.index_from_world(Eigen::Vector3d(mean[0] + half[0], mean[1] + half[1], mean[2] + half[2]));
+      // Brick b holds voxel centres 8b .. 8b + 7: overlap iff hi >= 8b and lo <= 8b + 7.
+      int b0[3], b1[3];
+      bool empty = false;
+      for (int a = 0; a < 3; ++a) {
+        b0[a] = std::max(0, static_cast<int>(std::ceil((lo[a] - 7.0) / 8.0)));
+        b1[a] = std::min(nb[a] - 1, static_cast<int>(std::floor(hi[a] / 8.0)));
+        empty |= b0[a] > b1[a];
+      }
+      if (empty) continue;
+      for (int bz = b0[2]; bz <= b1[2]; ++bz)
+        for (int by = b0[1]; by <= b1[1]; ++by)
+          for (int bx = b0[0]; bx <= b1[0]; ++bx) {
+            const std::size_t c = (static_cast<std::size_t>(bz) * nb[1] + by) * nb[0] + bx;
+            for (std::uint32_t i = cell_begin[c]; i < cell_begin[c + 1]; ++i) {
+              local.emplace_back(cell_bricks[i], static_cast<std::uint32_t>(k));
+            }
+          }
+    }
+  });
+  std::vector<std::pair<std::uint32_t, std::uint32_t>> all;
+  pairs.combine_each([&](const auto& v) { all.insert(all.end(), v.begin(), v.end()); });
+  std::sort(all.begin(), all.end());
+  BrickIndex index;
+  index.begin.assign(samples.bricks() + 1, 0);
+  index.gaussians.reserve(all.size());
+  for (const auto& [b, k] : all) {
+    ++index.begin[b + 1];
+    index.gaussians.push_back(k);
+  }
+  for (std::size_t b = 0; b < samples.bricks(); ++b) index.begin[b + 1] += index.begin[b];
+  return index;
+}
+
+}  // namespace hisnegs::gmf

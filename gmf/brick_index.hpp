@@ -1,0 +1,30 @@
+// Which Gaussians can reach which sample brick: a Gaussian touches a brick when
+// the axis-aligned box of its support {m <= δ} overlaps the brick's voxel
+// centres. Rebuilt between fit rounds as Gaussians move. Knows no solver.
+#pragma once
+
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include "gmf/gaussian_mixture.hpp"
+#include "gmf/samples.hpp"
+#include "io/volume.hpp"
+
+namespace hisnegs::gmf {
+
+struct BrickIndex {
+  // Brick b is reached by gaussians[begin[b] .. begin[b + 1]) (ascending ids).
+  std::vector<std::uint32_t> begin;
+  std::vector<std::uint32_t> gaussians;
+
+  [[nodiscard]] std::span<const std::uint32_t> of(std::size_t brick) const {
+    return {gaussians.data() + begin[brick], gaussians.data() + begin[brick + 1]};
+  }
+};
+
+// `cutoff` is δ (16 = 4σ). TBB-parallel over Gaussians.
+BrickIndex build_brick_index(const GaussianMixture& mixture, const SampleSet& samples, const io::WorldFrame& frame,
+                             double cutoff);
+
+}  // namespace hisnegs::gmf

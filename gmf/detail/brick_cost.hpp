@@ -1,0 +1,37 @@
+// The Ceres residual block of one sample brick: r_j = w_j (f_δ(x_j) − V_j) over
+// the brick's samples, f_δ the sum of the brick's Gaussians that reach x_j
+// (m <= δ), with the analytic Jacobian of gaussian_math.hpp. Parameter blocks:
+// for each Gaussian in order, mean (3), log-scales (3), quaternion (4), logit (1).
+// Includes Ceres: for gmf's .cpp files and tests only.
+#pragma once
+
+#include <ceres/ceres.h>
+
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include "gmf/samples.hpp"
+
+namespace hisnegs::gmf::detail {
+
+inline constexpr int kBlocksPerGaussian = 4;
+inline constexpr int kBlockSizes[kBlocksPerGaussian] = {3, 3, 4, 1};
+
+class BrickCost final : public ceres::CostFunction {
+ public:
+  // Keeps references to `samples`; `gaussians` is copied (its count fixes the blocks).
+  BrickCost(const SampleSet& samples, std::size_t brick, std::span<const std::uint32_t> gaussians, double cutoff);
+
+  bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override;
+
+  [[nodiscard]] std::size_t gaussian_count() const { return gaussians_; }
+
+ private:
+  const SampleSet& samples_;
+  std::uint32_t first_, count_;
+  std::size_t gaussians_;
+  double cutoff_;
+};
+
+}  // namespace hisnegs::gmf::detail
