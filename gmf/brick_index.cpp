@@ -14,8 +14,8 @@ namespace hisnegs::gmf {
 
 BrickIndex build_brick_index(const GaussianMixture& mixture, const SampleSet& samples, const io::WorldFrame& frame,
                              double cutoff) {
-  // Dense map from brick coordinates to the sample bricks there (a foreground and a
-  // background leaf may share an origin): CSR over the brick grid.
+  // Dense map from leaf (8^3) coordinates to the sample blocks inside (several
+  // blocks per leaf, and a foreground and a background block may coincide): CSR.
   const Eigen::Vector3i n = frame.shape();
   const int nb[3] = {(n.x() + 7) / 8, (n.y() + 7) / 8, (n.z() + 7) / 8};
   const std::size_t cells = static_cast<std::size_t>(nb[0]) * nb[1] * nb[2];
@@ -58,7 +58,11 @@ BrickIndex build_brick_index(const GaussianMixture& mixture, const SampleSet& sa
           for (int bx = b0[0]; bx <= b1[0]; ++bx) {
             const std::size_t c = (static_cast<std::size_t>(bz) * nb[1] + by) * nb[0] + bx;
             for (std::uint32_t i = cell_begin[c]; i < cell_begin[c + 1]; ++i) {
-              local.emplace_back(cell_bricks[i], static_cast<std::uint32_t>(k));
+              // The block's voxel centres: origin .. origin + block - 1 per axis.
+              const auto& o = samples.brick_origin[cell_bricks[i]];
+              bool overlap = true;
+              for (int a = 0; a < 3; ++a) overlap = overlap && hi[a] >= o[a] && lo[a] <= o[a] + samples.block - 1;
+              if (overlap) local.emplace_back(cell_bricks[i], static_cast<std::uint32_t>(k));
             }
           }
     }

@@ -1,5 +1,5 @@
-// Which Gaussians can reach which sample brick: a Gaussian touches a brick when
-// the axis-aligned box of its support {m <= δ} overlaps the brick's voxel
+// Which Gaussians can reach which sample block: a Gaussian touches a block when
+// the axis-aligned box of its support {m <= δ} overlaps the block's voxel
 // centres. Rebuilt between fit rounds as Gaussians move. Knows no solver.
 #pragma once
 

@@ -81,7 +81,7 @@ FitResult fit_mixture(const io::Volume& volume, const io::SparseGrid& grid, Gaus
   io::Stopwatch watch;
   FitResult result;
   const io::WorldFrame frame = grid.frame();
-  const SampleSet samples = extract_samples(grid, options.background_weight);
+  const SampleSet samples = extract_samples(grid, options.background_weight, options.residual_block_voxels);
   const double min_voxel = frame.voxel_size().minCoeff();
   ceres::QuaternionManifold quaternion_manifold;
   int iterations = 0;

@@ -15,6 +15,10 @@ void GmfOptions::validate() const {
   io::require_in_range(s, "split_offset", split_offset, 0.0, 2.0);
   io::require_in_range(s, "background_weight", background_weight, 0.0, 1e9);
   io::require_positive(s, "adam_learning_rate", adam_learning_rate);
+  if (residual_block_voxels != 1 && residual_block_voxels != 2 && residual_block_voxels != 4 &&
+      residual_block_voxels != 8) {
+    io::fail_option(s, "residual_block_voxels", std::to_string(residual_block_voxels), "must be 1, 2, 4 or 8");
+  }
 }
 
 }  // namespace hisnegs::gmf

@@ -1,7 +1,8 @@
 // The points the GMF fit is measured on: every active voxel of a SparseGrid's
 // `volume` grid (foreground + band) and of its `background` subsample, with
-// world positions, target values and residual weights, grouped by OpenVDB leaf
-// (8^3 brick) so a brick's samples form one residual block. Knows no Gaussians.
+// world positions, target values and residual weights, grouped into cubic
+// blocks of `block` voxels inside each OpenVDB leaf (block 8 = one leaf) so a
+// block's samples form one residual block. Knows no Gaussians.
 #pragma once
 
 #include <array>
@@ -19,7 +20,8 @@ struct SampleSet {
   std::vector<double> weight;      // residual weight w: the loss is Σ w² (f(x) − value)²
   // Brick b holds samples [brick_begin[b], brick_begin[b + 1]).
   std::vector<std::uint32_t> brick_begin;
-  std::vector<std::array<int, 3>> brick_origin;  // index of the brick's first voxel (multiples of 8)
+  std::vector<std::array<int, 3>> brick_origin;  // index of the block's first voxel (multiples of `block`)
+  int block = 8;                                  // block edge in voxels: 1, 2, 4 or 8
   std::int64_t foreground = 0;     // samples from `volume` (weight 1)
   std::int64_t background = 0;     // samples from `background`
 
@@ -27,9 +29,10 @@ struct SampleSet {
   [[nodiscard]] std::size_t bricks() const { return brick_origin.size(); }
 };
 
-// Extracts the samples. Background samples stand for 1 / background_fraction
-// voxels each, so their weight is sqrt(background_weight / fraction): empty
-// space counts in the loss as much as it would if every voxel were sampled.
-SampleSet extract_samples(const io::SparseGrid& grid, double background_weight);
+// Extracts the samples, grouped in blocks of `block` ∈ {1, 2, 4, 8} voxels.
+// Background samples stand for 1 / background_fraction voxels each, so their
+// weight is sqrt(background_weight / fraction): empty space counts in the loss
+// as much as it would if every voxel were sampled.
+SampleSet extract_samples(const io::SparseGrid& grid, double background_weight, int block = 8);
 
 }  // namespace hisnegs::gmf

@@ -141,3 +141,33 @@ TEST(CliGt, CustomOrbitAndBadInputs) {
 
 }  // namespace
 }  // namespace hisnegs
+
+namespace hisnegs {
+namespace {
+
+TEST(CliFit, WritesCheckpointAndCsvLog) {
+  testing::ScratchDir dir;
+  ASSERT_EQ(run_hisnegs({"-q", "synth", "-o", dir / "s.tif", "--shape", "16,48,48"}).exit_code, 0);
+  testing::write_text(dir / "c.yaml", "gmf:\n  rounds: 2\n  iterations_per_round: 3\n");
+  auto r = run_hisnegs({"--config", dir / "c.yaml", "fit", dir / "s.tif", "-o", dir / "m.ply", "--gaussians", "150",
+                        "--time-budget", "60", "--log", dir / "fit.csv"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("3D PSNR"), std::string::npos) << r.out;
+  r = run_hisnegs({"info", dir / "m.ply"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("volume       Z=16 Y=48 X=48"), std::string::npos) << r.out;
+  std::ifstream csv(dir / "fit.csv");
+  std::string header;
+  std::getline(csv, header);
+  EXPECT_EQ(header, "iteration,seconds,loss,psnr_3d,gaussians,round");
+  int rows = 0;
+  for (std::string line; std::getline(csv, line);) ++rows;
+  EXPECT_GE(rows, 3);
+  r = run_hisnegs({"fit", dir / "s.tif", "-o", dir / "x.ply", "--optimizer", "adam"});
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("not implemented yet"), std::string::npos) << r.err;
+  EXPECT_FALSE(fs::exists(dir / "x.ply"));
+}
+
+}  // namespace
+}  // namespace hisnegs

@@ -1,0 +1,107 @@
+// `hisnegs fit VOLUME -o model.ply`: the GMF stage (config sections `volume`,
+// `sparse_grid`, `gmf`): init on the foreground grid, Ceres fit, checkpoint, CSV log.
+#include <cstdio>
+#include <sstream>
+
+#include "apps/cli_support.hpp"
+#include "gmf/checkpoint.hpp"
+#include "gmf/fit.hpp"
+#include "gmf/init.hpp"
+#include "io/atomic_file.hpp"
+#include "io/error.hpp"
+#include "io/load_volume.hpp"
+#include "io/timer.hpp"
+
+namespace hisnegs::apps {
+namespace {
+
+gmf::Optimizer parse_optimizer(const std::string& name) {
+  if (name == "lm") return gmf::Optimizer::kLevenbergMarquardt;
+  if (name == "lm-cgnr") return gmf::Optimizer::kLevenbergMarquardtCgnr;
+  if (name == "dogleg") return gmf::Optimizer::kDogleg;
+  if (name == "lbfgs") return gmf::Optimizer::kLbfgs;
+  if (name == "adam") return gmf::Optimizer::kAdam;
+  throw io::InputError("--optimizer = '" + name + "': expected lm|lm-cgnr|dogleg|lbfgs|adam");
+}
+
+std::string csv_of(const std::vector<gmf::FitIteration>& log) {
+  std::ostringstream s;
+  s.precision(10);
+  s << "iteration,seconds,loss,psnr_3d,gaussians,round\n";
+  for (const auto& it : log) {
+    s << it.iteration << "," << it.seconds << "," << it.loss << ",";
+    if (it.psnr_3d >= 0) s << it.psnr_3d;
+    s << "," << it.gaussians << "," << it.round << "\n";
+  }
+  return s.str();
+}
+
+}  // namespace
+
+void add_fit_command(CLI::App& app, GlobalOptions& global) {
+  auto* cmd = app.add_subcommand("fit", "fit a Gaussian Mixture Field to a stack with Ceres (writes a .ply checkpoint)");
+  struct Args {
+    std::string volume, out, optimizer, log;
+    std::optional<int> gaussians;
+    std::optional<double> time_budget;
+    VolumeOverrides overrides;
+  };
+  auto args = std::make_shared<Args>();
+  cmd->add_option("VOLUME", args->volume, "TIFF stack")->required();
+  cmd->add_option("-o,--output", args->out, "output checkpoint (.ply)")->required();
+  cmd->add_option("--optimizer", args->optimizer, "lm | lm-cgnr | dogleg (lbfgs, adam: not implemented yet)");
+  cmd->add_option("--gaussians", args->gaussians, "Gaussian budget (gmf.gaussians)");
+  cmd->add_option("--time-budget", args->time_budget, "wall-clock limit in seconds (gmf.time_budget_s)");
+  cmd->add_option("--log", args->log, "CSV of iteration, seconds, loss, 3D PSNR, K");
+  args->overrides.add_to(cmd);
+  cmd->callback([args, &global] {
+    AppConfig config = global.config();
+    args->overrides.apply(config.volume);
+    if (!args->optimizer.empty()) config.gmf.optimizer = parse_optimizer(args->optimizer);
+    if (args->gaussians) config.gmf.gaussians = *args->gaussians;
+    if (args->time_budget) config.gmf.time_budget_s = *args->time_budget;
+    config.gmf.validate();
+    io::Stopwatch watch;
+    const io::LoadedVolume loaded = io::load_volume(args->volume, config.volume);
+    const io::SparseGrid grid = io::build_sparse_grid(loaded.volume, loaded.frame.aspect(), config.sparse_grid);
+    gmf::InitReport init_report;
+    gmf::GaussianMixture mixture = gmf::initialize_on_grid(loaded.volume, loaded.frame, config.sparse_grid.threshold,
+                                                           config.gmf.gaussians, &init_report);
+    if (!global.quiet) {
+      std::printf("fit: %s: %lld samples (%lld active voxels), %zu Gaussians on a %.4g grid (budget %d), %s\n",
+                  args->volume.c_str(), static_cast<long long>(grid.active_voxels() + grid.background_voxels()),
+                  static_cast<long long>(grid.active_voxels()), mixture.size(), init_report.cell_world,
+                  config.gmf.gaussians, format_seconds(watch.elapsed()).c_str());
+    }
+    const gmf::FitResult result = gmf::fit_mixture(loaded.volume, grid, mixture, config.gmf, [&](const gmf::FitIteration& it) {
+      if (global.quiet) return;
+      if (it.psnr_3d >= 0) {
+        std::printf("fit: round %d done: loss %.6g, 3D PSNR %.2f dB, K %d, %s\n", it.round, it.loss, it.psnr_3d,
+                    it.gaussians, format_seconds(it.seconds).c_str());
+      } else {
+        std::printf("fit: round %d iteration %d: loss %.6g, K %d, %s\n", it.round, it.iteration, it.loss, it.gaussians,
+                    format_seconds(it.seconds).c_str());
+      }
+      std::fflush(stdout);
+    });
+    gmf::CheckpointMeta meta;
+    const io::Volume& v = loaded.volume;
+    meta.volume_shape_zyx = std::array<int, 3>{v.nz, v.ny, v.nx};
+    meta.spacing_um = v.spacing.um;
+    const Eigen::Vector3d& a = loaded.frame.aspect();
+    meta.aspect = std::array<double, 3>{a.x(), a.y(), a.z()};
+    meta.normalization = v.normalization.describe();
+    meta.extra.emplace_back("source", io::printable(args->volume, 200));
+    gmf::save_checkpoint(args->out, mixture, meta);
+    if (!args->log.empty()) {
+      const std::string csv = csv_of(result.log);
+      io::write_file_atomic(args->log, csv.data(), csv.size());
+    }
+    if (!global.quiet) {
+      std::printf("fit: wrote %s: K %zu (%d pruned), 3D PSNR %.2f dB, %s (%s)\n", args->out.c_str(), mixture.size(),
+                  result.pruned, result.final_psnr_3d, format_seconds(watch.elapsed()).c_str(), result.stop_reason.c_str());
+    }
+  });
+}
+
+}  // namespace hisnegs::apps
