@@ -13,7 +13,7 @@
 namespace hisnegs::gmf {
 
 BrickIndex build_brick_index(const GaussianMixture& mixture, const SampleSet& samples, const io::WorldFrame& frame,
-                             double cutoff) {
+                             double cutoff, double scale_pad, double pad_world) {
   // Dense map from leaf (8^3) coordinates to the sample blocks inside (several
   // blocks per leaf, and a foreground and a background block may coincide): CSR.
   const Eigen::Vector3i n = frame.shape();
@@ -42,6 +42,7 @@ BrickIndex build_brick_index(const GaussianMixture& mixture, const SampleSet& sa
       prepare_gaussian(mean, ls, q, static_cast<double>(p.intensity_logit), f);
       double half[3];
       support_half_extents(f, cutoff, half);
+      for (double& h : half) h = h * scale_pad + pad_world;
       const Eigen::Vector3d lo = frame.index_from_world(Eigen::Vector3d(mean[0] - half[0], mean[1] - half[1], mean[2] - half[2]));
       const Eigen::Vector3d hi = frame.index_from_world(Eigen::Vector3d(mean[0] + half[0], mean[1] + half[1], mean[2] + half[2]));
       // Brick b holds voxel centres 8b .. 8b + 7: overlap iff hi >= 8b and lo <= 8b + 7.

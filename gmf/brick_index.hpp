@@ -23,8 +23,11 @@ struct BrickIndex {
   }
 };
 
-// `cutoff` is δ (16 = 4σ). TBB-parallel over Gaussians.
+// `cutoff` is δ (16 = 4σ). The support box is grown to half · scale_pad + pad_world
+// per axis, so that a Gaussian whose scales may grow by `scale_pad` and whose mean
+// may move by `pad_world` within a fit round stays in every block it can reach.
+// TBB-parallel over Gaussians.
 BrickIndex build_brick_index(const GaussianMixture& mixture, const SampleSet& samples, const io::WorldFrame& frame,
-                             double cutoff);
+                             double cutoff, double scale_pad = 1.0, double pad_world = 0.0);
 
 }  // namespace hisnegs::gmf

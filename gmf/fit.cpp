@@ -83,6 +83,7 @@ FitResult fit_mixture(const io::Volume& volume, const io::SparseGrid& grid, Gaus
   const io::WorldFrame frame = grid.frame();
   const SampleSet samples = extract_samples(grid, options.background_weight, options.residual_block_voxels);
   const double min_voxel = frame.voxel_size().minCoeff();
+  const double max_voxel = frame.voxel_size().maxCoeff();
   ceres::QuaternionManifold quaternion_manifold;
   int iterations = 0;
   for (int round = 0; round < options.rounds; ++round) {
@@ -93,7 +94,15 @@ FitResult fit_mixture(const io::Volume& volume, const io::SparseGrid& grid, Gaus
     }
     std::vector<Params> params(mixture.size());
     for (std::size_t k = 0; k < mixture.size(); ++k) params[k] = to_double(mixture[k]);
-    const BrickIndex index = build_brick_index(mixture, samples, frame, options.mahalanobis_cutoff);
+    // Per-round trust region on each Gaussian's geometry (bounds below): its mean
+    // stays within one (largest) voxel of the round's start and its scales grow by
+    // at most kScaleGrowth, and the index is padded to match, so a Gaussian cannot
+    // reach samples outside its residual blocks during the round. Without it,
+    // Gaussians drifted into unwatched space and the next round's loss jumped
+    // from 3 to 3e4 on op1.
+    constexpr double kScaleGrowth = 1.25;
+    const double move = max_voxel;
+    const BrickIndex index = build_brick_index(mixture, samples, frame, options.mahalanobis_cutoff, kScaleGrowth, move);
 
     ceres::Problem::Options po;
     po.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
@@ -103,11 +112,15 @@ FitResult fit_mixture(const io::Volume& volume, const io::SparseGrid& grid, Gaus
       problem.AddParameterBlock(&p[kLogScale0], 3);
       problem.AddParameterBlock(&p[kRotW], 4, &quaternion_manifold);
       problem.AddParameterBlock(&p[kLogit], 1);
-      // Scales between a fifth of the smallest voxel and half the box: keeps LM
-      // from collapsing or exploding a Gaussian (the splat stage regularizes further).
+      // Scales between a fifth of the smallest voxel and 32 of the largest (at most
+      // half the box): keeps LM from collapsing or exploding a Gaussian.
       for (int i = 0; i < 3; ++i) {
-        problem.SetParameterLowerBound(&p[kLogScale0], i, std::log(0.2 * min_voxel));
-        problem.SetParameterUpperBound(&p[kLogScale0], i, std::log(0.5));
+        const double lower = std::log(0.2 * min_voxel), upper = std::log(std::min(0.5, 32.0 * max_voxel));
+        p[kLogScale0 + i] = std::clamp(p[kLogScale0 + i], lower, upper);
+        problem.SetParameterLowerBound(&p[kLogScale0], i, lower);
+        problem.SetParameterUpperBound(&p[kLogScale0], i, std::max(lower, std::min(upper, p[kLogScale0 + i] + std::log(kScaleGrowth))));
+        problem.SetParameterLowerBound(&p[kMeanX], i, p[kMeanX + i] - move);
+        problem.SetParameterUpperBound(&p[kMeanX], i, p[kMeanX + i] + move);
       }
     }
     double constant = 0;  // ½ Σ (w V)² of samples no Gaussian reaches
