@@ -49,7 +49,7 @@ void add_fit_command(CLI::App& app, GlobalOptions& global) {
   auto args = std::make_shared<Args>();
   cmd->add_option("VOLUME", args->volume, "TIFF stack")->required();
   cmd->add_option("-o,--output", args->out, "output checkpoint (.ply)")->required();
-  cmd->add_option("--optimizer", args->optimizer, "lm | lm-cgnr | dogleg (lbfgs, adam: not implemented yet)");
+  cmd->add_option("--optimizer", args->optimizer, "lm | lm-cgnr | dogleg | lbfgs | adam (gmf.optimizer)");
   cmd->add_option("--gaussians", args->gaussians, "Gaussian budget (gmf.gaussians)");
   cmd->add_option("--time-budget", args->time_budget, "wall-clock limit in seconds (gmf.time_budget_s)");
   cmd->add_option("--log", args->log, "CSV of iteration, seconds, loss, 3D PSNR, K");

@@ -8,13 +8,16 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <limits>
 #include <memory>
+#include <string>
 #include <thread>
 
 #include "gmf/brick_index.hpp"
 #include "gmf/detail/brick_cost.hpp"
 #include "gmf/gaussian_math.hpp"
 #include "gmf/init.hpp"
+#include "gmf/objective.hpp"
 #include "gmf/samples.hpp"
 #include "io/error.hpp"
 #include "io/timer.hpp"
@@ -70,14 +73,160 @@ class LogCallback final : public ceres::IterationCallback {
   const std::function<void(const FitIteration&)>& sink_;
 };
 
+struct RoundOutcome {
+  int iterations = 0;
+  double final_loss = 0;
+  bool converged = false;
+  std::string message;
+};
+
+// One round of a trust-region solver (LM with sparse normal Cholesky or CGNR, Dogleg).
+RoundOutcome solve_least_squares(const SampleSet& samples, const BrickIndex& index, std::vector<Params>& params,
+                                 const std::vector<double>& lower, const std::vector<double>& upper,
+                                 ceres::Manifold& quaternion_manifold, const GmfOptions& options, double seconds_left,
+                                 FitResult& result, const io::Stopwatch& watch, int round, int iteration0, int K,
+                                 const std::function<void(const FitIteration&)>& sink) {
+  ceres::Problem::Options po;
+  po.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+  ceres::Problem problem(po);
+  for (std::size_t k = 0; k < params.size(); ++k) {
+    Params& p = params[k];
+    problem.AddParameterBlock(&p[kMeanX], 3);
+    problem.AddParameterBlock(&p[kLogScale0], 3);
+    problem.AddParameterBlock(&p[kRotW], 4, &quaternion_manifold);
+    problem.AddParameterBlock(&p[kLogit], 1);
+    for (int i = 0; i < 3; ++i) {
+      problem.SetParameterLowerBound(&p[kLogScale0], i, lower[11 * k + kLogScale0 + i]);
+      problem.SetParameterUpperBound(&p[kLogScale0], i, upper[11 * k + kLogScale0 + i]);
+      problem.SetParameterLowerBound(&p[kMeanX], i, lower[11 * k + kMeanX + i]);
+      problem.SetParameterUpperBound(&p[kMeanX], i, upper[11 * k + kMeanX + i]);
+    }
+  }
+  double constant = 0;  // ½ Σ (w V)² of samples no Gaussian reaches
+  for (std::size_t b = 0; b < samples.bricks(); ++b) {
+    const auto ids = index.of(b);
+    if (ids.empty()) {
+      for (std::uint32_t s = samples.brick_begin[b]; s < samples.brick_begin[b + 1]; ++s) {
+        constant += 0.5 * std::pow(samples.weight[s] * samples.value[s], 2);
+      }
+      continue;
+    }
+    std::vector<double*> blocks;
+    blocks.reserve(ids.size() * detail::kBlocksPerGaussian);
+    for (std::uint32_t k : ids) {
+      blocks.push_back(&params[k][kMeanX]);
+      blocks.push_back(&params[k][kLogScale0]);
+      blocks.push_back(&params[k][kRotW]);
+      blocks.push_back(&params[k][kLogit]);
+    }
+    problem.AddResidualBlock(new detail::BrickCost(samples, b, ids, options.mahalanobis_cutoff), nullptr, blocks);
+  }
+  ceres::Solver::Options so;
+  so.max_num_iterations = options.iterations_per_round;
+  so.max_solver_time_in_seconds = seconds_left;
+  so.num_threads = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  so.minimizer_progress_to_stdout = false;
+  so.logging_type = ceres::SILENT;
+  so.trust_region_strategy_type =
+      options.optimizer == Optimizer::kDogleg ? ceres::DOGLEG : ceres::LEVENBERG_MARQUARDT;
+  so.linear_solver_type =
+      options.optimizer == Optimizer::kLevenbergMarquardtCgnr ? ceres::CGNR : ceres::SPARSE_NORMAL_CHOLESKY;
+  LogCallback callback(result, watch, round, iteration0, constant, K, sink);
+  so.callbacks.push_back(&callback);
+  ceres::Solver::Summary summary;
+  ceres::Solve(so, &problem, &summary);
+  RoundOutcome out;
+  out.iterations = summary.iterations.empty() ? 0 : summary.iterations.back().iteration;
+  out.final_loss = summary.final_cost + constant;
+  out.converged = summary.termination_type == ceres::CONVERGENCE;
+  out.message = summary.message;
+  return out;
+}
+
+class ObjectiveFunction final : public ceres::FirstOrderFunction {
+ public:
+  explicit ObjectiveFunction(const FitObjective& objective) : objective_(objective) {}
+  bool Evaluate(const double* parameters, double* cost, double* gradient) const override {
+    *cost = objective_.evaluate(parameters, gradient);
+    return std::isfinite(*cost);
+  }
+  int NumParameters() const override { return static_cast<int>(objective_.parameters()); }
+
+ private:
+  const FitObjective& objective_;
+};
+
+// One round of L-BFGS (ceres::GradientProblem). Ceres' line-search solver has no
+// bounds, so the result is clamped to the round's box afterwards (the quaternion
+// needs none: the loss normalizes it and its gradient is tangent).
+RoundOutcome solve_lbfgs(const FitObjective& objective, double* x, const std::vector<double>& lower,
+                         const std::vector<double>& upper, const GmfOptions& options, double seconds_left,
+                         FitResult& result, const io::Stopwatch& watch, int round, int iteration0, int K,
+                         const std::function<void(const FitIteration&)>& sink) {
+  ceres::GradientProblem problem(new ObjectiveFunction(objective));
+  ceres::GradientProblemSolver::Options go;
+  go.line_search_direction_type = ceres::LBFGS;
+  go.max_num_iterations = options.iterations_per_round;
+  go.max_solver_time_in_seconds = seconds_left;
+  go.logging_type = ceres::SILENT;
+  LogCallback callback(result, watch, round, iteration0, 0.0, K, sink);
+  go.callbacks.push_back(&callback);
+  ceres::GradientProblemSolver::Summary summary;
+  ceres::Solve(go, problem, x, &summary);
+  for (std::size_t i = 0; i < lower.size(); ++i) x[i] = std::clamp(x[i], lower[i], upper[i]);
+  RoundOutcome out;
+  out.iterations = summary.iterations.empty() ? 0 : summary.iterations.back().iteration;
+  out.final_loss = objective.evaluate(x, nullptr);
+  out.converged = summary.termination_type == ceres::CONVERGENCE;
+  out.message = summary.message;
+  return out;
+}
+
+// One round of Adam (the report's PyTorch baseline): β1 0.9, β2 0.999, ε 1e-8,
+// step gmf.adam_learning_rate, times the smallest voxel size for means (world
+// units); each step is projected onto the round's box. Moments restart each round.
+RoundOutcome solve_adam(const FitObjective& objective, double* x, const std::vector<double>& lower,
+                        const std::vector<double>& upper, const GmfOptions& options, double seconds_left,
+                        double min_voxel, FitResult& result, const io::Stopwatch& watch, int round, int iteration0,
+                        int K, const std::function<void(const FitIteration&)>& sink) {
+  const std::size_t n = objective.parameters();
+  std::vector<double> g(n), m(n, 0.0), v(n, 0.0);
+  constexpr double kB1 = 0.9, kB2 = 0.999, kEps = 1e-8;
+  io::Stopwatch round_watch;
+  RoundOutcome out;
+  double loss = 0;
+  int step = 0;
+  for (; step < options.iterations_per_round && round_watch.elapsed() < seconds_left; ++step) {
+    loss = objective.evaluate(x, g.data());
+    FitIteration it;
+    it.round = round;
+    it.iteration = iteration0 + step;
+    it.seconds = watch.elapsed();
+    it.loss = loss;
+    it.gaussians = K;
+    result.log.push_back(it);
+    if (sink) sink(it);
+    const double c1 = 1 - std::pow(kB1, step + 1), c2 = 1 - std::pow(kB2, step + 1);
+    for (std::size_t i = 0; i < n; ++i) {
+      m[i] = kB1 * m[i] + (1 - kB1) * g[i];
+      v[i] = kB2 * v[i] + (1 - kB2) * g[i] * g[i];
+      const int param = static_cast<int>(i % kNumGaussianParams);
+      const double lr = options.adam_learning_rate * (param <= kMeanZ ? min_voxel : 1.0);
+      x[i] -= lr * (m[i] / c1) / (std::sqrt(v[i] / c2) + kEps);
+      x[i] = std::clamp(x[i], lower[i], upper[i]);
+    }
+  }
+  out.iterations = step;
+  out.final_loss = objective.evaluate(x, nullptr);
+  out.message = "Adam: " + std::to_string(step) + " steps";
+  return out;
+}
+
 }  // namespace
 
 FitResult fit_mixture(const io::Volume& volume, const io::SparseGrid& grid, GaussianMixture& mixture,
                       const GmfOptions& options, const std::function<void(const FitIteration&)>& on_progress) {
   options.validate();
-  if (options.optimizer == Optimizer::kLbfgs || options.optimizer == Optimizer::kAdam) {
-    throw io::InputError("gmf.optimizer: lbfgs and adam are not implemented yet; use lm, lm-cgnr or dogleg");
-  }
   io::Stopwatch watch;
   FitResult result;
   const io::WorldFrame frame = grid.frame();
@@ -104,74 +253,37 @@ FitResult fit_mixture(const io::Volume& volume, const io::SparseGrid& grid, Gaus
     const double move = max_voxel;
     const BrickIndex index = build_brick_index(mixture, samples, frame, options.mahalanobis_cutoff, kScaleGrowth, move);
 
-    ceres::Problem::Options po;
-    po.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
-    ceres::Problem problem(po);
-    for (auto& p : params) {
-      problem.AddParameterBlock(&p[kMeanX], 3);
-      problem.AddParameterBlock(&p[kLogScale0], 3);
-      problem.AddParameterBlock(&p[kRotW], 4, &quaternion_manifold);
-      problem.AddParameterBlock(&p[kLogit], 1);
-      // Scales between a fifth of the smallest voxel and 32 of the largest (at most
-      // half the box): keeps LM from collapsing or exploding a Gaussian.
+    // Bounds of this round: scales within [0.2 smallest voxel, 32 largest voxel] and
+    // the trust region above; everything else free.
+    const std::size_t n = params.size() * kNumGaussianParams;
+    std::vector<double> lower(n, -std::numeric_limits<double>::infinity()), upper(n, std::numeric_limits<double>::infinity());
+    const double scale_lo = std::log(0.2 * min_voxel), scale_hi = std::log(std::min(0.5, 32.0 * max_voxel));
+    for (std::size_t k = 0; k < params.size(); ++k) {
+      Params& p = params[k];
       for (int i = 0; i < 3; ++i) {
-        const double lower = std::log(0.2 * min_voxel), upper = std::log(std::min(0.5, 32.0 * max_voxel));
-        p[kLogScale0 + i] = std::clamp(p[kLogScale0 + i], lower, upper);
-        problem.SetParameterLowerBound(&p[kLogScale0], i, lower);
-        problem.SetParameterUpperBound(&p[kLogScale0], i, std::max(lower, std::min(upper, p[kLogScale0 + i] + std::log(kScaleGrowth))));
-        problem.SetParameterLowerBound(&p[kMeanX], i, p[kMeanX + i] - move);
-        problem.SetParameterUpperBound(&p[kMeanX], i, p[kMeanX + i] + move);
+        p[kLogScale0 + i] = std::clamp(p[kLogScale0 + i], scale_lo, scale_hi);
+        lower[11 * k + kLogScale0 + i] = scale_lo;
+        upper[11 * k + kLogScale0 + i] = std::max(scale_lo, std::min(scale_hi, p[kLogScale0 + i] + std::log(kScaleGrowth)));
+        lower[11 * k + kMeanX + i] = p[kMeanX + i] - move;
+        upper[11 * k + kMeanX + i] = p[kMeanX + i] + move;
       }
     }
-    double constant = 0;  // ½ Σ (w V)² of samples no Gaussian reaches
-    for (std::size_t b = 0; b < samples.bricks(); ++b) {
-      const auto ids = index.of(b);
-      if (ids.empty()) {
-        for (std::uint32_t s = samples.brick_begin[b]; s < samples.brick_begin[b + 1]; ++s) {
-          constant += 0.5 * std::pow(samples.weight[s] * samples.value[s], 2);
-        }
-        continue;
-      }
-      std::vector<double*> blocks;
-      blocks.reserve(ids.size() * detail::kBlocksPerGaussian);
-      for (std::uint32_t k : ids) {
-        blocks.push_back(&params[k][kMeanX]);
-        blocks.push_back(&params[k][kLogScale0]);
-        blocks.push_back(&params[k][kRotW]);
-        blocks.push_back(&params[k][kLogit]);
-      }
-      problem.AddResidualBlock(new detail::BrickCost(samples, b, ids, options.mahalanobis_cutoff), nullptr, blocks);
+    static_assert(sizeof(Params) == kNumGaussianParams * sizeof(double), "Params must be a plain array of doubles");
+    double* x = params.empty() ? nullptr : params[0].data();
+    RoundOutcome outcome;
+    if (options.optimizer == Optimizer::kLbfgs || options.optimizer == Optimizer::kAdam) {
+      const FitObjective objective(samples, index, params.size(), options.mahalanobis_cutoff);
+      outcome = options.optimizer == Optimizer::kLbfgs
+                    ? solve_lbfgs(objective, x, lower, upper, options, left, result, watch, round, iterations,
+                                  static_cast<int>(mixture.size()), on_progress)
+                    : solve_adam(objective, x, lower, upper, options, left, min_voxel, result, watch, round, iterations,
+                                 static_cast<int>(mixture.size()), on_progress);
+    } else {
+      outcome = solve_least_squares(samples, index, params, lower, upper, quaternion_manifold, options, left, result,
+                                    watch, round, iterations, static_cast<int>(mixture.size()), on_progress);
     }
-
-    ceres::Solver::Options so;
-    so.max_num_iterations = options.iterations_per_round;
-    so.max_solver_time_in_seconds = left;
-    so.num_threads = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
-    so.minimizer_progress_to_stdout = false;
-    so.logging_type = ceres::SILENT;
-    switch (options.optimizer) {
-      case Optimizer::kLevenbergMarquardt:
-        so.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
-        so.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
-        break;
-      case Optimizer::kLevenbergMarquardtCgnr:
-        so.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
-        so.linear_solver_type = ceres::CGNR;
-        break;
-      case Optimizer::kDogleg:
-        so.trust_region_strategy_type = ceres::DOGLEG;
-        so.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
-        break;
-      default:
-        break;
-    }
-    LogCallback callback(result, watch, round, iterations, constant, static_cast<int>(mixture.size()), on_progress);
-    so.callbacks.push_back(&callback);
-    so.update_state_every_iteration = false;
-    ceres::Solver::Summary summary;
-    ceres::Solve(so, &problem, &summary);
-    iterations += summary.iterations.empty() ? 0 : summary.iterations.back().iteration;
-    result.stop_reason = summary.message;
+    iterations += outcome.iterations;
+    result.stop_reason = outcome.message;
 
     // Back to float, pruning a < prune_intensity.
     GaussianMixture next;
@@ -190,14 +302,14 @@ FitResult fit_mixture(const io::Volume& volume, const io::SparseGrid& grid, Gaus
     end.round = round;
     end.iteration = iterations;
     end.seconds = watch.elapsed();
-    end.loss = summary.final_cost + constant;
+    end.loss = outcome.final_loss;
     end.psnr_3d = psnr_3d(rasterize_mixture(mixture, frame, options.mahalanobis_cutoff), volume);
     end.gaussians = static_cast<int>(mixture.size());
     result.log.push_back(end);
     if (on_progress) on_progress(end);
     result.final_psnr_3d = end.psnr_3d;
-    if (summary.termination_type == ceres::CONVERGENCE && round > 0) {
-      result.stop_reason = "converged: " + summary.message;
+    if (outcome.converged && round > 0) {
+      result.stop_reason = "converged: " + outcome.message;
       break;
     }
   }

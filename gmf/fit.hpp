@@ -33,8 +33,8 @@ struct FitResult {
 };
 
 // Fits `mixture` (modified in place) to `volume` (normalized) using the samples of
-// `grid`. `on_progress` is called for every log line. The trust-region optimizers
-// (lm, lm-cgnr, dogleg) are implemented; lbfgs and adam throw io::InputError for now.
+// `grid`. `on_progress` is called for every log line. Optimizers: lm, lm-cgnr,
+// dogleg (Ceres least squares), lbfgs (ceres::GradientProblem) and adam.
 FitResult fit_mixture(const io::Volume& volume, const io::SparseGrid& grid, GaussianMixture& mixture,
                       const GmfOptions& options, const std::function<void(const FitIteration&)>& on_progress = {});
 

@@ -163,9 +163,9 @@ TEST(CliFit, WritesCheckpointAndCsvLog) {
   int rows = 0;
   for (std::string line; std::getline(csv, line);) ++rows;
   EXPECT_GE(rows, 3);
-  r = run_hisnegs({"fit", dir / "s.tif", "-o", dir / "x.ply", "--optimizer", "adam"});
+  r = run_hisnegs({"fit", dir / "s.tif", "-o", dir / "x.ply", "--optimizer", "newton"});
   EXPECT_EQ(r.exit_code, 2);
-  EXPECT_NE(r.err.find("not implemented yet"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("--optimizer = 'newton'"), std::string::npos) << r.err;
   EXPECT_FALSE(fs::exists(dir / "x.ply"));
 }
 

@@ -8,7 +8,11 @@
 #include <random>
 
 #include "gmf/gaussian_math.hpp"
+#include "gmf/brick_index.hpp"
 #include "gmf/init.hpp"
+#include "gmf/objective.hpp"
+#include "gmf/samples.hpp"
+#include "tests/test_support.hpp"
 #include "io/error.hpp"
 
 namespace hisnegs::gmf {
@@ -92,6 +96,69 @@ TEST(GmfFit, RecoversAKnownMixtureFromAPerturbedStart) {
     // Covariances (rotation is not identifiable for near-isotropic Gaussians).
     const Eigen::Matrix3d d = covariance_of(f) - covariance_of(t);
     EXPECT_LT(d.norm() / covariance_of(t).norm(), 0.02) << "gaussian " << k;
+  }
+}
+
+// Every optimizer lowers the loss on the known scene from the same perturbed start.
+TEST(GmfFit, EveryOptimizerLowersTheLoss) {
+  const Scene scene = make_scene(11);
+  io::SparseGridOptions so;
+  so.threshold = 0.02;
+  so.background_fraction = 0.05;
+  const io::SparseGrid grid = io::build_sparse_grid(scene.volume, scene.frame.aspect(), so);
+  std::mt19937_64 rng(12);
+  std::normal_distribution<double> n(0, 1);
+  GaussianMixture start = scene.truth;
+  const double voxel = scene.frame.voxel_size().x();
+  for (auto& g : start) {
+    for (int a = 0; a < 3; ++a) g.mean[a] += static_cast<float>(0.5 * voxel * n(rng));
+    g.intensity_logit += static_cast<float>(0.5 * n(rng));
+  }
+  for (const Optimizer opt : {Optimizer::kLevenbergMarquardt, Optimizer::kLevenbergMarquardtCgnr, Optimizer::kDogleg,
+                              Optimizer::kLbfgs, Optimizer::kAdam}) {
+    GmfOptions o;
+    o.optimizer = opt;
+    o.rounds = 1;
+    o.iterations_per_round = opt == Optimizer::kAdam ? 60 : 15;
+    o.prune_intensity = 0.0;
+    GaussianMixture m = start;
+    const FitResult r = fit_mixture(scene.volume, grid, m, o);
+    ASSERT_GE(r.log.size(), 2u);
+    EXPECT_LT(r.log.back().loss, 0.5 * r.log.front().loss) << static_cast<int>(opt) << " " << r.stop_reason;
+  }
+}
+
+// The first-order objective's gradient is the derivative of its value.
+TEST(GmfObjective, GradientMatchesItsValue) {
+  const Scene scene = make_scene(13);
+  io::SparseGridOptions so;
+  so.threshold = 0.02;
+  so.background_fraction = 0.05;
+  const io::SparseGrid grid = io::build_sparse_grid(scene.volume, scene.frame.aspect(), so);
+  const SampleSet samples = extract_samples(grid, 1.0, 2);
+  GaussianMixture m = scene.truth;
+  for (auto& g : m) g.mean[0] += static_cast<float>(0.3 * scene.frame.voxel_size().x());
+  const BrickIndex index = build_brick_index(m, samples, scene.frame, 1e9);
+  const FitObjective objective(samples, index, m.size(), 1e9);
+  std::vector<double> x(objective.parameters());
+  for (std::size_t k = 0; k < m.size(); ++k) {
+    const auto a = to_array(m[k]);
+    for (int i = 0; i < kNumGaussianParams; ++i) x[11 * k + i] = a[i];
+  }
+  std::vector<double> grad(x.size());
+  objective.evaluate(x.data(), grad.data());
+  double largest = 0;
+  for (double g : grad) largest = std::max(largest, std::abs(g));
+  for (std::size_t i : {std::size_t{0}, std::size_t{4}, std::size_t{7}, std::size_t{10}, std::size_t{11 * 5 + 2},
+                        std::size_t{11 * 9 + 8}, std::size_t{11 * 19 + 10}}) {
+    auto f = [&](double v) {
+      std::vector<double> y = x;
+      y[i] = v;
+      return objective.evaluate(y.data(), nullptr);
+    };
+    const double h0 = (i % 11) <= kMeanZ ? 0.1 * scene.frame.voxel_size().x() : 0.01;
+    const double fd = testing::ridders_derivative(f, x[i], h0);
+    EXPECT_NEAR(grad[i], fd, 1e-6 * std::max({std::abs(grad[i]), std::abs(fd), 1e-3 * largest})) << "parameter " << i;
   }
 }
 

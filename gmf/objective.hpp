@@ -1,0 +1,36 @@
+// The GMF loss ½ Σ w² (f − V)² over every residual block and its gradient with
+// respect to all 11 K parameters (layout: Gaussian k's parameters at 11 k, in
+// GaussianParam order), for the first-order optimizers (L-BFGS, Adam). Built
+// from the same BrickCost blocks as the least-squares problem. Ceres stays in the .cpp.
+#pragma once
+
+#include <memory>
+
+#include "gmf/brick_index.hpp"
+#include "gmf/samples.hpp"
+
+namespace hisnegs::gmf {
+
+class FitObjective {
+ public:
+  // Keeps references to `samples` and `index`.
+  FitObjective(const SampleSet& samples, const BrickIndex& index, std::size_t gaussians, double cutoff);
+  ~FitObjective();
+  FitObjective(const FitObjective&) = delete;
+  FitObjective& operator=(const FitObjective&) = delete;
+
+  // Loss at `params` (11 K values); fills `gradient` (11 K) when not null. TBB-parallel
+  // over fixed chunks of residual blocks, combined in chunk order (deterministic).
+  double evaluate(const double* params, double* gradient) const;
+  [[nodiscard]] std::size_t parameters() const { return 11 * gaussians_; }
+  // ½ Σ (w V)² of the samples no Gaussian reaches (included in evaluate()).
+  [[nodiscard]] double constant() const { return constant_; }
+
+ private:
+  struct Blocks;
+  std::unique_ptr<Blocks> blocks_;
+  std::size_t gaussians_;
+  double constant_ = 0;
+};
+
+}  // namespace hisnegs::gmf
