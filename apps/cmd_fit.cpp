@@ -84,6 +84,12 @@ void add_fit_command(CLI::App& app, GlobalOptions& global) {
       }
       std::fflush(stdout);
     });
+    if (!global.quiet) {
+      for (const gmf::FitRound& r : result.rounds) {
+        std::printf("fit: round %d density control: %d pruned, %d split, %d cloned -> K %d\n", r.round, r.pruned,
+                    r.split, r.cloned, r.gaussians);
+      }
+    }
     gmf::CheckpointMeta meta;
     const io::Volume& v = loaded.volume;
     meta.volume_shape_zyx = std::array<int, 3>{v.nz, v.ny, v.nx};

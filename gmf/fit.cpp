@@ -14,6 +14,7 @@
 #include <thread>
 
 #include "gmf/brick_index.hpp"
+#include "gmf/density.hpp"
 #include "gmf/detail/brick_cost.hpp"
 #include "gmf/gaussian_math.hpp"
 #include "gmf/init.hpp"
@@ -288,15 +289,18 @@ FitResult fit_mixture(const io::Volume& volume, const io::SparseGrid& grid, Gaus
     // Back to float, pruning a < prune_intensity.
     GaussianMixture next;
     next.reserve(params.size());
+    FitRound stats;
+    stats.round = round;
     for (const Params& p : params) {
       const double a = 1.0 / (1.0 + std::exp(-p[kLogit]));
       if (a < options.prune_intensity) {
-        ++result.pruned;
+        ++stats.pruned;
         continue;
       }
       next.push_back(to_float(p));
     }
     mixture = std::move(next);
+    result.pruned += stats.pruned;
 
     FitIteration end;
     end.round = round;
@@ -308,7 +312,16 @@ FitResult fit_mixture(const io::Volume& volume, const io::SparseGrid& grid, Gaus
     result.log.push_back(end);
     if (on_progress) on_progress(end);
     result.final_psnr_3d = end.psnr_3d;
-    if (outcome.converged && round > 0) {
+    // Density control for the next round (not after the last one, nor when out of time).
+    if (options.densify && round + 1 < options.rounds && watch.elapsed() < options.time_budget_s) {
+      const BrickIndex current = build_brick_index(mixture, samples, frame, options.mahalanobis_cutoff);
+      const DensityChange change = adapt_density(mixture, samples, current, frame, options);
+      stats.split = change.split;
+      stats.cloned = change.cloned;
+    }
+    stats.gaussians = static_cast<int>(mixture.size());
+    result.rounds.push_back(stats);
+    if (outcome.converged && round > 0 && stats.split == 0 && stats.cloned == 0) {
       result.stop_reason = "converged: " + outcome.message;
       break;
     }

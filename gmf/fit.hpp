@@ -1,6 +1,7 @@
 // The GMF fit (report §2.1, §5): least squares of the mixture against the
 // volume's sparse samples with Ceres, in rounds; between rounds the brick index
-// is rebuilt and faint Gaussians are pruned. Ceres stays inside fit.cpp.
+// is rebuilt, faint Gaussians are pruned and density control splits and clones
+// (gmf/density.hpp). Ceres stays inside fit.cpp.
 #pragma once
 
 #include <functional>
@@ -24,8 +25,16 @@ struct FitIteration {
   int gaussians = 0;         // K
 };
 
+// What density control did at the end of a round.
+struct FitRound {
+  int round = 0;
+  int pruned = 0, split = 0, cloned = 0;
+  int gaussians = 0;  // K after all three
+};
+
 struct FitResult {
   std::vector<FitIteration> log;
+  std::vector<FitRound> rounds;
   double seconds = 0;
   double final_psnr_3d = 0;
   int pruned = 0;

@@ -24,6 +24,9 @@ struct GmfOptions {
   double prune_intensity = 0.01;                  // prune Gaussians with a_k below this, [0, 1)
   double split_scale = 0.8;                       // Eq. 17: s_new = split_scale * s_old, (0, 1)
   double split_offset = 0.5;                      // Eq. 17: mu_new = mu_old ± split_offset * s_old, [0, 2]
+  bool densify = true;                            // split/clone between rounds (adapt_density)
+  double densify_fraction = 0.05;                 // at most this share of K split, and as many cloned, per round, (0, 1]
+  double clone_residual = 0.1;                    // clone where V − f exceeds this (normalized units), (0, 1)
   double background_weight = 1.0;                 // residual weight of background samples (x 1/fraction), >= 0
   // Edge in voxels of the sample blocks that form one Ceres residual block: 8 = one
   // OpenVDB leaf, or 4, 2, 1. Ceres forms JᵀJ densely over a residual block's
@@ -51,6 +54,9 @@ struct GmfOptions {
     v("prune_intensity", prune_intensity);
     v("split_scale", split_scale);
     v("split_offset", split_offset);
+    v("densify", densify);
+    v("densify_fraction", densify_fraction);
+    v("clone_residual", clone_residual);
     v("background_weight", background_weight);
     v("residual_block_voxels", residual_block_voxels);
     v("adam_learning_rate", adam_learning_rate);

@@ -1,0 +1,122 @@
+// adapt_density: per-sample residuals through the brick index, error shares,
+// Eq. 17 splits and residual-driven clones.
+#include "gmf/density.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <numeric>
+
+#include "gmf/gaussian_math.hpp"
+
+namespace hisnegs::gmf {
+namespace {
+
+GaussianFrame<double> frame_of(const GaussianParams& p) {
+  const double mean[3] = {p.mean[0], p.mean[1], p.mean[2]};
+  const double ls[3] = {p.log_scale[0], p.log_scale[1], p.log_scale[2]};
+  const double q[4] = {p.rotation[0], p.rotation[1], p.rotation[2], p.rotation[3]};
+  GaussianFrame<double> f;
+  prepare_gaussian(mean, ls, q, static_cast<double>(p.intensity_logit), f);
+  return f;
+}
+
+}  // namespace
+
+DensityChange adapt_density(GaussianMixture& mixture, const SampleSet& samples, const BrickIndex& index,
+                            const io::WorldFrame& frame, const GmfOptions& options) {
+  DensityChange change;
+  const std::size_t K = mixture.size();
+  std::vector<GaussianFrame<double>> frames(K);
+  for (std::size_t k = 0; k < K; ++k) frames[k] = frame_of(mixture[k]);
+  std::vector<double> error(K, 0.0);
+  struct Candidate {
+    double residual;
+    std::size_t sample;
+  };
+  std::vector<Candidate> under;
+  std::vector<double> g;
+  for (std::size_t b = 0; b < samples.bricks(); ++b) {
+    const auto ids = index.of(b);
+    g.resize(ids.size());
+    for (std::uint32_t s = samples.brick_begin[b]; s < samples.brick_begin[b + 1]; ++s) {
+      const double x[3] = {samples.x[s], samples.y[s], samples.z[s]};
+      double f = 0;
+      for (std::size_t i = 0; i < ids.size(); ++i) {
+        double z[3];
+        g[i] = mahalanobis(frames[ids[i]], x, z) <= options.mahalanobis_cutoff ? evaluate_gaussian<double>(frames[ids[i]], x, nullptr) : 0.0;
+        f += g[i];
+      }
+      const double r = f - samples.value[s];
+      if (f > 0) {
+        for (std::size_t i = 0; i < ids.size(); ++i) error[ids[i]] += g[i] / f * r * r;
+      }
+      if (samples.weight[s] == 1.0 && -r > options.clone_residual) under.push_back({-r, s});
+    }
+  }
+  const int per_call = std::max(1, static_cast<int>(options.densify_fraction * static_cast<double>(K)));
+  int room = options.gaussians - static_cast<int>(K);
+  const double voxel = frame.voxel_size().maxCoeff();
+
+  // Split: error above mean + 2 sd, largest first.
+  const double mean = K ? std::accumulate(error.begin(), error.end(), 0.0) / K : 0.0;
+  double var = 0;
+  for (double e : error) var += (e - mean) * (e - mean);
+  const double sd = K ? std::sqrt(var / K) : 0.0;
+  std::vector<std::size_t> order(K);
+  std::iota(order.begin(), order.end(), 0);
+  std::sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return error[a] > error[b] || (error[a] == error[b] && a < b); });
+  std::vector<GaussianParams> added;
+  for (std::size_t k : order) {
+    if (change.split >= per_call || room <= 0 || error[k] <= mean + 2 * sd) break;
+    GaussianParams& p = mixture[k];
+    int axis = 0;
+    for (int a = 1; a < 3; ++a) {
+      if (p.log_scale[a] > p.log_scale[axis]) axis = a;
+    }
+    const double s_max = std::exp(p.log_scale[axis]);
+    if (s_max <= voxel) continue;  // already at the voxel scale: splitting cannot help
+    const GaussianFrame<double>& f = frames[k];
+    GaussianParams twin = p;
+    for (int r = 0; r < 3; ++r) {
+      const double step = options.split_offset * s_max * f.R[3 * r + axis];  // column `axis` of R
+      p.mean[r] = static_cast<float>(p.mean[r] + step);
+      twin.mean[r] = static_cast<float>(twin.mean[r] - step);
+    }
+    for (int a = 0; a < 3; ++a) {
+      p.log_scale[a] = static_cast<float>(p.log_scale[a] + std::log(options.split_scale));
+      twin.log_scale[a] = p.log_scale[a];
+    }
+    added.push_back(twin);
+    ++change.split;
+    --room;
+  }
+  // Clone: strongest under-covered samples, at least two voxels apart.
+  std::sort(under.begin(), under.end(), [](const Candidate& a, const Candidate& b) {
+    return a.residual > b.residual || (a.residual == b.residual && a.sample < b.sample);
+  });
+  std::vector<Eigen::Vector3d> placed;
+  const double min_dist = 2.0 * voxel;
+  for (const Candidate& c : under) {
+    if (change.cloned >= per_call || room <= 0) break;
+    const Eigen::Vector3d p(samples.x[c.sample], samples.y[c.sample], samples.z[c.sample]);
+    bool near = false;
+    for (const auto& q : placed) near = near || (q - p).norm() < min_dist;
+    if (near) continue;
+    placed.push_back(p);
+    GaussianParams g2;
+    for (int a = 0; a < 3; ++a) {
+      g2.mean[a] = static_cast<float>(p[a]);
+      g2.log_scale[a] = static_cast<float>(std::log(frame.voxel_size()[a]));
+    }
+    g2.rotation = {1.0f, 0.0f, 0.0f, 0.0f};
+    const double a = std::clamp(c.residual, 0.02, 0.98);
+    g2.intensity_logit = static_cast<float>(std::log(a / (1 - a)));
+    added.push_back(g2);
+    ++change.cloned;
+    --room;
+  }
+  for (const auto& p : added) mixture.push_back(p);
+  return change;
+}
+
+}  // namespace hisnegs::gmf
