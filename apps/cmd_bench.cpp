@@ -21,17 +21,19 @@ void add_bench_command(CLI::App& app, GlobalOptions& global) {
     std::vector<int> sizes{256};
   };
   auto args = std::make_shared<Args>();
-  cmd->add_option("SUITE", args->suite, "io | gt")->required();
+  cmd->add_option("SUITE", args->suite, "io | gt | gmf")->required();
   cmd->add_option("--sizes", args->sizes, "gt: image sizes (default 256)")->delimiter(',');
   cmd->add_option("--volume", args->volume, "TIFF stack to measure (default: a synthetic stack written to a temp folder)");
   cmd->allow_extras();
   cmd->callback([cmd, args, &global] {
-    if (args->suite != "io" && args->suite != "gt") {
-      throw io::InputError("bench: unknown suite '" + args->suite + "'; expected io|gt");
+    if (args->suite != "io" && args->suite != "gt" && args->suite != "gmf") {
+      throw io::InputError("bench: unknown suite '" + args->suite + "'; expected io|gt|gmf");
     }
     std::filesystem::path volume = args->volume;
     std::filesystem::path temp;
-    if (volume.empty()) {
+    if (args->suite == "gmf") {
+      bench::register_gmf_benchmarks();
+    } else if (volume.empty()) {
       temp = std::filesystem::temp_directory_path() / ("hisnegs-bench-" + std::to_string(::getpid()));
       volume = temp / "synthetic.tif";
       write_synthetic_stack(volume, global.config().synth, true);
@@ -40,7 +42,7 @@ void add_bench_command(CLI::App& app, GlobalOptions& global) {
     }
     if (args->suite == "io") {
       bench::register_io_benchmarks(volume);
-    } else {
+    } else if (args->suite == "gt") {
       for (int size : args->sizes) {
         if (size < 8 || size > 16384) throw io::InputError("--sizes: " + std::to_string(size) + " is outside [8, 16384]");
         bench::register_gt_benchmarks(volume, size);

@@ -14,4 +14,7 @@ void register_io_benchmarks(const std::filesystem::path& volume);
 // (when available) CUDA; iterations = whole orbits, counter median_ms_per_view.
 void register_gt_benchmarks(const std::filesystem::path& volume, int size);
 
+// One GMF residual block with its Jacobian: analytic vs numeric vs automatic.
+void register_gmf_benchmarks();
+
 }  // namespace hisnegs::apps::bench

@@ -11,6 +11,7 @@
 #include <span>
 #include <vector>
 
+#include "gmf/gaussian_math.hpp"
 #include "gmf/samples.hpp"
 
 namespace hisnegs::gmf::detail {
@@ -32,6 +33,37 @@ class BrickCost final : public ceres::CostFunction {
   std::uint32_t first_, count_;
   std::size_t gaussians_;
   double cutoff_;
+};
+
+// The same residuals as BrickCost as a templated functor, for Ceres' automatic
+// (DynamicAutoDiffCostFunction) and numeric differentiation: benchmarks and
+// cross-checks only; the fit uses BrickCost's analytic Jacobian.
+struct BrickResiduals {
+  const SampleSet* samples;
+  std::uint32_t first, count;
+  std::size_t gaussians;
+  double cutoff;
+
+  template <class T>
+  bool operator()(T const* const* parameters, T* residuals) const {
+    std::vector<GaussianFrame<T>> frames(gaussians);
+    for (std::size_t g = 0; g < gaussians; ++g) {
+      const T* const* p = parameters + kBlocksPerGaussian * g;
+      prepare_gaussian(p[0], p[1], p[2], p[3][0], frames[g]);
+    }
+    for (std::uint32_t j = 0; j < count; ++j) {
+      const std::size_t s = first + j;
+      const T x[3] = {T(samples->x[s]), T(samples->y[s]), T(samples->z[s])};
+      T f(0.0);
+      for (std::size_t g = 0; g < gaussians; ++g) {
+        T z[3];
+        if (mahalanobis(frames[g], x, z) > T(cutoff)) continue;
+        f += evaluate_gaussian<T>(frames[g], x, nullptr);
+      }
+      residuals[j] = T(samples->weight[s]) * (f - T(samples->value[s]));
+    }
+    return true;
+  }
 };
 
 }  // namespace hisnegs::gmf::detail

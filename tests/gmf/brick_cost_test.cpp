@@ -1,6 +1,7 @@
 // The GMF residual block against Ceres' own numeric differentiation (Ridders'
 // extrapolation, DynamicNumericDiffCostFunction) in double, and the Mahalanobis
 // cutoff; plus the brick index and sample extraction it is built from.
+#include <ceres/dynamic_autodiff_cost_function.h>
 #include <ceres/dynamic_numeric_diff_cost_function.h>
 #include <gtest/gtest.h>
 
@@ -133,6 +134,43 @@ TEST(BrickCost, JacobianMatchesCeresRiddersDifferentiation) {
     for (int a = 0; a < 3; ++a) p[kMeanX + a] += edge[a];
   }
   EXPECT_LT(worst_jacobian_error(s, m, 1e300), 1e-6) << "edge";
+}
+
+// Automatic differentiation (Jets) is exact up to rounding, so the analytic
+// Jacobian must agree with it to ~1e-12 relative to the Jacobian's scale.
+TEST(BrickCost, JacobianMatchesCeresAutomaticDifferentiation) {
+  std::mt19937_64 rng(8);
+  const double centre[3] = {0.1, -0.2, 0.05};
+  const SampleSet s = one_brick(rng, centre, 0.05, 30);
+  Mixture m = random_mixture(rng, 5, -4.5, -1.5, 0.08);
+  for (auto& p : m.params) {
+    for (int a = 0; a < 3; ++a) p[kMeanX + a] += centre[a];
+  }
+  std::vector<std::uint32_t> ids(m.params.size());
+  for (std::size_t i = 0; i < ids.size(); ++i) ids[i] = static_cast<std::uint32_t>(i);
+  const detail::BrickCost cost(s, 0, ids, 16.0);
+  ceres::DynamicAutoDiffCostFunction<detail::BrickResiduals, 4> autodiff(
+      new detail::BrickResiduals{&s, 0, 30, m.params.size(), 16.0});
+  for (int size : cost.parameter_block_sizes()) autodiff.AddParameterBlock(size);
+  autodiff.SetNumResiduals(cost.num_residuals());
+  const std::vector<double*> blocks = blocks_of(m);
+  std::vector<std::vector<double>> Ja, Jd;
+  std::vector<double*> pa, pd;
+  for (int size : cost.parameter_block_sizes()) {
+    Ja.emplace_back(30 * size);
+    Jd.emplace_back(30 * size);
+    pa.push_back(Ja.back().data());
+    pd.push_back(Jd.back().data());
+  }
+  std::vector<double> ra(30), rd(30);
+  ASSERT_TRUE(cost.Evaluate(blocks.data(), ra.data(), pa.data()));
+  ASSERT_TRUE(autodiff.Evaluate(blocks.data(), rd.data(), pd.data()));
+  double largest = 0;
+  for (const auto& J : Ja)
+    for (double v : J) largest = std::max(largest, std::abs(v));
+  for (std::size_t b = 0; b < Ja.size(); ++b)
+    for (std::size_t i = 0; i < Ja[b].size(); ++i) ASSERT_NEAR(Ja[b][i], Jd[b][i], 1e-12 * largest) << b << " " << i;
+  for (int i = 0; i < 30; ++i) EXPECT_NEAR(ra[i], rd[i], 1e-15);
 }
 
 TEST(BrickCost, CutoffDropsGaussiansBeyondDelta) {
