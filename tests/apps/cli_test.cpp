@@ -78,6 +78,14 @@ TEST(Cli, IoBenchmarkSuiteRuns) {
   EXPECT_NE(r.out.find("io/build_sparse_grid/s.tif"), std::string::npos) << r.out;
 }
 
+TEST(Cli, GmfBenchmarkSuiteRuns) {
+  const auto r = run_hisnegs({"bench", "gmf", "--benchmark_min_time=0.01"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  for (const char* name : {"gmf/residual_block/analytic", "gmf/residual_block/numeric_central", "gmf/residual_block/autodiff"}) {
+    EXPECT_NE(r.out.find(name), std::string::npos) << r.out;
+  }
+}
+
 TEST(Cli, GtBenchmarkSuiteRuns) {
   testing::ScratchDir dir;
   ASSERT_EQ(run_hisnegs({"-q", "synth", "-o", dir / "s.tif", "--shape", "16,32,32"}).exit_code, 0);
