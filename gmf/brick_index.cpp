@@ -34,12 +34,8 @@ BrickIndex build_brick_index(const GaussianMixture& mixture, const SampleSet& sa
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, mixture.size(), 256), [&](const auto& r) {
     auto& local = pairs.local();
     for (std::size_t k = r.begin(); k != r.end(); ++k) {
-      const GaussianParams& p = mixture[k];
-      const double mean[3] = {p.mean[0], p.mean[1], p.mean[2]};
-      const double ls[3] = {p.log_scale[0], p.log_scale[1], p.log_scale[2]};
-      const double q[4] = {p.rotation[0], p.rotation[1], p.rotation[2], p.rotation[3]};
-      GaussianFrame<double> f;
-      prepare_gaussian(mean, ls, q, static_cast<double>(p.intensity_logit), f);
+      const GaussianFrame<double> f = frame_of(mixture[k]);
+      const double* mean = f.mean;
       double half[3];
       support_half_extents(f, cutoff, half);
       for (double& h : half) h = h * scale_pad + pad_world;

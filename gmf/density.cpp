@@ -9,18 +9,6 @@
 #include "gmf/gaussian_math.hpp"
 
 namespace hisnegs::gmf {
-namespace {
-
-GaussianFrame<double> frame_of(const GaussianParams& p) {
-  const double mean[3] = {p.mean[0], p.mean[1], p.mean[2]};
-  const double ls[3] = {p.log_scale[0], p.log_scale[1], p.log_scale[2]};
-  const double q[4] = {p.rotation[0], p.rotation[1], p.rotation[2], p.rotation[3]};
-  GaussianFrame<double> f;
-  prepare_gaussian(mean, ls, q, static_cast<double>(p.intensity_logit), f);
-  return f;
-}
-
-}  // namespace
 
 DensityChange adapt_density(GaussianMixture& mixture, const SampleSet& samples, const BrickIndex& index,
                             const io::WorldFrame& frame, const GmfOptions& options) {

@@ -28,22 +28,18 @@ namespace {
 
 using Params = std::array<double, kNumGaussianParams>;
 
+// The stored float parameters in double and back (same GaussianParam order).
 Params to_double(const GaussianParams& g) {
+  const auto a = to_array(g);
   Params p{};
-  for (int i = 0; i < 3; ++i) p[kMeanX + i] = g.mean[i];
-  for (int i = 0; i < 3; ++i) p[kLogScale0 + i] = g.log_scale[i];
-  for (int i = 0; i < 4; ++i) p[kRotW + i] = g.rotation[i];
-  p[kLogit] = g.intensity_logit;
+  std::copy(a.begin(), a.end(), p.begin());
   return p;
 }
 
 GaussianParams to_float(const Params& p) {
-  GaussianParams g;
-  for (int i = 0; i < 3; ++i) g.mean[i] = static_cast<float>(p[kMeanX + i]);
-  for (int i = 0; i < 3; ++i) g.log_scale[i] = static_cast<float>(p[kLogScale0 + i]);
-  for (int i = 0; i < 4; ++i) g.rotation[i] = static_cast<float>(p[kRotW + i]);
-  g.intensity_logit = static_cast<float>(p[kLogit]);
-  return g;
+  std::array<float, kGaussianParamCount> a{};
+  std::transform(p.begin(), p.end(), a.begin(), [](double v) { return static_cast<float>(v); });
+  return from_array(a);
 }
 
 // Logs every solver iteration (cost is Ceres' ½ Σ r² over the residual blocks;

@@ -15,6 +15,8 @@
 #include <type_traits>
 #include <vector>
 
+#include "gmf/gaussian_math.hpp"
+
 namespace hisnegs::gmf {
 
 // One Gaussian, world units (CONVENTIONS "Gaussians", report Eq. 1):
@@ -173,5 +175,17 @@ struct MixtureStats {
 };
 
 [[nodiscard]] MixtureStats compute_stats(const GaussianMixture& mixture);
+
+static_assert(kGaussianParamCount == kNumGaussianParams, "PLY order and GaussianParam order must agree");
+
+// The double-precision evaluation frame (gaussian_math.hpp) of a stored Gaussian.
+[[nodiscard]] inline GaussianFrame<double> frame_of(const GaussianParams& p) {
+  const double mean[3] = {p.mean[0], p.mean[1], p.mean[2]};
+  const double log_scale[3] = {p.log_scale[0], p.log_scale[1], p.log_scale[2]};
+  const double q[4] = {p.rotation[0], p.rotation[1], p.rotation[2], p.rotation[3]};
+  GaussianFrame<double> f;
+  prepare_gaussian(mean, log_scale, q, static_cast<double>(p.intensity_logit), f);
+  return f;
+}
 
 }  // namespace hisnegs::gmf

@@ -104,12 +104,9 @@ std::vector<float> rasterize_mixture(const GaussianMixture& mixture, const io::W
   std::vector<Item> items(mixture.size());
   std::vector<std::vector<std::uint32_t>> by_slice(n.z());
   for (std::size_t k = 0; k < mixture.size(); ++k) {
-    const GaussianParams& p = mixture[k];
-    const double mean[3] = {p.mean[0], p.mean[1], p.mean[2]};
-    const double ls[3] = {p.log_scale[0], p.log_scale[1], p.log_scale[2]};
-    const double q[4] = {p.rotation[0], p.rotation[1], p.rotation[2], p.rotation[3]};
     Item& it = items[k];
-    prepare_gaussian(mean, ls, q, static_cast<double>(p.intensity_logit), it.f);
+    it.f = frame_of(mixture[k]);
+    const double* mean = it.f.mean;
     double half[3];
     support_half_extents(it.f, cutoff, half);
     const Eigen::Vector3d a = frame.index_from_world(Eigen::Vector3d(mean[0] - half[0], mean[1] - half[1], mean[2] - half[2]));

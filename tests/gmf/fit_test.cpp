@@ -60,16 +60,21 @@ Scene make_scene(std::uint64_t seed) {
   return s;
 }
 
+// The scene's sparse grid: threshold 0.02, band 2, optional background samples.
+io::SparseGrid grid_of(const Scene& scene, double background_fraction) {
+  io::SparseGridOptions so;
+  so.threshold = 0.02;
+  so.background_fraction = background_fraction;
+  return io::build_sparse_grid(scene.volume, scene.frame.aspect(), so);
+}
+
 Eigen::Matrix3d covariance_of(const GaussianParams& g) {
   return covariance(g);
 }
 
 TEST(GmfFit, RecoversAKnownMixtureFromAPerturbedStart) {
   const Scene scene = make_scene(7);
-  io::SparseGridOptions so;
-  so.threshold = 0.02;
-  so.band_voxels = 2;
-  const io::SparseGrid grid = io::build_sparse_grid(scene.volume, scene.frame.aspect(), so);
+  const io::SparseGrid grid = grid_of(scene, 0.01);
   std::mt19937_64 rng(9);
   std::normal_distribution<double> n(0, 1);
   GaussianMixture start = scene.truth;
@@ -104,10 +109,7 @@ TEST(GmfFit, RecoversAKnownMixtureFromAPerturbedStart) {
 // Every optimizer lowers the loss on the known scene from the same perturbed start.
 TEST(GmfFit, EveryOptimizerLowersTheLoss) {
   const Scene scene = make_scene(11);
-  io::SparseGridOptions so;
-  so.threshold = 0.02;
-  so.background_fraction = 0.05;
-  const io::SparseGrid grid = io::build_sparse_grid(scene.volume, scene.frame.aspect(), so);
+  const io::SparseGrid grid = grid_of(scene, 0.05);
   std::mt19937_64 rng(12);
   std::normal_distribution<double> n(0, 1);
   GaussianMixture start = scene.truth;
@@ -133,10 +135,7 @@ TEST(GmfFit, EveryOptimizerLowersTheLoss) {
 // The first-order objective's gradient is the derivative of its value.
 TEST(GmfObjective, GradientMatchesItsValue) {
   const Scene scene = make_scene(13);
-  io::SparseGridOptions so;
-  so.threshold = 0.02;
-  so.background_fraction = 0.05;
-  const io::SparseGrid grid = io::build_sparse_grid(scene.volume, scene.frame.aspect(), so);
+  const io::SparseGrid grid = grid_of(scene, 0.05);
   const SampleSet samples = extract_samples(grid, 1.0, 2);
   GaussianMixture m = scene.truth;
   for (auto& g : m) g.mean[0] += static_cast<float>(0.3 * scene.frame.voxel_size().x());
@@ -166,9 +165,7 @@ TEST(GmfObjective, GradientMatchesItsValue) {
 
 TEST(GmfDensity, ClonesWhereAGaussianIsMissing) {
   const Scene scene = make_scene(17);
-  io::SparseGridOptions so;
-  so.threshold = 0.02;
-  const io::SparseGrid grid = io::build_sparse_grid(scene.volume, scene.frame.aspect(), so);
+  const io::SparseGrid grid = grid_of(scene, 0.01);
   const SampleSet samples = extract_samples(grid, 1.0, 2);
   GaussianMixture m;
   for (std::size_t k = 0; k < scene.truth.size(); ++k) {
@@ -187,9 +184,7 @@ TEST(GmfDensity, ClonesWhereAGaussianIsMissing) {
 
 TEST(GmfDensity, SplitsAnOverwideGaussianByEq17) {
   const Scene scene = make_scene(19);
-  io::SparseGridOptions so;
-  so.threshold = 0.02;
-  const io::SparseGrid grid = io::build_sparse_grid(scene.volume, scene.frame.aspect(), so);
+  const io::SparseGrid grid = grid_of(scene, 0.01);
   const SampleSet samples = extract_samples(grid, 1.0, 2);
   GaussianMixture m = scene.truth;
   m[0].log_scale[1] += static_cast<float>(std::log(3.0));  // axis 1 three times too wide
