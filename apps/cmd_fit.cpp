@@ -63,7 +63,9 @@ void add_fit_command(CLI::App& app, GlobalOptions& global) {
     config.gmf.validate();
     io::Stopwatch watch;
     const io::LoadedVolume loaded = io::load_volume(args->volume, config.volume);
-    const io::SparseGrid grid = io::build_sparse_grid(loaded.volume, loaded.frame.aspect(), config.sparse_grid);
+    io::SparseGridOptions sparse = config.sparse_grid;
+    sparse.background_fraction = config.gmf.background_fraction;  // the fit's own need (see GmfOptions)
+    const io::SparseGrid grid = io::build_sparse_grid(loaded.volume, loaded.frame.aspect(), sparse);
     gmf::InitReport init_report;
     gmf::GaussianMixture mixture = gmf::initialize_on_grid(loaded.volume, loaded.frame, config.sparse_grid.threshold,
                                                            config.gmf.gaussians, &init_report);

@@ -27,6 +27,11 @@ struct GmfOptions {
   bool densify = true;                            // split/clone between rounds (adapt_density)
   double densify_fraction = 0.05;                 // at most this share of K split, and as many cloned, per round, (0, 1]
   double clone_residual = 0.1;                    // clone where V − f exceeds this (normalized units), (0, 1)
+  // Share of the empty voxels sampled for the fit, [0, 1] (overrides
+  // sparse_grid.background_fraction for the fit). Without samples in empty space
+  // nothing stops Gaussians from spreading mass there: on op1 the 3D PSNR stayed
+  // at 17 dB with 0, and reached 54 dB with 0.01.
+  double background_fraction = 0.01;
   double background_weight = 1.0;                 // residual weight of background samples (x 1/fraction), >= 0
   // Edge in voxels of the sample blocks that form one Ceres residual block: 8 = one
   // OpenVDB leaf, or 4, 2, 1. Ceres forms JᵀJ densely over a residual block's
@@ -57,6 +62,7 @@ struct GmfOptions {
     v("densify", densify);
     v("densify_fraction", densify_fraction);
     v("clone_residual", clone_residual);
+    v("background_fraction", background_fraction);
     v("background_weight", background_weight);
     v("residual_block_voxels", residual_block_voxels);
     v("adam_learning_rate", adam_learning_rate);
