@@ -28,24 +28,8 @@ void VolumeOverrides::add_to(CLI::App* command) {
 void VolumeOverrides::apply(io::VolumeOptions& options) const {
   if (!spacing_um.empty()) options.spacing_um = spacing_um;
   if (channel) options.channel = *channel;
-  if (!normalization.empty()) {
-    if (normalization == "minmax") {
-      options.normalization.method = io::NormalizationMethod::kMinMax;
-    } else if (normalization == "percentile") {
-      options.normalization.method = io::NormalizationMethod::kPercentile;
-    } else {
-      throw io::InputError("--normalization = '" + normalization + "': expected minmax|percentile");
-    }
-  }
-  if (!aspect.empty()) {
-    if (aspect == "physical") {
-      options.aspect = io::AspectMode::kPhysical;
-    } else if (aspect == "shape") {
-      options.aspect = io::AspectMode::kShape;
-    } else {
-      throw io::InputError("--aspect = '" + aspect + "': expected physical|shape");
-    }
-  }
+  if (!normalization.empty()) io::set_enum_field(options, "normalization", normalization, "--normalization");
+  if (!aspect.empty()) io::set_enum_field(options, "aspect", aspect, "--aspect");
   if (!spacing_um.empty() && spacing_um.size() != 3) {
     throw io::InputError("--spacing: expected 3 values x,y,z, got " + std::to_string(spacing_um.size()));
   }

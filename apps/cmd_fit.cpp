@@ -15,15 +15,6 @@
 namespace hisnegs::apps {
 namespace {
 
-gmf::Optimizer parse_optimizer(const std::string& name) {
-  if (name == "lm") return gmf::Optimizer::kLevenbergMarquardt;
-  if (name == "lm-cgnr") return gmf::Optimizer::kLevenbergMarquardtCgnr;
-  if (name == "dogleg") return gmf::Optimizer::kDogleg;
-  if (name == "lbfgs") return gmf::Optimizer::kLbfgs;
-  if (name == "adam") return gmf::Optimizer::kAdam;
-  throw io::InputError("--optimizer = '" + name + "': expected lm|lm-cgnr|dogleg|lbfgs|adam");
-}
-
 std::string csv_of(const std::vector<gmf::FitIteration>& log) {
   std::ostringstream s;
   s.precision(10);
@@ -57,7 +48,7 @@ void add_fit_command(CLI::App& app, GlobalOptions& global) {
   cmd->callback([args, &global] {
     AppConfig config = global.config();
     args->overrides.apply(config.volume);
-    if (!args->optimizer.empty()) config.gmf.optimizer = parse_optimizer(args->optimizer);
+    if (!args->optimizer.empty()) io::set_enum_field(config.gmf, "optimizer", args->optimizer, "--optimizer");
     if (args->gaussians) config.gmf.gaussians = *args->gaussians;
     if (args->time_budget) config.gmf.time_budget_s = *args->time_budget;
     config.gmf.validate();

@@ -121,15 +121,7 @@ void add_gt_command(CLI::App& app, GlobalOptions& global) {
     if (args->size) config.camera.width = config.camera.height = *args->size;
     if (args->radius) config.camera.orbit_radius = *args->radius;
     if (args->fov) config.camera.fov_deg = *args->fov;
-    if (!args->mode.empty()) {
-      if (args->mode == "exact") {
-        config.raymarch.mode = splat::RaymarchMode::kExact;
-      } else if (args->mode == "report") {
-        config.raymarch.mode = splat::RaymarchMode::kReport;
-      } else {
-        throw io::InputError("--mode = '" + args->mode + "': expected exact|report");
-      }
-    }
+    if (!args->mode.empty()) io::set_enum_field(config.raymarch, "mode", args->mode, "--mode");
     config.camera.validate();
     config.raymarch.validate();
     const bool custom = !args->elevations.empty() || !args->azimuths.empty() || args->ring_views;

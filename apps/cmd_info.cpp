@@ -7,6 +7,7 @@
 #include "apps/cli_support.hpp"
 #include "gmf/checkpoint.hpp"
 #include "io/error.hpp"
+#include "io/load_volume.hpp"
 #include "io/sparse_grid.hpp"
 #include "io/tiff_stack.hpp"
 #include "io/timer.hpp"
@@ -47,9 +48,7 @@ std::string vec3(const Eigen::Vector3d& v) {
 void info_tiff(const std::filesystem::path& path, GlobalOptions& global, const VolumeOverrides& overrides) {
   io::VolumeOptions options = global.config().volume;
   overrides.apply(options);
-  io::TiffReadOptions read;
-  if (options.channel >= 0) read.channel = options.channel;
-  if (!options.spacing_um.empty()) read.spacing_um = std::array<double, 3>{options.spacing_um[0], options.spacing_um[1], options.spacing_um[2]};
+  const io::TiffReadOptions read = io::tiff_read_options(options);
   const io::TiffStackInfo header = io::inspect_tiff_stack(path, read);
   io::Stopwatch watch;
   io::Volume raw = io::read_tiff_stack(path, read);

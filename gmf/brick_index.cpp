@@ -78,4 +78,15 @@ BrickIndex build_brick_index(const GaussianMixture& mixture, const SampleSet& sa
   return index;
 }
 
+double unreached_loss(const SampleSet& samples, const BrickIndex& index) {
+  double loss = 0;
+  for (std::size_t b = 0; b < samples.bricks(); ++b) {
+    if (!index.of(b).empty()) continue;
+    for (std::uint32_t s = samples.brick_begin[b]; s < samples.brick_begin[b + 1]; ++s) {
+      loss += 0.5 * std::pow(samples.weight[s] * samples.value[s], 2);
+    }
+  }
+  return loss;
+}
+
 }  // namespace hisnegs::gmf

@@ -30,4 +30,8 @@ struct BrickIndex {
 BrickIndex build_brick_index(const GaussianMixture& mixture, const SampleSet& samples, const io::WorldFrame& frame,
                              double cutoff, double scale_pad = 1.0, double pad_world = 0.0);
 
+// ½ Σ (w V)² over the samples of blocks no Gaussian reaches: their residuals are
+// constant, so solvers leave them out and add this to the loss they report.
+double unreached_loss(const SampleSet& samples, const BrickIndex& index);
+
 }  // namespace hisnegs::gmf

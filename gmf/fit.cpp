@@ -99,15 +99,10 @@ RoundOutcome solve_least_squares(const SampleSet& samples, const BrickIndex& ind
       problem.SetParameterUpperBound(&p[kMeanX], i, upper[11 * k + kMeanX + i]);
     }
   }
-  double constant = 0;  // ½ Σ (w V)² of samples no Gaussian reaches
+  const double constant = unreached_loss(samples, index);
   for (std::size_t b = 0; b < samples.bricks(); ++b) {
     const auto ids = index.of(b);
-    if (ids.empty()) {
-      for (std::uint32_t s = samples.brick_begin[b]; s < samples.brick_begin[b + 1]; ++s) {
-        constant += 0.5 * std::pow(samples.weight[s] * samples.value[s], 2);
-      }
-      continue;
-    }
+    if (ids.empty()) continue;
     std::vector<double*> blocks;
     blocks.reserve(ids.size() * detail::kBlocksPerGaussian);
     for (std::uint32_t k : ids) {

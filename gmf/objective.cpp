@@ -19,14 +19,10 @@ struct FitObjective::Blocks {
 
 FitObjective::FitObjective(const SampleSet& samples, const BrickIndex& index, std::size_t gaussians, double cutoff)
     : blocks_(std::make_unique<Blocks>()), gaussians_(gaussians) {
+  constant_ = unreached_loss(samples, index);
   for (std::size_t b = 0; b < samples.bricks(); ++b) {
     const auto ids = index.of(b);
-    if (ids.empty()) {
-      for (std::uint32_t s = samples.brick_begin[b]; s < samples.brick_begin[b + 1]; ++s) {
-        constant_ += 0.5 * std::pow(samples.weight[s] * samples.value[s], 2);
-      }
-      continue;
-    }
+    if (ids.empty()) continue;
     blocks_->costs.push_back(std::make_unique<detail::BrickCost>(samples, b, ids, cutoff));
     blocks_->gaussians.emplace_back(ids.begin(), ids.end());
   }

@@ -273,6 +273,10 @@ std::string ConfigWriter::format(const std::vector<double>& v) {
   return s.str();
 }
 
+void fail_enum(std::string_view option, std::string_view text, const std::string& allowed) {
+  throw InputError(std::string(option) + " = '" + std::string(text) + "': expected one of " + allowed);
+}
+
 void fail_option(std::string_view section, std::string_view field, const std::string& value, std::string_view rule) {
   throw InputError(std::string(section) + "." + std::string(field) + " = " + value + ": " + std::string(rule));
 }

@@ -10,6 +10,7 @@
 #include <initializer_list>
 #include <memory>
 #include <sstream>
+#include <stdexcept>
 #include <string>
 #include <string_view>
 #include <type_traits>
@@ -127,6 +128,40 @@ void ConfigFile::read(std::string_view section, Options& options) const {
   reader.finish();
 }
 
+[[noreturn]] void fail_enum(std::string_view option, std::string_view text, const std::string& allowed);
+
+// Sets the enum field `key` of `options` from its config name `text` (e.g. a
+// command-line override), using the names its visit() declares, so no name table
+// is written twice. Throws InputError("OPTION = 'TEXT': expected one of a|b").
+// Visitor behind set_enum_field: acts on the one enum field named `key`.
+struct EnumFieldSetter {
+  std::string_view key, text, option;
+  bool found = false;
+  template <class T>
+  void operator()(std::string_view, T&) {}
+  template <class E>
+    requires std::is_enum_v<E>
+  void operator()(std::string_view k, E& value, EnumNames<E> names) {
+    if (k != key) return;
+    found = true;
+    std::string allowed;
+    for (const auto& [name, e] : names) {
+      if (name == text) {
+        value = e;
+        return;
+      }
+      allowed += (allowed.empty() ? "" : "|") + std::string(name);
+    }
+    fail_enum(option, text, allowed);
+  }
+};
+
+template <class Options>
+void set_enum_field(Options& options, std::string_view key, std::string_view text, std::string_view option) {
+  EnumFieldSetter setter{key, text, option};
+  options.visit(setter);
+  if (!setter.found) throw std::logic_error("set_enum_field: no enum field '" + std::string(key) + "'");
+}
 // Validation helpers for `validate()`: throw InputError("SECTION.FIELD = VALUE: RULE").
 [[noreturn]] void fail_option(std::string_view section, std::string_view field, const std::string& value,
                               std::string_view rule);

@@ -21,13 +21,19 @@ void VolumeOptions::validate() const {
   require_in_range("volume", "foreground_threshold", foreground_threshold, 1e-9, 1.0 - 1e-9);
 }
 
-LoadedVolume load_volume(const std::filesystem::path& path, const VolumeOptions& options) {
-  options.validate();
+TiffReadOptions tiff_read_options(const VolumeOptions& options) {
   TiffReadOptions read;
   if (options.channel >= 0) read.channel = options.channel;
-  if (!options.spacing_um.empty()) read.spacing_um = std::array<double, 3>{options.spacing_um[0], options.spacing_um[1], options.spacing_um[2]};
+  if (!options.spacing_um.empty()) {
+    read.spacing_um = std::array<double, 3>{options.spacing_um[0], options.spacing_um[1], options.spacing_um[2]};
+  }
+  return read;
+}
+
+LoadedVolume load_volume(const std::filesystem::path& path, const VolumeOptions& options) {
+  options.validate();
   LoadedVolume out;
-  out.volume = read_tiff_stack(path, read);
+  out.volume = read_tiff_stack(path, tiff_read_options(options));
   normalize(out.volume, options.normalization);
   const Volume& v = out.volume;
   out.frame = WorldFrame(v.nx, v.ny, v.nz, aspect_scales(v.nx, v.ny, v.nz, v.spacing, options.aspect));

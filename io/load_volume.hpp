@@ -33,6 +33,10 @@ struct VolumeOptions {
   }
 };
 
+struct TiffReadOptions;
+// The TIFF reader's view of `options` (channel, spacing override).
+TiffReadOptions tiff_read_options(const VolumeOptions& options);
+
 struct LoadedVolume {
   Volume volume;     // normalized to [0, 1]
   WorldFrame frame;  // CONVENTIONS index <-> world map with the aspect scales
