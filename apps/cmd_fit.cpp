@@ -4,6 +4,7 @@
 #include <sstream>
 
 #include "apps/cli_support.hpp"
+#include "apps/commands_detail.hpp"
 #include "gmf/checkpoint.hpp"
 #include "gmf/fit.hpp"
 #include "gmf/init.hpp"
@@ -29,6 +30,37 @@ std::string csv_of(const std::vector<gmf::FitIteration>& log) {
 
 }  // namespace
 
+FitSetup prepare_fit(const std::string& volume_path, const AppConfig& config, const char* label, bool quiet) {
+  io::Stopwatch watch;
+  FitSetup setup;
+  setup.loaded = io::load_volume(volume_path, config.volume);
+  io::SparseGridOptions sparse = config.sparse_grid;
+  sparse.background_fraction = config.gmf.background_fraction;  // the fit's own need (see GmfOptions)
+  setup.grid = io::build_sparse_grid(setup.loaded.volume, setup.loaded.frame.aspect(), sparse);
+  gmf::InitReport init_report;
+  setup.mixture = gmf::initialize_on_grid(setup.loaded.volume, setup.loaded.frame, config.sparse_grid.threshold,
+                                          config.gmf.gaussians, &init_report);
+  if (!quiet) {
+    std::printf("%s: %s: %lld samples (%lld active voxels), %zu Gaussians on a %.4g grid (budget %d), %s\n", label,
+                volume_path.c_str(), static_cast<long long>(setup.grid.active_voxels() + setup.grid.background_voxels()),
+                static_cast<long long>(setup.grid.active_voxels()), setup.mixture.size(), init_report.cell_world,
+                config.gmf.gaussians, format_seconds(watch.elapsed()).c_str());
+  }
+  return setup;
+}
+
+gmf::CheckpointMeta checkpoint_meta(const io::LoadedVolume& loaded, const std::string& source) {
+  gmf::CheckpointMeta meta;
+  const io::Volume& v = loaded.volume;
+  meta.volume_shape_zyx = std::array<int, 3>{v.nz, v.ny, v.nx};
+  meta.spacing_um = v.spacing.um;
+  const Eigen::Vector3d& a = loaded.frame.aspect();
+  meta.aspect = std::array<double, 3>{a.x(), a.y(), a.z()};
+  meta.normalization = v.normalization.describe();
+  meta.extra.emplace_back("source", io::printable(source, 200));
+  return meta;
+}
+
 void add_fit_command(CLI::App& app, GlobalOptions& global) {
   auto* cmd = app.add_subcommand("fit", "fit a Gaussian Mixture Field to a stack with Ceres (writes a .ply checkpoint)");
   struct Args {
@@ -53,20 +85,9 @@ void add_fit_command(CLI::App& app, GlobalOptions& global) {
     if (args->time_budget) config.gmf.time_budget_s = *args->time_budget;
     config.gmf.validate();
     io::Stopwatch watch;
-    const io::LoadedVolume loaded = io::load_volume(args->volume, config.volume);
-    io::SparseGridOptions sparse = config.sparse_grid;
-    sparse.background_fraction = config.gmf.background_fraction;  // the fit's own need (see GmfOptions)
-    const io::SparseGrid grid = io::build_sparse_grid(loaded.volume, loaded.frame.aspect(), sparse);
-    gmf::InitReport init_report;
-    gmf::GaussianMixture mixture = gmf::initialize_on_grid(loaded.volume, loaded.frame, config.sparse_grid.threshold,
-                                                           config.gmf.gaussians, &init_report);
-    if (!global.quiet) {
-      std::printf("fit: %s: %lld samples (%lld active voxels), %zu Gaussians on a %.4g grid (budget %d), %s\n",
-                  args->volume.c_str(), static_cast<long long>(grid.active_voxels() + grid.background_voxels()),
-                  static_cast<long long>(grid.active_voxels()), mixture.size(), init_report.cell_world,
-                  config.gmf.gaussians, format_seconds(watch.elapsed()).c_str());
-    }
-    const gmf::FitResult result = gmf::fit_mixture(loaded.volume, grid, mixture, config.gmf, [&](const gmf::FitIteration& it) {
+    FitSetup setup = prepare_fit(args->volume, config, "fit", global.quiet);
+    gmf::GaussianMixture& mixture = setup.mixture;
+    const gmf::FitResult result = gmf::fit_mixture(setup.loaded.volume, setup.grid, mixture, config.gmf, [&](const gmf::FitIteration& it) {
       if (global.quiet) return;
       if (it.psnr_3d >= 0) {
         std::printf("fit: round %d done: loss %.6g, 3D PSNR %.2f dB, K %d, %s\n", it.round, it.loss, it.psnr_3d,
@@ -83,14 +104,7 @@ void add_fit_command(CLI::App& app, GlobalOptions& global) {
                     r.split, r.cloned, r.gaussians);
       }
     }
-    gmf::CheckpointMeta meta;
-    const io::Volume& v = loaded.volume;
-    meta.volume_shape_zyx = std::array<int, 3>{v.nz, v.ny, v.nx};
-    meta.spacing_um = v.spacing.um;
-    const Eigen::Vector3d& a = loaded.frame.aspect();
-    meta.aspect = std::array<double, 3>{a.x(), a.y(), a.z()};
-    meta.normalization = v.normalization.describe();
-    meta.extra.emplace_back("source", io::printable(args->volume, 200));
+    const gmf::CheckpointMeta meta = checkpoint_meta(setup.loaded, args->volume);
     gmf::save_checkpoint(args->out, mixture, meta);
     if (!args->log.empty()) {
       const std::string csv = csv_of(result.log);

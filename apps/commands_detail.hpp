@@ -4,6 +4,9 @@
 
 #include <filesystem>
 
+#include "apps/app_config.hpp"
+#include "gmf/checkpoint.hpp"
+#include "gmf/gaussian_mixture.hpp"
 #include "io/load_volume.hpp"
 #include "io/sparse_grid.hpp"
 #include "io/synthetic_neuron.hpp"
@@ -27,5 +30,19 @@ void write_ground_truth_set(const std::filesystem::path& dir, const std::string&
                             const splat::CameraSet& cameras, const io::LoadedVolume& loaded,
                             const std::string& volume_path, const splat::RaymarchOptions& raymarch,
                             splat::Backend backend, bool quiet);
+
+// What the GMF stage starts from: the normalized volume, its samples (with the
+// fit's background share) and the mixture initialized on the foreground grid.
+struct FitSetup {
+  io::LoadedVolume loaded;
+  io::SparseGrid grid;
+  gmf::GaussianMixture mixture;
+};
+// Loads `volume_path` and prepares the fit (config sections volume, sparse_grid, gmf);
+// prints one line `label: ...` unless quiet.
+FitSetup prepare_fit(const std::string& volume_path, const AppConfig& config, const char* label, bool quiet);
+
+// Checkpoint metadata of a model fitted to `loaded` (shape, spacing, aspect, normalization, source).
+gmf::CheckpointMeta checkpoint_meta(const io::LoadedVolume& loaded, const std::string& source);
 
 }  // namespace hisnegs::apps

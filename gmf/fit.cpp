@@ -42,32 +42,52 @@ GaussianParams to_float(const Params& p) {
   return from_array(a);
 }
 
+// Wall clock of the fit without the time spent measuring it (the 3D PSNR after
+// each round rasterizes the whole volume), so optimizers that run more rounds are
+// not charged for being measured more often.
+struct FitClock {
+  io::Stopwatch watch;
+  double excluded = 0;
+  [[nodiscard]] double now() const { return watch.elapsed() - excluded; }
+};
+
+// Shared by the solvers: where log lines go and when to stop early.
+struct FitLog {
+  FitResult& result;
+  const FitClock& clock;
+  const std::function<void(const FitIteration&)>& sink;
+  double stop_loss = 0;  // GmfOptions::stop_loss
+  bool reached_stop_loss = false;
+  // Records one line; true when the fit should stop (the loss reached stop_loss).
+  bool add(const FitIteration& it) {
+    result.log.push_back(it);
+    if (sink) sink(it);
+    if (stop_loss > 0 && it.loss <= stop_loss) reached_stop_loss = true;
+    return reached_stop_loss;
+  }
+};
+
 // Logs every solver iteration (cost is Ceres' ½ Σ r² over the residual blocks;
 // samples no Gaussian reaches add a constant).
 class LogCallback final : public ceres::IterationCallback {
  public:
-  LogCallback(FitResult& result, const io::Stopwatch& watch, int round, int iteration0, double constant, int K,
-              const std::function<void(const FitIteration&)>& sink)
-      : result_(result), watch_(watch), round_(round), iteration0_(iteration0), constant_(constant), k_(K), sink_(sink) {}
+  LogCallback(FitLog& log, int round, int iteration0, double constant, int K)
+      : log_(log), round_(round), iteration0_(iteration0), constant_(constant), k_(K) {}
   ceres::CallbackReturnType operator()(const ceres::IterationSummary& s) override {
     FitIteration it;
     it.round = round_;
     it.iteration = iteration0_ + s.iteration;
-    it.seconds = watch_.elapsed();
+    it.seconds = log_.clock.now();
     it.loss = s.cost + constant_;
     it.gaussians = k_;
-    result_.log.push_back(it);
-    if (sink_) sink_(it);
-    return ceres::SOLVER_CONTINUE;
+    return log_.add(it) ? ceres::SOLVER_TERMINATE_SUCCESSFULLY : ceres::SOLVER_CONTINUE;
   }
 
  private:
-  FitResult& result_;
-  const io::Stopwatch& watch_;
+  FitLog& log_;
   int round_, iteration0_;
   double constant_;
   int k_;
-  const std::function<void(const FitIteration&)>& sink_;
 };
 
 struct RoundOutcome {
@@ -80,9 +100,8 @@ struct RoundOutcome {
 // One round of a trust-region solver (LM with sparse normal Cholesky or CGNR, Dogleg).
 RoundOutcome solve_least_squares(const SampleSet& samples, const BrickIndex& index, std::vector<Params>& params,
                                  const std::vector<double>& lower, const std::vector<double>& upper,
-                                 ceres::Manifold& quaternion_manifold, const GmfOptions& options, double seconds_left,
-                                 FitResult& result, const io::Stopwatch& watch, int round, int iteration0, int K,
-                                 const std::function<void(const FitIteration&)>& sink) {
+                                 ceres::Manifold& quaternion_manifold, const GmfOptions& options, int max_iterations,
+                                 double seconds_left, FitLog& log, int round, int iteration0, int K) {
   ceres::Problem::Options po;
   po.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   ceres::Problem problem(po);
@@ -114,7 +133,7 @@ RoundOutcome solve_least_squares(const SampleSet& samples, const BrickIndex& ind
     problem.AddResidualBlock(new detail::BrickCost(samples, b, ids, options.mahalanobis_cutoff), nullptr, blocks);
   }
   ceres::Solver::Options so;
-  so.max_num_iterations = options.iterations_per_round;
+  so.max_num_iterations = max_iterations;
   so.max_solver_time_in_seconds = seconds_left;
   so.num_threads = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
   so.minimizer_progress_to_stdout = false;
@@ -123,7 +142,7 @@ RoundOutcome solve_least_squares(const SampleSet& samples, const BrickIndex& ind
       options.optimizer == Optimizer::kDogleg ? ceres::DOGLEG : ceres::LEVENBERG_MARQUARDT;
   so.linear_solver_type =
       options.optimizer == Optimizer::kLevenbergMarquardtCgnr ? ceres::CGNR : ceres::SPARSE_NORMAL_CHOLESKY;
-  LogCallback callback(result, watch, round, iteration0, constant, K, sink);
+  LogCallback callback(log, round, iteration0, constant, K);
   so.callbacks.push_back(&callback);
   ceres::Solver::Summary summary;
   ceres::Solve(so, &problem, &summary);
@@ -152,16 +171,15 @@ class ObjectiveFunction final : public ceres::FirstOrderFunction {
 // bounds, so the result is clamped to the round's box afterwards (the quaternion
 // needs none: the loss normalizes it and its gradient is tangent).
 RoundOutcome solve_lbfgs(const FitObjective& objective, double* x, const std::vector<double>& lower,
-                         const std::vector<double>& upper, const GmfOptions& options, double seconds_left,
-                         FitResult& result, const io::Stopwatch& watch, int round, int iteration0, int K,
-                         const std::function<void(const FitIteration&)>& sink) {
+                         const std::vector<double>& upper, int max_iterations, double seconds_left, FitLog& log,
+                         int round, int iteration0, int K) {
   ceres::GradientProblem problem(new ObjectiveFunction(objective));
   ceres::GradientProblemSolver::Options go;
   go.line_search_direction_type = ceres::LBFGS;
-  go.max_num_iterations = options.iterations_per_round;
+  go.max_num_iterations = max_iterations;
   go.max_solver_time_in_seconds = seconds_left;
   go.logging_type = ceres::SILENT;
-  LogCallback callback(result, watch, round, iteration0, 0.0, K, sink);
+  LogCallback callback(log, round, iteration0, 0.0, K);
   go.callbacks.push_back(&callback);
   ceres::GradientProblemSolver::Summary summary;
   ceres::Solve(go, problem, x, &summary);
@@ -178,9 +196,8 @@ RoundOutcome solve_lbfgs(const FitObjective& objective, double* x, const std::ve
 // step gmf.adam_learning_rate, times the smallest voxel size for means (world
 // units); each step is projected onto the round's box. Moments restart each round.
 RoundOutcome solve_adam(const FitObjective& objective, double* x, const std::vector<double>& lower,
-                        const std::vector<double>& upper, const GmfOptions& options, double seconds_left,
-                        double min_voxel, FitResult& result, const io::Stopwatch& watch, int round, int iteration0,
-                        int K, const std::function<void(const FitIteration&)>& sink) {
+                        const std::vector<double>& upper, const GmfOptions& options, int max_iterations,
+                        double seconds_left, double min_voxel, FitLog& log, int round, int iteration0, int K) {
   const std::size_t n = objective.parameters();
   std::vector<double> g(n), m(n, 0.0), v(n, 0.0);
   constexpr double kB1 = 0.9, kB2 = 0.999, kEps = 1e-8;
@@ -188,16 +205,15 @@ RoundOutcome solve_adam(const FitObjective& objective, double* x, const std::vec
   RoundOutcome out;
   double loss = 0;
   int step = 0;
-  for (; step < options.iterations_per_round && round_watch.elapsed() < seconds_left; ++step) {
+  for (; step < max_iterations && round_watch.elapsed() < seconds_left; ++step) {
     loss = objective.evaluate(x, g.data());
     FitIteration it;
     it.round = round;
     it.iteration = iteration0 + step;
-    it.seconds = watch.elapsed();
+    it.seconds = log.clock.now();
     it.loss = loss;
     it.gaussians = K;
-    result.log.push_back(it);
-    if (sink) sink(it);
+    if (log.add(it)) break;  // at stop_loss: x is the point that reached it
     const double c1 = 1 - std::pow(kB1, step + 1), c2 = 1 - std::pow(kB2, step + 1);
     for (std::size_t i = 0; i < n; ++i) {
       m[i] = kB1 * m[i] + (1 - kB1) * g[i];
@@ -219,8 +235,9 @@ RoundOutcome solve_adam(const FitObjective& objective, double* x, const std::vec
 FitResult fit_mixture(const io::Volume& volume, const io::SparseGrid& grid, GaussianMixture& mixture,
                       const GmfOptions& options, const std::function<void(const FitIteration&)>& on_progress) {
   options.validate();
-  io::Stopwatch watch;
+  FitClock clock;
   FitResult result;
+  FitLog log{result, clock, on_progress, options.stop_loss};
   const io::WorldFrame frame = grid.frame();
   const SampleSet samples = extract_samples(grid, options.background_weight, options.residual_block_voxels);
   const double min_voxel = frame.voxel_size().minCoeff();
@@ -228,11 +245,13 @@ FitResult fit_mixture(const io::Volume& volume, const io::SparseGrid& grid, Gaus
   ceres::QuaternionManifold quaternion_manifold;
   int iterations = 0;
   for (int round = 0; round < options.rounds; ++round) {
-    const double left = options.time_budget_s - watch.elapsed();
+    const double left = options.time_budget_s - clock.now();
     if (left <= 0) {
       result.stop_reason = "time budget";
       break;
     }
+    int round_iterations = options.iterations_per_round;
+    if (options.max_iterations > 0) round_iterations = std::min(round_iterations, options.max_iterations - iterations);
     std::vector<Params> params(mixture.size());
     for (std::size_t k = 0; k < mixture.size(); ++k) params[k] = to_double(mixture[k]);
     // Per-round trust region on each Gaussian's geometry (bounds below): its mean
@@ -266,13 +285,13 @@ FitResult fit_mixture(const io::Volume& volume, const io::SparseGrid& grid, Gaus
     if (options.optimizer == Optimizer::kLbfgs || options.optimizer == Optimizer::kAdam) {
       const FitObjective objective(samples, index, params.size(), options.mahalanobis_cutoff);
       outcome = options.optimizer == Optimizer::kLbfgs
-                    ? solve_lbfgs(objective, x, lower, upper, options, left, result, watch, round, iterations,
-                                  static_cast<int>(mixture.size()), on_progress)
-                    : solve_adam(objective, x, lower, upper, options, left, min_voxel, result, watch, round, iterations,
-                                 static_cast<int>(mixture.size()), on_progress);
+                    ? solve_lbfgs(objective, x, lower, upper, round_iterations, left, log, round, iterations,
+                                  static_cast<int>(mixture.size()))
+                    : solve_adam(objective, x, lower, upper, options, round_iterations, left, min_voxel, log, round,
+                                 iterations, static_cast<int>(mixture.size()));
     } else {
-      outcome = solve_least_squares(samples, index, params, lower, upper, quaternion_manifold, options, left, result,
-                                    watch, round, iterations, static_cast<int>(mixture.size()), on_progress);
+      outcome = solve_least_squares(samples, index, params, lower, upper, quaternion_manifold, options,
+                                    round_iterations, left, log, round, iterations, static_cast<int>(mixture.size()));
     }
     iterations += outcome.iterations;
     result.stop_reason = outcome.message;
@@ -296,15 +315,28 @@ FitResult fit_mixture(const io::Volume& volume, const io::SparseGrid& grid, Gaus
     FitIteration end;
     end.round = round;
     end.iteration = iterations;
-    end.seconds = watch.elapsed();
+    end.seconds = clock.now();
     end.loss = outcome.final_loss;
-    end.psnr_3d = psnr_3d(rasterize_mixture(mixture, frame, options.mahalanobis_cutoff), volume);
+    {
+      io::Stopwatch measuring;
+      end.psnr_3d = psnr_3d(rasterize_mixture(mixture, frame, options.mahalanobis_cutoff), volume);
+      clock.excluded += measuring.elapsed();
+    }
     end.gaussians = static_cast<int>(mixture.size());
-    result.log.push_back(end);
-    if (on_progress) on_progress(end);
+    log.add(end);
     result.final_psnr_3d = end.psnr_3d;
+    if (log.reached_stop_loss) {
+      result.stop_reason = "reached gmf.stop_loss";
+      result.rounds.push_back(stats);
+      break;
+    }
+    if (options.max_iterations > 0 && iterations >= options.max_iterations) {
+      result.stop_reason = "gmf.max_iterations";
+      result.rounds.push_back(stats);
+      break;
+    }
     // Density control for the next round (not after the last one, nor when out of time).
-    if (options.densify && round + 1 < options.rounds && watch.elapsed() < options.time_budget_s) {
+    if (options.densify && round + 1 < options.rounds && clock.now() < options.time_budget_s) {
       const BrickIndex current = build_brick_index(mixture, samples, frame, options.mahalanobis_cutoff);
       const DensityChange change = adapt_density(mixture, samples, current, frame, options);
       stats.split = change.split;
@@ -317,7 +349,8 @@ FitResult fit_mixture(const io::Volume& volume, const io::SparseGrid& grid, Gaus
       break;
     }
   }
-  result.seconds = watch.elapsed();
+  result.seconds = clock.now();
+  result.measuring_seconds = clock.excluded;
   return result;
 }
 

@@ -9,6 +9,8 @@ void GmfOptions::validate() const {
   io::require_positive(s, "time_budget_s", time_budget_s);
   io::require_in_range(s, "rounds", rounds, 1, 1000);
   io::require_in_range(s, "iterations_per_round", iterations_per_round, 1, 100000);
+  io::require_in_range(s, "max_iterations", max_iterations, 0, 1e9);
+  io::require_in_range(s, "stop_loss", stop_loss, 0.0, 1e300);
   io::require_positive(s, "mahalanobis_cutoff", mahalanobis_cutoff);
   io::require_in_range(s, "prune_intensity", prune_intensity, 0.0, 0.999999);
   io::require_in_range(s, "split_scale", split_scale, 1e-6, 0.999999);

@@ -20,6 +20,8 @@ struct GmfOptions {
   double time_budget_s = 300.0;                   // wall-clock limit of the whole fit, seconds, > 0
   int rounds = 6;                                 // density-control rounds (solve, split/clone/prune), [1, 1000]
   int iterations_per_round = 25;                  // solver iterations per round, [1, 100000]
+  int max_iterations = 0;                         // cap on solver iterations over all rounds; 0 = none, [0, 10^9]
+  double stop_loss = 0.0;                         // stop once the loss is at or below this; 0 = never, >= 0
   double mahalanobis_cutoff = 16.0;               // δ: support of a Gaussian is dᵀΣ⁻¹d <= δ (4σ), > 0
   double prune_intensity = 0.01;                  // prune Gaussians with a_k below this, [0, 1)
   double split_scale = 0.8;                       // Eq. 17: s_new = split_scale * s_old, (0, 1)
@@ -55,6 +57,8 @@ struct GmfOptions {
     v("time_budget_s", time_budget_s);
     v("rounds", rounds);
     v("iterations_per_round", iterations_per_round);
+    v("max_iterations", max_iterations);
+    v("stop_loss", stop_loss);
     v("mahalanobis_cutoff", mahalanobis_cutoff);
     v("prune_intensity", prune_intensity);
     v("split_scale", split_scale);

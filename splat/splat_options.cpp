@@ -26,10 +26,7 @@ void SplatOptions::validate() const {
   io::require_positive(s, "beta", beta);
   io::require_positive(s, "mahalanobis_cutoff", mahalanobis_cutoff);
   io::require_in_range(s, "low_pass", low_pass, 0.0, 100.0);
-  if (tile_size != 8 && tile_size != 16 && tile_size != 32) {
-    io::fail_option(s, "tile_size", std::to_string(tile_size), "must be 8, 16 or 32");
-  }
-  io::require_in_range(s, "chunk_size", chunk_size, 1, 1e7);
+  io::require_in_range(s, "skip_log_weight", skip_log_weight, 0.0, 100.0);
 }
 
 void TrainOptions::validate() const {

@@ -60,8 +60,11 @@ struct SplatOptions {
   double beta = 50.0;                 // soft-MIP sharpness β, > 0
   double mahalanobis_cutoff = 16.0;   // δ: a Gaussian touches pixels with dᵀΣ⁻¹d <= δ, > 0
   double low_pass = 0.0;              // 2D dilation added to Σ_2D diagonal, pixels², >= 0 (report: none)
-  int tile_size = 16;                 // rasterizer tile edge, pixels, one of 8, 16, 32
-  int chunk_size = 4096;              // Gaussians per batch (report Table 1), [1, 10^7]
+  // Soft-MIP terms whose softmax weight is below e^-skip_log_weight of the pixel's
+  // largest (β a_k < m − skip_log_weight) are skipped by the fast back ends, and
+  // counted; 0 = never skip. The error this allows in a pixel is below
+  // (number of skipped terms) × e^-skip_log_weight (2e-9 each at 20). [0, 100]
+  double skip_log_weight = 20.0;
 
   void validate() const;
   template <class V>
@@ -70,8 +73,7 @@ struct SplatOptions {
     v("beta", beta);
     v("mahalanobis_cutoff", mahalanobis_cutoff);
     v("low_pass", low_pass);
-    v("tile_size", tile_size);
-    v("chunk_size", chunk_size);
+    v("skip_log_weight", skip_log_weight);
   }
 };
 

@@ -132,6 +132,40 @@ TEST(GmfFit, EveryOptimizerLowersTheLoss) {
   }
 }
 
+// gmf.max_iterations caps the solver iterations over all rounds, and
+// gmf.stop_loss ends the fit at the first logged loss at or below it.
+TEST(GmfFit, IterationCapAndStopLoss) {
+  const Scene scene = make_scene(11);
+  const io::SparseGrid grid = grid_of(scene, 0.05);
+  GaussianMixture start = scene.truth;
+  for (auto& g : start) g.intensity_logit += 0.7f;
+  for (const Optimizer opt : {Optimizer::kLevenbergMarquardtCgnr, Optimizer::kAdam}) {
+    GmfOptions o;
+    o.optimizer = opt;
+    o.densify = false;
+    o.rounds = 10;
+    o.iterations_per_round = 4;
+    o.max_iterations = 7;
+    o.prune_intensity = 0.0;
+    GaussianMixture m = start;
+    const FitResult capped = fit_mixture(scene.volume, grid, m, o);
+    EXPECT_EQ(capped.log.back().iteration, 7) << capped.stop_reason;
+    EXPECT_EQ(capped.rounds.size(), 2u);
+    EXPECT_GE(capped.measuring_seconds, 0.0);
+
+    // Stop at a loss between the start and the end of the capped run.
+    o.max_iterations = 0;
+    o.stop_loss = 0.5 * (capped.log.front().loss + capped.log.back().loss);
+    m = start;
+    const FitResult stopped = fit_mixture(scene.volume, grid, m, o);
+    EXPECT_EQ(stopped.stop_reason, "reached gmf.stop_loss");
+    EXPECT_LE(stopped.log.back().iteration, 7);
+    int at_or_below = 0;
+    for (const FitIteration& it : stopped.log) at_or_below += it.loss <= o.stop_loss ? 1 : 0;
+    EXPECT_GE(at_or_below, 1);
+  }
+}
+
 // The first-order objective's gradient is the derivative of its value.
 TEST(GmfObjective, GradientMatchesItsValue) {
   const Scene scene = make_scene(13);

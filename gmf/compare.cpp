@@ -1,0 +1,75 @@
+// compare_optimizers: Adam first (its loss after N steps is the target), then the
+// others under the same budget; time to target read from each run's log.
+#include "gmf/compare.hpp"
+
+#include <algorithm>
+#include <string_view>
+#include <type_traits>
+
+#include "io/error.hpp"
+
+namespace hisnegs::gmf {
+
+std::string optimizer_name(Optimizer optimizer) {
+  std::string name;
+  GmfOptions o;
+  o.visit([&](std::string_view key, auto& /*field*/, auto&&... names) {
+    if constexpr (sizeof...(names) == 1) {
+      if (key != "optimizer") return;
+      for (const auto& [text, value] : (names, ...)) {
+        if constexpr (std::is_same_v<std::decay_t<decltype(value)>, Optimizer>) {
+          if (value == optimizer) name = std::string(text);
+        }
+      }
+    }
+  });
+  return name;
+}
+
+Comparison compare_optimizers(const io::Volume& volume, const io::SparseGrid& grid, const GaussianMixture& initial,
+                              const GmfOptions& base, const CompareOptions& options,
+                              const std::function<void(const OptimizerRun&, const FitIteration&)>& on_progress) {
+  if (options.optimizers.empty()) throw io::InputError("compare-optimizers: no optimizers to compare");
+  io::require_positive("compare", "time_budget_s", options.time_budget_s);
+  io::require_in_range("compare", "adam_steps", options.adam_steps, 1, 1e9);
+  std::vector<Optimizer> order = options.optimizers;
+  std::stable_partition(order.begin(), order.end(), [](Optimizer o) { return o == Optimizer::kAdam; });
+  order.erase(std::unique(order.begin(), order.end()), order.end());
+
+  Comparison comparison;
+  for (const Optimizer optimizer : order) {
+    GmfOptions o = base;
+    o.optimizer = optimizer;
+    o.densify = false;  // same K for everyone: the comparison is of optimizers, not of density control
+    o.time_budget_s = options.time_budget_s;
+    o.rounds = 1000;    // rounds only rebuild the index here; the budget (or Adam's steps) ends the run
+    o.max_iterations = optimizer == Optimizer::kAdam ? options.adam_steps : 0;
+    o.stop_loss = optimizer != Optimizer::kAdam && options.stop_at_target && comparison.target_loss > 0
+                      ? comparison.target_loss
+                      : 0.0;
+    OptimizerRun run;
+    run.optimizer = optimizer;
+    run.name = optimizer_name(optimizer);
+    GaussianMixture mixture = initial;
+    run.result = fit_mixture(volume, grid, mixture, o, [&](const FitIteration& it) {
+      if (on_progress) on_progress(run, it);
+    });
+    const std::vector<FitIteration>& log = run.result.log;
+    run.final_loss = log.empty() ? 0.0 : log.back().loss;
+    run.iterations = log.empty() ? 0 : log.back().iteration;
+    run.gaussians = static_cast<int>(mixture.size());
+    if (optimizer == Optimizer::kAdam) {
+      comparison.target_loss = run.final_loss;
+      comparison.adam_steps_done = run.iterations;
+    }
+    if (comparison.target_loss > 0) {
+      const auto hit = std::find_if(log.begin(), log.end(),
+                                    [&](const FitIteration& it) { return it.loss <= comparison.target_loss; });
+      if (hit != log.end()) run.seconds_to_target = hit->seconds;
+    }
+    comparison.runs.push_back(std::move(run));
+  }
+  return comparison;
+}
+
+}  // namespace hisnegs::gmf

@@ -1,0 +1,50 @@
+// Optimizer comparison (issue: compare optimizers honestly): every optimizer from
+// the same initial mixture, samples, loss and time budget, with density control
+// off so K is the same for all; the target is the loss Adam reaches after N steps.
+#pragma once
+
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "gmf/fit.hpp"
+
+namespace hisnegs::gmf {
+
+struct CompareOptions {
+  // Optimizers in the order they run; Adam (when present) always runs first, since
+  // its loss after adam_steps is every other run's target.
+  std::vector<Optimizer> optimizers = {Optimizer::kAdam, Optimizer::kLevenbergMarquardt,
+                                       Optimizer::kLevenbergMarquardtCgnr, Optimizer::kDogleg, Optimizer::kLbfgs};
+  double time_budget_s = 300;  // wall-clock budget of each run (measuring excluded), > 0
+  int adam_steps = 2000;       // Adam's steps that define the target loss, >= 1
+  bool stop_at_target = false; // end a run once it reaches the target (saves time; its curve stops there)
+};
+
+struct OptimizerRun {
+  Optimizer optimizer{};
+  std::string name;                // as in the config: lm, lm-cgnr, dogleg, lbfgs, adam
+  FitResult result;
+  double seconds_to_target = -1;   // first logged time with loss <= target; < 0 when never reached
+  double final_loss = 0;
+  int iterations = 0;
+  int gaussians = 0;               // K at the end (only pruning changes it)
+};
+
+struct Comparison {
+  double target_loss = -1;    // Adam's loss after its steps; < 0 without an Adam run
+  int adam_steps_done = 0;    // fewer than CompareOptions::adam_steps when Adam ran out of time
+  std::vector<OptimizerRun> runs;
+};
+
+// The configured name of an optimizer ("lm-cgnr", ...).
+std::string optimizer_name(Optimizer optimizer);
+
+// Runs the comparison. `base` supplies everything but the optimizer, the budget and
+// density control; `initial` is copied for every run. `on_progress(run, line)` is
+// called for every log line.
+Comparison compare_optimizers(const io::Volume& volume, const io::SparseGrid& grid, const GaussianMixture& initial,
+                              const GmfOptions& base, const CompareOptions& options,
+                              const std::function<void(const OptimizerRun&, const FitIteration&)>& on_progress = {});
+
+}  // namespace hisnegs::gmf

@@ -1,0 +1,239 @@
+// Tile kernels of the CPU splatting back end (see splat_cpu_tiles.hpp): for each
+// Gaussian of a tile, only the rows its δ ellipse crosses and, in each row, only
+// the SIMD chunks of its column span are evaluated; lanes are masked by q <= δ.
+// Compiled once per instruction set by Highway (foreach_target) and dispatched.
+#undef HWY_TARGET_INCLUDE
+#define HWY_TARGET_INCLUDE "splat/detail/splat_cpu_tiles.cpp"
+#include <hwy/foreach_target.h>  // IWYU pragma: keep
+#include <hwy/highway.h>
+#include <hwy/contrib/math/math-inl.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "splat/detail/splat_cpu_tiles.hpp"
+
+HWY_BEFORE_NAMESPACE();
+namespace hisnegs::splat::detail {
+namespace HWY_NAMESPACE {
+namespace hn = hwy::HWY_NAMESPACE;
+
+constexpr int kTile = 16;
+
+// Rows [r0, r1] of the tile (tile-local) that the ellipse q <= δ can reach, one row
+// of margin each side against rounding (the per-lane test decides exactly).
+struct Span {
+  int lo, hi;
+};
+inline Span row_span(const TileFrame& f, float v, float A, float B, float C) {
+  // max |dy| on the ellipse: sqrt(δ A / (A C − B²)) = sqrt(δ Σ_yy)
+  const float detc = A * C - B * B;
+  const float half = std::sqrt(f.cutoff * A / detc);
+  const float lo = v - half - static_cast<float>(f.y0) - 0.5f, hi = v + half - static_cast<float>(f.y0) - 0.5f;
+  Span s{static_cast<int>(std::ceil(lo)) - 1, static_cast<int>(std::floor(hi)) + 1};
+  s.lo = std::max(s.lo, 0);
+  s.hi = std::min(s.hi, f.height - 1);
+  return s;
+}
+
+// Columns of tile row `dy` (py − v) inside the ellipse, with one column of margin; empty when hi < lo.
+inline Span column_span(const TileFrame& f, float u, float dy, float A, float B, float C) {
+  const float D = A * f.cutoff - dy * dy * (A * C - B * B);
+  if (D < -1e-3f * A * f.cutoff) return {1, 0};
+  const float root = std::sqrt(std::max(D, 0.0f));
+  const float lo = u + (-B * dy - root) / A - static_cast<float>(f.x0) - 0.5f;
+  const float hi = u + (-B * dy + root) / A - static_cast<float>(f.x0) - 0.5f;
+  Span s{static_cast<int>(std::ceil(lo)) - 1, static_cast<int>(std::floor(hi)) + 1};
+  s.lo = std::max(s.lo, 0);
+  s.hi = std::min(s.hi, f.width - 1);
+  return s;
+}
+
+void ForwardTile(const TileFrame& f, const TileGaussians& gs, float* m_out, float* S_out, float* I_out,
+                 std::int64_t* skipped_out) {
+  const hn::ScalableTag<float> d;
+  const int N = static_cast<int>(hn::Lanes(d));
+  const int lanes = std::min(N, kTile);  // chunks never cross the tile's 16 columns
+  HWY_ALIGN float m[kTile * kTile], S[kTile * kTile], W[kTile * kTile];
+  std::fill(m, m + kTile * kTile, -std::numeric_limits<float>::infinity());
+  std::fill(S, S + kTile * kTile, 0.0f);
+  std::fill(W, W + kTile * kTile, 0.0f);
+  std::int64_t skipped = 0;
+  const auto iota = hn::Iota(d, 0.5f);
+  const auto cutoff = hn::Set(d, f.cutoff);
+  const auto beta = hn::Set(d, f.beta);
+  const auto minus_half = hn::Set(d, -0.5f);
+  const auto one = hn::Set(d, 1.0f);
+  for (int i = 0; i < gs.count; ++i) {
+    const float u = gs.u[i], v = gs.v[i], A = gs.con_a[i], B = gs.con_b[i], C = gs.con_c[i], amp = gs.amplitude[i];
+    const Span rows = row_span(f, v, A, B, C);
+    const auto vA = hn::Set(d, A), v2B = hn::Set(d, 2.0f * B), vC = hn::Set(d, C), vamp = hn::Set(d, amp);
+    // Largest possible β g of this Gaussian, for the skip test.
+    const float beta_amp = f.soft ? f.beta * amp : amp;
+    for (int r = rows.lo; r <= rows.hi; ++r) {
+      const float dy = static_cast<float>(f.y0 + r) + 0.5f - v;
+      const Span cols = column_span(f, u, dy, A, B, C);
+      if (cols.hi < cols.lo) continue;
+      const auto vdy = hn::Set(d, dy);
+      const auto Cdy2 = hn::Mul(vC, hn::Mul(vdy, vdy));
+      const auto twoBdy = hn::Mul(v2B, vdy);
+      for (int c = (cols.lo / lanes) * lanes; c <= cols.hi; c += lanes) {
+        const int at = r * kTile + c;
+        const auto dx = hn::Sub(hn::Add(iota, hn::Set(d, static_cast<float>(f.x0 + c))), hn::Set(d, u));
+        const auto q = hn::MulAdd(hn::MulAdd(vA, dx, twoBdy), dx, Cdy2);
+        auto mask = hn::Le(q, cutoff);
+        if (c + lanes > f.width) mask = hn::And(mask, hn::Lt(hn::Iota(d, static_cast<float>(c)), hn::Set(d, static_cast<float>(f.width))));
+        if (hn::AllFalse(d, mask)) continue;
+        const auto m_old = hn::Load(d, m + at);
+        if (f.soft && f.skip_log_weight > 0.0f) {
+          // Every lane's weight would be below e^-skip of its pixel's largest term.
+          if (hn::AllTrue(d, hn::Or(hn::Not(mask), hn::Lt(hn::Set(d, beta_amp + f.skip_log_weight), m_old)))) {
+            skipped += static_cast<std::int64_t>(hn::CountTrue(d, mask));
+            continue;
+          }
+        } else if (!f.soft) {
+          if (hn::AllTrue(d, hn::Or(hn::Not(mask), hn::Le(hn::Set(d, amp), m_old)))) continue;  // cannot raise the max
+        }
+        const auto g = hn::Mul(vamp, hn::Exp(d, hn::Mul(minus_half, q)));
+        if (!f.soft) {
+          hn::Store(hn::IfThenElse(mask, hn::Max(m_old, g), m_old), d, m + at);
+          continue;
+        }
+        // One exp per term: t = e^{-|βg − m|}; if βg > m the old sums are scaled by t
+        // and the new term is 1, else the new term is t (report §9.3, rearranged).
+        const auto bg = hn::Mul(beta, g);
+        const auto t = hn::Exp(d, hn::Neg(hn::Abs(hn::Sub(bg, m_old))));
+        const auto raises = hn::Gt(bg, m_old);
+        const auto scale = hn::IfThenElse(raises, t, one);
+        const auto e = hn::IfThenElse(raises, one, t);
+        const auto S_old = hn::Load(d, S + at), W_old = hn::Load(d, W + at);
+        hn::Store(hn::IfThenElse(mask, hn::MulAdd(S_old, scale, e), S_old), d, S + at);
+        hn::Store(hn::IfThenElse(mask, hn::MulAdd(W_old, scale, hn::Mul(e, g)), W_old), d, W + at);
+        hn::Store(hn::IfThenElse(mask, hn::Max(m_old, bg), m_old), d, m + at);
+      }
+    }
+  }
+  for (int r = 0; r < f.height; ++r) {
+    const std::size_t row = static_cast<std::size_t>(f.y0 + r) * f.stride + f.x0;
+    for (int c = 0; c < f.width; ++c) {
+      const int at = r * kTile + c;
+      if (f.soft) {
+        m_out[row + c] = m[at];
+        S_out[row + c] = S[at];
+        I_out[row + c] = S[at] > 0.0f ? W[at] / S[at] : 0.0f;
+      } else {
+        const bool touched = m[at] > -std::numeric_limits<float>::infinity();
+        m_out[row + c] = m[at];
+        S_out[row + c] = touched ? 1.0f : 0.0f;
+        I_out[row + c] = touched ? m[at] : 0.0f;
+      }
+    }
+  }
+  *skipped_out += skipped;
+}
+
+void BackwardTile(const TileFrame& f, const TileGaussians& gs, const float* m_in, const float* S_in,
+                  const float* I_in, const float* dL_dI_in, float* grads) {
+  const hn::ScalableTag<float> d;
+  const int N = static_cast<int>(hn::Lanes(d));
+  const int lanes = std::min(N, kTile);
+  // Tile-local copies: m, 1/S, I and dL/dI (0 where nothing touched the pixel).
+  HWY_ALIGN float m[kTile * kTile], inv_S[kTile * kTile], I[kTile * kTile], G[kTile * kTile];
+  std::fill(m, m + kTile * kTile, 0.0f);
+  std::fill(inv_S, inv_S + kTile * kTile, 0.0f);
+  std::fill(I, I + kTile * kTile, 0.0f);
+  std::fill(G, G + kTile * kTile, 0.0f);
+  for (int r = 0; r < f.height; ++r) {
+    const std::size_t row = static_cast<std::size_t>(f.y0 + r) * f.stride + f.x0;
+    for (int c = 0; c < f.width; ++c) {
+      const int at = r * kTile + c;
+      if (S_in[row + c] > 0.0f) {
+        m[at] = m_in[row + c];
+        inv_S[at] = 1.0f / S_in[row + c];
+        I[at] = I_in[row + c];
+        G[at] = dL_dI_in[row + c];
+      }
+    }
+  }
+  const auto iota = hn::Iota(d, 0.5f);
+  const auto cutoff = hn::Set(d, f.cutoff);
+  const auto beta = hn::Set(d, f.beta);
+  const auto minus_half = hn::Set(d, -0.5f);
+  const auto one = hn::Set(d, 1.0f);
+  const auto two = hn::Set(d, 2.0f);
+  for (int i = 0; i < gs.count; ++i) {
+    const float u = gs.u[i], v = gs.v[i], A = gs.con_a[i], B = gs.con_b[i], C = gs.con_c[i], amp = gs.amplitude[i];
+    const Span rows = row_span(f, v, A, B, C);
+    const auto vA = hn::Set(d, A), vB = hn::Set(d, B), vC = hn::Set(d, C), vamp = hn::Set(d, amp);
+    const float beta_amp = f.beta * amp;
+    auto su = hn::Zero(d), sv = hn::Zero(d), sA = hn::Zero(d), sB = hn::Zero(d), sC = hn::Zero(d), samp = hn::Zero(d);
+    for (int r = rows.lo; r <= rows.hi; ++r) {
+      const float dy = static_cast<float>(f.y0 + r) + 0.5f - v;
+      const Span cols = column_span(f, u, dy, A, B, C);
+      if (cols.hi < cols.lo) continue;
+      const auto vdy = hn::Set(d, dy);
+      for (int c = (cols.lo / lanes) * lanes; c <= cols.hi; c += lanes) {
+        const int at = r * kTile + c;
+        const auto dx = hn::Sub(hn::Add(iota, hn::Set(d, static_cast<float>(f.x0 + c))), hn::Set(d, u));
+        const auto q = hn::MulAdd(hn::MulAdd(vA, dx, hn::Mul(hn::Mul(two, vB), vdy)), dx, hn::Mul(vC, hn::Mul(vdy, vdy)));
+        auto mask = hn::Le(q, cutoff);
+        if (c + lanes > f.width) mask = hn::And(mask, hn::Lt(hn::Iota(d, static_cast<float>(c)), hn::Set(d, static_cast<float>(f.width))));
+        const auto dL_dI = hn::Load(d, G + at);
+        mask = hn::And(mask, hn::Ne(dL_dI, hn::Zero(d)));
+        if (hn::AllFalse(d, mask)) continue;
+        const auto m_px = hn::Load(d, m + at);
+        // The forward's skip rule, on the final m (>= the running m the forward saw):
+        // the terms dropped here have weight below e^-skip as well.
+        if (f.skip_log_weight > 0.0f &&
+            hn::AllTrue(d, hn::Or(hn::Not(mask), hn::Lt(hn::Set(d, beta_amp + f.skip_log_weight), m_px)))) {
+          continue;
+        }
+        const auto Gk = hn::Exp(d, hn::Mul(minus_half, q));
+        const auto g = hn::Mul(vamp, Gk);
+        // dI/dg = w (1 + β (g − I)), w = e^{βg − m} / S
+        const auto w = hn::Mul(hn::Exp(d, hn::Sub(hn::Mul(beta, g), m_px)), hn::Load(d, inv_S + at));
+        const auto dI_dg = hn::Mul(w, hn::MulAdd(beta, hn::Sub(g, hn::Load(d, I + at)), one));
+        const auto dL_dg = hn::IfThenElseZero(mask, hn::Mul(dL_dI, dI_dg));
+        samp = hn::MulAdd(dL_dg, Gk, samp);
+        const auto dL_dq = hn::Mul(hn::Mul(minus_half, dL_dg), g);  // d(a e^{-q/2})/dq = −½ g
+        sA = hn::MulAdd(dL_dq, hn::Mul(dx, dx), sA);
+        sB = hn::MulAdd(dL_dq, hn::Mul(two, hn::Mul(dx, vdy)), sB);
+        sC = hn::MulAdd(dL_dq, hn::Mul(vdy, vdy), sC);
+        // dq/du = −2 (A dx + B dy), dq/dv = −2 (B dx + C dy)
+        su = hn::MulAdd(dL_dq, hn::MulAdd(vA, dx, hn::Mul(vB, vdy)), su);
+        sv = hn::MulAdd(dL_dq, hn::MulAdd(vB, dx, hn::Mul(vC, vdy)), sv);
+      }
+    }
+    float* out = grads + 6 * static_cast<std::size_t>(i);
+    out[0] = -2.0f * hn::GetLane(hn::SumOfLanes(d, su));
+    out[1] = -2.0f * hn::GetLane(hn::SumOfLanes(d, sv));
+    out[2] = hn::GetLane(hn::SumOfLanes(d, sA));
+    out[3] = hn::GetLane(hn::SumOfLanes(d, sB));
+    out[4] = hn::GetLane(hn::SumOfLanes(d, sC));
+    out[5] = hn::GetLane(hn::SumOfLanes(d, samp));
+  }
+}
+
+}  // namespace HWY_NAMESPACE
+}  // namespace hisnegs::splat::detail
+HWY_AFTER_NAMESPACE();
+
+#if HWY_ONCE
+namespace hisnegs::splat::detail {
+
+HWY_EXPORT(ForwardTile);
+HWY_EXPORT(BackwardTile);
+
+void forward_tile(const TileFrame& frame, const TileGaussians& gaussians, float* m, float* S, float* I,
+                  std::int64_t* skipped) {
+  HWY_DYNAMIC_DISPATCH(ForwardTile)(frame, gaussians, m, S, I, skipped);
+}
+
+void backward_tile(const TileFrame& frame, const TileGaussians& gaussians, const float* m, const float* S,
+                   const float* I, const float* dL_dI, float* grads) {
+  HWY_DYNAMIC_DISPATCH(BackwardTile)(frame, gaussians, m, S, I, dL_dI, grads);
+}
+
+}  // namespace hisnegs::splat::detail
+#endif

@@ -1,0 +1,42 @@
+// The CPU rasterizer's per-tile kernels (forward soft/hard, soft backward), SIMD
+// across the pixels of a tile row with Google Highway, dispatched at run time to
+// the best instruction set. Binning and per-Gaussian work live in splat_cpu.cpp.
+#pragma once
+
+#include <cstdint>
+
+namespace hisnegs::splat::detail {
+
+// One tile's Gaussians as structure of arrays, in rasterization order
+// (amplitude descending, so the running max settles early).
+struct TileGaussians {
+  const float* u;
+  const float* v;
+  const float* con_a;
+  const float* con_b;
+  const float* con_c;
+  const float* amplitude;
+  int count;
+};
+
+struct TileFrame {
+  int x0, y0;         // the tile's first pixel
+  int width, height;  // pixels of the tile inside the image (<= 16)
+  int stride;         // floats per image row
+  float beta, cutoff;
+  float skip_log_weight;  // 0 = never skip
+  bool soft;
+};
+
+// Renders the tile: writes the per-pixel softmax state m (β-scaled max), S and the
+// image value I (all image-sized, row-major, `stride`), and adds the soft-MIP terms
+// skipped to `*skipped`. Hard mode writes m = I = max g and S = 1 where touched.
+void forward_tile(const TileFrame& frame, const TileGaussians& gaussians, float* m, float* S, float* I,
+                  std::int64_t* skipped);
+
+// For each of the tile's Gaussians i, writes its six gradient sums
+// (dL/du, dL/dv, dL/dcon_a, dL/dcon_b, dL/dcon_c, dL/damplitude) to grads[6 i ...].
+void backward_tile(const TileFrame& frame, const TileGaussians& gaussians, const float* m, const float* S,
+                   const float* I, const float* dL_dI, float* grads);
+
+}  // namespace hisnegs::splat::detail

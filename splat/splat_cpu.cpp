@@ -1,0 +1,241 @@
+// The TBB back end of SplatRenderer: per-Gaussian projection in parallel, an
+// amplitude-ordered counting sort into 16x16 tiles (no depth sort: soft-MIP is
+// order independent), tiles rasterized in parallel by detail/splat_cpu_tiles,
+// and a deterministic backward (per-entry sums combined in entry order).
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <cmath>
+#include <memory>
+#include <stdexcept>
+#include <vector>
+
+#include "io/error.hpp"
+#include "splat/detail/splat_cpu_tiles.hpp"
+#include "splat/splat_renderer.hpp"
+
+namespace hisnegs::splat {
+namespace {
+
+constexpr int kParams = gmf::kNumGaussianParams;
+constexpr int kAmplitudeBuckets = 1024;
+
+class CpuSplatRenderer final : public SplatRenderer {
+ public:
+  void forward(std::span<const float> params, const Intrinsics& K, const CameraView& view,
+               const SplatSettings& settings, std::span<float> image) override;
+  void backward(std::span<const float> dL_dimage, std::span<float> dL_dparams, std::span<float> screen_grad) override;
+  [[nodiscard]] const SplatFrameStats& stats() const override { return stats_; }
+  [[nodiscard]] Backend backend() const override { return Backend::kCpu; }
+
+ private:
+  void bin(std::size_t K);
+  [[nodiscard]] detail::TileFrame tile_frame(int tile) const;
+
+  // The last forward (all reused between frames: no allocation once sizes settle).
+  std::vector<float> params_;
+  Intrinsics intrinsics_;
+  CameraView view_;
+  SplatSettings settings_;
+  ViewParams<float> view_params_{};
+  int tiles_x_ = 0, tiles_y_ = 0;
+  std::vector<Splat2D<float>> splats_;
+  std::vector<int> tile_lo_, tile_hi_;        // per Gaussian: tile rectangle packed (x0 | y0 << 16), (x1 | y1 << 16)
+  std::vector<std::uint32_t> order_;          // visible Gaussians, amplitude descending
+  std::vector<std::uint32_t> bucket_count_;
+  std::vector<std::uint32_t> tile_offset_;    // tiles + 1
+  std::vector<std::uint32_t> tile_cursor_;
+  std::vector<std::uint32_t> entries_;        // Gaussian id per (tile, rank)
+  std::vector<float> soa_;                    // entries_ gathered: 6 floats per entry, per tile blocks of SoA
+  std::vector<float> m_, S_, I_;              // per pixel
+  std::vector<float> entry_grads_;            // 6 per entry
+  std::vector<double> gaussian_grads_;        // 6 per Gaussian
+  SplatFrameStats stats_;
+};
+
+void CpuSplatRenderer::forward(std::span<const float> params, const Intrinsics& K, const CameraView& view,
+                               const SplatSettings& settings, std::span<float> image) {
+  if (params.size() % kParams != 0) {
+    throw std::invalid_argument("splat: parameter array of " + std::to_string(params.size()) +
+                                " floats is not a multiple of 11");
+  }
+  const std::size_t pixels = static_cast<std::size_t>(K.width) * K.height;
+  if (image.size() != pixels) throw std::invalid_argument("splat: image span does not match the intrinsics");
+  params_.assign(params.begin(), params.end());
+  intrinsics_ = K;
+  view_ = view;
+  settings_ = settings;
+  view_params_ = make_splat_view<float>(K, view);
+  const std::size_t count = params.size() / kParams;
+  tiles_x_ = (K.width + kTileSize - 1) / kTileSize;
+  tiles_y_ = (K.height + kTileSize - 1) / kTileSize;
+
+  // 1. Project every Gaussian (Eq. 2-6) and find its tile rectangle.
+  splats_.resize(count);
+  tile_lo_.resize(count);
+  tile_hi_.resize(count);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, count, 1024), [&](const auto& range) {
+    for (std::size_t k = range.begin(); k != range.end(); ++k) {
+      Splat2D<float> s = project_gaussian(&params_[kParams * k], view_params_, settings.cutoff, settings.low_pass);
+      if (s.visible) {
+        // Pixels whose centres can lie in the ellipse's bounding box.
+        const int c0 = std::max(0, static_cast<int>(std::ceil(s.u - s.half_w - 0.5f)) - 1);
+        const int c1 = std::min(K.width - 1, static_cast<int>(std::floor(s.u + s.half_w - 0.5f)) + 1);
+        const int r0 = std::max(0, static_cast<int>(std::ceil(s.v - s.half_h - 0.5f)) - 1);
+        const int r1 = std::min(K.height - 1, static_cast<int>(std::floor(s.v + s.half_h - 0.5f)) + 1);
+        if (c0 > c1 || r0 > r1 || !std::isfinite(s.u) || !std::isfinite(s.v)) {
+          s.visible = false;
+        } else {
+          tile_lo_[k] = (c0 / kTileSize) | ((r0 / kTileSize) << 16);
+          tile_hi_[k] = (c1 / kTileSize) | ((r1 / kTileSize) << 16);
+        }
+      }
+      splats_[k] = s;
+    }
+  });
+  bin(count);
+
+  // 2. Rasterize the tiles.
+  m_.resize(pixels);
+  S_.resize(pixels);
+  I_.resize(pixels);
+  const int tiles = tiles_x_ * tiles_y_;
+  std::vector<std::int64_t> skipped(static_cast<std::size_t>(tiles), 0);
+  tbb::parallel_for(tbb::blocked_range<int>(0, tiles, 1), [&](const auto& range) {
+    for (int t = range.begin(); t != range.end(); ++t) {
+      const std::uint32_t lo = tile_offset_[t], n = tile_offset_[t + 1] - lo;
+      const float* base = soa_.data() + 6 * static_cast<std::size_t>(lo);
+      const detail::TileGaussians g{base, base + n, base + 2 * n, base + 3 * n, base + 4 * n, base + 5 * n,
+                                    static_cast<int>(n)};
+      detail::forward_tile(tile_frame(t), g, m_.data(), S_.data(), I_.data(), &skipped[t]);
+    }
+  });
+  stats_.skipped_terms = 0;
+  for (std::int64_t s : skipped) stats_.skipped_terms += s;
+  std::copy(I_.begin(), I_.end(), image.begin());
+}
+
+// Counting sorts: visible Gaussians by amplitude (descending, ties by index) into
+// order_, then (tile, order) pairs into entries_, and their 2D parameters gathered
+// as one SoA block per tile.
+void CpuSplatRenderer::bin(std::size_t K) {
+  bucket_count_.assign(kAmplitudeBuckets + 1, 0);
+  auto bucket_of = [](float a) {
+    return kAmplitudeBuckets - 1 - std::clamp(static_cast<int>(a * kAmplitudeBuckets), 0, kAmplitudeBuckets - 1);
+  };
+  int visible = 0;
+  for (std::size_t k = 0; k < K; ++k) {
+    if (!splats_[k].visible) continue;
+    ++bucket_count_[bucket_of(splats_[k].amplitude) + 1];
+    ++visible;
+  }
+  for (int b = 0; b < kAmplitudeBuckets; ++b) bucket_count_[b + 1] += bucket_count_[b];
+  order_.resize(static_cast<std::size_t>(visible));
+  for (std::size_t k = 0; k < K; ++k) {
+    if (splats_[k].visible) order_[bucket_count_[bucket_of(splats_[k].amplitude)]++] = static_cast<std::uint32_t>(k);
+  }
+  stats_.visible = visible;
+
+  const int tiles = tiles_x_ * tiles_y_;
+  tile_offset_.assign(static_cast<std::size_t>(tiles) + 1, 0);
+  for (std::uint32_t k : order_) {
+    const int x0 = tile_lo_[k] & 0xffff, y0 = tile_lo_[k] >> 16, x1 = tile_hi_[k] & 0xffff, y1 = tile_hi_[k] >> 16;
+    for (int ty = y0; ty <= y1; ++ty) {
+      for (int tx = x0; tx <= x1; ++tx) ++tile_offset_[ty * tiles_x_ + tx + 1];
+    }
+  }
+  for (int t = 0; t < tiles; ++t) tile_offset_[t + 1] += tile_offset_[t];
+  entries_.resize(tile_offset_[tiles]);
+  stats_.tile_entries = static_cast<std::int64_t>(entries_.size());
+  tile_cursor_.assign(tile_offset_.begin(), tile_offset_.end() - 1);
+  for (std::uint32_t k : order_) {
+    const int x0 = tile_lo_[k] & 0xffff, y0 = tile_lo_[k] >> 16, x1 = tile_hi_[k] & 0xffff, y1 = tile_hi_[k] >> 16;
+    for (int ty = y0; ty <= y1; ++ty) {
+      for (int tx = x0; tx <= x1; ++tx) entries_[tile_cursor_[ty * tiles_x_ + tx]++] = k;
+    }
+  }
+  soa_.resize(6 * entries_.size());
+  tbb::parallel_for(tbb::blocked_range<int>(0, tiles, 4), [&](const auto& range) {
+    for (int t = range.begin(); t != range.end(); ++t) {
+      const std::uint32_t lo = tile_offset_[t], n = tile_offset_[t + 1] - lo;
+      float* base = soa_.data() + 6 * static_cast<std::size_t>(lo);
+      for (std::uint32_t i = 0; i < n; ++i) {
+        const Splat2D<float>& s = splats_[entries_[lo + i]];
+        base[i] = s.u;
+        base[n + i] = s.v;
+        base[2 * n + i] = s.con_a;
+        base[3 * n + i] = s.con_b;
+        base[4 * n + i] = s.con_c;
+        base[5 * n + i] = s.amplitude;
+      }
+    }
+  });
+}
+
+detail::TileFrame CpuSplatRenderer::tile_frame(int tile) const {
+  detail::TileFrame f{};
+  f.x0 = (tile % tiles_x_) * kTileSize;
+  f.y0 = (tile / tiles_x_) * kTileSize;
+  f.width = std::min(kTileSize, intrinsics_.width - f.x0);
+  f.height = std::min(kTileSize, intrinsics_.height - f.y0);
+  f.stride = intrinsics_.width;
+  f.beta = settings_.beta;
+  f.cutoff = settings_.cutoff;
+  f.skip_log_weight = settings_.skip_log_weight;
+  f.soft = settings_.mode == MipMode::kSoft;
+  return f;
+}
+
+void CpuSplatRenderer::backward(std::span<const float> dL_dimage, std::span<float> dL_dparams,
+                                std::span<float> screen_grad) {
+  if (settings_.mode != MipMode::kSoft) throw std::logic_error("splat: backward needs a soft-MIP forward");
+  if (dL_dimage.size() != I_.size() || dL_dparams.size() != params_.size() ||
+      (!screen_grad.empty() && screen_grad.size() != splats_.size())) {
+    throw std::invalid_argument("splat: backward spans do not match the last forward");
+  }
+  // 1. Per (tile, Gaussian) sums of the 2D gradients.
+  entry_grads_.resize(6 * entries_.size());
+  const int tiles = tiles_x_ * tiles_y_;
+  tbb::parallel_for(tbb::blocked_range<int>(0, tiles, 1), [&](const auto& range) {
+    for (int t = range.begin(); t != range.end(); ++t) {
+      const std::uint32_t lo = tile_offset_[t], n = tile_offset_[t + 1] - lo;
+      const float* base = soa_.data() + 6 * static_cast<std::size_t>(lo);
+      const detail::TileGaussians g{base, base + n, base + 2 * n, base + 3 * n, base + 4 * n, base + 5 * n,
+                                    static_cast<int>(n)};
+      detail::backward_tile(tile_frame(t), g, m_.data(), S_.data(), I_.data(), dL_dimage.data(),
+                            entry_grads_.data() + 6 * static_cast<std::size_t>(lo));
+    }
+  });
+  // 2. Combined per Gaussian in entry order (deterministic), in double.
+  const std::size_t K = splats_.size();
+  gaussian_grads_.assign(6 * K, 0.0);
+  for (std::size_t e = 0; e < entries_.size(); ++e) {
+    double* g = &gaussian_grads_[6 * static_cast<std::size_t>(entries_[e])];
+    for (int i = 0; i < 6; ++i) g[i] += entry_grads_[6 * e + i];
+  }
+  // 3. Through the projection to the 11 parameters, in double (splat_math.hpp).
+  const ViewParams<double> view = make_splat_view<double>(intrinsics_, view_);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, K, 512), [&](const auto& range) {
+    for (std::size_t k = range.begin(); k != range.end(); ++k) {
+      if (!splats_[k].visible) continue;
+      double p[kParams];
+      for (int i = 0; i < kParams; ++i) p[i] = params_[kParams * k + i];
+      ProjectionCache<double> cache;
+      const Splat2D<double> s = project_gaussian(p, view, double(settings_.cutoff), double(settings_.low_pass), &cache);
+      if (!s.visible) continue;
+      const double* g6 = &gaussian_grads_[6 * k];
+      Splat2DGrad<double> g{g6[0], g6[1], g6[2], g6[3], g6[4], g6[5]};
+      double out[kParams] = {};
+      project_gaussian_backward(p, view, cache, g, out);
+      for (int i = 0; i < kParams; ++i) dL_dparams[kParams * k + i] += static_cast<float>(out[i]);
+      if (!screen_grad.empty()) screen_grad[k] += static_cast<float>(std::hypot(g6[0], g6[1]));
+    }
+  });
+}
+
+}  // namespace
+
+std::unique_ptr<SplatRenderer> make_cpu_splat_renderer() { return std::make_unique<CpuSplatRenderer>(); }
+
+}  // namespace hisnegs::splat

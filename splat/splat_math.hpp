@@ -1,0 +1,320 @@
+// Per-Gaussian math of soft/hard-MIP splatting shared by the double reference,
+// the TBB and the CUDA back ends (report §2.2, Eq. 2-8): EWA projection of one
+// Gaussian to a 2D conic, its pixel footprint, the 2D value and the exact backward
+// of all of it to the 11 parameters. Templated on the scalar, no allocation.
+//
+// Definitions (the report leaves these open; docs/file-formats.md "Rendering"):
+// - A Gaussian is visible when near <= z_cam(μ) <= far; otherwise it contributes
+//   nothing (culled by its centre, as 3DGS does).
+// - Pixel (c, r) is evaluated at its centre p = (c + 0.5, r + 0.5) (CONVENTIONS).
+// - It touches the pixels with (p − μ2D)ᵀ Σ2D⁻¹ (p − μ2D) <= δ; soft-MIP (Eq. 8) runs
+//   over exactly these Gaussians (report §9.3, "each Gaussian overlapping the pixel"),
+//   and a pixel no Gaussian touches is 0.
+// - Σ2D = J W Σ Wᵀ Jᵀ + low_pass · I (low_pass 0 by default, as the report).
+#pragma once
+
+#include <cmath>
+
+#include "gmf/gaussian_math.hpp"
+#include "splat/hd.hpp"
+
+namespace hisnegs::splat {
+
+// A pinhole view in the form the kernels use (CONVENTIONS "Cameras").
+template <class T>
+struct ViewParams {
+  T R[9];  // world -> camera rotation, row-major
+  T t[3];  // translation: p_cam = R p_world + t
+  T fx, fy, cx, cy;
+  T near_z, far_z;
+  int width, height;
+};
+
+// Per-frame settings as the kernels take them (SplatSettings in C++17-safe form).
+struct KernelSettings {
+  bool soft = true;             // soft-MIP (Eq. 8) or hard MIP (max)
+  float beta = 50.0f;           // β
+  float cutoff = 16.0f;         // δ
+  float low_pass = 0.0f;        // pixels², added to Σ2D's diagonal
+  float skip_log_weight = 20.0f;  // skip terms with β a_k < m − this; 0 = never
+};
+
+// One Gaussian as the rasterizer sees it.
+template <class T>
+struct Splat2D {
+  T u, v;           // μ2D, pixels (Eq. 5)
+  T con_a, con_b, con_c;  // conic Σ2D⁻¹ = [[a, b], [b, c]]
+  T amplitude;      // a_k = sigmoid(ℓ)
+  T half_w, half_h; // half extents of the δ ellipse's bounding box, pixels
+  T depth;          // z_cam of μ
+  bool visible;
+};
+
+// Intermediates kept from the forward for the backward of one Gaussian.
+template <class T>
+struct ProjectionCache {
+  T mean_cam[3];
+  T cov2d[3];  // Σ2D entries (a, b, c) including low_pass
+};
+
+// Σ = M Mᵀ with M = R(q̂) diag(s): the world covariance, symmetric, row-major 3x3.
+template <class T>
+HISNEGS_HD void world_covariance(const gmf::GaussianFrame<T>& f, T cov[9]) {
+  T M[9];
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) M[3 * r + c] = f.R[3 * r + c] / f.inv_scale[c];
+  }
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) {
+      cov[3 * r + c] = M[3 * r + 0] * M[3 * c + 0] + M[3 * r + 1] * M[3 * c + 1] + M[3 * r + 2] * M[3 * c + 2];
+    }
+  }
+}
+
+// Eq. 2-6: projects Gaussian `p` (11 parameters, gmf::GaussianParam order) into `view`.
+// `cutoff` is δ. Fills `cache` when not null.
+template <class T>
+HISNEGS_HD Splat2D<T> project_gaussian(const T p[gmf::kNumGaussianParams], const ViewParams<T>& view, T cutoff,
+                                       T low_pass, ProjectionCache<T>* cache = nullptr) {
+  using std::sqrt;
+  Splat2D<T> s{};
+  s.visible = false;
+  T mc[3];
+  for (int r = 0; r < 3; ++r) {
+    mc[r] = view.R[3 * r] * p[gmf::kMeanX] + view.R[3 * r + 1] * p[gmf::kMeanY] + view.R[3 * r + 2] * p[gmf::kMeanZ] +
+            view.t[r];
+  }
+  s.depth = mc[2];
+  if (!(mc[2] >= view.near_z && mc[2] <= view.far_z)) return s;
+  gmf::GaussianFrame<T> f;
+  gmf::prepare_gaussian(&p[gmf::kMeanX], &p[gmf::kLogScale0], &p[gmf::kRotW], p[gmf::kLogit], f);
+  T cov[9];
+  world_covariance(f, cov);
+  // W = J R (2x3), J of Eq. 4 at μ_cam.
+  const T iz = T(1) / mc[2];
+  const T j00 = view.fx * iz, j02 = -view.fx * mc[0] * iz * iz;
+  const T j11 = view.fy * iz, j12 = -view.fy * mc[1] * iz * iz;
+  T W[6];
+  for (int c = 0; c < 3; ++c) {
+    W[c] = j00 * view.R[c] + j02 * view.R[6 + c];
+    W[3 + c] = j11 * view.R[3 + c] + j12 * view.R[6 + c];
+  }
+  // Σ2D = W Σ Wᵀ (Eq. 3, 6) + low_pass I
+  T WS[6];
+  for (int r = 0; r < 2; ++r) {
+    for (int c = 0; c < 3; ++c) {
+      WS[3 * r + c] = W[3 * r] * cov[c] + W[3 * r + 1] * cov[3 + c] + W[3 * r + 2] * cov[6 + c];
+    }
+  }
+  const T a = WS[0] * W[0] + WS[1] * W[1] + WS[2] * W[2] + low_pass;
+  const T b = WS[0] * W[3] + WS[1] * W[4] + WS[2] * W[5];
+  const T c = WS[3] * W[3] + WS[4] * W[4] + WS[5] * W[5] + low_pass;
+  const T det = a * c - b * b;
+  if (!(det > T(0)) || !(a > T(0))) return s;
+  const T inv_det = T(1) / det;
+  s.con_a = c * inv_det;
+  s.con_b = -b * inv_det;
+  s.con_c = a * inv_det;
+  s.u = view.fx * mc[0] * iz + view.cx;
+  s.v = view.fy * mc[1] * iz + view.cy;
+  s.amplitude = f.a;
+  // The ellipse dᵀΣ⁻¹d <= δ spans ±sqrt(δ Σ_xx) in u and ±sqrt(δ Σ_yy) in v.
+  s.half_w = sqrt(cutoff * a);
+  s.half_h = sqrt(cutoff * c);
+  s.visible = s.u + s.half_w > T(0) && s.u - s.half_w < T(view.width) && s.v + s.half_h > T(0) &&
+              s.v - s.half_h < T(view.height);
+  if (cache != nullptr) {
+    for (int i = 0; i < 3; ++i) cache->mean_cam[i] = mc[i];
+    cache->cov2d[0] = a;
+    cache->cov2d[1] = b;
+    cache->cov2d[2] = c;
+  }
+  return s;
+}
+
+// The squared 2D Mahalanobis distance of pixel centre (px, py) (Eq. 7's exponent × -2).
+template <class T>
+HISNEGS_HD T splat_distance(const Splat2D<T>& s, T px, T py) {
+  const T dx = px - s.u, dy = py - s.v;
+  return s.con_a * dx * dx + T(2) * s.con_b * dx * dy + s.con_c * dy * dy;
+}
+
+// Gradient of a loss with respect to one Splat2D's differentiable fields.
+template <class T>
+struct Splat2DGrad {
+  T u = 0, v = 0, con_a = 0, con_b = 0, con_c = 0, amplitude = 0;
+};
+
+// Adds to `grad` the contribution of g = a exp(-½ q(px, py)) at one pixel, given dL/dg.
+template <class T>
+HISNEGS_HD void accumulate_pixel_grad(const Splat2D<T>& s, T px, T py, T dL_dg, Splat2DGrad<T>& grad) {
+  using std::exp;
+  const T dx = px - s.u, dy = py - s.v;
+  const T q = s.con_a * dx * dx + T(2) * s.con_b * dx * dy + s.con_c * dy * dy;
+  const T G = exp(T(-0.5) * q);
+  grad.amplitude += dL_dg * G;
+  const T dL_dq = T(-0.5) * dL_dg * s.amplitude * G;
+  grad.con_a += dL_dq * dx * dx;
+  grad.con_b += dL_dq * T(2) * dx * dy;
+  grad.con_c += dL_dq * dy * dy;
+  // q depends on μ through dx = px − u, dy = py − v.
+  grad.u += dL_dq * T(-2) * (s.con_a * dx + s.con_b * dy);
+  grad.v += dL_dq * T(-2) * (s.con_b * dx + s.con_c * dy);
+}
+
+// Backward of project_gaussian: from dL/d(Splat2D) to dL/d(11 parameters), added to
+// `out`. `cache` is the one the forward filled. Derivation: conic = Σ2D⁻¹ gives
+// dL/dΣ2D = −P Ĝ P (P the conic, Ĝ its gradient as a symmetric matrix); Σ2D = W Σ Wᵀ
+// gives dL/dΣ = Wᵀ G W and dL/dW = 2 G W Σ; W = J R and J(μ_cam) of Eq. 4 give the
+// mean's second path; Σ = M Mᵀ, M = R(q̂) diag(s) gives dL/dM = 2 (dL/dΣ) M.
+template <class T>
+HISNEGS_HD void project_gaussian_backward(const T p[gmf::kNumGaussianParams], const ViewParams<T>& view,
+                                          const ProjectionCache<T>& cache, const Splat2DGrad<T>& g,
+                                          T out[gmf::kNumGaussianParams]) {
+  gmf::GaussianFrame<T> f;
+  gmf::prepare_gaussian(&p[gmf::kMeanX], &p[gmf::kLogScale0], &p[gmf::kRotW], p[gmf::kLogit], f);
+  // Intensity: a = sigmoid(ℓ).
+  out[gmf::kLogit] += g.amplitude * f.a * (T(1) - f.a);
+
+  // Conic -> Σ2D. P = [[pa, pb], [pb, pc]]; Ĝ = [[ga, gb/2], [gb/2, gc]].
+  const T a = cache.cov2d[0], b = cache.cov2d[1], c = cache.cov2d[2];
+  const T inv_det = T(1) / (a * c - b * b);
+  const T pa = c * inv_det, pb = -b * inv_det, pc = a * inv_det;
+  const T ga = g.con_a, gb = T(0.5) * g.con_b, gc = g.con_c;
+  // P Ĝ P (symmetric); dL/dΣ2D = −P Ĝ P.
+  const T t00 = pa * ga + pb * gb, t01 = pa * gb + pb * gc;
+  const T t10 = pb * ga + pc * gb, t11 = pb * gb + pc * gc;
+  const T S00 = -(t00 * pa + t01 * pb);
+  const T S01 = -(t00 * pb + t01 * pc);
+  const T S11 = -(t10 * pb + t11 * pc);
+  // G_S as a full symmetric matrix [[S00, S01], [S01, S11]] (low_pass has no parameters).
+
+  const T* mc = cache.mean_cam;
+  const T iz = T(1) / mc[2];
+  const T j00 = view.fx * iz, j02 = -view.fx * mc[0] * iz * iz;
+  const T j11 = view.fy * iz, j12 = -view.fy * mc[1] * iz * iz;
+  T W[6];
+  for (int k = 0; k < 3; ++k) {
+    W[k] = j00 * view.R[k] + j02 * view.R[6 + k];
+    W[3 + k] = j11 * view.R[3 + k] + j12 * view.R[6 + k];
+  }
+  T cov[9];
+  world_covariance(f, cov);
+  // dL/dΣ = Wᵀ G_S W (3x3 symmetric)
+  T GW[6];  // G_S W (2x3)
+  for (int k = 0; k < 3; ++k) {
+    GW[k] = S00 * W[k] + S01 * W[3 + k];
+    GW[3 + k] = S01 * W[k] + S11 * W[3 + k];
+  }
+  T dcov[9];
+  for (int r = 0; r < 3; ++r) {
+    for (int k = 0; k < 3; ++k) dcov[3 * r + k] = W[r] * GW[k] + W[3 + r] * GW[3 + k];
+  }
+  // dL/dW = 2 G_S W Σ (2x3)
+  T dW[6];
+  for (int r = 0; r < 2; ++r) {
+    for (int k = 0; k < 3; ++k) {
+      dW[3 * r + k] = T(2) * (GW[3 * r] * cov[k] + GW[3 * r + 1] * cov[3 + k] + GW[3 * r + 2] * cov[6 + k]);
+    }
+  }
+  // W row 0 = j00 R0 + j02 R2, row 1 = j11 R1 + j12 R2  ->  dL/dJ entries.
+  T dj00 = 0, dj02 = 0, dj11 = 0, dj12 = 0;
+  for (int k = 0; k < 3; ++k) {
+    dj00 += dW[k] * view.R[k];
+    dj02 += dW[k] * view.R[6 + k];
+    dj11 += dW[3 + k] * view.R[3 + k];
+    dj12 += dW[3 + k] * view.R[6 + k];
+  }
+  // μ_cam from μ2D (Eq. 5) and from J (Eq. 4).
+  T dmc[3];
+  dmc[0] = g.u * view.fx * iz + dj02 * (-view.fx * iz * iz);
+  dmc[1] = g.v * view.fy * iz + dj12 * (-view.fy * iz * iz);
+  dmc[2] = g.u * (-view.fx * mc[0] * iz * iz) + g.v * (-view.fy * mc[1] * iz * iz) + dj00 * (-view.fx * iz * iz) +
+           dj11 * (-view.fy * iz * iz) + dj02 * (T(2) * view.fx * mc[0] * iz * iz * iz) +
+           dj12 * (T(2) * view.fy * mc[1] * iz * iz * iz);
+  // μ_cam = R μ + t
+  for (int k = 0; k < 3; ++k) {
+    out[gmf::kMeanX + k] += view.R[k] * dmc[0] + view.R[3 + k] * dmc[1] + view.R[6 + k] * dmc[2];
+  }
+
+  // Σ = M Mᵀ, M = R(q̂) diag(s): dL/dM = 2 dL/dΣ M (dL/dΣ symmetric).
+  T M[9];
+  for (int r = 0; r < 3; ++r) {
+    for (int k = 0; k < 3; ++k) M[3 * r + k] = f.R[3 * r + k] / f.inv_scale[k];
+  }
+  T dM[9];
+  for (int r = 0; r < 3; ++r) {
+    for (int k = 0; k < 3; ++k) {
+      dM[3 * r + k] = T(2) * (dcov[3 * r] * M[k] + dcov[3 * r + 1] * M[3 + k] + dcov[3 * r + 2] * M[6 + k]);
+    }
+  }
+  T dR[9];
+  for (int k = 0; k < 3; ++k) {
+    const T s = T(1) / f.inv_scale[k];
+    T ds = 0;
+    for (int r = 0; r < 3; ++r) {
+      ds += dM[3 * r + k] * f.R[3 * r + k];
+      dR[3 * r + k] = dM[3 * r + k] * s;
+    }
+    out[gmf::kLogScale0 + k] += ds * s;  // s = exp(log s)
+  }
+  // R(q̂) of gmf::quaternion_to_rotation, differentiated entry by entry.
+  const T w = f.q_hat[0], x = f.q_hat[1], y = f.q_hat[2], z = f.q_hat[3];
+  T dq[4];
+  dq[0] = T(2) * (-z * dR[1] + y * dR[2] + z * dR[3] - x * dR[5] - y * dR[6] + x * dR[7]);
+  dq[1] = T(2) * (y * dR[1] + z * dR[2] + y * dR[3] - T(2) * x * dR[4] - w * dR[5] + z * dR[6] + w * dR[7] -
+                  T(2) * x * dR[8]);
+  dq[2] = T(2) * (-T(2) * y * dR[0] + x * dR[1] + w * dR[2] + x * dR[3] + z * dR[5] - w * dR[6] + z * dR[7] -
+                  T(2) * y * dR[8]);
+  dq[3] = T(2) * (-T(2) * z * dR[0] - w * dR[1] + x * dR[2] + w * dR[3] - T(2) * z * dR[4] + y * dR[5] +
+                  x * dR[6] + y * dR[7]);
+  // q̂ = q / |q|: dL/dq = (dL/dq̂ − q̂ (q̂ · dL/dq̂)) / |q|
+  const T dot = w * dq[0] + x * dq[1] + y * dq[2] + z * dq[3];
+  for (int k = 0; k < 4; ++k) out[gmf::kRotW + k] += (dq[k] - f.q_hat[k] * dot) * f.inv_q_norm;
+}
+
+// The online soft-max state of one pixel (report §9.3): m = max β g so far,
+// S = Σ e^{β g − m}, W = Σ e^{β g − m} g; the image is W / S (0 when S = 0).
+template <class T>
+struct SoftMaxState {
+  T m, S, W;
+};
+
+template <class T>
+HISNEGS_HD void softmax_init(SoftMaxState<T>& st) {
+  st.m = -INFINITY;
+  st.S = T(0);
+  st.W = T(0);
+}
+
+template <class T>
+HISNEGS_HD void softmax_add(SoftMaxState<T>& st, T g, T beta) {
+  using std::exp;
+  const T bg = beta * g;
+  if (bg > st.m) {
+    const T r = exp(st.m - bg);  // 0 for the first term (m = −∞)
+    st.S = st.S * r + T(1);
+    st.W = st.W * r + g;
+    st.m = bg;
+  } else {
+    const T e = exp(bg - st.m);
+    st.S += e;
+    st.W += e * g;
+  }
+}
+
+template <class T>
+HISNEGS_HD T softmax_value(const SoftMaxState<T>& st) {
+  return st.S > T(0) ? st.W / st.S : T(0);
+}
+
+// dI/dg_k = w_k (1 + β (g_k − I)), w_k = e^{β g_k − m} / S (issue 5): the soft-MIP's
+// derivative with respect to one term, from the pixel's final m, S and I.
+template <class T>
+HISNEGS_HD T softmax_dI_dg(T g, T beta, T m, T S, T I) {
+  using std::exp;
+  const T w = exp(beta * g - m) / S;
+  return w * (T(1) + beta * (g - I));
+}
+
+}  // namespace hisnegs::splat

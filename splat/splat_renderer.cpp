@@ -1,0 +1,111 @@
+// The parts of the SplatRenderer interface common to the back ends: settings,
+// view conversion, the flat parameter view, and the back-end factory.
+#include "splat/splat_renderer.hpp"
+
+#include <stdexcept>
+
+#include "io/error.hpp"
+#if HISNEGS_HAVE_CUDA
+#include "splat/cuda/splat_cuda.hpp"
+#endif
+
+namespace hisnegs::splat {
+
+std::unique_ptr<SplatRenderer> make_cpu_splat_renderer();  // splat_cpu.cpp
+
+KernelSettings SplatSettings::kernel() const {
+  KernelSettings k;
+  k.soft = mode == MipMode::kSoft;
+  k.beta = beta;
+  k.cutoff = cutoff;
+  k.low_pass = low_pass;
+  k.skip_log_weight = skip_log_weight;
+  return k;
+}
+
+#if HISNEGS_HAVE_CUDA
+namespace {
+
+// SplatRenderer over the C++17 CUDA interface.
+class CudaSplatRenderer final : public SplatRenderer {
+ public:
+  void forward(std::span<const float> params, const Intrinsics& K, const CameraView& view,
+               const SplatSettings& settings, std::span<float> image) override {
+    if (params.size() % gmf::kNumGaussianParams != 0 ||
+        image.size() != static_cast<std::size_t>(K.width) * K.height) {
+      throw std::invalid_argument("splat: parameter or image span of the wrong size");
+    }
+    count_ = params.size() / gmf::kNumGaussianParams;
+    pixels_ = image.size();
+    soft_ = settings.mode == MipMode::kSoft;
+    splatter_.forward(params.data(), count_, make_splat_view<float>(K, view), settings.kernel(), image.data());
+    stats_.visible = splatter_.visible();
+    stats_.tile_entries = splatter_.tile_entries();
+    stats_.skipped_terms = splatter_.skipped_terms();
+  }
+  void backward(std::span<const float> dL_dimage, std::span<float> dL_dparams, std::span<float> screen_grad) override {
+    if (!soft_) throw std::logic_error("splat: backward needs a soft-MIP forward");
+    if (dL_dimage.size() != pixels_ || dL_dparams.size() != count_ * gmf::kNumGaussianParams ||
+        (!screen_grad.empty() && screen_grad.size() != count_)) {
+      throw std::invalid_argument("splat: backward spans do not match the last forward");
+    }
+    splatter_.backward(dL_dimage.data(), dL_dparams.data(), screen_grad.empty() ? nullptr : screen_grad.data());
+  }
+  [[nodiscard]] const SplatFrameStats& stats() const override { return stats_; }
+  [[nodiscard]] Backend backend() const override { return Backend::kCuda; }
+
+ private:
+  cuda::CudaSplatter splatter_;
+  std::size_t count_ = 0, pixels_ = 0;
+  bool soft_ = true;
+  SplatFrameStats stats_;
+};
+
+}  // namespace
+#endif
+
+SplatSettings SplatSettings::from(const SplatOptions& options) {
+  SplatSettings s;
+  s.mode = options.mode;
+  s.beta = static_cast<float>(options.beta);
+  s.cutoff = static_cast<float>(options.mahalanobis_cutoff);
+  s.low_pass = static_cast<float>(options.low_pass);
+  s.skip_log_weight = static_cast<float>(options.skip_log_weight);
+  return s;
+}
+
+template <class T>
+ViewParams<T> make_splat_view(const Intrinsics& K, const CameraView& view) {
+  ViewParams<T> p{};
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) p.R[3 * r + c] = static_cast<T>(view.R_cam_from_world(r, c));
+    p.t[r] = static_cast<T>(view.t_cam_from_world[r]);
+  }
+  p.fx = static_cast<T>(K.fx);
+  p.fy = static_cast<T>(K.fy);
+  p.cx = static_cast<T>(K.cx);
+  p.cy = static_cast<T>(K.cy);
+  p.near_z = static_cast<T>(K.near);
+  p.far_z = static_cast<T>(K.far);
+  p.width = K.width;
+  p.height = K.height;
+  return p;
+}
+template ViewParams<float> make_splat_view<float>(const Intrinsics&, const CameraView&);
+template ViewParams<double> make_splat_view<double>(const Intrinsics&, const CameraView&);
+
+std::span<const float> flat_params(const gmf::GaussianMixture& mixture) {
+  // GaussianParams is 11 packed floats (static_assert in gmf/gaussian_mixture.hpp).
+  return {reinterpret_cast<const float*>(mixture.data()), mixture.size() * gmf::kNumGaussianParams};
+}
+
+std::unique_ptr<SplatRenderer> make_splat_renderer(Backend backend) {
+  if (backend == Backend::kCpu) return make_cpu_splat_renderer();
+#if HISNEGS_HAVE_CUDA
+  return std::make_unique<CudaSplatRenderer>();
+#else
+  throw io::InputError("backend cuda: this build of hisnegs has no CUDA back end (configure with -DHISNEGS_CUDA=ON)");
+#endif
+}
+
+}  // namespace hisnegs::splat

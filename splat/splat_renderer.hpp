@@ -1,0 +1,65 @@
+// The soft/hard-MIP splatting renderer behind one interface (TBB or CUDA back end)
+// and the per-frame settings; the math is splat/splat_math.hpp, the double
+// reference splat/splat_reference.hpp. No Gaussian storage of its own beyond a frame.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <span>
+
+#include "gmf/gaussian_mixture.hpp"
+#include "splat/backend.hpp"
+#include "splat/camera.hpp"
+#include "splat/splat_math.hpp"
+#include "splat/splat_options.hpp"
+
+namespace hisnegs::splat {
+
+inline constexpr int kTileSize = 16;  // rasterizer tiles are 16x16 pixels (issue 5)
+
+// What one frame is rendered with (from SplatOptions; β changes during training).
+struct SplatSettings {
+  MipMode mode = MipMode::kSoft;
+  float beta = 50.0f;
+  float cutoff = 16.0f;          // δ
+  float low_pass = 0.0f;         // pixels², added to Σ2D's diagonal
+  float skip_log_weight = 20.0f; // 0 = never skip (see SplatOptions)
+  static SplatSettings from(const SplatOptions& options);
+  [[nodiscard]] KernelSettings kernel() const;
+};
+
+// Counters of the last forward (for benchmarks, `render` and tests).
+struct SplatFrameStats {
+  int visible = 0;                  // Gaussians in front of the camera whose ellipse meets the image
+  std::int64_t tile_entries = 0;    // (Gaussian, tile) pairs rasterized
+  std::int64_t skipped_terms = 0;   // soft-MIP (pixel, Gaussian) terms skipped by skip_log_weight
+};
+
+// World->camera parameters of a view in the kernels' form.
+template <class T>
+ViewParams<T> make_splat_view(const Intrinsics& K, const CameraView& view);
+
+class SplatRenderer {
+ public:
+  virtual ~SplatRenderer() = default;
+  // Renders the K Gaussians in `params` (11 K floats, gmf::GaussianParam order) into
+  // `image` (K.height x K.width floats, row-major). Keeps what backward() needs until
+  // the next forward(). Hard mode is the max over the touching Gaussians.
+  virtual void forward(std::span<const float> params, const Intrinsics& K, const CameraView& view,
+                       const SplatSettings& settings, std::span<float> image) = 0;
+  // Soft mode only: adds dL/dparams (11 K) for the loss gradient `dL_dimage` (H x W)
+  // of the last forward. When `screen_grad` is not empty (K floats) it adds each
+  // Gaussian's |dL/dμ2D| (pixels) for density control.
+  virtual void backward(std::span<const float> dL_dimage, std::span<float> dL_dparams,
+                        std::span<float> screen_grad = {}) = 0;
+  [[nodiscard]] virtual const SplatFrameStats& stats() const = 0;
+  [[nodiscard]] virtual Backend backend() const = 0;
+};
+
+// The TBB back end, or CUDA (throws io::InputError when this build or machine has none).
+std::unique_ptr<SplatRenderer> make_splat_renderer(Backend backend);
+
+// A mixture's parameters as the renderer reads them (11 K floats).
+std::span<const float> flat_params(const gmf::GaussianMixture& mixture);
+
+}  // namespace hisnegs::splat

@@ -1,0 +1,138 @@
+// The double-precision splatting reference: its backward against central finite
+// differences of its forward for every parameter kind, and the properties that
+// define soft/hard MIP (centre pixel, culling, β -> ∞ limit).
+#include "splat/splat_reference.hpp"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+
+#include "tests/splat/splat_test_scenes.hpp"
+#include "tests/test_support.hpp"
+
+namespace hisnegs::splat {
+namespace {
+
+using testing::make_splat_scene;
+
+// L = Σ w_p I_p with fixed random weights w; its gradient is render_reference_backward(w).
+TEST(SplatReference, BackwardMatchesFiniteDifferences) {
+  for (std::uint64_t seed : {1u, 2u, 3u}) {
+    const auto scene = make_splat_scene(5, seed);
+    const ViewParams<double> view = make_splat_view<double>(scene.K, scene.view);
+    SplatSettings settings;
+    settings.beta = seed == 3 ? 8.0f : 50.0f;
+    // A cutoff beyond every pixel: with δ = 16 a pixel entering or leaving a Gaussian's
+    // support is a jump of a e^-8 that central differences would straddle.
+    settings.cutoff = 1e6f;
+    std::mt19937_64 rng(seed + 100);
+    std::uniform_real_distribution<double> u(-1, 1);
+    std::vector<double> w(static_cast<std::size_t>(view.width) * view.height);
+    for (double& x : w) x = u(rng);
+    const std::vector<double> grad = render_reference_backward(scene.params, view, settings, w);
+    auto loss = [&](const std::vector<double>& p) {
+      const std::vector<double> img = render_reference(p, view, settings);
+      double l = 0;
+      for (std::size_t i = 0; i < img.size(); ++i) l += w[i] * img[i];
+      return l;
+    };
+    for (std::size_t i = 0; i < scene.params.size(); ++i) {
+      double err = 0;
+      const double fd = hisnegs::testing::ridders_derivative(
+          [&](double x) {
+            std::vector<double> p = scene.params;
+            p[i] = x;
+            return loss(p);
+          },
+          scene.params[i], 1e-3, &err);
+      const double scale = std::max(1e-3, std::abs(fd));
+      EXPECT_LT(std::abs(grad[i] - fd) / scale, 1e-5)
+          << "seed " << seed << " param " << i << " (kind " << i % 11 << "): analytic " << grad[i] << " fd " << fd;
+    }
+  }
+}
+
+// One Gaussian's brightest pixel is the one its centre projects to, with value a.
+TEST(SplatReference, GaussianLandsWhereItsCentreProjects) {
+  auto scene = make_splat_scene(1, 7, 41, 33);
+  const ViewParams<double> view = make_splat_view<double>(scene.K, scene.view);
+  // Put the centre exactly on a pixel centre: solve for the world point on the ray of pixel (12, 20).
+  const Eigen::Vector3d C = -scene.view.R_cam_from_world.transpose() * scene.view.t_cam_from_world;
+  const Eigen::Vector3d dir = scene.view.R_cam_from_world.transpose() *
+                              Eigen::Vector3d((12.5 - scene.K.cx) / scene.K.fx, (20.5 - scene.K.cy) / scene.K.fy, 1.0);
+  const Eigen::Vector3d mu = C + 2.5 * dir;
+  for (int a = 0; a < 3; ++a) scene.params[a] = mu[a];
+  for (MipMode mode : {MipMode::kSoft, MipMode::kHard}) {
+    SplatSettings settings;
+    settings.mode = mode;
+    const std::vector<double> img = render_reference(scene.params, view, settings);
+    const auto best = std::max_element(img.begin(), img.end()) - img.begin();
+    EXPECT_EQ(best % view.width, 12);
+    EXPECT_EQ(best / view.width, 20);
+    EXPECT_NEAR(img[best], 1.0 / (1.0 + std::exp(-scene.params[10])), 1e-9);  // one term: I = g = a at the centre
+  }
+}
+
+// Behind the camera (or beyond far), and outside δ, a Gaussian contributes nothing.
+TEST(SplatReference, CulledGaussiansContributeNothing) {
+  auto scene = make_splat_scene(1, 8);
+  const ViewParams<double> view = make_splat_view<double>(scene.K, scene.view);
+  const Eigen::Vector3d C = -scene.view.R_cam_from_world.transpose() * scene.view.t_cam_from_world;
+  const Eigen::Vector3d forward = scene.view.R_cam_from_world.row(2).transpose();
+  SplatSettings settings;
+  for (double depth : {-0.5, -0.001, 10.5}) {
+    const Eigen::Vector3d mu = C + depth * forward;
+    for (int a = 0; a < 3; ++a) scene.params[a] = mu[a];
+    const std::vector<double> img = render_reference(scene.params, view, settings);
+    EXPECT_EQ(*std::max_element(img.begin(), img.end()), 0.0) << "depth " << depth;
+  }
+  // In front: pixels beyond the δ ellipse are exactly 0, those inside are > 0.
+  const Eigen::Vector3d mu = C + 2.5 * forward;
+  for (int a = 0; a < 3; ++a) scene.params[a] = mu[a];
+  settings.cutoff = 4.0f;
+  const std::vector<double> img = render_reference(scene.params, view, settings);
+  const Splat2D<double> s = project_gaussian(scene.params.data(), view, 4.0, 0.0);
+  int inside = 0, outside = 0;
+  for (int r = 0; r < view.height; ++r) {
+    for (int c = 0; c < view.width; ++c) {
+      const double q = splat_distance(s, c + 0.5, r + 0.5);
+      const double v = img[static_cast<std::size_t>(r) * view.width + c];
+      if (q <= 4.0) {
+        ++inside;
+        EXPECT_GT(v, 0.0);
+      } else {
+        ++outside;
+        EXPECT_EQ(v, 0.0);
+      }
+    }
+  }
+  EXPECT_GT(inside, 4);
+  EXPECT_GT(outside, 4);
+}
+
+// Soft-MIP tends to hard MIP as β grows, with the error falling monotonically.
+TEST(SplatReference, SoftMipConvergesToHardMip) {
+  const auto scene = make_splat_scene(12, 9);
+  const ViewParams<double> view = make_splat_view<double>(scene.K, scene.view);
+  SplatSettings hard;
+  hard.mode = MipMode::kHard;
+  const std::vector<double> target = render_reference(scene.params, view, hard);
+  double previous = 1e300;
+  for (float beta : {1.0f, 5.0f, 20.0f, 50.0f, 200.0f, 1000.0f, 5000.0f}) {
+    SplatSettings soft;
+    soft.beta = beta;
+    const std::vector<double> img = render_reference(scene.params, view, soft);
+    double err = 0;
+    for (std::size_t i = 0; i < img.size(); ++i) {
+      EXPECT_LE(img[i], target[i] + 1e-12);  // a weighted mean never exceeds the max
+      err = std::max(err, target[i] - img[i]);
+    }
+    EXPECT_LT(err, previous) << "beta " << beta;
+    previous = err;
+  }
+  EXPECT_LT(previous, 1e-3);
+}
+
+}  // namespace
+}  // namespace hisnegs::splat
