@@ -18,16 +18,31 @@ void add_bench_command(CLI::App& app, GlobalOptions& global) {
   struct Args {
     std::string suite;
     std::string volume;
-    std::vector<int> sizes{256};
+    std::vector<int> sizes;
+    std::vector<int> gaussians{12000, 25000, 37000, 50000, 62000};
+    std::vector<float> betas{1, 10, 50, 100, 500};
   };
   auto args = std::make_shared<Args>();
-  cmd->add_option("SUITE", args->suite, "io | gt | gmf")->required();
-  cmd->add_option("--sizes", args->sizes, "gt: image sizes (default 256)")->delimiter(',');
+  cmd->add_option("SUITE", args->suite, "io | gt | gmf | render")->required();
+  cmd->add_option("--sizes", args->sizes, "gt, render: image sizes (default gt 256, render 128,256,512,1024)")
+      ->delimiter(',');
+  cmd->add_option("--gaussians", args->gaussians, "render: K values at 256² (default 12000,...,62000)")->delimiter(',');
+  cmd->add_option("--betas", args->betas, "render: soft-MIP beta values (default 1,10,50,100,500)")->delimiter(',');
   cmd->add_option("--volume", args->volume, "TIFF stack to measure (default: a synthetic stack written to a temp folder)");
   cmd->allow_extras();
   cmd->callback([cmd, args, &global] {
-    if (args->suite != "io" && args->suite != "gt" && args->suite != "gmf") {
-      throw io::InputError("bench: unknown suite '" + args->suite + "'; expected io|gt|gmf");
+    if (args->suite != "io" && args->suite != "gt" && args->suite != "gmf" && args->suite != "render") {
+      throw io::InputError("bench: unknown suite '" + args->suite + "'; expected io|gt|gmf|render");
+    }
+    if (args->sizes.empty()) args->sizes = args->suite == "render" ? std::vector<int>{128, 256, 512, 1024} : std::vector<int>{256};
+    for (int size : args->sizes) {
+      if (size < 8 || size > 16384) throw io::InputError("--sizes: " + std::to_string(size) + " is outside [8, 16384]");
+    }
+    for (int K : args->gaussians) {
+      if (K < 1 || K > 10000000) throw io::InputError("--gaussians: " + std::to_string(K) + " is outside [1, 10^7]");
+    }
+    for (float b : args->betas) {
+      if (!(b > 0 && b <= 1e4)) throw io::InputError("--betas: " + std::to_string(b) + " is outside (0, 10^4]");
     }
     std::filesystem::path volume = args->volume;
     std::filesystem::path temp;
@@ -43,10 +58,11 @@ void add_bench_command(CLI::App& app, GlobalOptions& global) {
     if (args->suite == "io") {
       bench::register_io_benchmarks(volume);
     } else if (args->suite == "gt") {
-      for (int size : args->sizes) {
-        if (size < 8 || size > 16384) throw io::InputError("--sizes: " + std::to_string(size) + " is outside [8, 16384]");
-        bench::register_gt_benchmarks(volume, size);
-      }
+      for (int size : args->sizes) bench::register_gt_benchmarks(volume, size);
+    } else if (args->suite == "render") {
+      // The ray marcher at the same sizes in the same run, for the speed-up (Table 7).
+      bench::register_render_benchmarks(args->sizes, args->gaussians, args->betas);
+      for (int size : args->sizes) bench::register_gt_benchmarks(volume, size);
     }
     std::vector<std::string> extra = cmd->remaining();
     std::vector<char*> argv;

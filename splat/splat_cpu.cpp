@@ -80,11 +80,14 @@ void CpuSplatRenderer::forward(std::span<const float> params, const Intrinsics& 
       Splat2D<float> s = project_gaussian(&params_[kParams * k], view_params_, settings.cutoff, settings.low_pass);
       if (s.visible) {
         // Pixels whose centres can lie in the ellipse's bounding box.
-        const int c0 = std::max(0, static_cast<int>(std::ceil(s.u - s.half_w - 0.5f)) - 1);
-        const int c1 = std::min(K.width - 1, static_cast<int>(std::floor(s.u + s.half_w - 0.5f)) + 1);
-        const int r0 = std::max(0, static_cast<int>(std::ceil(s.v - s.half_h - 0.5f)) - 1);
-        const int r1 = std::min(K.height - 1, static_cast<int>(std::floor(s.v + s.half_h - 0.5f)) + 1);
-        if (c0 > c1 || r0 > r1 || !std::isfinite(s.u) || !std::isfinite(s.v)) {
+        // Clamped in float first so huge extents cannot overflow the int conversion.
+        auto pixel = [](float x, int size) { return static_cast<int>(std::clamp(x, -1.0f, static_cast<float>(size))); };
+        const int c0 = std::max(0, pixel(std::ceil(s.u - s.half_w - 0.5f), K.width) - 1);
+        const int c1 = std::min(K.width - 1, pixel(std::floor(s.u + s.half_w - 0.5f), K.width) + 1);
+        const int r0 = std::max(0, pixel(std::ceil(s.v - s.half_h - 0.5f), K.height) - 1);
+        const int r1 = std::min(K.height - 1, pixel(std::floor(s.v + s.half_h - 0.5f), K.height) + 1);
+        if (!std::isfinite(s.u) || !std::isfinite(s.v) || !std::isfinite(s.half_w) || !std::isfinite(s.half_h) ||
+            c0 > c1 || r0 > r1) {
           s.visible = false;
         } else {
           tile_lo_[k] = (c0 / kTileSize) | ((r0 / kTileSize) << 16);

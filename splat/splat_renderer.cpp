@@ -102,6 +102,8 @@ std::span<const float> flat_params(const gmf::GaussianMixture& mixture) {
 std::unique_ptr<SplatRenderer> make_splat_renderer(Backend backend) {
   if (backend == Backend::kCpu) return make_cpu_splat_renderer();
 #if HISNEGS_HAVE_CUDA
+  const CudaDeviceInfo& info = cuda_device_info();
+  if (!info.available) throw io::InputError("backend cuda: no usable CUDA device (" + info.reason + ")");
   return std::make_unique<CudaSplatRenderer>();
 #else
   throw io::InputError("backend cuda: this build of hisnegs has no CUDA back end (configure with -DHISNEGS_CUDA=ON)");

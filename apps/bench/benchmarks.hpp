@@ -4,6 +4,7 @@
 #pragma once
 
 #include <filesystem>
+#include <vector>
 
 namespace hisnegs::apps::bench {
 
@@ -13,6 +14,11 @@ void register_io_benchmarks(const std::filesystem::path& volume);
 // Ground-truth MIPs of the 30 evaluation views at size × size, both modes, CPU and
 // (when available) CUDA; iterations = whole orbits, counter median_ms_per_view.
 void register_gt_benchmarks(const std::filesystem::path& volume, int size);
+
+// Splatting: hard, soft and backward against resolution (K = 50k), against K at
+// 256², and soft against β, on Table 3-shaped synthetic mixtures.
+void register_render_benchmarks(const std::vector<int>& sizes, const std::vector<int>& gaussian_counts,
+                                const std::vector<float>& betas);
 
 // One GMF residual block with its Jacobian: analytic vs numeric vs automatic.
 void register_gmf_benchmarks();

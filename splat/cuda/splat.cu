@@ -166,8 +166,9 @@ void CudaSplatter::Impl::bin() {
   cub::DoubleBuffer<std::uint32_t> id_buffers(ids[0].data(), ids[1].data());
   const int end_bit = 32 + tile_bits(tiles);
   std::size_t temp_bytes = 0;
-  HISNEGS_CUDA_CHECK(cub::DeviceRadixSort::SortPairs(nullptr, temp_bytes, key_buffers, id_buffers, entries, 0, end_bit));
-  reserve(cub_temp, temp_bytes);
+  HISNEGS_CUDA_CHECK(
+      cub::DeviceRadixSort::SortPairs(nullptr, temp_bytes, key_buffers, id_buffers, entries, 0, end_bit));
+  reserve(cub_temp, std::max<std::size_t>(temp_bytes, 1));  // a null pointer would mean 'query'
   HISNEGS_CUDA_CHECK(
       cub::DeviceRadixSort::SortPairs(cub_temp.data(), temp_bytes, key_buffers, id_buffers, entries, 0, end_bit));
   sorted_ids = id_buffers.Current();
@@ -181,6 +182,9 @@ void CudaSplatter::forward(const float* params, std::size_t count, const ViewPar
   Impl& d = *impl_;
   if (count > static_cast<std::size_t>(INT_MAX)) {
     throw std::invalid_argument("CudaSplatter::forward: " + std::to_string(count) + " Gaussians exceed INT_MAX");
+  }
+  if (image == nullptr || (count > 0 && params == nullptr)) {
+    throw std::invalid_argument("CudaSplatter::forward: null parameter or image array");
   }
   if (view.width <= 0 || view.height <= 0) {
     throw std::invalid_argument("CudaSplatter::forward: image size " + std::to_string(view.width) + "x" +
@@ -220,8 +224,9 @@ void CudaSplatter::forward(const float* params, std::size_t count, const ViewPar
         d.rects.data(), d.touched.data(), d.counters.data());
     HISNEGS_CUDA_CHECK_LAUNCH();
     std::size_t temp_bytes = 0;
-    HISNEGS_CUDA_CHECK(cub::DeviceScan::ExclusiveSum(nullptr, temp_bytes, d.touched.data(), d.offsets.data(), count + 1));
-    reserve(d.cub_temp, temp_bytes);
+    HISNEGS_CUDA_CHECK(
+        cub::DeviceScan::ExclusiveSum(nullptr, temp_bytes, d.touched.data(), d.offsets.data(), count + 1));
+    reserve(d.cub_temp, std::max<std::size_t>(temp_bytes, 1));
     HISNEGS_CUDA_CHECK(
         cub::DeviceScan::ExclusiveSum(d.cub_temp.data(), temp_bytes, d.touched.data(), d.offsets.data(), count + 1));
   }
@@ -257,6 +262,9 @@ void CudaSplatter::backward(const float* dL_dimage, float* dL_dparams, float* sc
   Impl& d = *impl_;
   if (!d.has_forward || !d.settings.soft) {
     throw std::logic_error("CudaSplatter::backward: needs a successful soft-MIP forward first");
+  }
+  if (dL_dimage == nullptr || (d.count > 0 && dL_dparams == nullptr)) {
+    throw std::invalid_argument("CudaSplatter::backward: null gradient array");
   }
   const std::size_t count = d.count;
   reserve(d.dL_dI, d.pixels);

@@ -58,10 +58,13 @@ __global__ void __launch_bounds__(256)
                                       low_pass);
   std::uint64_t n = 0;
   if (s.visible) {
-    const int c0 = max(0, static_cast<int>(ceilf(s.u - s.half_w - 0.5f)) - 1);
-    const int c1 = min(view.width - 1, static_cast<int>(floorf(s.u + s.half_w - 0.5f)) + 1);
-    const int r0 = max(0, static_cast<int>(ceilf(s.v - s.half_h - 0.5f)) - 1);
-    const int r1 = min(view.height - 1, static_cast<int>(floorf(s.v + s.half_h - 0.5f)) + 1);
+    // Clamped to [-1, size] before the int conversion (same rectangle, no overflow for
+    // huge extents, e.g. δ = 1e6).
+    const float w = static_cast<float>(view.width), h = static_cast<float>(view.height);
+    const int c0 = max(0, static_cast<int>(ceilf(fmaxf(s.u - s.half_w - 0.5f, -1.0f))) - 1);
+    const int c1 = min(view.width - 1, static_cast<int>(floorf(fminf(s.u + s.half_w - 0.5f, w))) + 1);
+    const int r0 = max(0, static_cast<int>(ceilf(fmaxf(s.v - s.half_h - 0.5f, -1.0f))) - 1);
+    const int r1 = min(view.height - 1, static_cast<int>(floorf(fminf(s.v + s.half_h - 0.5f, h))) + 1);
     if (c0 > c1 || r0 > r1 || !isfinite(s.u) || !isfinite(s.v)) {
       s.visible = false;
     } else {

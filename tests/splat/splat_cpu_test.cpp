@@ -52,7 +52,8 @@ TEST(SplatCpu, ForwardMatchesReference) {
   }
 }
 
-// With the default δ = 16 only boundary pixels may differ, by at most a e^-8 < 3.4e-4.
+// With the default δ = 16 only pixels where a term sits on the δ boundary may differ
+// by more than rounding (testing::boundary_flip_bound), and they are rare.
 TEST(SplatCpu, ForwardMatchesReferenceAtDefaultCutoff) {
   auto renderer = make_splat_renderer(Backend::kCpu);
   const auto scene = make_splat_scene(40, 23, 64, 48);
@@ -61,7 +62,7 @@ TEST(SplatCpu, ForwardMatchesReferenceAtDefaultCutoff) {
   s.skip_log_weight = 0.0f;
   const std::vector<double> ref = render_reference(scene.params, view, s);
   const std::vector<float> img = render_cpu(*renderer, scene, s);
-  EXPECT_LT(max_abs_diff(img, ref), 3.4e-4);
+  EXPECT_LT(max_abs_diff(img, ref), testing::boundary_flip_bound(s) + 1e-4);
   int close = 0;
   for (std::size_t i = 0; i < img.size(); ++i) close += std::abs(img[i] - ref[i]) < 1e-4 ? 1 : 0;
   EXPECT_GT(close, static_cast<int>(0.99 * img.size()));

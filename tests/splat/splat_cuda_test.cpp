@@ -25,6 +25,7 @@ namespace {
 using testing::make_splat_scene;
 using testing::SplatScene;
 using testing::to_float;
+using testing::boundary_flip_bound;
 
 // GPU tests skip (not fail) on machines without a usable device (STYLE "Differentiable code").
 class SplatCuda : public ::testing::Test {
@@ -66,16 +67,6 @@ std::vector<double> largest_per_kind(const std::vector<double>& g) {
     largest[i % gmf::kNumGaussianParams] = std::max(largest[i % gmf::kNumGaussianParams], std::abs(g[i]));
   }
   return largest;
-}
-
-// How far one pixel may move when a term at q ≈ δ (g_b = a e^-8 < 3.4e-4) is in one
-// sum and not the other, float and double (or two float back ends) deciding q <= δ
-// differently. Hard: only if g_b is the max, by <= g_b. Soft: ΔI = e_b (g_b − I) /
-// (S + e_b), e_b = e^{β g_b − m}; if g_b is the max, I <= g_b and |ΔI| <= g_b; else
-// with x = g_max − g_b, |ΔI| <= x e^{−βx} <= 1 / (β e) (7.4e-3 at β = 50).
-double boundary_flip_bound(const SplatSettings& s) {
-  const double g_b = std::exp(-0.5 * s.cutoff);
-  return s.mode == MipMode::kHard ? g_b : std::max(g_b, 1.0 / (s.beta * std::exp(1.0)));
 }
 
 // Pixels of `a` farther than `tolerance` from `b`.
@@ -344,7 +335,7 @@ TEST_F(SplatCuda, BackwardNeedsASoftForward) {
 }
 
 #if HISNEGS_HAVE_CUDA
-// The device-work timings behind `hisnegs bench` are measured (CUDA events).
+// The device-work timings (CUDA events, without host copies) are measured and reported.
 TEST_F(SplatCuda, ReportsDeviceTimes) {
   cuda::CudaSplatter splatter;
   const auto scene = large_scene();

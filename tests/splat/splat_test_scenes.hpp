@@ -45,6 +45,16 @@ inline SplatScene make_splat_scene(int count, std::uint64_t seed, int width = 40
   return s;
 }
 
+// How far one pixel may move when a term at q ≈ δ (g_b = a e^-8 < 3.4e-4) is in one
+// sum and not the other, float and double (or two float back ends) deciding q <= δ
+// differently. Hard: only if g_b is the max, by <= g_b. Soft: ΔI = e_b (g_b − I) /
+// (S + e_b), e_b = e^{β g_b − m}; if g_b is the max, I <= g_b and |ΔI| <= g_b; else
+// with x = g_max − g_b, |ΔI| <= x e^{−βx} <= 1 / (β e) (7.4e-3 at β = 50).
+inline double boundary_flip_bound(const SplatSettings& s) {
+  const double g_b = std::exp(-0.5 * s.cutoff);
+  return s.mode == MipMode::kHard ? g_b : std::max(g_b, 1.0 / (s.beta * std::exp(1.0)));
+}
+
 inline std::vector<float> to_float(const std::vector<double>& v) { return {v.begin(), v.end()}; }
 
 }  // namespace hisnegs::splat::testing
