@@ -162,6 +162,15 @@ void add_compare_command(CLI::App& app, GlobalOptions& global) {
     std::filesystem::create_directories(dir);
     io::Stopwatch watch;
     const FitSetup setup = prepare_fit(args->volume, config, "compare", global.quiet);
+    const std::int64_t samples = setup.grid.active_voxels() + setup.grid.background_voxels();
+    // Rewritten after every optimizer, so a long comparison that is stopped keeps what it measured.
+    auto save = [&](const gmf::Comparison& c) {
+      write_text_file(dir / "results.csv", results_csv(c));
+      write_text_file(dir / "curves.csv", curves_csv(c));
+      write_text_file(dir / "summary.md",
+                      summary_md(c, args->volume, compare, static_cast<int>(setup.mixture.size()), samples));
+      io::write_png(dir / "loss_vs_time.png", loss_plot(c));
+    };
     const gmf::Comparison c = gmf::compare_optimizers(
         setup.loaded.volume, setup.grid, setup.mixture, config.gmf, compare,
         [&](const gmf::OptimizerRun& run, const gmf::FitIteration& it) {
@@ -170,13 +179,8 @@ void add_compare_command(CLI::App& app, GlobalOptions& global) {
                       it.psnr_3d >= 0 ? (", 3D PSNR " + std::to_string(it.psnr_3d).substr(0, 5) + " dB").c_str() : "",
                       format_seconds(it.seconds).c_str());
           std::fflush(stdout);
-        });
-    const std::int64_t samples = setup.grid.active_voxels() + setup.grid.background_voxels();
-    write_text_file(dir / "results.csv", results_csv(c));
-    write_text_file(dir / "curves.csv", curves_csv(c));
-    write_text_file(dir / "summary.md",
-                    summary_md(c, args->volume, compare, static_cast<int>(setup.mixture.size()), samples));
-    io::write_png(dir / "loss_vs_time.png", loss_plot(c));
+        },
+        save);
     if (!global.quiet) {
       for (const auto& run : c.runs) {
         std::printf("compare: %-8s final loss %.6g, 3D PSNR %.2f dB, %s to Adam's target\n", run.name.c_str(),

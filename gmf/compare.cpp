@@ -3,6 +3,8 @@
 #include "gmf/compare.hpp"
 
 #include <algorithm>
+#include <new>
+#include <stdexcept>
 #include <string_view>
 #include <type_traits>
 
@@ -28,7 +30,8 @@ std::string optimizer_name(Optimizer optimizer) {
 
 Comparison compare_optimizers(const io::Volume& volume, const io::SparseGrid& grid, const GaussianMixture& initial,
                               const GmfOptions& base, const CompareOptions& options,
-                              const std::function<void(const OptimizerRun&, const FitIteration&)>& on_progress) {
+                              const std::function<void(const OptimizerRun&, const FitIteration&)>& on_progress,
+                              const std::function<void(const Comparison&)>& after_run) {
   if (options.optimizers.empty()) throw io::InputError("compare-optimizers: no optimizers to compare");
   io::require_positive("compare", "time_budget_s", options.time_budget_s);
   io::require_in_range("compare", "adam_steps", options.adam_steps, 1, 1e9);
@@ -51,9 +54,24 @@ Comparison compare_optimizers(const io::Volume& volume, const io::SparseGrid& gr
     run.optimizer = optimizer;
     run.name = optimizer_name(optimizer);
     GaussianMixture mixture = initial;
-    run.result = fit_mixture(volume, grid, mixture, o, [&](const FitIteration& it) {
+    auto record = [&](const FitIteration& it) {
+      run.result.log.push_back(it);
       if (on_progress) on_progress(run, it);
-    });
+    };
+    try {
+      const FitResult result = fit_mixture(volume, grid, mixture, o, record);
+      run.result = result;
+    } catch (const io::InputError&) {
+      throw;
+    } catch (const std::bad_alloc&) {
+      run.failure = "out of memory";
+    } catch (const std::exception& e) {
+      run.failure = e.what();
+    }
+    if (!run.failure.empty()) {
+      run.result.stop_reason = "failed: " + run.failure;
+      run.result.seconds = run.result.log.empty() ? 0.0 : run.result.log.back().seconds;
+    }
     const std::vector<FitIteration>& log = run.result.log;
     run.final_loss = log.empty() ? 0.0 : log.back().loss;
     run.iterations = log.empty() ? 0 : log.back().iteration;
@@ -68,6 +86,7 @@ Comparison compare_optimizers(const io::Volume& volume, const io::SparseGrid& gr
       if (hit != log.end()) run.seconds_to_target = hit->seconds;
     }
     comparison.runs.push_back(std::move(run));
+    if (after_run) after_run(comparison);
   }
   return comparison;
 }

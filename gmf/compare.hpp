@@ -29,6 +29,7 @@ struct OptimizerRun {
   double final_loss = 0;
   int iterations = 0;
   int gaussians = 0;               // K at the end (only pruning changes it)
+  std::string failure;             // non-empty when the run failed (e.g. "out of memory"); the log is kept
 };
 
 struct Comparison {
@@ -42,9 +43,12 @@ std::string optimizer_name(Optimizer optimizer);
 
 // Runs the comparison. `base` supplies everything but the optimizer, the budget and
 // density control; `initial` is copied for every run. `on_progress(run, line)` is
-// called for every log line.
+// called for every log line, `after_run(comparison so far)` after each optimizer (to
+// save partial results). A run that fails (out of memory, a solver error) is recorded
+// as failed and the others still run; bad input (io::InputError) is rethrown.
 Comparison compare_optimizers(const io::Volume& volume, const io::SparseGrid& grid, const GaussianMixture& initial,
                               const GmfOptions& base, const CompareOptions& options,
-                              const std::function<void(const OptimizerRun&, const FitIteration&)>& on_progress = {});
+                              const std::function<void(const OptimizerRun&, const FitIteration&)>& on_progress = {},
+                              const std::function<void(const Comparison&)>& after_run = {});
 
 }  // namespace hisnegs::gmf

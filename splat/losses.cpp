@@ -1,0 +1,578 @@
+// The training losses of report §6 (Eq. 11-15) with their exact gradients: one
+// template per loss over the pixel type, instantiated for float and double.
+#include "splat/losses.hpp"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <limits>
+#include <numbers>
+#include <stdexcept>
+#include <string>
+
+#include "gmf/gaussian_math.hpp"
+#include "splat/splat_options.hpp"
+
+namespace hisnegs::splat {
+
+std::span<double> LossWorkspace::doubles(std::size_t count) {
+  if (storage_.size() < count) storage_.resize(count);
+  return {storage_.data(), count};
+}
+
+namespace {
+
+// Throws unless render, target (and grad, when not empty) hold width*height values
+// and both sides are at least `min_side`.
+void check_images(const char* loss, std::size_t render, std::size_t target, std::size_t grad, int width, int height,
+                  int min_side, double weight) {
+  if (width < min_side || height < min_side)
+    throw std::invalid_argument(std::string(loss) + ": image " + std::to_string(width) + "x" + std::to_string(height) +
+                                ", each side must be >= " + std::to_string(min_side));
+  const auto n = static_cast<std::size_t>(width) * static_cast<std::size_t>(height);
+  if (render != n || target != n || (grad != 0 && grad != n))
+    throw std::invalid_argument(std::string(loss) + ": render/target/grad hold " + std::to_string(render) + "/" +
+                                std::to_string(target) + "/" + std::to_string(grad) + " values, expected " +
+                                std::to_string(n) + " (grad may be empty)");
+  if (!std::isfinite(weight))
+    throw std::invalid_argument(std::string(loss) + ": weight " + std::to_string(weight) + " is not finite");
+}
+
+// ---------------------------------------------------------------- Eq. 11
+
+template <class T>
+double weighted_mse_impl(std::span<const T> p, std::span<const T> g, int width, int height, double w_fg,
+                         double weight, std::span<T> grad) {
+  check_images("weighted_mse", p.size(), g.size(), grad.size(), width, height, 1, weight);
+  const std::size_t n = p.size();
+  const double inv_n = 1.0 / static_cast<double>(n);
+  double sum = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    const double w = 1.0 + (w_fg - 1.0) * g[i];
+    const double d = double(p[i]) - double(g[i]);
+    sum += w * d * d;
+    if (!grad.empty()) grad[i] += static_cast<T>(weight * 2.0 * w * d * inv_n);
+  }
+  return sum * inv_n;
+}
+
+// ---------------------------------------------------------------- Eq. 12
+
+// scipy.ndimage's Gaussian (what skimage.filters.gaussian calls): σ = 1.5, radius
+// int(3.5 σ + 0.5) = 5, taps exp(-x²/(2σ²)) normalised to sum 1.
+constexpr int kSsimRadius = 5;
+constexpr int kSsimTaps = 2 * kSsimRadius + 1;
+constexpr double kSsimC1 = 0.01 * 0.01;  // (K1 × data range)²
+constexpr double kSsimC2 = 0.03 * 0.03;  // (K2 × data range)²
+
+const std::array<double, kSsimTaps>& ssim_taps() {
+  static const std::array<double, kSsimTaps> taps = [] {
+    std::array<double, kSsimTaps> t{};
+    double sum = 0;
+    for (int k = 0; k < kSsimTaps; ++k) {
+      const double x = k - kSsimRadius;
+      t[k] = std::exp(-0.5 * x * x / (1.5 * 1.5));
+      sum += t[k];
+    }
+    for (double& v : t) v /= sum;
+    return t;
+  }();
+  return taps;
+}
+
+// Derivation of the backward. With the window w, every statistic at a valid pixel p
+// is a filtered image: μx = w⋆x, μy = w⋆y, Exx = w⋆x², Eyy = w⋆y², Exy = w⋆(xy);
+// σx² = Exx − μx², σy² = Eyy − μy², σxy = Exy − μx μy and
+//   S = A1 A2 / (B1 B2),  A1 = 2 μx μy + C1,  A2 = 2 σxy + C2,
+//                         B1 = μx² + μy² + C1, B2 = σx² + σy² + C2.
+// Holding (μx, Exx, Exy) as the independent variables:
+//   ∂S/∂μx  = 2 μy (A2 − A1) / (B1 B2) − 2 μx S (B2 − B1) / (B1 B2)
+//   ∂S/∂Exx = −S / B2,   ∂S/∂Exy = 2 A1 / (B1 B2),
+// and ∂μx(p)/∂x_q = w(p − q), ∂Exx(p)/∂x_q = 2 x_q w(p − q), ∂Exy(p)/∂x_q = y_q w(p − q). So
+//   ∂mean S/∂x_q = (1/M) [(wᵀ⋆a)_q + 2 x_q (wᵀ⋆b)_q + y_q (wᵀ⋆c)_q]
+// with a, b, c the three partial maps over the M valid pixels and wᵀ⋆ the adjoint of
+// the valid-region filter (the same separable window, scattered back).
+template <class T>
+double ssim_impl(std::span<const T> xs, std::span<const T> ys, int width, int height, double weight,
+                 std::span<T> grad, LossWorkspace& workspace) {
+  check_images("ssim_loss", xs.size(), ys.size(), grad.size(), width, height, kSsimTaps, weight);
+  const auto& w = ssim_taps();
+  const std::size_t W = static_cast<std::size_t>(width), H = static_cast<std::size_t>(height);
+  const std::size_t Wv = W - 2 * kSsimRadius, Hv = H - 2 * kSsimRadius;  // the valid region
+  const std::size_t M = Wv * Hv;
+
+  // Workspace: 5 input rows (W), 5 row-filtered maps (H × Wv), 5 statistic rows (Wv),
+  // 3 partial maps (Hv × Wv).
+  const std::span<double> ws = workspace.doubles(5 * W + 5 * H * Wv + 5 * Wv + 3 * M);
+  double* rows[5];
+  double* hmap[5];
+  double* stat[5];
+  double* part[3];
+  {
+    double* at = ws.data();
+    for (auto& r : rows) r = at, at += W;
+    for (auto& h : hmap) h = at, at += H * Wv;
+    for (auto& s : stat) s = at, at += Wv;
+    for (auto& q : part) q = at, at += M;
+  }
+
+  // Row pass over x, y, x², y², xy, valid columns only.
+  for (std::size_t r = 0; r < H; ++r) {
+    const T* xr = xs.data() + r * W;
+    const T* yr = ys.data() + r * W;
+    for (std::size_t c = 0; c < W; ++c) {
+      const double x = xr[c], y = yr[c];
+      rows[0][c] = x;
+      rows[1][c] = y;
+      rows[2][c] = x * x;
+      rows[3][c] = y * y;
+      rows[4][c] = x * y;
+    }
+    for (int ch = 0; ch < 5; ++ch) {
+      const double* in = rows[ch];
+      double* out = hmap[ch] + r * Wv;
+      for (std::size_t c = 0; c < Wv; ++c) {
+        double acc = 0;
+        for (int k = 0; k < kSsimTaps; ++k) acc += w[k] * in[c + k];
+        out[c] = acc;
+      }
+    }
+  }
+
+  // Column pass, one valid row at a time, then the SSIM map and its partials.
+  const bool want_grad = !grad.empty();
+  const double scale = -weight / static_cast<double>(M);  // ∂(1 − mean S)/∂S_p × weight
+  double sum = 0;
+  for (std::size_t r = 0; r < Hv; ++r) {
+    for (int ch = 0; ch < 5; ++ch) {
+      double* out = stat[ch];
+      std::fill(out, out + Wv, 0.0);
+      for (int k = 0; k < kSsimTaps; ++k) {
+        const double* in = hmap[ch] + (r + k) * Wv;
+        const double wk = w[k];
+        for (std::size_t c = 0; c < Wv; ++c) out[c] += wk * in[c];
+      }
+    }
+    double row_sum = 0;
+    for (std::size_t c = 0; c < Wv; ++c) {
+      const double mx = stat[0][c], my = stat[1][c];
+      const double vx = stat[2][c] - mx * mx, vy = stat[3][c] - my * my, vxy = stat[4][c] - mx * my;
+      const double A1 = 2 * mx * my + kSsimC1, A2 = 2 * vxy + kSsimC2;
+      const double B1 = mx * mx + my * my + kSsimC1, B2 = vx + vy + kSsimC2;
+      const double inv_D = 1.0 / (B1 * B2);
+      const double S = A1 * A2 * inv_D;
+      row_sum += S;
+      if (want_grad) {
+        const std::size_t i = r * Wv + c;
+        part[0][i] = scale * (2 * my * (A2 - A1) * inv_D - 2 * mx * S * (B2 - B1) * inv_D);
+        part[1][i] = scale * (-S / B2);
+        part[2][i] = scale * (2 * A1 * inv_D);
+      }
+    }
+    sum += row_sum;
+  }
+  const double loss = 1.0 - sum / static_cast<double>(M);
+  if (!want_grad) return loss;
+
+  // Adjoint of the column pass: scatter each valid row back over its 11 source rows
+  // (into the now free row-filtered maps, H × Wv).
+  for (int m = 0; m < 3; ++m) {
+    double* out = hmap[m];
+    std::fill(out, out + H * Wv, 0.0);
+    for (std::size_t r = 0; r < Hv; ++r) {
+      const double* in = part[m] + r * Wv;
+      for (int k = 0; k < kSsimTaps; ++k) {
+        double* o = out + (r + k) * Wv;
+        const double wk = w[k];
+        for (std::size_t c = 0; c < Wv; ++c) o[c] += wk * in[c];
+      }
+    }
+  }
+  // Adjoint of the row pass, one image row at a time, then the chain rule into x.
+  for (std::size_t r = 0; r < H; ++r) {
+    for (int m = 0; m < 3; ++m) {
+      double* out = rows[m];
+      std::fill(out, out + W, 0.0);
+      const double* in = hmap[m] + r * Wv;
+      for (int k = 0; k < kSsimTaps; ++k) {
+        const double wk = w[k];
+        for (std::size_t c = 0; c < Wv; ++c) out[c + k] += wk * in[c];
+      }
+    }
+    const T* xr = xs.data() + r * W;
+    const T* yr = ys.data() + r * W;
+    T* gr = grad.data() + r * W;
+    for (std::size_t c = 0; c < W; ++c)
+      gr[c] += static_cast<T>(rows[0][c] + 2.0 * double(xr[c]) * rows[1][c] + double(yr[c]) * rows[2][c]);
+  }
+  return loss;
+}
+
+// ---------------------------------------------------------------- Eq. 13
+
+// Sobel S_x = [1 2 1]ᵀ ⊗ [−1 0 1] is separable: smooth down the columns, difference
+// along the rows; S_y the other way round. Replicated borders: index i ± 1 is clamped.
+// The loss only sees d = P − G (Sobel is linear), so ∂L/∂P = ∂L/∂d.
+template <class T>
+double edge_impl(std::span<const T> p, std::span<const T> g, int width, int height, double weight, std::span<T> grad,
+                 LossWorkspace& workspace) {
+  check_images("edge_loss", p.size(), g.size(), grad.size(), width, height, 1, weight);
+  const std::size_t W = static_cast<std::size_t>(width), H = static_cast<std::size_t>(height), N = W * H;
+  const std::span<double> ws = workspace.doubles(5 * N);
+  double* d = ws.data();       // P − G; later ∂L/∂d
+  double* s = d + N;           // d smoothed down the columns; later its adjoint
+  double* t = s + N;           // d smoothed along the rows; later its adjoint
+  double* gx = t + N;          // S_x * d; later ∂L/∂gx
+  double* gy = gx + N;         // S_y * d; later ∂L/∂gy
+  for (std::size_t i = 0; i < N; ++i) d[i] = double(p[i]) - double(g[i]);
+
+  for (std::size_t r = 0; r < H; ++r) {
+    const double* up = d + (r > 0 ? r - 1 : 0) * W;
+    const double* mid = d + r * W;
+    const double* down = d + (r + 1 < H ? r + 1 : r) * W;
+    double* sr = s + r * W;
+    for (std::size_t c = 0; c < W; ++c) sr[c] = up[c] + 2.0 * mid[c] + down[c];
+    double* tr = t + r * W;
+    for (std::size_t c = 0; c < W; ++c) {
+      const std::size_t cm = c > 0 ? c - 1 : 0, cp = c + 1 < W ? c + 1 : c;
+      tr[c] = mid[cm] + 2.0 * mid[c] + mid[cp];
+    }
+  }
+  double sum = 0;
+  for (std::size_t r = 0; r < H; ++r) {
+    const double* sr = s + r * W;
+    const double* t_up = t + (r > 0 ? r - 1 : 0) * W;
+    const double* t_down = t + (r + 1 < H ? r + 1 : r) * W;
+    double row_sum = 0;
+    for (std::size_t c = 0; c < W; ++c) {
+      const std::size_t cm = c > 0 ? c - 1 : 0, cp = c + 1 < W ? c + 1 : c;
+      const double x = sr[cp] - sr[cm], y = t_down[c] - t_up[c];
+      gx[r * W + c] = x;
+      gy[r * W + c] = y;
+      row_sum += x * x + y * y;
+    }
+    sum += row_sum;
+  }
+  const double loss = sum / static_cast<double>(N);
+  if (grad.empty()) return loss;
+
+  const double a = 2.0 * weight / static_cast<double>(N);
+  std::fill(s, s + N, 0.0);
+  std::fill(t, t + N, 0.0);
+  std::fill(d, d + N, 0.0);
+  for (std::size_t r = 0; r < H; ++r) {
+    // gx = s[cp] − s[cm] within the row; gy = t[rp] − t[rm] within the column.
+    double* sr = s + r * W;
+    double* t_up = t + (r > 0 ? r - 1 : 0) * W;
+    double* t_down = t + (r + 1 < H ? r + 1 : r) * W;
+    for (std::size_t c = 0; c < W; ++c) {
+      const std::size_t cm = c > 0 ? c - 1 : 0, cp = c + 1 < W ? c + 1 : c;
+      const double ggx = a * gx[r * W + c], ggy = a * gy[r * W + c];
+      sr[cp] += ggx;
+      sr[cm] -= ggx;
+      t_down[c] += ggy;
+      t_up[c] -= ggy;
+    }
+  }
+  for (std::size_t r = 0; r < H; ++r) {
+    // s = d[rm] + 2 d[r] + d[rp] down the column; t = d[cm] + 2 d[c] + d[cp] along the row.
+    const double* sr = s + r * W;
+    const double* tr = t + r * W;
+    double* up = d + (r > 0 ? r - 1 : 0) * W;
+    double* mid = d + r * W;
+    double* down = d + (r + 1 < H ? r + 1 : r) * W;
+    for (std::size_t c = 0; c < W; ++c) {
+      up[c] += sr[c];
+      mid[c] += 2.0 * sr[c];
+      down[c] += sr[c];
+    }
+    for (std::size_t c = 0; c < W; ++c) {
+      const std::size_t cm = c > 0 ? c - 1 : 0, cp = c + 1 < W ? c + 1 : c;
+      mid[cm] += tr[c];
+      mid[c] += 2.0 * tr[c];
+      mid[cp] += tr[c];
+    }
+  }
+  for (std::size_t i = 0; i < N; ++i) grad[i] += static_cast<T>(d[i]);
+  return loss;
+}
+
+// ---------------------------------------------------------------- Eq. 14
+
+// Where one pixel's walk over the bins starts: its nearest bin b0, z0 = (c_b0 − x)/h,
+// k0 = exp(−z0²/2) and the first up/down ratios of the recurrence below.
+struct BinStart {
+  int b0;
+  double z0, k0, r_up, r_down;
+};
+
+// The bins one pixel touches. With z_b = (c_b − x)/h and δ = Δ/h, consecutive kernel
+// values obey k_{b+1} = k_b r_b, r_b = exp(−z_b δ − δ²/2), r_{b+1} = r_b exp(−δ²)
+// (and the mirror image downwards, whose first ratio is exp(−δ²)/r_b0), so a pixel
+// costs two exp() whatever the bin count. Walking out from the nearest bin the ratios
+// are <= 1 and k only decreases; the walk stops once κ = norm × k < 1e-17 ε: such a
+// term moves no p_b by more than 1e-17 relative (m_b + ε >= ε), below double rounding,
+// so the truncation is invisible (the brute-force test sums every bin).
+struct BinWalk {
+  int bins;
+  double delta;   // Δ = 1 / bins
+  double h;       // kernel bandwidth
+  double step;    // δ = Δ / h
+  double q;       // exp(−δ²)
+  double norm;    // Δ / (√(2π) h): κ = norm × k
+  double k_stop;  // stop walking once k < k_stop
+
+  explicit BinWalk(const SoftHistogramOptions& o)
+      : bins(o.bins),
+        delta(1.0 / o.bins),
+        h(o.bandwidth),
+        step(delta / h),
+        q(std::exp(-step * step)),
+        norm(delta / (std::sqrt(2.0 * std::numbers::pi) * h)),
+        k_stop(1e-17 * o.epsilon / norm) {}
+
+  // x must be finite (the clamp keeps b0 a valid int for any finite x).
+  BinStart start(double x) const {
+    BinStart s;
+    s.b0 = static_cast<int>(std::clamp(std::floor(x * bins), 0.0, bins - 1.0));
+    s.z0 = ((s.b0 + 0.5) * delta - x) / h;
+    s.k0 = std::exp(-0.5 * s.z0 * s.z0);
+    if (s.k0 < k_stop) {  // touches no bin; the ratios are never used
+      s.r_up = s.r_down = 0;
+      return s;
+    }
+    s.r_up = std::exp(-s.z0 * step - 0.5 * step * step);
+    // exp(z0 δ − δ²/2) = q / r_up, unless a narrow kernel (δ > 27) underflowed q or r_up.
+    s.r_down = q > 0 && s.r_up > 0 ? q / s.r_up : std::exp(s.z0 * step - 0.5 * step * step);
+    return s;
+  }
+
+  // Calls f(b, k_b, z_b) for every bin whose kernel value k_b reaches k_stop.
+  template <class F>
+  void walk(const BinStart& s, F&& f) const {
+    if (s.k0 < k_stop) return;
+    f(s.b0, s.k0, s.z0);
+    double k = s.k0, r = s.r_up;
+    for (int b = s.b0 + 1; b < bins; ++b) {
+      k *= r;
+      if (k < k_stop) break;
+      r *= q;
+      f(b, k, s.z0 + (b - s.b0) * step);
+    }
+    k = s.k0;
+    r = s.r_down;
+    for (int b = s.b0 - 1; b >= 0; --b) {
+      k *= r;
+      if (k < k_stop) break;
+      r *= q;
+      f(b, k, s.z0 - (s.b0 - b) * step);
+    }
+  }
+};
+
+// p_b = (m_b + ε) / Σ (m_b' + ε) into `p`; returns Z = Σ (m_b' + ε). When `starts`
+// is not null it keeps every pixel's BinStart for the backward pass.
+template <class T>
+double soft_histogram(std::span<const T> image, const BinWalk& walk, double epsilon, double* p, BinStart* starts) {
+  std::fill(p, p + walk.bins, 0.0);
+  for (std::size_t i = 0; i < image.size(); ++i) {
+    const double x = image[i];
+    if (!std::isfinite(x))
+      throw std::invalid_argument("intensity_kl_loss: pixel " + std::to_string(i) + " is " + std::to_string(x) +
+                                  ", expected a finite value");
+    const BinStart s = walk.start(x);
+    if (starts) starts[i] = s;
+    walk.walk(s, [p](int b, double k, double) { p[b] += k; });
+  }
+  const double mass_scale = walk.norm / static_cast<double>(image.size());
+  double z = 0;
+  for (int b = 0; b < walk.bins; ++b) {
+    p[b] = p[b] * mass_scale + epsilon;
+    z += p[b];
+  }
+  for (int b = 0; b < walk.bins; ++b) p[b] /= z;
+  return z;
+}
+
+// L = Σ p_b log(p_b/q_b). With ∂L/∂p_b = log(p_b/q_b) + 1 and ∂p_b/∂m_c = (δ_bc − p_b)/Z,
+// ∂L/∂m_c = (log(p_c/q_c) − L)/Z; ∂m_c/∂x_i = (norm/N) ∂k_c/∂x_i = (norm/N) k_c z_c / h.
+template <class T>
+double intensity_kl_impl(std::span<const T> render, std::span<const T> target, int width, int height,
+                         const SoftHistogramOptions& o, double weight, std::span<T> grad, LossWorkspace& workspace) {
+  check_images("intensity_kl_loss", render.size(), target.size(), grad.size(), width, height, 1, weight);
+  o.validate();
+  const BinWalk walk(o);
+  const auto B = static_cast<std::size_t>(o.bins);
+  const std::size_t N = render.size();
+  // 3 bin arrays, then (with a gradient) one BinStart per pixel, stored in doubles.
+  constexpr std::size_t kStartDoubles = (sizeof(BinStart) + sizeof(double) - 1) / sizeof(double);
+  static_assert(alignof(BinStart) <= alignof(double));
+  const std::span<double> ws = workspace.doubles(3 * B + (grad.empty() ? 0 : kStartDoubles * N));
+  double* p = ws.data();
+  double* q = p + B;
+  double* g = q + B;
+  BinStart* starts = grad.empty() ? nullptr : reinterpret_cast<BinStart*>(g + B);
+  const double z = soft_histogram(render, walk, o.epsilon, p, starts);
+  soft_histogram(target, walk, o.epsilon, q, nullptr);
+  double loss = 0;
+  for (std::size_t b = 0; b < B; ++b) loss += p[b] * std::log(p[b] / q[b]);
+  if (grad.empty()) return loss;
+
+  const double a = weight * walk.norm / (static_cast<double>(N) * walk.h);
+  for (std::size_t b = 0; b < B; ++b) g[b] = a * (std::log(p[b] / q[b]) - loss) / z;
+  for (std::size_t i = 0; i < N; ++i) {
+    double acc = 0;
+    walk.walk(starts[i], [g, &acc](int b, double k, double zb) { acc += g[b] * k * zb; });
+    grad[i] += static_cast<T>(acc);
+  }
+  return loss;
+}
+
+// ---------------------------------------------------------------- Eq. 15
+
+template <class T>
+double scale_regularizer_impl(std::span<const T> params, double s_min, double s_max, double weight,
+                              std::span<T> grad) {
+  constexpr std::size_t kP = gmf::kNumGaussianParams;
+  if (params.size() % kP != 0 || (!grad.empty() && grad.size() != params.size()))
+    throw std::invalid_argument("scale_regularizer: params/grad hold " + std::to_string(params.size()) + "/" +
+                                std::to_string(grad.size()) + " values, expected a multiple of 11 (grad may be empty)");
+  if (!(s_min > 0 && s_max > s_min))
+    throw std::invalid_argument("scale_regularizer: s_min " + std::to_string(s_min) + ", s_max " +
+                                std::to_string(s_max) + ", expected 0 < s_min < s_max");
+  if (!std::isfinite(weight))
+    throw std::invalid_argument("scale_regularizer: weight " + std::to_string(weight) + " is not finite");
+  double sum = 0;
+  for (std::size_t k = 0; k < params.size(); k += kP) {
+    for (std::size_t a = 0; a < 3; ++a) {
+      const std::size_t i = k + gmf::kLogScale0 + a;
+      const double s = std::exp(double(params[i]));
+      double ds = 0;  // ∂L/∂log s = s ∂L/∂s
+      if (s < s_min) {
+        sum += s_min - s;
+        ds = -s;
+      } else if (s > s_max) {
+        sum += s - s_max;
+        ds = s;
+      }
+      if (!grad.empty() && ds != 0) grad[i] += static_cast<T>(weight * ds);
+    }
+  }
+  return sum;
+}
+
+// ---------------------------------------------------------------- Eq. 16
+
+void check_weights(const ImageLossWeights& w) {
+  for (auto [name, value] : {std::pair{"wmse", w.wmse}, std::pair{"ssim", w.ssim}, std::pair{"edge", w.edge},
+                             std::pair{"intensity", w.intensity}})
+    if (!(value >= 0 && std::isfinite(value)))
+      throw std::invalid_argument(std::string("ImageLossWeights.") + name + " = " + std::to_string(value) +
+                                  ": must be finite and >= 0");
+}
+
+template <class T>
+ImageLossTerms combined_impl(std::span<const T> render, std::span<const T> target, int width, int height,
+                             const ImageLossWeights& w, std::span<T> grad, LossWorkspace& workspace) {
+  check_weights(w);
+  constexpr double kNotEvaluated = std::numeric_limits<double>::quiet_NaN();
+  ImageLossTerms terms{kNotEvaluated, kNotEvaluated, kNotEvaluated, kNotEvaluated, 0.0};
+  if (w.wmse > 0) {
+    terms.wmse = weighted_mse_impl(render, target, width, height, w.foreground_weight, w.wmse, grad);
+    terms.total += w.wmse * terms.wmse;
+  }
+  if (w.ssim > 0) {
+    terms.ssim = ssim_impl(render, target, width, height, w.ssim, grad, workspace);
+    terms.total += w.ssim * terms.ssim;
+  }
+  if (w.edge > 0) {
+    terms.edge = edge_impl(render, target, width, height, w.edge, grad, workspace);
+    terms.total += w.edge * terms.edge;
+  }
+  if (w.intensity > 0) {
+    terms.intensity = intensity_kl_impl(render, target, width, height, w.histogram, w.intensity, grad, workspace);
+    terms.total += w.intensity * terms.intensity;
+  }
+  return terms;
+}
+
+}  // namespace
+
+void SoftHistogramOptions::validate() const {
+  if (bins < 2 || bins > 4096)
+    throw std::invalid_argument("SoftHistogramOptions.bins = " + std::to_string(bins) + ": must be in [2, 4096]");
+  if (!(bandwidth > 0 && std::isfinite(bandwidth)))
+    throw std::invalid_argument("SoftHistogramOptions.bandwidth = " + std::to_string(bandwidth) + ": must be > 0");
+  if (!(epsilon > 0 && std::isfinite(epsilon)))
+    throw std::invalid_argument("SoftHistogramOptions.epsilon = " + std::to_string(epsilon) + ": must be > 0");
+}
+
+ImageLossWeights image_loss_weights(const TrainOptions& train) {
+  ImageLossWeights w;
+  w.foreground_weight = train.foreground_weight;
+  w.wmse = 1.0;
+  w.ssim = train.lambda_ssim;
+  w.edge = train.lambda_edge;
+  w.intensity = train.lambda_intensity;
+  return w;
+}
+
+double weighted_mse(std::span<const float> render, std::span<const float> target, int width, int height,
+                    double foreground_weight, double weight, std::span<float> grad) {
+  return weighted_mse_impl(render, target, width, height, foreground_weight, weight, grad);
+}
+double weighted_mse(std::span<const double> render, std::span<const double> target, int width, int height,
+                    double foreground_weight, double weight, std::span<double> grad) {
+  return weighted_mse_impl(render, target, width, height, foreground_weight, weight, grad);
+}
+
+double ssim_loss(std::span<const float> render, std::span<const float> target, int width, int height, double weight,
+                 std::span<float> grad, LossWorkspace& workspace) {
+  return ssim_impl(render, target, width, height, weight, grad, workspace);
+}
+double ssim_loss(std::span<const double> render, std::span<const double> target, int width, int height,
+                 double weight, std::span<double> grad, LossWorkspace& workspace) {
+  return ssim_impl(render, target, width, height, weight, grad, workspace);
+}
+
+double edge_loss(std::span<const float> render, std::span<const float> target, int width, int height, double weight,
+                 std::span<float> grad, LossWorkspace& workspace) {
+  return edge_impl(render, target, width, height, weight, grad, workspace);
+}
+double edge_loss(std::span<const double> render, std::span<const double> target, int width, int height,
+                 double weight, std::span<double> grad, LossWorkspace& workspace) {
+  return edge_impl(render, target, width, height, weight, grad, workspace);
+}
+
+double intensity_kl_loss(std::span<const float> render, std::span<const float> target, int width, int height,
+                         const SoftHistogramOptions& histogram, double weight, std::span<float> grad,
+                         LossWorkspace& workspace) {
+  return intensity_kl_impl(render, target, width, height, histogram, weight, grad, workspace);
+}
+double intensity_kl_loss(std::span<const double> render, std::span<const double> target, int width, int height,
+                         const SoftHistogramOptions& histogram, double weight, std::span<double> grad,
+                         LossWorkspace& workspace) {
+  return intensity_kl_impl(render, target, width, height, histogram, weight, grad, workspace);
+}
+
+double scale_regularizer(std::span<const float> params, double s_min, double s_max, double weight,
+                         std::span<float> grad) {
+  return scale_regularizer_impl(params, s_min, s_max, weight, grad);
+}
+double scale_regularizer(std::span<const double> params, double s_min, double s_max, double weight,
+                         std::span<double> grad) {
+  return scale_regularizer_impl(params, s_min, s_max, weight, grad);
+}
+
+ImageLossTerms combined_image_loss(std::span<const float> render, std::span<const float> target, int width,
+                                   int height, const ImageLossWeights& weights, std::span<float> grad,
+                                   LossWorkspace& workspace) {
+  return combined_impl(render, target, width, height, weights, grad, workspace);
+}
+ImageLossTerms combined_image_loss(std::span<const double> render, std::span<const double> target, int width,
+                                   int height, const ImageLossWeights& weights, std::span<double> grad,
+                                   LossWorkspace& workspace) {
+  return combined_impl(render, target, width, height, weights, grad, workspace);
+}
+
+}  // namespace hisnegs::splat

@@ -1,0 +1,99 @@
+// The `compare-optimizers`, `render` and `bench render` commands through the real
+// binary on tiny inputs: every promised file, its shape, and the bad-input errors.
+#include <gtest/gtest.h>
+
+#include <fstream>
+#include <string>
+
+#include "io/gif.hpp"
+#include "io/tiff_stack.hpp"
+#include "tests/test_support.hpp"
+
+namespace hisnegs {
+namespace {
+
+namespace fs = std::filesystem;
+using testing::run_hisnegs;
+
+int csv_rows(const fs::path& path) {
+  std::ifstream in(path);
+  int rows = -1;  // header
+  for (std::string line; std::getline(in, line);) ++rows;
+  return rows;
+}
+
+TEST(CliCompare, WritesTableCurvesSummaryAndPlot) {
+  testing::ScratchDir dir;
+  ASSERT_EQ(run_hisnegs({"-q", "synth", "-o", dir / "s.tif", "--shape", "16,40,40"}).exit_code, 0);
+  testing::write_text(dir / "c.yaml", "gmf:\n  iterations_per_round: 4\n");
+  const auto r = run_hisnegs({"--config", dir / "c.yaml", "compare-optimizers", dir / "s.tif", "-o", dir / "cmp",
+                              "--optimizers", "lm-cgnr,adam,lbfgs", "--gaussians", "60", "--adam-steps", "8",
+                              "--time-budget", "20"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(csv_rows(dir / "cmp" / "results.csv"), 3);
+  EXPECT_GT(csv_rows(dir / "cmp" / "curves.csv"), 8);
+  std::ifstream md(dir / "cmp" / "summary.md");
+  const std::string summary((std::istreambuf_iterator<char>(md)), std::istreambuf_iterator<char>());
+  EXPECT_NE(summary.find("loss Adam reached after 8 steps"), std::string::npos) << summary;
+  EXPECT_NE(summary.find("| lbfgs |"), std::string::npos);
+  EXPECT_TRUE(fs::is_regular_file(dir / "cmp" / "loss_vs_time.png"));
+
+  const auto bad = run_hisnegs({"compare-optimizers", dir / "s.tif", "-o", dir / "bad", "--optimizers", "adam,sgd"});
+  EXPECT_EQ(bad.exit_code, 2);
+  EXPECT_NE(bad.err.find("'sgd'"), std::string::npos) << bad.err;
+}
+
+TEST(CliRender, WritesStackPreviewsMetaAndOrbit) {
+  testing::ScratchDir dir;
+  ASSERT_EQ(run_hisnegs({"-q", "synth", "-o", dir / "s.tif", "--shape", "16,40,40"}).exit_code, 0);
+  ASSERT_EQ(run_hisnegs({"-q", "fit", dir / "s.tif", "-o", dir / "m.ply", "--gaussians", "80", "--time-budget", "5"})
+                .exit_code,
+            0);
+  ASSERT_EQ(run_hisnegs({"-q", "gt", dir / "s.tif", "-o", dir / "gt", "--orbit", "eval", "--size", "32", "--backend",
+                         "cpu"})
+                .exit_code,
+            0);
+  const auto r = run_hisnegs({"render", "--model", dir / "m.ply", "--cameras", dir / "gt" / "cameras.json", "-o",
+                              dir / "r", "--backend", "cpu", "--orbit", "6", "--size", "24", "--mode", "hard"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("30 views of 32x32"), std::string::npos) << r.out;
+  const io::TiffStackInfo info = io::inspect_tiff_stack(dir / "r" / "render.tif");
+  EXPECT_EQ(info.nx, 32);
+  EXPECT_EQ(info.ny, 32);
+  EXPECT_EQ(info.nz, 30);
+  EXPECT_EQ(info.type, io::SampleType::kFloat32);
+  EXPECT_TRUE(fs::is_regular_file(dir / "r" / "previews" / "029.png"));
+  EXPECT_TRUE(fs::is_regular_file(dir / "r" / "render.json"));
+  const io::GifInfo gif = io::inspect_gif(dir / "r" / "orbit.gif");
+  EXPECT_EQ(gif.frames, 6);
+  EXPECT_EQ(gif.width, 24);
+}
+
+TEST(CliRender, BadInputsGetOneLineErrors) {
+  testing::ScratchDir dir;
+  testing::write_text(dir / "not.ply", "ply\nformat ascii 1.0\nelement face 0\nend_header\n");
+  auto r = run_hisnegs({"render", "--model", dir / "not.ply", "--orbit", "4", "-o", dir / "r", "--backend", "cpu"});
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("not.ply"), std::string::npos) << r.err;
+  r = run_hisnegs({"render", "--model", dir / "missing.ply", "-o", dir / "r"});
+  EXPECT_EQ(r.exit_code, 2);
+  r = run_hisnegs({"render", "--model", dir / "not.ply", "-o", dir / "r", "--beta", "-1", "--orbit", "3"});
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("splat.beta"), std::string::npos) << r.err;
+  EXPECT_FALSE(fs::exists(dir / "r"));
+}
+
+TEST(CliBench, RenderSuiteRunsWithTinySizes) {
+  testing::ScratchDir dir;
+  ASSERT_EQ(run_hisnegs({"-q", "synth", "-o", dir / "s.tif", "--shape", "16,32,32"}).exit_code, 0);
+  const auto r = run_hisnegs({"bench", "render", "--volume", dir / "s.tif", "--sizes", "32", "--gaussians", "300",
+                              "--betas", "5", "--benchmark_filter=cpu"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("render/cpu/soft_backward/K50000/32"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("render/cpu/hard/K300/256"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("gt/cpu/exact"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("median_ms"), std::string::npos) << r.out;
+}
+
+}  // namespace
+}  // namespace hisnegs
