@@ -1,5 +1,5 @@
 // The training losses of report §6 (Eq. 11-15) with their exact gradients: one
-// template per loss over the pixel type, instantiated for float and double.
+// template per loss over the pixel type (float, double), TBB over fixed blocks.
 #include "splat/losses.hpp"
 
 #include <algorithm>
@@ -9,6 +9,9 @@
 #include <numbers>
 #include <stdexcept>
 #include <string>
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
 
 #include "gmf/gaussian_math.hpp"
 #include "splat/splat_options.hpp"
@@ -36,6 +39,33 @@ void check_images(const char* loss, std::size_t render, std::size_t target, std:
                                 std::to_string(n) + " (grad may be empty)");
   if (!std::isfinite(weight))
     throw std::invalid_argument(std::string(loss) + ": weight " + std::to_string(weight) + " is not finite");
+}
+
+// Parallel loops over fixed blocks. TBB's own ranges split by load, so a reduction
+// over them would round differently from run to run; fixed blocks, each with its own
+// partial sum added up in block order, give the same bits whatever the thread count.
+constexpr std::size_t kRowsPerBlock = 8;        // image rows per task
+constexpr std::size_t kPixelsPerBlock = 4096;   // pixels per task (the histogram)
+
+std::size_t block_count(std::size_t n, std::size_t block) { return (n + block - 1) / block; }
+
+// body(block, begin, end) for the blocks [b·block, min((b+1)·block, n)) of [0, n).
+template <class Body>
+void for_blocks(std::size_t n, std::size_t block, const Body& body) {
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, block_count(n, block), 1), [&](const auto& range) {
+    for (std::size_t b = range.begin(); b != range.end(); ++b) body(b, b * block, std::min(n, (b + 1) * block));
+  });
+}
+
+template <class Body>
+void for_row_blocks(std::size_t rows, const Body& body) {
+  for_blocks(rows, kRowsPerBlock, body);
+}
+
+double ordered_sum(const double* values, std::size_t count) {
+  double sum = 0;
+  for (std::size_t i = 0; i < count; ++i) sum += values[i];
+  return sum;
 }
 
 // ---------------------------------------------------------------- Eq. 11
@@ -91,7 +121,7 @@ const std::array<double, kSsimTaps>& ssim_taps() {
 // and ∂μx(p)/∂x_q = w(p − q), ∂Exx(p)/∂x_q = 2 x_q w(p − q), ∂Exy(p)/∂x_q = y_q w(p − q). So
 //   ∂mean S/∂x_q = (1/M) [(wᵀ⋆a)_q + 2 x_q (wᵀ⋆b)_q + y_q (wᵀ⋆c)_q]
 // with a, b, c the three partial maps over the M valid pixels and wᵀ⋆ the adjoint of
-// the valid-region filter (the same separable window, scattered back).
+// the valid-region filter: the same separable window, gathered back over the full image.
 template <class T>
 double ssim_impl(std::span<const T> xs, std::span<const T> ys, int width, int height, double weight,
                  std::span<T> grad, LossWorkspace& workspace) {
@@ -100,200 +130,227 @@ double ssim_impl(std::span<const T> xs, std::span<const T> ys, int width, int he
   const std::size_t W = static_cast<std::size_t>(width), H = static_cast<std::size_t>(height);
   const std::size_t Wv = W - 2 * kSsimRadius, Hv = H - 2 * kSsimRadius;  // the valid region
   const std::size_t M = Wv * Hv;
+  const std::size_t blocks = block_count(H, kRowsPerBlock);
 
-  // Workspace: 5 input rows (W), 5 row-filtered maps (H × Wv), 5 statistic rows (Wv),
-  // 3 partial maps (Hv × Wv).
-  const std::span<double> ws = workspace.doubles(5 * W + 5 * H * Wv + 5 * Wv + 3 * M);
-  double* rows[5];
+  // Workspace: 5 row-filtered maps (H × Wv), 3 partial maps (Hv × Wv), 5 rows of
+  // scratch (W) per row block, one partial sum per row block.
+  const std::span<double> ws = workspace.doubles(5 * H * Wv + 3 * M + blocks * (5 * W + 1));
   double* hmap[5];
-  double* stat[5];
   double* part[3];
-  {
-    double* at = ws.data();
-    for (auto& r : rows) r = at, at += W;
-    for (auto& h : hmap) h = at, at += H * Wv;
-    for (auto& s : stat) s = at, at += Wv;
-    for (auto& q : part) q = at, at += M;
-  }
+  double* at = ws.data();
+  for (auto& h : hmap) h = at, at += H * Wv;
+  for (auto& q : part) q = at, at += M;
+  double* const scratch = at;
+  double* const block_sums = scratch + blocks * 5 * W;
 
   // Row pass over x, y, x², y², xy, valid columns only.
-  for (std::size_t r = 0; r < H; ++r) {
-    const T* xr = xs.data() + r * W;
-    const T* yr = ys.data() + r * W;
-    for (std::size_t c = 0; c < W; ++c) {
-      const double x = xr[c], y = yr[c];
-      rows[0][c] = x;
-      rows[1][c] = y;
-      rows[2][c] = x * x;
-      rows[3][c] = y * y;
-      rows[4][c] = x * y;
-    }
-    for (int ch = 0; ch < 5; ++ch) {
-      const double* in = rows[ch];
-      double* out = hmap[ch] + r * Wv;
-      for (std::size_t c = 0; c < Wv; ++c) {
-        double acc = 0;
-        for (int k = 0; k < kSsimTaps; ++k) acc += w[k] * in[c + k];
-        out[c] = acc;
+  for_row_blocks(H, [&](std::size_t block, std::size_t r0, std::size_t r1) {
+    double* rows[5];
+    for (int ch = 0; ch < 5; ++ch) rows[ch] = scratch + block * 5 * W + ch * W;
+    for (std::size_t r = r0; r < r1; ++r) {
+      const T* xr = xs.data() + r * W;
+      const T* yr = ys.data() + r * W;
+      for (std::size_t c = 0; c < W; ++c) {
+        const double x = xr[c], y = yr[c];
+        rows[0][c] = x;
+        rows[1][c] = y;
+        rows[2][c] = x * x;
+        rows[3][c] = y * y;
+        rows[4][c] = x * y;
+      }
+      for (int ch = 0; ch < 5; ++ch) {
+        const double* in = rows[ch];
+        double* out = hmap[ch] + r * Wv;
+        for (std::size_t c = 0; c < Wv; ++c) {
+          double acc = 0;
+          for (int k = 0; k < kSsimTaps; ++k) acc += w[k] * in[c + k];
+          out[c] = acc;
+        }
       }
     }
-  }
+  });
 
-  // Column pass, one valid row at a time, then the SSIM map and its partials.
+  // Column pass, valid rows only, then the SSIM map and its partials.
   const bool want_grad = !grad.empty();
   const double scale = -weight / static_cast<double>(M);  // ∂(1 − mean S)/∂S_p × weight
-  double sum = 0;
-  for (std::size_t r = 0; r < Hv; ++r) {
-    for (int ch = 0; ch < 5; ++ch) {
-      double* out = stat[ch];
-      std::fill(out, out + Wv, 0.0);
-      for (int k = 0; k < kSsimTaps; ++k) {
-        const double* in = hmap[ch] + (r + k) * Wv;
-        const double wk = w[k];
-        for (std::size_t c = 0; c < Wv; ++c) out[c] += wk * in[c];
+  for_row_blocks(Hv, [&](std::size_t block, std::size_t r0, std::size_t r1) {
+    double* stat[5];
+    for (int ch = 0; ch < 5; ++ch) stat[ch] = scratch + block * 5 * W + ch * Wv;
+    double sum = 0;
+    for (std::size_t r = r0; r < r1; ++r) {
+      for (int ch = 0; ch < 5; ++ch) {
+        double* out = stat[ch];
+        std::fill(out, out + Wv, 0.0);
+        for (int k = 0; k < kSsimTaps; ++k) {
+          const double* in = hmap[ch] + (r + k) * Wv;
+          const double wk = w[k];
+          for (std::size_t c = 0; c < Wv; ++c) out[c] += wk * in[c];
+        }
+      }
+      for (std::size_t c = 0; c < Wv; ++c) {
+        const double mx = stat[0][c], my = stat[1][c];
+        const double vx = stat[2][c] - mx * mx, vy = stat[3][c] - my * my, vxy = stat[4][c] - mx * my;
+        const double A1 = 2 * mx * my + kSsimC1, A2 = 2 * vxy + kSsimC2;
+        const double B1 = mx * mx + my * my + kSsimC1, B2 = vx + vy + kSsimC2;
+        const double inv_D = 1.0 / (B1 * B2);
+        const double S = A1 * A2 * inv_D;
+        sum += S;
+        if (want_grad) {
+          const std::size_t i = r * Wv + c;
+          part[0][i] = scale * (2 * my * (A2 - A1) * inv_D - 2 * mx * S * (B2 - B1) * inv_D);
+          part[1][i] = scale * (-S / B2);
+          part[2][i] = scale * (2 * A1 * inv_D);
+        }
       }
     }
-    double row_sum = 0;
-    for (std::size_t c = 0; c < Wv; ++c) {
-      const double mx = stat[0][c], my = stat[1][c];
-      const double vx = stat[2][c] - mx * mx, vy = stat[3][c] - my * my, vxy = stat[4][c] - mx * my;
-      const double A1 = 2 * mx * my + kSsimC1, A2 = 2 * vxy + kSsimC2;
-      const double B1 = mx * mx + my * my + kSsimC1, B2 = vx + vy + kSsimC2;
-      const double inv_D = 1.0 / (B1 * B2);
-      const double S = A1 * A2 * inv_D;
-      row_sum += S;
-      if (want_grad) {
-        const std::size_t i = r * Wv + c;
-        part[0][i] = scale * (2 * my * (A2 - A1) * inv_D - 2 * mx * S * (B2 - B1) * inv_D);
-        part[1][i] = scale * (-S / B2);
-        part[2][i] = scale * (2 * A1 * inv_D);
-      }
-    }
-    sum += row_sum;
-  }
-  const double loss = 1.0 - sum / static_cast<double>(M);
+    block_sums[block] = sum;
+  });
+  const double loss = 1.0 - ordered_sum(block_sums, block_count(Hv, kRowsPerBlock)) / static_cast<double>(M);
   if (!want_grad) return loss;
 
-  // Adjoint of the column pass: scatter each valid row back over its 11 source rows
-  // (into the now free row-filtered maps, H × Wv).
-  for (int m = 0; m < 3; ++m) {
-    double* out = hmap[m];
-    std::fill(out, out + H * Wv, 0.0);
-    for (std::size_t r = 0; r < Hv; ++r) {
-      const double* in = part[m] + r * Wv;
-      for (int k = 0; k < kSsimTaps; ++k) {
-        double* o = out + (r + k) * Wv;
-        const double wk = w[k];
-        for (std::size_t c = 0; c < Wv; ++c) o[c] += wk * in[c];
+  // Adjoint of the column pass, gathered: image row j collects the valid rows j − k,
+  // k = 0..10, that its window reached (into the now free row-filtered maps, H × Wv).
+  for_row_blocks(H, [&](std::size_t, std::size_t j0, std::size_t j1) {
+    for (std::size_t j = j0; j < j1; ++j)
+      for (int m = 0; m < 3; ++m) {
+        double* out = hmap[m] + j * Wv;
+        std::fill(out, out + Wv, 0.0);
+        const std::size_t k_lo = j + 1 > Hv ? j + 1 - Hv : 0, k_hi = std::min<std::size_t>(kSsimTaps - 1, j);
+        for (std::size_t k = k_lo; k <= k_hi; ++k) {
+          const double* in = part[m] + (j - k) * Wv;
+          const double wk = w[k];
+          for (std::size_t c = 0; c < Wv; ++c) out[c] += wk * in[c];
+        }
       }
-    }
-  }
-  // Adjoint of the row pass, one image row at a time, then the chain rule into x.
-  for (std::size_t r = 0; r < H; ++r) {
-    for (int m = 0; m < 3; ++m) {
-      double* out = rows[m];
-      std::fill(out, out + W, 0.0);
-      const double* in = hmap[m] + r * Wv;
-      for (int k = 0; k < kSsimTaps; ++k) {
-        const double wk = w[k];
-        for (std::size_t c = 0; c < Wv; ++c) out[c + k] += wk * in[c];
+  });
+  // Adjoint of the row pass (scattered within the row), then the chain rule into x.
+  for_row_blocks(H, [&](std::size_t block, std::size_t r0, std::size_t r1) {
+    double* rows[3];
+    for (int m = 0; m < 3; ++m) rows[m] = scratch + block * 5 * W + m * W;
+    for (std::size_t r = r0; r < r1; ++r) {
+      for (int m = 0; m < 3; ++m) {
+        double* out = rows[m];
+        std::fill(out, out + W, 0.0);
+        const double* in = hmap[m] + r * Wv;
+        for (int k = 0; k < kSsimTaps; ++k) {
+          const double wk = w[k];
+          for (std::size_t c = 0; c < Wv; ++c) out[c + k] += wk * in[c];
+        }
       }
+      const T* xr = xs.data() + r * W;
+      const T* yr = ys.data() + r * W;
+      T* gr = grad.data() + r * W;
+      for (std::size_t c = 0; c < W; ++c)
+        gr[c] += static_cast<T>(rows[0][c] + 2.0 * double(xr[c]) * rows[1][c] + double(yr[c]) * rows[2][c]);
     }
-    const T* xr = xs.data() + r * W;
-    const T* yr = ys.data() + r * W;
-    T* gr = grad.data() + r * W;
-    for (std::size_t c = 0; c < W; ++c)
-      gr[c] += static_cast<T>(rows[0][c] + 2.0 * double(xr[c]) * rows[1][c] + double(yr[c]) * rows[2][c]);
-  }
+  });
   return loss;
 }
 
 // ---------------------------------------------------------------- Eq. 13
 
 // Sobel S_x = [1 2 1]ᵀ ⊗ [−1 0 1] is separable: smooth down the columns, difference
-// along the rows; S_y the other way round. Replicated borders: index i ± 1 is clamped.
-// The loss only sees d = P − G (Sobel is linear), so ∂L/∂P = ∂L/∂d.
+// along the rows; S_y the other way round. Replicated borders: row/column i ± 1 is
+// clamped to the image. The loss only sees d = P − G (Sobel is linear), so ∂L/∂P = ∂L/∂d.
+// The adjoints across rows are gathered (row j collects from rows j−1..j+1 with the
+// clamped coefficients) so that row blocks never write the same row.
 template <class T>
 double edge_impl(std::span<const T> p, std::span<const T> g, int width, int height, double weight, std::span<T> grad,
                  LossWorkspace& workspace) {
   check_images("edge_loss", p.size(), g.size(), grad.size(), width, height, 1, weight);
   const std::size_t W = static_cast<std::size_t>(width), H = static_cast<std::size_t>(height), N = W * H;
-  const std::span<double> ws = workspace.doubles(5 * N);
-  double* d = ws.data();       // P − G; later ∂L/∂d
-  double* s = d + N;           // d smoothed down the columns; later its adjoint
-  double* t = s + N;           // d smoothed along the rows; later its adjoint
-  double* gx = t + N;          // S_x * d; later ∂L/∂gx
-  double* gy = gx + N;         // S_y * d; later ∂L/∂gy
-  for (std::size_t i = 0; i < N; ++i) d[i] = double(p[i]) - double(g[i]);
+  const std::size_t blocks = block_count(H, kRowsPerBlock);
+  const std::span<double> ws = workspace.doubles(5 * N + blocks);
+  double* d = ws.data();  // P − G; later ∂L/∂d
+  double* s = d + N;      // d smoothed down the columns; later ∂L/∂s
+  double* t = s + N;      // d smoothed along the rows; later ∂L/∂t
+  double* gx = t + N;     // S_x * d
+  double* gy = gx + N;    // S_y * d
+  double* block_sums = gy + N;
+  const auto row_minus = [](std::size_t r) { return r > 0 ? r - 1 : 0; };
+  const auto row_plus = [H](std::size_t r) { return r + 1 < H ? r + 1 : r; };
 
-  for (std::size_t r = 0; r < H; ++r) {
-    const double* up = d + (r > 0 ? r - 1 : 0) * W;
-    const double* mid = d + r * W;
-    const double* down = d + (r + 1 < H ? r + 1 : r) * W;
-    double* sr = s + r * W;
-    for (std::size_t c = 0; c < W; ++c) sr[c] = up[c] + 2.0 * mid[c] + down[c];
-    double* tr = t + r * W;
-    for (std::size_t c = 0; c < W; ++c) {
-      const std::size_t cm = c > 0 ? c - 1 : 0, cp = c + 1 < W ? c + 1 : c;
-      tr[c] = mid[cm] + 2.0 * mid[c] + mid[cp];
+  for_row_blocks(H, [&](std::size_t, std::size_t r0, std::size_t r1) {
+    for (std::size_t i = r0 * W; i < r1 * W; ++i) d[i] = double(p[i]) - double(g[i]);
+  });
+  for_row_blocks(H, [&](std::size_t, std::size_t r0, std::size_t r1) {
+    for (std::size_t r = r0; r < r1; ++r) {
+      const double* up = d + row_minus(r) * W;
+      const double* mid = d + r * W;
+      const double* down = d + row_plus(r) * W;
+      double* sr = s + r * W;
+      for (std::size_t c = 0; c < W; ++c) sr[c] = up[c] + 2.0 * mid[c] + down[c];
+      double* tr = t + r * W;
+      for (std::size_t c = 0; c < W; ++c) {
+        const std::size_t cm = c > 0 ? c - 1 : 0, cp = c + 1 < W ? c + 1 : c;
+        tr[c] = mid[cm] + 2.0 * mid[c] + mid[cp];
+      }
     }
-  }
-  double sum = 0;
-  for (std::size_t r = 0; r < H; ++r) {
-    const double* sr = s + r * W;
-    const double* t_up = t + (r > 0 ? r - 1 : 0) * W;
-    const double* t_down = t + (r + 1 < H ? r + 1 : r) * W;
-    double row_sum = 0;
-    for (std::size_t c = 0; c < W; ++c) {
-      const std::size_t cm = c > 0 ? c - 1 : 0, cp = c + 1 < W ? c + 1 : c;
-      const double x = sr[cp] - sr[cm], y = t_down[c] - t_up[c];
-      gx[r * W + c] = x;
-      gy[r * W + c] = y;
-      row_sum += x * x + y * y;
+  });
+  for_row_blocks(H, [&](std::size_t block, std::size_t r0, std::size_t r1) {
+    double sum = 0;
+    for (std::size_t r = r0; r < r1; ++r) {
+      const double* sr = s + r * W;
+      const double* t_up = t + row_minus(r) * W;
+      const double* t_down = t + row_plus(r) * W;
+      for (std::size_t c = 0; c < W; ++c) {
+        const std::size_t cm = c > 0 ? c - 1 : 0, cp = c + 1 < W ? c + 1 : c;
+        const double x = sr[cp] - sr[cm], y = t_down[c] - t_up[c];
+        gx[r * W + c] = x;
+        gy[r * W + c] = y;
+        sum += x * x + y * y;
+      }
     }
-    sum += row_sum;
-  }
-  const double loss = sum / static_cast<double>(N);
+    block_sums[block] = sum;
+  });
+  const double loss = ordered_sum(block_sums, blocks) / static_cast<double>(N);
   if (grad.empty()) return loss;
 
-  const double a = 2.0 * weight / static_cast<double>(N);
-  std::fill(s, s + N, 0.0);
-  std::fill(t, t + N, 0.0);
-  std::fill(d, d + N, 0.0);
-  for (std::size_t r = 0; r < H; ++r) {
-    // gx = s[cp] − s[cm] within the row; gy = t[rp] − t[rm] within the column.
-    double* sr = s + r * W;
-    double* t_up = t + (r > 0 ? r - 1 : 0) * W;
-    double* t_down = t + (r + 1 < H ? r + 1 : r) * W;
-    for (std::size_t c = 0; c < W; ++c) {
-      const std::size_t cm = c > 0 ? c - 1 : 0, cp = c + 1 < W ? c + 1 : c;
-      const double ggx = a * gx[r * W + c], ggy = a * gy[r * W + c];
-      sr[cp] += ggx;
-      sr[cm] -= ggx;
-      t_down[c] += ggy;
-      t_up[c] -= ggy;
+  const double a = 2.0 * weight / static_cast<double>(N);  // ∂(weight L)/∂gx = a gx
+  // ∂/∂s of gx = s[cp] − s[cm] (within the row); ∂/∂t of gy = t[rp] − t[rm]: row j gets
+  // +gy[r] from each r with rp(r) = j and −gy[r] from each r with rm(r) = j.
+  for_row_blocks(H, [&](std::size_t, std::size_t j0, std::size_t j1) {
+    for (std::size_t j = j0; j < j1; ++j) {
+      double* sr = s + j * W;
+      std::fill(sr, sr + W, 0.0);
+      const double* gxr = gx + j * W;
+      for (std::size_t c = 0; c < W; ++c) {
+        const std::size_t cm = c > 0 ? c - 1 : 0, cp = c + 1 < W ? c + 1 : c;
+        sr[cp] += a * gxr[c];
+        sr[cm] -= a * gxr[c];
+      }
+      double* tr = t + j * W;
+      std::fill(tr, tr + W, 0.0);
+      for (std::size_t r = row_minus(j); r <= row_plus(j); ++r) {
+        const double coef = double(row_plus(r) == j) - double(row_minus(r) == j);
+        if (coef == 0) continue;
+        const double* gyr = gy + r * W;
+        for (std::size_t c = 0; c < W; ++c) tr[c] += a * coef * gyr[c];
+      }
     }
-  }
-  for (std::size_t r = 0; r < H; ++r) {
-    // s = d[rm] + 2 d[r] + d[rp] down the column; t = d[cm] + 2 d[c] + d[cp] along the row.
-    const double* sr = s + r * W;
-    const double* tr = t + r * W;
-    double* up = d + (r > 0 ? r - 1 : 0) * W;
-    double* mid = d + r * W;
-    double* down = d + (r + 1 < H ? r + 1 : r) * W;
-    for (std::size_t c = 0; c < W; ++c) {
-      up[c] += sr[c];
-      mid[c] += 2.0 * sr[c];
-      down[c] += sr[c];
+  });
+  // ∂/∂d of s = d[rm] + 2 d[r] + d[rp] (gathered over rows) and of t = d[cm] + 2 d[c] + d[cp]
+  // (scattered within the row).
+  for_row_blocks(H, [&](std::size_t, std::size_t j0, std::size_t j1) {
+    for (std::size_t j = j0; j < j1; ++j) {
+      double* dd = d + j * W;
+      std::fill(dd, dd + W, 0.0);
+      for (std::size_t r = row_minus(j); r <= row_plus(j); ++r) {
+        const double coef = double(row_minus(r) == j) + 2.0 * double(r == j) + double(row_plus(r) == j);
+        const double* sr = s + r * W;
+        for (std::size_t c = 0; c < W; ++c) dd[c] += coef * sr[c];
+      }
+      const double* tr = t + j * W;
+      for (std::size_t c = 0; c < W; ++c) {
+        const std::size_t cm = c > 0 ? c - 1 : 0, cp = c + 1 < W ? c + 1 : c;
+        dd[cm] += tr[c];
+        dd[c] += 2.0 * tr[c];
+        dd[cp] += tr[c];
+      }
+      T* gr = grad.data() + j * W;
+      for (std::size_t c = 0; c < W; ++c) gr[c] += static_cast<T>(dd[c]);
     }
-    for (std::size_t c = 0; c < W; ++c) {
-      const std::size_t cm = c > 0 ? c - 1 : 0, cp = c + 1 < W ? c + 1 : c;
-      mid[cm] += tr[c];
-      mid[c] += 2.0 * tr[c];
-      mid[cp] += tr[c];
-    }
-  }
-  for (std::size_t i = 0; i < N; ++i) grad[i] += static_cast<T>(d[i]);
+  });
   return loss;
 }
 
@@ -332,9 +389,11 @@ struct BinWalk {
         k_stop(1e-17 * o.epsilon / norm) {}
 
   // x must be finite (the clamp keeps b0 a valid int for any finite x).
+  int nearest_bin(double x) const { return static_cast<int>(std::clamp(std::floor(x * bins), 0.0, bins - 1.0)); }
+
   BinStart start(double x) const {
     BinStart s;
-    s.b0 = static_cast<int>(std::clamp(std::floor(x * bins), 0.0, bins - 1.0));
+    s.b0 = nearest_bin(x);
     s.z0 = ((s.b0 + 0.5) * delta - x) / h;
     s.k0 = std::exp(-0.5 * s.z0 * s.z0);
     if (s.k0 < k_stop) {  // touches no bin; the ratios are never used
@@ -350,47 +409,64 @@ struct BinWalk {
   // Calls f(b, k_b, z_b) for every bin whose kernel value k_b reaches k_stop.
   template <class F>
   void walk(const BinStart& s, F&& f) const {
-    if (s.k0 < k_stop) return;
+    // Locals: f writes through a double*, which could alias the members otherwise.
+    const double k_min = k_stop, ratio = q, dz = step;
+    const int n = bins;
+    if (s.k0 < k_min) return;
     f(s.b0, s.k0, s.z0);
     double k = s.k0, r = s.r_up;
-    for (int b = s.b0 + 1; b < bins; ++b) {
+    for (int b = s.b0 + 1; b < n; ++b) {
       k *= r;
-      if (k < k_stop) break;
-      r *= q;
-      f(b, k, s.z0 + (b - s.b0) * step);
+      if (k < k_min) break;
+      r *= ratio;
+      f(b, k, s.z0 + (b - s.b0) * dz);
     }
     k = s.k0;
     r = s.r_down;
     for (int b = s.b0 - 1; b >= 0; --b) {
       k *= r;
-      if (k < k_stop) break;
-      r *= q;
-      f(b, k, s.z0 - (s.b0 - b) * step);
+      if (k < k_min) break;
+      r *= ratio;
+      f(b, k, s.z0 - (s.b0 - b) * dz);
     }
   }
 };
 
-// p_b = (m_b + ε) / Σ (m_b' + ε) into `p`; returns Z = Σ (m_b' + ε). When `starts`
-// is not null it keeps every pixel's BinStart for the backward pass.
+// p_b = (m_b + ε) / Σ (m_b' + ε) into `p`; returns Z = Σ (m_b' + ε). Each block of
+// pixels fills its own histogram in `partial` (block_count(N, kPixelsPerBlock) × bins),
+// added up in block order. When `starts` is not null it keeps each pixel's walk start
+// (z0, k0, r_up, r_down: 4 doubles) for the backward pass, which then needs no exp().
 template <class T>
-double soft_histogram(std::span<const T> image, const BinWalk& walk, double epsilon, double* p, BinStart* starts) {
-  std::fill(p, p + walk.bins, 0.0);
-  for (std::size_t i = 0; i < image.size(); ++i) {
-    const double x = image[i];
-    if (!std::isfinite(x))
-      throw std::invalid_argument("intensity_kl_loss: pixel " + std::to_string(i) + " is " + std::to_string(x) +
-                                  ", expected a finite value");
-    const BinStart s = walk.start(x);
-    if (starts) starts[i] = s;
-    walk.walk(s, [p](int b, double k, double) { p[b] += k; });
-  }
+double soft_histogram(std::span<const T> image, const BinWalk& walk, double epsilon, double* partial, double* p,
+                      double* starts) {
+  const auto B = static_cast<std::size_t>(walk.bins);
+  for_blocks(image.size(), kPixelsPerBlock, [&](std::size_t block, std::size_t i0, std::size_t i1) {
+    double* h = partial + block * B;
+    std::fill(h, h + B, 0.0);
+    for (std::size_t i = i0; i < i1; ++i) {
+      const double x = image[i];
+      if (!std::isfinite(x))
+        throw std::invalid_argument("intensity_kl_loss: pixel " + std::to_string(i) + " is " + std::to_string(x) +
+                                    ", expected a finite value");
+      const BinStart s = walk.start(x);
+      if (starts) {
+        double* st = starts + 4 * i;
+        st[0] = s.z0, st[1] = s.k0, st[2] = s.r_up, st[3] = s.r_down;
+      }
+      walk.walk(s, [h](int b, double k, double) { h[b] += k; });
+    }
+  });
+  const std::size_t blocks = block_count(image.size(), kPixelsPerBlock);
+  std::fill(p, p + B, 0.0);
+  for (std::size_t block = 0; block < blocks; ++block)
+    for (std::size_t b = 0; b < B; ++b) p[b] += partial[block * B + b];
   const double mass_scale = walk.norm / static_cast<double>(image.size());
   double z = 0;
-  for (int b = 0; b < walk.bins; ++b) {
+  for (std::size_t b = 0; b < B; ++b) {
     p[b] = p[b] * mass_scale + epsilon;
     z += p[b];
   }
-  for (int b = 0; b < walk.bins; ++b) p[b] /= z;
+  for (std::size_t b = 0; b < B; ++b) p[b] /= z;
   return z;
 }
 
@@ -404,27 +480,32 @@ double intensity_kl_impl(std::span<const T> render, std::span<const T> target, i
   const BinWalk walk(o);
   const auto B = static_cast<std::size_t>(o.bins);
   const std::size_t N = render.size();
-  // 3 bin arrays, then (with a gradient) one BinStart per pixel, stored in doubles.
-  constexpr std::size_t kStartDoubles = (sizeof(BinStart) + sizeof(double) - 1) / sizeof(double);
-  static_assert(alignof(BinStart) <= alignof(double));
-  const std::span<double> ws = workspace.doubles(3 * B + (grad.empty() ? 0 : kStartDoubles * N));
+  const std::size_t blocks = block_count(N, kPixelsPerBlock);
+  // 3 histograms, the per-block partial histograms, then (with a gradient) 4 doubles of
+  // walk start per pixel.
+  const std::span<double> ws = workspace.doubles((3 + blocks) * B + (grad.empty() ? 0 : 4 * N));
   double* p = ws.data();
   double* q = p + B;
   double* g = q + B;
-  BinStart* starts = grad.empty() ? nullptr : reinterpret_cast<BinStart*>(g + B);
-  const double z = soft_histogram(render, walk, o.epsilon, p, starts);
-  soft_histogram(target, walk, o.epsilon, q, nullptr);
+  double* partial = g + B;
+  double* starts = grad.empty() ? nullptr : partial + blocks * B;
+  const double z = soft_histogram(render, walk, o.epsilon, partial, p, starts);
+  soft_histogram(target, walk, o.epsilon, partial, q, nullptr);
   double loss = 0;
   for (std::size_t b = 0; b < B; ++b) loss += p[b] * std::log(p[b] / q[b]);
   if (grad.empty()) return loss;
 
   const double a = weight * walk.norm / (static_cast<double>(N) * walk.h);
   for (std::size_t b = 0; b < B; ++b) g[b] = a * (std::log(p[b] / q[b]) - loss) / z;
-  for (std::size_t i = 0; i < N; ++i) {
-    double acc = 0;
-    walk.walk(starts[i], [g, &acc](int b, double k, double zb) { acc += g[b] * k * zb; });
-    grad[i] += static_cast<T>(acc);
-  }
+  for_blocks(N, kPixelsPerBlock, [&](std::size_t, std::size_t i0, std::size_t i1) {
+    for (std::size_t i = i0; i < i1; ++i) {
+      const double* st = starts + 4 * i;
+      const BinStart s{walk.nearest_bin(render[i]), st[0], st[1], st[2], st[3]};
+      double acc = 0;
+      walk.walk(s, [g, &acc](int b, double k, double zb) { acc += g[b] * k * zb; });
+      grad[i] += static_cast<T>(acc);
+    }
+  });
   return loss;
 }
 

@@ -15,11 +15,14 @@ struct TrainOptions;
 // truth G. Every loss returns its UNWEIGHTED value and, when `grad` is not empty
 // (it must then hold width*height values), ADDS `weight` × ∂loss/∂render into it.
 // Each loss comes as a float overload (the trainer) and a double overload (the
-// reference the tests check against finite differences); both accumulate in double.
+// reference the tests check against finite differences); both compute in double.
+// The image losses run in parallel (TBB) over fixed blocks whose partial sums are
+// added in order, so values and gradients are the same bits for any thread count.
 // Throws std::invalid_argument on mismatched sizes or invalid parameters.
 
 // Scratch memory the image losses reuse, so a trainer's step allocates nothing once
-// it has grown to the image size. Keep one per thread; contents mean nothing between calls.
+// it has grown to the image size. One per concurrent caller; contents mean nothing
+// between calls.
 class LossWorkspace {
  public:
   // `count` doubles, valid until the next call; grows, never shrinks.

@@ -34,6 +34,10 @@ void TrainOptions::validate() const {
   io::require_in_range(s, "epochs", epochs, 1, 1e7);
   io::require_positive(s, "lr_initial", lr_initial);
   io::require_in_range(s, "lr_final", lr_final, 1e-300, lr_initial);
+  for (auto [name, value] : {std::pair{"lr_means", lr_means}, std::pair{"lr_log_scales", lr_log_scales},
+                             std::pair{"lr_rotation", lr_rotation}, std::pair{"lr_intensity", lr_intensity}}) {
+    io::require_positive(s, name, value);
+  }
   io::require_positive(s, "beta_start", beta_start);
   io::require_in_range(s, "beta_end", beta_end, beta_start, 1e9);
   io::require_in_range(s, "beta_warmup_epochs", beta_warmup_epochs, 0, epochs);
@@ -47,6 +51,10 @@ void TrainOptions::validate() const {
   io::require_in_range(s, "densify_every", densify_every, 1, 1e9);
   io::require_in_range(s, "densify_from", densify_from, 0, 1e9);
   io::require_in_range(s, "densify_until", densify_until, densify_from, 1e9);
+  io::require_in_range(s, "densify_grad_threshold", densify_grad_threshold, 0.0, 1e30);
+  io::require_positive(s, "densify_scale_threshold", densify_scale_threshold);
+  io::require_in_range(s, "split_scale", split_scale, 1e-6, 1.0);
+  io::require_in_range(s, "split_offset", split_offset, 0.0, 1e3);
   io::require_in_range(s, "prune_every", prune_every, 1, 1e9);
   io::require_in_range(s, "prune_intensity", prune_intensity, 0.0, 0.999999);
   io::require_in_range(s, "max_gaussians", max_gaussians, 1, 1e8);

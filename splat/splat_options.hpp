@@ -82,6 +82,12 @@ struct TrainOptions {
   int epochs = 2000;                 // training epochs, [1, 10^7]
   double lr_initial = 3e-3;          // Adam learning rate at epoch 0, > 0
   double lr_final = 1e-5;            // learning rate at the last epoch (cosine decay), (0, lr_initial]
+  // Per-group multipliers of the learning rate (the report uses one rate for all: 1).
+  // The means' rate is also multiplied by the scene scale (1 for hisnegs worlds).
+  double lr_means = 1.0;             // means, > 0
+  double lr_log_scales = 1.0;        // log-scales, > 0
+  double lr_rotation = 1.0;          // raw quaternions, > 0
+  double lr_intensity = 1.0;         // intensity logits, > 0
   double beta_start = 10.0;          // β at epoch 0, > 0
   double beta_end = 50.0;            // β after warm-up, >= beta_start
   int beta_warmup_epochs = 500;      // linear β warm-up length, [0, epochs]
@@ -95,6 +101,12 @@ struct TrainOptions {
   int densify_every = 100;           // split/clone period, epochs, >= 1
   int densify_from = 100;            // first epoch of split/clone, >= 0
   int densify_until = 1500;          // last epoch of split/clone, >= densify_from
+  // Split/clone a Gaussian whose mean over views of |dL_view/dμ2D| × (pixels per view)
+  // reaches this (pixels⁻¹; the gradient of the per-view pixel sum), >= 0.
+  double densify_grad_threshold = 0.05;
+  double densify_scale_threshold = 0.01;  // largest scale above: split, else clone; world units, > 0
+  double split_scale = 0.8;          // Eq. 17: children's scales = split_scale × parent's, (0, 1]
+  double split_offset = 0.5;         // Eq. 17: children at μ ± split_offset × s_max (longest axis), >= 0
   int prune_every = 25;              // prune period, epochs, >= 1
   double prune_intensity = 0.01;     // prune a_k below this, [0, 1)
   int max_gaussians = 100000;        // cap on K during density control, >= 1
@@ -109,6 +121,10 @@ struct TrainOptions {
     v("epochs", epochs);
     v("lr_initial", lr_initial);
     v("lr_final", lr_final);
+    v("lr_means", lr_means);
+    v("lr_log_scales", lr_log_scales);
+    v("lr_rotation", lr_rotation);
+    v("lr_intensity", lr_intensity);
     v("beta_start", beta_start);
     v("beta_end", beta_end);
     v("beta_warmup_epochs", beta_warmup_epochs);
@@ -122,6 +138,10 @@ struct TrainOptions {
     v("densify_every", densify_every);
     v("densify_from", densify_from);
     v("densify_until", densify_until);
+    v("densify_grad_threshold", densify_grad_threshold);
+    v("densify_scale_threshold", densify_scale_threshold);
+    v("split_scale", split_scale);
+    v("split_offset", split_offset);
     v("prune_every", prune_every);
     v("prune_intensity", prune_intensity);
     v("max_gaussians", max_gaussians);

@@ -4,11 +4,14 @@
 #include "splat/losses.hpp"
 
 #include <gtest/gtest.h>
+#include <tbb/global_control.h>
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <numbers>
 #include <random>
+#include <utility>
 #include <stdexcept>
 #include <vector>
 
@@ -130,17 +133,22 @@ TEST(LossSsim, ImageWithItselfIsOne) {
   for (double g : grad) EXPECT_NEAR(g, 0.0, 1e-13);  // S = 1 is the maximum: a stationary point
 }
 
+// Sizes: the test image, and one spanning many row blocks of the parallel loops.
+constexpr int kSizes[2][2] = {{kW, kH}, {200, 70}};
+
 TEST(LossSsim, MatchesBruteForceDefinition) {
-  const auto x = random_image(kW, kH, 4), y = perturbed(x, 0.3, 5);
-  LossWorkspace ws;
-  const double expected = brute_force_mean_ssim(x, y, kW, kH);
-  EXPECT_GT(expected, 0.05);  // a pair neither identical nor unrelated
-  EXPECT_LT(expected, 0.95);
-  EXPECT_NEAR(1.0 - ssim_loss(x, y, kW, kH, 1.0, {}, ws), expected, 1e-12);
-  // The float overload on the same (float-rounded) pixels: it accumulates in double too.
-  const auto xf = to_float(x), yf = to_float(y);
-  EXPECT_NEAR(1.0 - ssim_loss(xf, yf, kW, kH, 1.0, {}, ws), brute_force_mean_ssim(to_double(xf), to_double(yf), kW, kH),
-              1e-6);
+  for (const auto& [width, height] : kSizes) {
+    const auto x = random_image(width, height, 4), y = perturbed(x, 0.3, 5);
+    LossWorkspace ws;
+    const double expected = brute_force_mean_ssim(x, y, width, height);
+    EXPECT_GT(expected, 0.05);  // a pair neither identical nor unrelated
+    EXPECT_LT(expected, 0.95);
+    EXPECT_NEAR(1.0 - ssim_loss(x, y, width, height, 1.0, {}, ws), expected, 1e-12);
+    // The float overload on the same (float-rounded) pixels: it accumulates in double too.
+    const auto xf = to_float(x), yf = to_float(y);
+    EXPECT_NEAR(1.0 - ssim_loss(xf, yf, width, height, 1.0, {}, ws),
+                brute_force_mean_ssim(to_double(xf), to_double(yf), width, height), 1e-6);
+  }
 }
 
 TEST(LossSsim, IsSymmetric) {
@@ -188,9 +196,21 @@ double brute_force_edge(const std::vector<double>& p, const std::vector<double>&
 }
 
 TEST(LossEdge, MatchesBruteForceSobel) {
-  const auto p = random_image(kW, kH, 12), g = random_image(kW, kH, 13);
-  LossWorkspace ws;
-  EXPECT_NEAR(edge_loss(p, g, kW, kH, 1.0, {}, ws), brute_force_edge(p, g, kW, kH), 1e-12);
+  for (const auto& [width, height] : kSizes) {
+    const auto p = random_image(width, height, 12), g = random_image(width, height, 13);
+    LossWorkspace ws;
+    EXPECT_NEAR(edge_loss(p, g, width, height, 1.0, {}, ws), brute_force_edge(p, g, width, height), 1e-12);
+  }
+}
+
+// One-pixel-wide images: every neighbour is clamped onto the pixel itself.
+TEST(LossEdge, MatchesBruteForceSobelOnDegenerateSizes) {
+  for (const auto& [width, height] : {std::pair{1, 7}, std::pair{9, 1}, std::pair{1, 1}, std::pair{2, 2}}) {
+    const auto p = random_image(width, height, 38), g = random_image(width, height, 39);
+    LossWorkspace ws;
+    EXPECT_NEAR(edge_loss(p, g, width, height, 1.0, {}, ws), brute_force_edge(p, g, width, height), 1e-12)
+        << width << "x" << height;
+  }
 }
 
 // With replicated borders a constant offset has no edges anywhere, the border included.
@@ -266,12 +286,15 @@ TEST(LossIntensityKl, BlindToPixelOrder) {
 // The recurrence over bins and its cut-off at 1e-17 ε reproduce the direct sum; a few
 // pixels lie outside [0, 1], as soft-MIP renders can.
 TEST(LossIntensityKl, MatchesBruteForceDefinition) {
-  auto p = random_image(kW, kH, 22, -0.05, 1.1);
-  const auto g = random_image(kW, kH, 23);
-  LossWorkspace ws;
-  for (const SoftHistogramOptions& o : {SoftHistogramOptions{}, SoftHistogramOptions{16, 0.1, 1e-8}}) {
-    const double expected = brute_force_kl(p, g, o);
-    EXPECT_NEAR(intensity_kl_loss(p, g, kW, kH, o, 1.0, {}, ws), expected, 1e-12 * std::max(1.0, expected));
+  for (const auto& [width, height] : kSizes) {  // 200 x 70 spans several pixel blocks
+    const auto p = random_image(width, height, 22, -0.05, 1.1);
+    const auto g = random_image(width, height, 23);
+    LossWorkspace ws;
+    for (const SoftHistogramOptions& o : {SoftHistogramOptions{}, SoftHistogramOptions{16, 0.1, 1e-8}}) {
+      const double expected = brute_force_kl(p, g, o);
+      EXPECT_GT(expected, 1e-3);
+      EXPECT_NEAR(intensity_kl_loss(p, g, width, height, o, 1.0, {}, ws), expected, 1e-12 * std::max(1.0, expected));
+    }
   }
 }
 
@@ -286,6 +309,14 @@ TEST(LossIntensityKl, GradientMatchesFiniteDifferences) {
         [&](const std::vector<double>& r) { return intensity_kl_loss(r, target, kW, kH, o, 1.0, {}, ws); }, render,
         grad, 1.5e-3);
   }
+}
+
+TEST(LossIntensityKl, RejectsNonFinitePixels) {
+  auto render = random_image(kW, kH, 35);
+  const auto target = render;
+  render[100] = std::numeric_limits<double>::quiet_NaN();
+  LossWorkspace ws;
+  EXPECT_THROW(intensity_kl_loss(render, target, kW, kH, {}, 1.0, {}, ws), std::invalid_argument);
 }
 
 TEST(LossIntensityKl, RejectsInvalidHistogramOptions) {
@@ -395,6 +426,30 @@ TEST(LossCombined, FloatMatchesDoubleReference) {
   double max_grad = 0;
   for (double g : grad_d) max_grad = std::max(max_grad, std::abs(g));
   for (std::size_t i = 0; i < grad_d.size(); ++i) EXPECT_NEAR(grad_f[i], grad_d[i], 1e-6 * max_grad) << i;
+}
+
+// Fixed blocks with partial sums added in order: one thread and many give the same
+// bits. 200 x 70 spans several row blocks (8 rows) and pixel blocks (4096 pixels).
+TEST(LossCombined, SameBitsWhateverTheThreadCount) {
+  constexpr int kWide = 200, kTall = 70;
+  const auto render = to_float(random_image(kWide, kTall, 36));
+  const auto target = to_float(perturbed(to_double(render), 0.3, 37));
+  TrainOptions train;
+  const ImageLossWeights w = image_loss_weights(train);
+  auto run = [&](std::vector<float>& grad) {
+    LossWorkspace ws;
+    grad.assign(render.size(), 0.0f);
+    return combined_image_loss(render, target, kWide, kTall, w, grad, ws).total;
+  };
+  std::vector<float> grad_many, grad_one;
+  const double total_many = run(grad_many);
+  double total_one = 0;
+  {
+    tbb::global_control one_thread(tbb::global_control::max_allowed_parallelism, 1);
+    total_one = run(grad_one);
+  }
+  EXPECT_EQ(total_many, total_one);
+  EXPECT_EQ(grad_many, grad_one);
 }
 
 TEST(LossCombined, RejectsMismatchedSizes) {

@@ -1,0 +1,192 @@
+// Stage-2 MIP-splatting training (report §6): Adam with per-group learning rates,
+// cosine lr decay and β warm-up (Table 4), the Eq. 16 loss, density control (§6.4,
+// Eq. 17), and resumable checkpoints. Not the losses (losses.hpp), not the renderer.
+#pragma once
+
+#include <cstdint>
+#include <filesystem>
+#include <memory>
+#include <random>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "gmf/checkpoint.hpp"
+#include "splat/camera.hpp"
+#include "splat/losses.hpp"
+#include "splat/splat_options.hpp"
+#include "splat/splat_renderer.hpp"
+
+namespace hisnegs::splat {
+
+// The training views: one camera set and one H x W target image per view
+// (row-major, values in [0, 1]), `images` holding view i at [i H W, (i + 1) H W).
+struct TrainingData {
+  Intrinsics intrinsics;
+  std::vector<CameraView> views;
+  std::vector<float> images;
+
+  [[nodiscard]] int count() const { return static_cast<int>(views.size()); }
+  [[nodiscard]] std::span<const float> image(int i) const;
+  // Throws std::invalid_argument when images.size() != views * width * height or there are no views.
+  void check() const;
+};
+
+// Reads DIR/cameras.json and DIR/mips.tif (float32, page i = view i; `hisnegs gt` writes
+// GTDIR/train and GTDIR/eval so). Throws io::InputError, one line naming the file, when
+// either is missing or unreadable, the page count differs from the number of views or
+// the page size from the cameras' width x height.
+[[nodiscard]] TrainingData load_training_data(const std::filesystem::path& dir);
+
+// Learning rate of 0-based epoch `epoch` (Table 4): cosine decay
+// lr_final + ½ (lr_initial − lr_final)(1 + cos(π e / (epochs − 1))), so epoch 0 trains
+// at lr_initial and the last at lr_final (lr_initial when epochs = 1). Constant within an epoch.
+[[nodiscard]] double learning_rate(const TrainOptions& options, int epoch);
+// Soft-MIP β of 0-based epoch `epoch` (Table 4): beta_start + (beta_end − beta_start)
+// × min(1, e / beta_warmup_epochs), beta_end when beta_warmup_epochs = 0.
+[[nodiscard]] double soft_mip_beta(const TrainOptions& options, int epoch);
+
+// What one epoch did (means over the training views seen in it).
+struct EpochReport {
+  int epoch = 0;          // 1-based number of the epoch just finished
+  double loss = 0;        // mean per-view Eq. 16 loss (image terms + L_reg of its step)
+  double psnr = 0;        // mean per-view PSNR, dB (of the crop when crop_size > 0)
+  double beta = 0;        // β it was trained at
+  double lr = 0;          // base learning rate it was trained at
+  double seconds = 0;     // wall time of the epoch incl. density control
+  int gaussians = 0;      // K after density control
+  int split = 0, cloned = 0, pruned = 0;  // density control at its end
+};
+
+struct DensifyChange {
+  int split = 0;   // Gaussians replaced by two children (Eq. 17)
+  int cloned = 0;  // small Gaussians duplicated
+};
+
+// Trains the K Gaussians of `params` (11 K floats, gmf::GaussianParam order) on `data`.
+//
+// Adam (β1 0.9, β2 0.999, ε 1e-15: the loss is a per-pixel mean, so its gradients are
+// small and a larger ε would damp them) with one base rate lr(e) per epoch; group g
+// of parameter uses lr(e) × lr_g: lr_means × scene_scale for the means (so means move
+// in proportion to the scene: hisnegs worlds are [−a, a] with max a = 1, scene_scale
+// 1), lr_log_scales, lr_rotation (the raw quaternion; the renderer normalizes it),
+// lr_intensity (the logit). An epoch visits every view once in an order shuffled by
+// the seeded std::mt19937_64; each Adam step averages the gradients of
+// views_per_step views (the last step of an epoch may hold fewer) and adds the scale
+// regularizer (Eq. 15, summed over Gaussians as the report writes it, weight
+// lambda_scale) once. After epoch n (1-based) it splits/clones when
+// densify_from <= n <= densify_until and n % densify_every == 0, then prunes when
+// n % prune_every == 0. Deterministic on the CPU back end.
+class Trainer {
+ public:
+  // `renderer` must be non-null; `splat` gives mode (must be soft), cutoff, low-pass and
+  // skip threshold (β comes from the schedule). Throws std::invalid_argument for a
+  // params size not a multiple of 11, invalid data, or options that fail validate().
+  Trainer(const TrainOptions& options, const SplatSettings& splat, TrainingData data, std::vector<float> params,
+          std::unique_ptr<SplatRenderer> renderer, double scene_scale = 1.0);
+  ~Trainer();
+  Trainer(const Trainer&) = delete;
+  Trainer& operator=(const Trainer&) = delete;
+  Trainer(Trainer&&) noexcept = default;
+  Trainer& operator=(Trainer&&) noexcept = default;
+
+  // Runs epoch epoch()+1 and its density control. Precondition: !finished().
+  EpochReport run_epoch();
+  [[nodiscard]] bool finished() const { return epoch_ >= options_.epochs; }
+  // Epochs completed (0 at the start).
+  [[nodiscard]] int epoch() const { return epoch_; }
+  // Adam steps taken.
+  [[nodiscard]] std::int64_t step_count() const { return step_; }
+  // Whether the epoch just completed is a checkpoint epoch (epoch() % save_every == 0).
+  [[nodiscard]] bool checkpoint_due() const { return epoch_ > 0 && epoch_ % options_.save_every == 0; }
+
+  // One Adam step on the views `view_indices` (indices into data) at the current
+  // epoch's lr and β; accumulates density statistics. Returns the mean per-view loss.
+  double step(std::span<const int> view_indices);
+  // Mean loss and PSNR over all training views (whole images) at the current epoch's β,
+  // without changing anything but the renderer's scratch.
+  struct Evaluation {
+    double loss = 0;
+    double psnr = 0;
+  };
+  [[nodiscard]] Evaluation evaluate();
+
+  // Density control now (what run_epoch does on schedule). densify(): every Gaussian
+  // seen in at least one view whose mean screen-gradient statistic (see
+  // grad_accum()) is >= densify_grad_threshold, largest first, while K < max_gaussians:
+  // if its largest scale exceeds densify_scale_threshold it is split (Eq. 17: it and
+  // an appended twin at μ ± split_offset s_max along its longest axis, scales ×
+  // split_scale, same intensity — a MIP takes the max, so intensity is not shared),
+  // else cloned (an identical copy appended; the original keeps its moments, so the
+  // two separate). Children of a split and clones start with zero Adam moments.
+  // Resets the statistics. prune(): removes a_k < prune_intensity, compacting every
+  // per-Gaussian array in order. Returns the number removed.
+  DensifyChange densify();
+  int prune();
+
+  [[nodiscard]] int gaussians() const { return static_cast<int>(params_.size() / gmf::kGaussianParamCount); }
+  [[nodiscard]] std::span<const float> params() const { return params_; }
+  // Adam first/second moments, 11 K each, aligned with params().
+  [[nodiscard]] std::span<const float> adam_m() const { return m_; }
+  [[nodiscard]] std::span<const float> adam_v() const { return v_; }
+  // Density statistics since the last densify (K each): the sum over views of
+  // |∂L_view/∂μ2D| × (pixels of the view) — the gradient of the per-view pixel SUM, so
+  // the threshold does not depend on the image size — and the number of views in
+  // which the Gaussian got a non-zero screen gradient.
+  [[nodiscard]] std::span<const double> grad_accum() const { return grad_accum_; }
+  [[nodiscard]] std::span<const std::uint32_t> grad_count() const { return grad_count_; }
+  [[nodiscard]] const TrainOptions& options() const { return options_; }
+  [[nodiscard]] const TrainingData& data() const { return data_; }
+
+  // The complete optimizer state besides the parameters (moments, step, epoch, RNG,
+  // density statistics, options, a hash of the parameters) as bytes, and its inverse.
+  // restore_state() takes the parameters the state belongs to and throws io::InputError
+  // naming `source` when the bytes are not a state file, the parameters do not match
+  // its hash or size, or it was written with different options (only `epochs` may differ).
+  [[nodiscard]] std::string serialize_state() const;
+  void restore_state(std::string_view bytes, std::vector<float> params, const std::string& source);
+
+ private:
+  struct StepSums {
+    double loss = 0;  // Σ over the step's views of their loss
+    double psnr = 0;  // Σ over the step's views of their PSNR
+  };
+  StepSums train_step(std::span<const int> view_indices);
+  void adam_update(std::span<const float> grad, double lr);
+  void resize_state(std::size_t K);
+
+  TrainOptions options_;
+  SplatSettings splat_;
+  TrainingData data_;
+  std::vector<float> params_;
+  std::unique_ptr<SplatRenderer> renderer_;
+  double scene_scale_ = 1.0;
+  ImageLossWeights weights_;
+
+  std::vector<float> m_, v_;
+  std::vector<double> grad_accum_;
+  std::vector<std::uint32_t> grad_count_;
+  std::int64_t step_ = 0;
+  int epoch_ = 0;
+  std::mt19937_64 rng_;
+
+  // Scratch reused by every step.
+  std::vector<float> grad_, image_, dimage_, target_crop_, view_screen_grad_;
+  LossWorkspace workspace_;
+};
+
+// RUNDIR/checkpoints files: epoch_NNNNN.ply, state_NNNNN.bin, and `latest` (one line
+// "NNNNN"), each written atomically in that order, so `latest` always names a complete pair.
+[[nodiscard]] std::filesystem::path checkpoint_ply_path(const std::filesystem::path& checkpoint_dir, int epoch);
+[[nodiscard]] std::filesystem::path checkpoint_state_path(const std::filesystem::path& checkpoint_dir, int epoch);
+// Writes the trainer's parameters (with `meta`) and state for epoch trainer.epoch().
+void save_training_checkpoint(const std::filesystem::path& checkpoint_dir, const Trainer& trainer,
+                              const gmf::CheckpointMeta& meta);
+// Restores the pair `latest` names into `trainer`; returns its epoch. Throws io::InputError
+// naming the file when `latest` is missing or malformed or the pair is unusable.
+int resume_training(const std::filesystem::path& checkpoint_dir, Trainer& trainer);
+
+// 10 log10(1 / MSE) of two equally sized images (infinity when equal).
+[[nodiscard]] double image_psnr(std::span<const float> image, std::span<const float> target);
+
+}  // namespace hisnegs::splat
