@@ -38,6 +38,17 @@ double median(std::vector<double> v) {
 
 }  // namespace
 
+void write_image_stack(const std::filesystem::path& dir, const std::string& name, const splat::MipStack& stack) {
+  io::TiffWriteOptions tiff;
+  tiff.type = io::SampleType::kFloat32;
+  io::write_tiff_stack(dir / name, stack.pixels, stack.width, stack.height, stack.views, tiff);
+  for (int i = 0; i < stack.views; ++i) {
+    char file[32];
+    std::snprintf(file, sizeof file, "%03d.png", i);
+    io::write_png(dir / "previews" / file, io::to_gray8(stack.view(i), stack.width, stack.height));
+  }
+}
+
 void write_ground_truth_set(const std::filesystem::path& dir, const std::string& label,
                             const splat::CameraSet& cameras, const io::LoadedVolume& loaded,
                             const std::string& volume_path, const splat::RaymarchOptions& rm, splat::Backend backend,
@@ -55,14 +66,7 @@ void write_ground_truth_set(const std::filesystem::path& dir, const std::string&
       });
   const double render_s = watch.lap();
   splat::write_cameras_json(dir / "cameras.json", cameras);
-  io::TiffWriteOptions tiff;
-  tiff.type = io::SampleType::kFloat32;
-  io::write_tiff_stack(dir / "mips.tif", stack.pixels, stack.width, stack.height, stack.views, tiff);
-  for (int i = 0; i < stack.views; ++i) {
-    char name[32];
-    std::snprintf(name, sizeof name, "%03d.png", i);
-    io::write_png(dir / "previews" / name, io::to_gray8(stack.view(i), stack.width, stack.height));
-  }
+  write_image_stack(dir, "mips.tif", stack);
   nlohmann::ordered_json meta;
   const io::Volume& v = loaded.volume;
   meta["volume"] = volume_path;

@@ -6,6 +6,7 @@
 #include <nlohmann/json.hpp>
 
 #include "apps/cli_support.hpp"
+#include "apps/commands_detail.hpp"
 #include "gmf/checkpoint.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
@@ -73,14 +74,7 @@ void add_render_command(CLI::App& app, GlobalOptions& global) {
       const splat::CameraSet cameras = splat::read_cameras_json(args->cameras);
       const splat::RenderedViews r = splat::render_views(*renderer, params, cameras, settings);
       const splat::MipStack& s = r.stack;
-      io::TiffWriteOptions tiff;
-      tiff.type = io::SampleType::kFloat32;
-      io::write_tiff_stack(dir / "render.tif", s.pixels, s.width, s.height, s.views, tiff);
-      for (int i = 0; i < s.views; ++i) {
-        char name[32];
-        std::snprintf(name, sizeof name, "%03d.png", i);
-        io::write_png(dir / "previews" / name, io::to_gray8(s.view(i), s.width, s.height));
-      }
+      write_image_stack(dir, "render.tif", s);
       meta["cameras"] = io::printable(args->cameras, 500);
       meta["views"] = s.views;
       meta["width"] = s.width;

@@ -12,6 +12,7 @@
 #include "io/synthetic_neuron.hpp"
 #include "splat/backend.hpp"
 #include "splat/camera.hpp"
+#include "splat/ground_truth.hpp"
 #include "splat/splat_options.hpp"
 
 namespace hisnegs::apps {
@@ -30,6 +31,9 @@ void write_ground_truth_set(const std::filesystem::path& dir, const std::string&
                             const splat::CameraSet& cameras, const io::LoadedVolume& loaded,
                             const std::string& volume_path, const splat::RaymarchOptions& raymarch,
                             splat::Backend backend, bool quiet);
+
+// Writes `stack` as DIR/NAME (float32 TIFF, one page per view) and DIR/previews/NNN.png.
+void write_image_stack(const std::filesystem::path& dir, const std::string& name, const splat::MipStack& stack);
 
 // What the GMF stage starts from: the normalized volume, its samples (with the
 // fit's background share) and the mixture initialized on the foreground grid.

@@ -32,6 +32,7 @@ class CpuSplatRenderer final : public SplatRenderer {
  private:
   void bin(std::size_t K);
   [[nodiscard]] detail::TileFrame tile_frame(int tile) const;
+  [[nodiscard]] detail::TileGaussians tile_gaussians(int tile) const;
 
   // The last forward (all reused between frames: no allocation once sizes settle).
   std::vector<float> params_;
@@ -107,11 +108,7 @@ void CpuSplatRenderer::forward(std::span<const float> params, const Intrinsics& 
   std::vector<std::int64_t> skipped(static_cast<std::size_t>(tiles), 0);
   tbb::parallel_for(tbb::blocked_range<int>(0, tiles, 1), [&](const auto& range) {
     for (int t = range.begin(); t != range.end(); ++t) {
-      const std::uint32_t lo = tile_offset_[t], n = tile_offset_[t + 1] - lo;
-      const float* base = soa_.data() + 6 * static_cast<std::size_t>(lo);
-      const detail::TileGaussians g{base, base + n, base + 2 * n, base + 3 * n, base + 4 * n, base + 5 * n,
-                                    static_cast<int>(n)};
-      detail::forward_tile(tile_frame(t), g, m_.data(), S_.data(), I_.data(), &skipped[t]);
+      detail::forward_tile(tile_frame(t), tile_gaussians(t), m_.data(), S_.data(), I_.data(), &skipped[t]);
     }
   });
   stats_.skipped_terms = 0;
@@ -190,6 +187,13 @@ detail::TileFrame CpuSplatRenderer::tile_frame(int tile) const {
   return f;
 }
 
+// The tile's block of soa_: six arrays of n floats.
+detail::TileGaussians CpuSplatRenderer::tile_gaussians(int tile) const {
+  const std::uint32_t lo = tile_offset_[tile], n = tile_offset_[tile + 1] - lo;
+  const float* base = soa_.data() + 6 * static_cast<std::size_t>(lo);
+  return {base, base + n, base + 2 * n, base + 3 * n, base + 4 * n, base + 5 * n, static_cast<int>(n)};
+}
+
 void CpuSplatRenderer::backward(std::span<const float> dL_dimage, std::span<float> dL_dparams,
                                 std::span<float> screen_grad) {
   if (settings_.mode != MipMode::kSoft) throw std::logic_error("splat: backward needs a soft-MIP forward");
@@ -202,12 +206,8 @@ void CpuSplatRenderer::backward(std::span<const float> dL_dimage, std::span<floa
   const int tiles = tiles_x_ * tiles_y_;
   tbb::parallel_for(tbb::blocked_range<int>(0, tiles, 1), [&](const auto& range) {
     for (int t = range.begin(); t != range.end(); ++t) {
-      const std::uint32_t lo = tile_offset_[t], n = tile_offset_[t + 1] - lo;
-      const float* base = soa_.data() + 6 * static_cast<std::size_t>(lo);
-      const detail::TileGaussians g{base, base + n, base + 2 * n, base + 3 * n, base + 4 * n, base + 5 * n,
-                                    static_cast<int>(n)};
-      detail::backward_tile(tile_frame(t), g, m_.data(), S_.data(), I_.data(), dL_dimage.data(),
-                            entry_grads_.data() + 6 * static_cast<std::size_t>(lo));
+      detail::backward_tile(tile_frame(t), tile_gaussians(t), m_.data(), S_.data(), I_.data(), dL_dimage.data(),
+                            entry_grads_.data() + 6 * static_cast<std::size_t>(tile_offset_[t]));
     }
   });
   // 2. Combined per Gaussian in entry order (deterministic), in double.

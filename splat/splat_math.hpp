@@ -71,6 +71,21 @@ HISNEGS_HD void world_covariance(const gmf::GaussianFrame<T>& f, T cov[9]) {
   }
 }
 
+// W = J R (2x3, row-major), J the pinhole Jacobian of Eq. 4 at μ_cam; also J's
+// entries (j00, j02, j11, j12), which the backward needs.
+template <class T>
+HISNEGS_HD void projection_jacobian(const ViewParams<T>& view, const T mc[3], T W[6], T j[4]) {
+  const T iz = T(1) / mc[2];
+  j[0] = view.fx * iz;
+  j[1] = -view.fx * mc[0] * iz * iz;
+  j[2] = view.fy * iz;
+  j[3] = -view.fy * mc[1] * iz * iz;
+  for (int c = 0; c < 3; ++c) {
+    W[c] = j[0] * view.R[c] + j[1] * view.R[6 + c];
+    W[3 + c] = j[2] * view.R[3 + c] + j[3] * view.R[6 + c];
+  }
+}
+
 // Eq. 2-6: projects Gaussian `p` (11 parameters, gmf::GaussianParam order) into `view`.
 // `cutoff` is δ. Fills `cache` when not null.
 template <class T>
@@ -90,15 +105,9 @@ HISNEGS_HD Splat2D<T> project_gaussian(const T p[gmf::kNumGaussianParams], const
   gmf::prepare_gaussian(&p[gmf::kMeanX], &p[gmf::kLogScale0], &p[gmf::kRotW], p[gmf::kLogit], f);
   T cov[9];
   world_covariance(f, cov);
-  // W = J R (2x3), J of Eq. 4 at μ_cam.
+  T W[6], j[4];
+  projection_jacobian(view, mc, W, j);
   const T iz = T(1) / mc[2];
-  const T j00 = view.fx * iz, j02 = -view.fx * mc[0] * iz * iz;
-  const T j11 = view.fy * iz, j12 = -view.fy * mc[1] * iz * iz;
-  T W[6];
-  for (int c = 0; c < 3; ++c) {
-    W[c] = j00 * view.R[c] + j02 * view.R[6 + c];
-    W[3 + c] = j11 * view.R[3 + c] + j12 * view.R[6 + c];
-  }
   // Σ2D = W Σ Wᵀ (Eq. 3, 6) + low_pass I
   T WS[6];
   for (int r = 0; r < 2; ++r) {
@@ -191,13 +200,8 @@ HISNEGS_HD void project_gaussian_backward(const T p[gmf::kNumGaussianParams], co
 
   const T* mc = cache.mean_cam;
   const T iz = T(1) / mc[2];
-  const T j00 = view.fx * iz, j02 = -view.fx * mc[0] * iz * iz;
-  const T j11 = view.fy * iz, j12 = -view.fy * mc[1] * iz * iz;
-  T W[6];
-  for (int k = 0; k < 3; ++k) {
-    W[k] = j00 * view.R[k] + j02 * view.R[6 + k];
-    W[3 + k] = j11 * view.R[3 + k] + j12 * view.R[6 + k];
-  }
+  T W[6], j[4];
+  projection_jacobian(view, mc, W, j);
   T cov[9];
   world_covariance(f, cov);
   // dL/dΣ = Wᵀ G_S W (3x3 symmetric)
