@@ -10,6 +10,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
+#include <cstring>
 #include <limits>
 
 #include "splat/detail/splat_cpu_tiles.hpp"
@@ -37,18 +39,91 @@ inline Span row_span(const TileFrame& f, float v, float A, float B, float C) {
   return s;
 }
 
-// Columns of tile row `dy` (py − v) inside the ellipse, with one column of margin; empty when hi < lo.
-inline Span column_span(const TileFrame& f, float u, float dy, float A, float B, float C) {
-  const float D = A * f.cutoff - dy * dy * (A * C - B * B);
-  if (D < -1e-3f * A * f.cutoff) return {1, 0};
-  const float root = std::sqrt(std::max(D, 0.0f));
-  const float lo = u + (-B * dy - root) / A - static_cast<float>(f.x0) - 0.5f;
-  const float hi = u + (-B * dy + root) / A - static_cast<float>(f.x0) - 0.5f;
+// One Gaussian's conic with what the row spans need precomputed (no division per row).
+struct Conic {
+  float u, A, B, C, inv_A, det;  // det = A C − B²
+  Conic(float u_, float A_, float B_, float C_) : u(u_), A(A_), B(B_), C(C_), inv_A(1.0f / A_), det(A_ * C_ - B_ * B_) {}
+};
+
+// Continuous column range (tile-local, pixel-centre units) of row `dy` (py − v)
+// inside q <= cutoff; lo > hi when the row misses the ellipse.
+inline void row_extent(const TileFrame& f, const Conic& k, float dy, float cutoff, float& lo, float& hi) {
+  const float D = k.A * cutoff - dy * dy * k.det;
+  if (D < 0.0f) {
+    lo = 1.0f;
+    hi = 0.0f;
+    return;
+  }
+  const float root = std::sqrt(D), mid = k.u - k.B * dy * k.inv_A - static_cast<float>(f.x0) - 0.5f;
+  lo = mid - root * k.inv_A;
+  hi = mid + root * k.inv_A;
+}
+
+// Columns of the row inside q <= cutoff, with one column of margin against
+// rounding (the per-lane test decides exactly); empty when hi < lo.
+inline Span column_span(const TileFrame& f, const Conic& k, float dy, float cutoff) {
+  float lo, hi;
+  row_extent(f, k, dy, cutoff * (1.0f + 1e-3f), lo, hi);
+  if (lo > hi) return {1, 0};
   Span s{static_cast<int>(std::ceil(lo)) - 1, static_cast<int>(std::floor(hi)) + 1};
   s.lo = std::max(s.lo, 0);
   s.hi = std::min(s.hi, f.width - 1);
   return s;
 }
+
+// Pixel centres of the row inside q <= cutoff (no margin): for the skip counter.
+inline int pixels_within(const TileFrame& f, const Conic& k, float dy, float cutoff) {
+  float lo, hi;
+  row_extent(f, k, dy, cutoff, lo, hi);
+  if (!(hi >= 0.0f) || lo > static_cast<float>(f.width - 1) || lo > hi) return 0;
+  const int c0 = std::max(0, static_cast<int>(std::ceil(lo)));
+  const int c1 = std::min(f.width - 1, static_cast<int>(std::floor(hi)));
+  return std::max(0, c1 - c0 + 1);
+}
+
+// ln x for x > 0 to ~1e-6 absolute, without libm (it dominated the culling's cost):
+// x = 2^e · r with r in [√½, √2), ln r = 2 atanh(z), z = (r − 1)/(r + 1), |z| < 0.172.
+inline float fast_log(float x) {
+  std::uint32_t bits;
+  std::memcpy(&bits, &x, sizeof bits);
+  int e = static_cast<int>((bits >> 23) & 0xff) - 127;
+  bits = (bits & 0x007fffffu) | 0x3f800000u;  // mantissa in [1, 2)
+  float r;
+  std::memcpy(&r, &bits, sizeof r);
+  if (r > 1.41421356f) {
+    r *= 0.5f;
+    ++e;
+  }
+  const float z = (r - 1.0f) / (r + 1.0f), z2 = z * z;
+  const float series = z * (2.0f + z2 * (2.0f / 3.0f + z2 * (2.0f / 5.0f + z2 * (2.0f / 7.0f))));
+  return static_cast<float>(e) * 0.69314718f + series;
+}
+// fast_log's error, and float rounding of the bound, never make a cutoff too small:
+// cutoffs are raised by this margin (in q units) before use.
+constexpr float kCutoffMargin = 1e-3f;
+
+// Culling by the pixels' running maxima. A term is skipped when it cannot matter:
+// hard MIP, g <= m (exact); soft-MIP, β g < m − skip_log_weight (weight below
+// e^-skip). With m_row the smallest m of a tile row, g = a e^{-q/2} is below the
+// bound wherever q > 2 (ln(β a) − ln(m_row − skip)), so that q is the row's
+// effective cutoff: ln_floor[r] = ln(m_row − skip) (soft) or ln(m_row) (hard),
+// −∞ when nothing can be skipped yet.
+struct RowFloors {
+  float ln_floor[kTile];
+  void refresh(const TileFrame& f, const float* m, bool exact_soft) {
+    for (int r = 0; r < f.height; ++r) {
+      float lowest = std::numeric_limits<float>::infinity();
+      for (int c = 0; c < f.width; ++c) lowest = std::min(lowest, m[r * kTile + c]);
+      const float floor = f.soft ? lowest - f.skip_log_weight : lowest;
+      ln_floor[r] = (exact_soft || !(floor > 0.0f)) ? -std::numeric_limits<float>::infinity() : fast_log(floor);
+    }
+  }
+  // The row's cutoff for a Gaussian with ln_peak = ln(β a) (soft) or ln(a) (hard).
+  [[nodiscard]] float cutoff(int r, float ln_peak, float delta) const {
+    return std::min(delta, 2.0f * (ln_peak - ln_floor[r]) + kCutoffMargin);
+  }
+};
+constexpr int kRefreshEvery = 8;  // Gaussians between refreshes of the row floors
 
 void ForwardTile(const TileFrame& f, const TileGaussians& gs, float* m_out, float* S_out, float* I_out,
                  std::int64_t* skipped_out) {
@@ -61,20 +136,37 @@ void ForwardTile(const TileFrame& f, const TileGaussians& gs, float* m_out, floa
   std::fill(W, W + kTile * kTile, 0.0f);
   std::int64_t skipped = 0;
   const auto iota = hn::Iota(d, 0.5f);
-  const auto cutoff = hn::Set(d, f.cutoff);
   const auto beta = hn::Set(d, f.beta);
   const auto minus_half = hn::Set(d, -0.5f);
   const auto one = hn::Set(d, 1.0f);
+  // Soft-MIP without skipping (skip_log_weight 0) is exact: no row floors.
+  const bool exact_soft = f.soft && !(f.skip_log_weight > 0.0f);
+  RowFloors floors;
   for (int i = 0; i < gs.count; ++i) {
+    if (i % kRefreshEvery == 0) floors.refresh(f, m, exact_soft);
     const float u = gs.u[i], v = gs.v[i], A = gs.con_a[i], B = gs.con_b[i], C = gs.con_c[i], amp = gs.amplitude[i];
     const Span rows = row_span(f, v, A, B, C);
+    const Conic conic(u, A, B, C);
     const auto vA = hn::Set(d, A), v2B = hn::Set(d, 2.0f * B), vC = hn::Set(d, C), vamp = hn::Set(d, amp);
-    // Largest possible β g of this Gaussian, for the skip test.
-    const float beta_amp = f.soft ? f.beta * amp : amp;
+    const float ln_peak = fast_log(f.soft ? f.beta * amp : amp);
+    if (!f.soft && i % kRefreshEvery == 0) {
+      // Hard MIP: the list is in amplitude order (1024 buckets, so a later amplitude is
+      // below this one + 1/1024); once that cannot raise any pixel of the tile, none can.
+      const float ln_bound = fast_log(amp + 1.0f / 1024.0f);
+      bool any = false;
+      for (int r = 0; r < f.height && !any; ++r) any = floors.cutoff(r, ln_bound, f.cutoff) > 0.0f;
+      if (!any) break;
+    }
     for (int r = rows.lo; r <= rows.hi; ++r) {
       const float dy = static_cast<float>(f.y0 + r) + 0.5f - v;
-      const Span cols = column_span(f, u, dy, A, B, C);
+      const float cut = floors.cutoff(r, ln_peak, f.cutoff);
+      if (f.soft && cut < f.cutoff) {
+        skipped += pixels_within(f, conic, dy, f.cutoff) - (cut > 0.0f ? pixels_within(f, conic, dy, cut) : 0);
+      }
+      if (!(cut > 0.0f)) continue;
+      const Span cols = column_span(f, conic, dy, cut);
       if (cols.hi < cols.lo) continue;
+      const auto vcut = hn::Set(d, cut);
       const auto vdy = hn::Set(d, dy);
       const auto Cdy2 = hn::Mul(vC, hn::Mul(vdy, vdy));
       const auto twoBdy = hn::Mul(v2B, vdy);
@@ -82,19 +174,10 @@ void ForwardTile(const TileFrame& f, const TileGaussians& gs, float* m_out, floa
         const int at = r * kTile + c;
         const auto dx = hn::Sub(hn::Add(iota, hn::Set(d, static_cast<float>(f.x0 + c))), hn::Set(d, u));
         const auto q = hn::MulAdd(hn::MulAdd(vA, dx, twoBdy), dx, Cdy2);
-        auto mask = hn::Le(q, cutoff);
+        auto mask = hn::Le(q, vcut);
         if (c + lanes > f.width) mask = hn::And(mask, hn::Lt(hn::Iota(d, static_cast<float>(c)), hn::Set(d, static_cast<float>(f.width))));
         if (hn::AllFalse(d, mask)) continue;
         const auto m_old = hn::Load(d, m + at);
-        if (f.soft && f.skip_log_weight > 0.0f) {
-          // Every lane's weight would be below e^-skip of its pixel's largest term.
-          if (hn::AllTrue(d, hn::Or(hn::Not(mask), hn::Lt(hn::Set(d, beta_amp + f.skip_log_weight), m_old)))) {
-            skipped += static_cast<std::int64_t>(hn::CountTrue(d, mask));
-            continue;
-          }
-        } else if (!f.soft) {
-          if (hn::AllTrue(d, hn::Or(hn::Not(mask), hn::Le(hn::Set(d, amp), m_old)))) continue;  // cannot raise the max
-        }
         const auto g = hn::Mul(vamp, hn::Exp(d, hn::Mul(minus_half, q)));
         if (!f.soft) {
           hn::Store(hn::IfThenElse(mask, hn::Max(m_old, g), m_old), d, m + at);
@@ -157,21 +240,33 @@ void BackwardTile(const TileFrame& f, const TileGaussians& gs, const float* m_in
     }
   }
   const auto iota = hn::Iota(d, 0.5f);
-  const auto cutoff = hn::Set(d, f.cutoff);
   const auto beta = hn::Set(d, f.beta);
   const auto minus_half = hn::Set(d, -0.5f);
   const auto one = hn::Set(d, 1.0f);
   const auto two = hn::Set(d, 2.0f);
+  // The forward's skip rule on the final m (>= the running m the forward saw), so
+  // the terms dropped here have weight below e^-skip as well. Untouched pixels (no
+  // gradient flows through them) do not lower a row's floor.
+  RowFloors floors;
+  {
+    HWY_ALIGN float m_floor[kTile * kTile];
+    for (int at = 0; at < kTile * kTile; ++at) m_floor[at] = inv_S[at] > 0.0f ? m[at] : std::numeric_limits<float>::infinity();
+    floors.refresh(f, m_floor, !(f.skip_log_weight > 0.0f));
+  }
   for (int i = 0; i < gs.count; ++i) {
     const float u = gs.u[i], v = gs.v[i], A = gs.con_a[i], B = gs.con_b[i], C = gs.con_c[i], amp = gs.amplitude[i];
     const Span rows = row_span(f, v, A, B, C);
+    const Conic conic(u, A, B, C);
     const auto vA = hn::Set(d, A), vB = hn::Set(d, B), vC = hn::Set(d, C), vamp = hn::Set(d, amp);
-    const float beta_amp = f.beta * amp;
+    const float ln_peak = fast_log(f.beta * amp);
     auto su = hn::Zero(d), sv = hn::Zero(d), sA = hn::Zero(d), sB = hn::Zero(d), sC = hn::Zero(d), samp = hn::Zero(d);
     for (int r = rows.lo; r <= rows.hi; ++r) {
       const float dy = static_cast<float>(f.y0 + r) + 0.5f - v;
-      const Span cols = column_span(f, u, dy, A, B, C);
+      const float cut = floors.cutoff(r, ln_peak, f.cutoff);
+      if (!(cut > 0.0f)) continue;
+      const Span cols = column_span(f, conic, dy, cut);
       if (cols.hi < cols.lo) continue;
+      const auto cutoff = hn::Set(d, cut);
       const auto vdy = hn::Set(d, dy);
       for (int c = (cols.lo / lanes) * lanes; c <= cols.hi; c += lanes) {
         const int at = r * kTile + c;
@@ -183,12 +278,6 @@ void BackwardTile(const TileFrame& f, const TileGaussians& gs, const float* m_in
         mask = hn::And(mask, hn::Ne(dL_dI, hn::Zero(d)));
         if (hn::AllFalse(d, mask)) continue;
         const auto m_px = hn::Load(d, m + at);
-        // The forward's skip rule, on the final m (>= the running m the forward saw):
-        // the terms dropped here have weight below e^-skip as well.
-        if (f.skip_log_weight > 0.0f &&
-            hn::AllTrue(d, hn::Or(hn::Not(mask), hn::Lt(hn::Set(d, beta_amp + f.skip_log_weight), m_px)))) {
-          continue;
-        }
         const auto Gk = hn::Exp(d, hn::Mul(minus_half, q));
         const auto g = hn::Mul(vamp, Gk);
         // dI/dg = w (1 + β (g − I)), w = e^{βg − m} / S
