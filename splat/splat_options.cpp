@@ -40,7 +40,9 @@ void TrainOptions::validate() const {
   }
   io::require_positive(s, "beta_start", beta_start);
   io::require_in_range(s, "beta_end", beta_end, beta_start, 1e9);
-  io::require_in_range(s, "beta_warmup_epochs", beta_warmup_epochs, 0, epochs);
+  // A warm-up longer than the run is allowed (β then never reaches beta_end), so
+  // `--epochs` can shorten a run without editing the schedule.
+  io::require_in_range(s, "beta_warmup_epochs", beta_warmup_epochs, 0, 1e7);
   io::require_in_range(s, "foreground_weight", foreground_weight, 1.0, 1e6);
   for (auto [name, value] : {std::pair{"lambda_ssim", lambda_ssim}, std::pair{"lambda_edge", lambda_edge},
                              std::pair{"lambda_intensity", lambda_intensity}, std::pair{"lambda_scale", lambda_scale}}) {

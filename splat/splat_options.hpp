@@ -90,7 +90,7 @@ struct TrainOptions {
   double lr_intensity = 1.0;         // intensity logits, > 0
   double beta_start = 10.0;          // β at epoch 0, > 0
   double beta_end = 50.0;            // β after warm-up, >= beta_start
-  int beta_warmup_epochs = 500;      // linear β warm-up length, [0, epochs]
+  int beta_warmup_epochs = 500;      // linear β warm-up length, epochs, [0, 10^7] (may exceed epochs)
   double foreground_weight = 5.0;    // w_fg of the weighted MSE (Eq. 11), >= 1
   double lambda_ssim = 0.2;          // weight of 1 - SSIM (Eq. 12), >= 0
   double lambda_edge = 0.1;          // weight of the Sobel edge loss (Eq. 13), >= 0
