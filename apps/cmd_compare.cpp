@@ -28,7 +28,9 @@ std::string results_csv(const gmf::Comparison& c) {
   for (const auto& run : c.runs) {
     s << run.name << ",";
     if (run.seconds_to_target >= 0) s << run.seconds_to_target;
-    s << "," << run.final_loss << "," << run.result.final_psnr_3d << "," << run.iterations << "," << run.result.seconds
+    s << "," << run.final_loss << ",";
+    if (run.failure.empty()) s << run.result.final_psnr_3d;  // empty: a failed run has no final model
+    s << "," << run.iterations << "," << run.result.seconds
       << "," << run.gaussians << ",\"" << run.result.stop_reason << "\"\n";
   }
   return s.str();
@@ -81,8 +83,13 @@ std::string summary_md(const gmf::Comparison& c, const std::string& volume, cons
         ratio = line;
       }
     }
-    std::snprintf(line, sizeof line, "| %s | %s | %s | %.6g | %.2f | %d | %.1f | %s |\n", run.name.c_str(),
-                  to_target.c_str(), ratio.c_str(), run.final_loss, run.result.final_psnr_3d, run.iterations,
+    std::string psnr = "-";  // a failed run has no final model to measure
+    if (run.failure.empty()) {
+      std::snprintf(line, sizeof line, "%.2f", run.result.final_psnr_3d);
+      psnr = line;
+    }
+    std::snprintf(line, sizeof line, "| %s | %s | %s | %.6g | %s | %d | %.1f | %s |\n", run.name.c_str(),
+                  to_target.c_str(), ratio.c_str(), run.final_loss, psnr.c_str(), run.iterations,
                   run.result.seconds, run.result.stop_reason.c_str());
     s << line;
   }
