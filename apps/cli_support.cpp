@@ -76,6 +76,7 @@ int run_cli(int argc, char** argv) {
   add_fit_command(app, global);
   add_compare_command(app, global);
   add_render_command(app, global);
+  add_eval_command(app, global);
   add_train_command(app, global);
   add_config_command(app, global);
   add_bench_command(app, global);

@@ -69,6 +69,29 @@ TEST(CliRender, WritesStackPreviewsMetaAndOrbit) {
   EXPECT_EQ(gif.width, 24);
 }
 
+TEST(CliEval, WritesMetricsAndComparisonImages) {
+  testing::ScratchDir dir;
+  ASSERT_EQ(run_hisnegs({"-q", "synth", "-o", dir / "s.tif", "--shape", "16,40,40"}).exit_code, 0);
+  ASSERT_EQ(run_hisnegs({"-q", "fit", dir / "s.tif", "-o", dir / "m.ply", "--gaussians", "80", "--time-budget", "5"})
+                .exit_code,
+            0);
+  ASSERT_EQ(run_hisnegs({"-q", "gt", dir / "s.tif", "-o", dir / "gt", "--size", "32", "--backend", "cpu"}).exit_code,
+            0);
+  const auto r = run_hisnegs({"eval", "--model", dir / "m.ply", "--data", dir / "gt", "-o", dir / "ev", "--backend",
+                              "cpu"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("30 views of 32x32"), std::string::npos) << r.out;
+  EXPECT_EQ(csv_rows(dir / "ev" / "metrics.csv"), 30);
+  std::ifstream json(dir / "ev" / "metrics.json");
+  const std::string text((std::istreambuf_iterator<char>(json)), std::istreambuf_iterator<char>());
+  EXPECT_NE(text.find("\"psnr\""), std::string::npos);
+  EXPECT_NE(text.find("\"ssim\""), std::string::npos);
+  EXPECT_TRUE(fs::is_regular_file(dir / "ev" / "compare" / "029.png"));
+  const auto bad = run_hisnegs({"eval", "--model", dir / "m.ply", "--data", dir / "nowhere", "-o", dir / "ev2"});
+  EXPECT_EQ(bad.exit_code, 2) << bad.err;
+  EXPECT_FALSE(fs::exists(dir / "ev2"));
+}
+
 TEST(CliRender, BadInputsGetOneLineErrors) {
   testing::ScratchDir dir;
   testing::write_text(dir / "not.ply", "ply\nformat ascii 1.0\nelement face 0\nend_header\n");
