@@ -2,6 +2,7 @@
 // binary on tiny inputs: every promised file, its shape, and the bad-input errors.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <fstream>
 #include <string>
 
@@ -90,6 +91,38 @@ TEST(CliEval, WritesMetricsAndComparisonImages) {
   const auto bad = run_hisnegs({"eval", "--model", dir / "m.ply", "--data", dir / "nowhere", "-o", dir / "ev2"});
   EXPECT_EQ(bad.exit_code, 2) << bad.err;
   EXPECT_FALSE(fs::exists(dir / "ev2"));
+}
+
+TEST(CliTrain, WritesRunFolderResumesAndRejectsBadInput) {
+  testing::ScratchDir dir;
+  ASSERT_EQ(run_hisnegs({"-q", "synth", "-o", dir / "s.tif", "--shape", "16,40,40"}).exit_code, 0);
+  ASSERT_EQ(run_hisnegs({"-q", "fit", dir / "s.tif", "-o", dir / "m.ply", "--gaussians", "80", "--time-budget", "5"})
+                .exit_code,
+            0);
+  ASSERT_EQ(run_hisnegs({"-q", "gt", dir / "s.tif", "-o", dir / "gt", "--size", "24", "--backend", "cpu"}).exit_code,
+            0);
+  testing::write_text(dir / "t.yaml", "train:\n  save_every: 2\n  lambda_ssim: 0.2\n");
+  auto r = run_hisnegs({"--config", dir / "t.yaml", "train", "--init", dir / "m.ply", "--data", dir / "gt", "-o",
+                        dir / "run", "--epochs", "2", "--backend", "cpu"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("epoch 2/2"), std::string::npos) << r.out;
+  EXPECT_EQ(csv_rows(dir / "run" / "log.csv"), 2);
+  EXPECT_TRUE(fs::is_regular_file(dir / "run" / "final.ply"));
+  EXPECT_TRUE(fs::is_regular_file(dir / "run" / "training_curve.png"));
+  // The same folder again without --resume is refused; with it, training goes on to epoch 4.
+  r = run_hisnegs({"--config", dir / "t.yaml", "train", "--init", dir / "m.ply", "--data", dir / "gt", "-o",
+                   dir / "run", "--epochs", "4", "--backend", "cpu"});
+  EXPECT_EQ(r.exit_code, 2) << r.err;
+  r = run_hisnegs({"--config", dir / "t.yaml", "train", "--init", dir / "m.ply", "--data", dir / "gt", "-o",
+                   dir / "run", "--epochs", "4", "--backend", "cpu", "--resume"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(csv_rows(dir / "run" / "log.csv"), 4);
+  // Missing ground truth: one line naming what is missing, no run folder.
+  r = run_hisnegs({"train", "--init", dir / "m.ply", "--data", dir / "nowhere", "-o", dir / "run2", "--backend", "cpu"});
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("nowhere"), std::string::npos) << r.err;
+  EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
+  EXPECT_FALSE(fs::exists(dir / "run2"));
 }
 
 TEST(CliRender, BadInputsGetOneLineErrors) {
