@@ -12,6 +12,17 @@
 
 namespace hisnegs::splat {
 
+double image_psnr(std::span<const float> image, std::span<const float> target) {
+  if (image.size() != target.size() || image.empty()) throw std::invalid_argument("image_psnr: size mismatch");
+  double se = 0;
+  for (std::size_t i = 0; i < image.size(); ++i) {
+    const double d = static_cast<double>(image[i]) - target[i];
+    se += d * d;
+  }
+  const double mse = se / static_cast<double>(image.size());
+  return mse > 0 ? 10.0 * std::log10(1.0 / mse) : std::numeric_limits<double>::infinity();
+}
+
 ViewMetrics image_metrics(std::span<const float> render, std::span<const float> target, int width, int height) {
   const std::size_t n = static_cast<std::size_t>(width) * height;
   if (render.size() != n || target.size() != n || n == 0) {
@@ -19,15 +30,10 @@ ViewMetrics image_metrics(std::span<const float> render, std::span<const float> 
                                 std::to_string(target.size()) + " pixels for " + std::to_string(width) + "x" +
                                 std::to_string(height));
   }
-  double se = 0, ae = 0;
-  for (std::size_t i = 0; i < n; ++i) {
-    const double d = static_cast<double>(render[i]) - target[i];
-    se += d * d;
-    ae += std::abs(d);
-  }
+  double ae = 0;
+  for (std::size_t i = 0; i < n; ++i) ae += std::abs(static_cast<double>(render[i]) - target[i]);
   ViewMetrics m;
-  const double mse = se / static_cast<double>(n);
-  m.psnr = mse > 0 ? 10.0 * std::log10(1.0 / mse) : std::numeric_limits<double>::infinity();
+  m.psnr = image_psnr(render, target);
   m.mae = ae / static_cast<double>(n);
   LossWorkspace workspace;
   m.ssim = 1.0 - ssim_loss(render, target, width, height, 0.0, std::span<float>(), workspace);

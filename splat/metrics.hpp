@@ -18,6 +18,10 @@ struct MetricSummary {
   double mean = 0, std = 0, min = 0, max = 0;  // std: population standard deviation
 };
 
+// PSNR in dB of `image` against `target` (same size, data range 1): 10 log10(1 / MSE),
+// infinite when they are equal. Throws std::invalid_argument for a size mismatch.
+[[nodiscard]] double image_psnr(std::span<const float> image, std::span<const float> target);
+
 // Metrics of `render` against `target` (H x W each, row-major, values in [0, 1]).
 // SSIM needs images of at least 11 x 11. Throws std::invalid_argument for a size mismatch.
 ViewMetrics image_metrics(std::span<const float> render, std::span<const float> target, int width, int height);

@@ -18,6 +18,7 @@
 #include "io/error.hpp"
 #include "io/tiff_stack.hpp"
 #include "io/timer.hpp"
+#include "splat/metrics.hpp"
 
 namespace hisnegs::splat {
 namespace {
@@ -173,17 +174,6 @@ double soft_mip_beta(const TrainOptions& o, int epoch) {
   if (o.beta_warmup_epochs <= 0) return o.beta_end;
   const double t = std::min(1.0, static_cast<double>(epoch) / o.beta_warmup_epochs);
   return o.beta_start + (o.beta_end - o.beta_start) * t;
-}
-
-double image_psnr(std::span<const float> image, std::span<const float> target) {
-  if (image.size() != target.size() || image.empty()) throw std::invalid_argument("image_psnr: size mismatch");
-  double se = 0;
-  for (std::size_t i = 0; i < image.size(); ++i) {
-    const double d = static_cast<double>(image[i]) - target[i];
-    se += d * d;
-  }
-  const double mse = se / static_cast<double>(image.size());
-  return mse > 0 ? 10.0 * std::log10(1.0 / mse) : std::numeric_limits<double>::infinity();
 }
 
 Trainer::Trainer(const TrainOptions& options, const SplatSettings& splat, TrainingData data,

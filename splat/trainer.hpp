@@ -186,7 +186,4 @@ void save_training_checkpoint(const std::filesystem::path& checkpoint_dir, const
 // naming the file when `latest` is missing or malformed or the pair is unusable.
 int resume_training(const std::filesystem::path& checkpoint_dir, Trainer& trainer);
 
-// 10 log10(1 / MSE) of two equally sized images (infinity when equal).
-[[nodiscard]] double image_psnr(std::span<const float> image, std::span<const float> target);
-
 }  // namespace hisnegs::splat
