@@ -23,6 +23,19 @@ int csv_rows(const fs::path& path) {
   return rows;
 }
 
+// A tiny stack, a GMF model of it (DIR/m.ply) and its ground truth (DIR/gt) at
+// size x size for `orbit` (both: DIR/gt/train and DIR/gt/eval).
+void make_model_and_ground_truth(const fs::path& dir, int size, const char* orbit) {
+  ASSERT_EQ(run_hisnegs({"-q", "synth", "-o", dir / "s.tif", "--shape", "16,40,40"}).exit_code, 0);
+  ASSERT_EQ(run_hisnegs({"-q", "fit", dir / "s.tif", "-o", dir / "m.ply", "--gaussians", "80", "--time-budget", "5"})
+                .exit_code,
+            0);
+  ASSERT_EQ(run_hisnegs({"-q", "gt", dir / "s.tif", "-o", dir / "gt", "--orbit", orbit, "--size", std::to_string(size),
+                         "--backend", "cpu"})
+                .exit_code,
+            0);
+}
+
 TEST(CliCompare, WritesTableCurvesSummaryAndPlot) {
   testing::ScratchDir dir;
   ASSERT_EQ(run_hisnegs({"-q", "synth", "-o", dir / "s.tif", "--shape", "16,40,40"}).exit_code, 0);
@@ -46,14 +59,7 @@ TEST(CliCompare, WritesTableCurvesSummaryAndPlot) {
 
 TEST(CliRender, WritesStackPreviewsMetaAndOrbit) {
   testing::ScratchDir dir;
-  ASSERT_EQ(run_hisnegs({"-q", "synth", "-o", dir / "s.tif", "--shape", "16,40,40"}).exit_code, 0);
-  ASSERT_EQ(run_hisnegs({"-q", "fit", dir / "s.tif", "-o", dir / "m.ply", "--gaussians", "80", "--time-budget", "5"})
-                .exit_code,
-            0);
-  ASSERT_EQ(run_hisnegs({"-q", "gt", dir / "s.tif", "-o", dir / "gt", "--orbit", "eval", "--size", "32", "--backend",
-                         "cpu"})
-                .exit_code,
-            0);
+  ASSERT_NO_FATAL_FAILURE(make_model_and_ground_truth(dir.path(), 32, "eval"));
   const auto r = run_hisnegs({"render", "--model", dir / "m.ply", "--cameras", dir / "gt" / "cameras.json", "-o",
                               dir / "r", "--backend", "cpu", "--orbit", "6", "--size", "24", "--mode", "hard"});
   ASSERT_EQ(r.exit_code, 0) << r.err;
@@ -72,12 +78,7 @@ TEST(CliRender, WritesStackPreviewsMetaAndOrbit) {
 
 TEST(CliEval, WritesMetricsAndComparisonImages) {
   testing::ScratchDir dir;
-  ASSERT_EQ(run_hisnegs({"-q", "synth", "-o", dir / "s.tif", "--shape", "16,40,40"}).exit_code, 0);
-  ASSERT_EQ(run_hisnegs({"-q", "fit", dir / "s.tif", "-o", dir / "m.ply", "--gaussians", "80", "--time-budget", "5"})
-                .exit_code,
-            0);
-  ASSERT_EQ(run_hisnegs({"-q", "gt", dir / "s.tif", "-o", dir / "gt", "--size", "32", "--backend", "cpu"}).exit_code,
-            0);
+  ASSERT_NO_FATAL_FAILURE(make_model_and_ground_truth(dir.path(), 32, "both"));
   const auto r = run_hisnegs({"eval", "--model", dir / "m.ply", "--data", dir / "gt", "-o", dir / "ev", "--backend",
                               "cpu"});
   ASSERT_EQ(r.exit_code, 0) << r.err;
@@ -95,12 +96,7 @@ TEST(CliEval, WritesMetricsAndComparisonImages) {
 
 TEST(CliTrain, WritesRunFolderResumesAndRejectsBadInput) {
   testing::ScratchDir dir;
-  ASSERT_EQ(run_hisnegs({"-q", "synth", "-o", dir / "s.tif", "--shape", "16,40,40"}).exit_code, 0);
-  ASSERT_EQ(run_hisnegs({"-q", "fit", dir / "s.tif", "-o", dir / "m.ply", "--gaussians", "80", "--time-budget", "5"})
-                .exit_code,
-            0);
-  ASSERT_EQ(run_hisnegs({"-q", "gt", dir / "s.tif", "-o", dir / "gt", "--size", "24", "--backend", "cpu"}).exit_code,
-            0);
+  ASSERT_NO_FATAL_FAILURE(make_model_and_ground_truth(dir.path(), 24, "both"));
   testing::write_text(dir / "t.yaml", "train:\n  save_every: 2\n  lambda_ssim: 0.2\n");
   auto r = run_hisnegs({"--config", dir / "t.yaml", "train", "--init", dir / "m.ply", "--data", dir / "gt", "-o",
                         dir / "run", "--epochs", "2", "--backend", "cpu"});
