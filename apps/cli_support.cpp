@@ -78,6 +78,9 @@ int run_cli(int argc, char** argv) {
   add_render_command(app, global);
   add_eval_command(app, global);
   add_train_command(app, global);
+  add_run_command(app, global);
+  add_export_command(app, global);
+  add_import_command(app, global);
   add_config_command(app, global);
   add_bench_command(app, global);
   // CLI11 would only say "a subcommand is required" for a misspelt command: name it.

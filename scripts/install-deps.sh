@@ -11,6 +11,7 @@ packages=(
   libtiff-dev libpng-dev libgif-dev libhwy-dev
   libcli11-dev libyaml-cpp-dev nlohmann-json3-dev
   libgtest-dev libgmock-dev libbenchmark-dev
+  libopenvdb-tools python3-openvdb
 )
 
 missing=()

@@ -1,0 +1,2 @@
+// placeholder (issue 8)
+#include <gtest/gtest.h>
