@@ -16,21 +16,33 @@ void AppConfig::validate() const {
   gmf.validate();
 }
 
-AppConfig load_app_config(const std::optional<std::filesystem::path>& path) {
+namespace {
+
+AppConfig overlay(const io::ConfigFile& file, const std::string& origin) {
   AppConfig config;
-  if (path) {
-    const io::ConfigFile file = io::ConfigFile::load(*path);
-    file.check_sections({"volume", "sparse_grid", "synth", "camera", "raymarch", "splat", "train", "gmf"});
-    config.for_each_section([&](const char* name, auto& options) { file.read(name, options); });
-    try {
-      config.validate();
-    } catch (const io::InputError& e) {
-      throw io::InputError(path->string() + ": " + e.what());
-    }
-  } else {
+  file.check_sections({"volume", "sparse_grid", "synth", "camera", "raymarch", "splat", "train", "gmf"});
+  config.for_each_section([&](const char* name, auto& options) { file.read(name, options); });
+  try {
     config.validate();
+  } catch (const io::InputError& e) {
+    throw io::InputError(origin + ": " + e.what());
   }
   return config;
+}
+
+}  // namespace
+
+AppConfig load_app_config(const std::optional<std::filesystem::path>& path) {
+  if (!path) {
+    AppConfig config;
+    config.validate();
+    return config;
+  }
+  return overlay(io::ConfigFile::load(*path), path->string());
+}
+
+AppConfig load_app_config_text(const std::string& text, const std::string& origin) {
+  return overlay(io::ConfigFile::parse(text, origin), origin);
 }
 
 std::string dump_app_config(AppConfig config) {

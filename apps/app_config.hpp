@@ -44,6 +44,9 @@ struct AppConfig {
 // Throws io::InputError naming the file, line, section and key.
 AppConfig load_app_config(const std::optional<std::filesystem::path>& path);
 
+// The same for YAML text (e.g. a built-in profile); `origin` names it in errors.
+AppConfig load_app_config_text(const std::string& text, const std::string& origin);
+
 // YAML text of every field (what configs/default.yaml holds for the defaults).
 std::string dump_app_config(AppConfig config);
 

@@ -61,6 +61,42 @@ gmf::CheckpointMeta checkpoint_meta(const io::LoadedVolume& loaded, const std::s
   return meta;
 }
 
+FitOutcome fit_to_checkpoint(const std::string& volume, const AppConfig& config, const std::filesystem::path& out,
+                             const std::filesystem::path& log_csv, bool quiet) {
+  io::Stopwatch watch;
+  FitSetup setup = prepare_fit(volume, config, "fit", quiet);
+  gmf::GaussianMixture& mixture = setup.mixture;
+  const gmf::FitResult result = gmf::fit_mixture(setup.loaded.volume, setup.grid, mixture, config.gmf, [&](const gmf::FitIteration& it) {
+    if (quiet) return;
+    if (it.psnr_3d >= 0) {
+      std::printf("fit: round %d done: loss %.6g, 3D PSNR %.2f dB, K %d, %s\n", it.round, it.loss, it.psnr_3d,
+                  it.gaussians, format_seconds(it.seconds).c_str());
+    } else {
+      std::printf("fit: round %d iteration %d: loss %.6g, K %d, %s\n", it.round, it.iteration, it.loss, it.gaussians,
+                  format_seconds(it.seconds).c_str());
+    }
+    std::fflush(stdout);
+  });
+  if (!quiet) {
+    for (const gmf::FitRound& r : result.rounds) {
+      std::printf("fit: round %d density control: %d pruned, %d split, %d cloned -> K %d\n", r.round, r.pruned,
+                  r.split, r.cloned, r.gaussians);
+    }
+  }
+  const gmf::CheckpointMeta meta = checkpoint_meta(setup.loaded, volume);
+  gmf::save_checkpoint(out, mixture, meta);
+  if (!log_csv.empty()) {
+    const std::string csv = csv_of(result.log);
+    io::write_file_atomic(log_csv, csv.data(), csv.size());
+  }
+  const FitOutcome outcome{mixture.size(), result.final_psnr_3d, watch.elapsed(), result.stop_reason};
+  if (!quiet) {
+    std::printf("fit: wrote %s: K %zu (%d pruned), 3D PSNR %.2f dB, %s (%s)\n", out.c_str(), mixture.size(),
+                result.pruned, result.final_psnr_3d, format_seconds(outcome.seconds).c_str(), result.stop_reason.c_str());
+  }
+  return outcome;
+}
+
 void add_fit_command(CLI::App& app, GlobalOptions& global) {
   auto* cmd = app.add_subcommand("fit", "fit a Gaussian Mixture Field to a stack with Ceres (writes a .ply checkpoint)");
   struct Args {
@@ -84,36 +120,7 @@ void add_fit_command(CLI::App& app, GlobalOptions& global) {
     if (args->gaussians) config.gmf.gaussians = *args->gaussians;
     if (args->time_budget) config.gmf.time_budget_s = *args->time_budget;
     config.gmf.validate();
-    io::Stopwatch watch;
-    FitSetup setup = prepare_fit(args->volume, config, "fit", global.quiet);
-    gmf::GaussianMixture& mixture = setup.mixture;
-    const gmf::FitResult result = gmf::fit_mixture(setup.loaded.volume, setup.grid, mixture, config.gmf, [&](const gmf::FitIteration& it) {
-      if (global.quiet) return;
-      if (it.psnr_3d >= 0) {
-        std::printf("fit: round %d done: loss %.6g, 3D PSNR %.2f dB, K %d, %s\n", it.round, it.loss, it.psnr_3d,
-                    it.gaussians, format_seconds(it.seconds).c_str());
-      } else {
-        std::printf("fit: round %d iteration %d: loss %.6g, K %d, %s\n", it.round, it.iteration, it.loss, it.gaussians,
-                    format_seconds(it.seconds).c_str());
-      }
-      std::fflush(stdout);
-    });
-    if (!global.quiet) {
-      for (const gmf::FitRound& r : result.rounds) {
-        std::printf("fit: round %d density control: %d pruned, %d split, %d cloned -> K %d\n", r.round, r.pruned,
-                    r.split, r.cloned, r.gaussians);
-      }
-    }
-    const gmf::CheckpointMeta meta = checkpoint_meta(setup.loaded, args->volume);
-    gmf::save_checkpoint(args->out, mixture, meta);
-    if (!args->log.empty()) {
-      const std::string csv = csv_of(result.log);
-      io::write_file_atomic(args->log, csv.data(), csv.size());
-    }
-    if (!global.quiet) {
-      std::printf("fit: wrote %s: K %zu (%d pruned), 3D PSNR %.2f dB, %s (%s)\n", args->out.c_str(), mixture.size(),
-                  result.pruned, result.final_psnr_3d, format_seconds(watch.elapsed()).c_str(), result.stop_reason.c_str());
-    }
+    fit_to_checkpoint(args->volume, config, args->out, args->log, global.quiet);
   });
 }
 

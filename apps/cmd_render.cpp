@@ -35,6 +35,18 @@ double median_ms(std::vector<double> seconds) {
 
 }  // namespace
 
+std::vector<double> write_orbit_gif(const std::filesystem::path& gif, splat::SplatRenderer& renderer,
+                                    std::span<const float> params, const splat::CameraOptions& camera,
+                                    const splat::SplatSettings& settings, int frames, double elevation_deg,
+                                    int delay_ms) {
+  const splat::CameraSet orbit = splat::turntable(camera, frames, elevation_deg);
+  const splat::RenderedViews r = splat::render_views(renderer, params, orbit, settings);
+  std::vector<io::Image8> images;
+  for (int i = 0; i < r.stack.views; ++i) images.push_back(io::to_gray8(r.stack.view(i), r.stack.width, r.stack.height));
+  io::write_gif(gif, images, delay_ms);
+  return r.stack.seconds_per_view;
+}
+
 void add_render_command(CLI::App& app, GlobalOptions& global) {
   auto* cmd = app.add_subcommand("render", "render a checkpoint as soft/hard MIP splats (render.tif, previews, orbit GIF)");
   auto args = std::make_shared<RenderArgs>();
@@ -88,17 +100,14 @@ void add_render_command(CLI::App& app, GlobalOptions& global) {
       }
     }
     if (args->orbit) {
-      const splat::CameraSet orbit = splat::turntable(config.camera, *args->orbit, args->elevation);
-      const splat::RenderedViews r = splat::render_views(*renderer, params, orbit, settings);
-      std::vector<io::Image8> frames;
-      for (int i = 0; i < r.stack.views; ++i) frames.push_back(io::to_gray8(r.stack.view(i), r.stack.width, r.stack.height));
-      io::write_gif(dir / "orbit.gif", frames, args->delay_ms);
+      const std::vector<double> seconds = write_orbit_gif(dir / "orbit.gif", *renderer, params, config.camera, settings,
+                                                          *args->orbit, args->elevation, args->delay_ms);
       meta["orbit"] = {{"frames", *args->orbit},
                        {"elevation_deg", args->elevation},
-                       {"median_ms_per_frame", median_ms(r.stack.seconds_per_view)}};
+                       {"median_ms_per_frame", median_ms(seconds)}};
       if (!global.quiet) {
         std::printf("render: orbit of %d frames at %.3g deg elevation, median %.2f ms/frame -> %s\n", *args->orbit,
-                    args->elevation, median_ms(r.stack.seconds_per_view), (dir / "orbit.gif").c_str());
+                    args->elevation, median_ms(seconds), (dir / "orbit.gif").c_str());
       }
     }
     const std::string text = meta.dump(2) + "\n";

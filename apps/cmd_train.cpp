@@ -8,6 +8,7 @@
 #include <sstream>
 
 #include "apps/cli_support.hpp"
+#include "apps/commands_detail.hpp"
 #include "gmf/checkpoint.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
@@ -104,6 +105,78 @@ gmf::GaussianMixture mixture_of(std::span<const float> params) {
 
 }  // namespace
 
+TrainOutcome train_model(const TrainRequest& request, const AppConfig& config, bool quiet) {
+  config.train.validate();
+  config.splat.validate();
+  if (config.splat.mode != splat::MipMode::kSoft) {
+    throw io::InputError("train: splat.mode must be soft (training differentiates the soft MIP)");
+  }
+  const std::filesystem::path run = request.run, checkpoints = run / "checkpoints";
+  if (!request.resume && std::filesystem::exists(checkpoints / "latest")) {
+    io::fail_input(run, "already holds a training run (checkpoints/latest); use --resume or another -o");
+  }
+  const splat::Backend backend = request.backend;
+  splat::TrainingData data = splat::load_training_data(request.data);
+  const gmf::Checkpoint init = gmf::load_checkpoint(request.init.string());
+  const auto flat = splat::flat_params(init.mixture);
+  // hisnegs worlds are [-a, a] with max a = 1; a model from elsewhere without aspect: 1.
+  const double scene_scale =
+      init.meta.aspect ? *std::max_element(init.meta.aspect->begin(), init.meta.aspect->end()) : 1.0;
+  const int views = data.count(), width = data.intrinsics.width, height = data.intrinsics.height;
+  splat::Trainer trainer(config.train, splat::SplatSettings::from(config.splat), std::move(data),
+                         std::vector<float>(flat.begin(), flat.end()), splat::make_splat_renderer(backend),
+                         scene_scale);
+  gmf::CheckpointMeta meta = init.meta;
+  std::erase_if(meta.extra, [](const auto& kv) { return kv.first == "init"; });
+  meta.extra.emplace_back("init", io::printable(request.init.string(), 200));
+
+  std::vector<LogRow> rows;
+  if (request.resume) {
+    const int epoch = splat::resume_training(checkpoints, trainer);
+    rows = read_log(run / "log.csv", epoch);
+  }
+  if (!quiet) {
+    std::printf("train: %d views of %dx%d, K %d, %d epochs%s, %s back end\n", views, width, height,
+                trainer.gaussians(), config.train.epochs,
+                request.resume ? (" (resuming after epoch " + std::to_string(trainer.epoch()) + ")").c_str() : "",
+                std::string(splat::to_string(backend)).c_str());
+    std::fflush(stdout);
+  }
+  const double seconds_before = rows.empty() ? 0.0 : rows.back().seconds;
+  io::Stopwatch watch;
+  const int first_epoch = trainer.epoch();
+  while (!trainer.finished()) {
+    const splat::EpochReport r = trainer.run_epoch();
+    rows.push_back({r.epoch, seconds_before + watch.elapsed(), r.loss, r.psnr, r.gaussians, r.beta, r.lr});
+    const std::string csv = csv_of(rows);
+    io::write_file_atomic(run / "log.csv", csv.data(), csv.size());
+    if (trainer.checkpoint_due()) splat::save_training_checkpoint(checkpoints, trainer, meta);
+    if (!quiet) {
+      const double per_epoch = watch.elapsed() / (trainer.epoch() - first_epoch);
+      std::printf("train: epoch %d/%d: loss %.6g, PSNR %.2f dB, K %d, beta %.4g, lr %.3g, %s/epoch, ETA %s",
+                  r.epoch, config.train.epochs, r.loss, r.psnr, r.gaussians, r.beta, r.lr,
+                  format_seconds(r.seconds).c_str(),
+                  format_seconds(per_epoch * (config.train.epochs - trainer.epoch())).c_str());
+      if (r.split + r.cloned + r.pruned > 0) {
+        std::printf(" (%d split, %d cloned, %d pruned)", r.split, r.cloned, r.pruned);
+      }
+      std::printf("\n");
+      std::fflush(stdout);
+    }
+  }
+  gmf::CheckpointMeta final_meta = meta;
+  std::erase_if(final_meta.extra, [](const auto& kv) { return kv.first == "train_epoch"; });
+  final_meta.extra.emplace_back("train_epoch", std::to_string(trainer.epoch()));
+  gmf::save_checkpoint(run / "final.ply", mixture_of(trainer.params()), final_meta);
+  io::write_png(run / "training_curve.png", training_curve(rows));
+  if (!quiet) {
+    std::printf("train: wrote %s: K %d, PSNR %.2f dB, %s\n", (run / "final.ply").c_str(), trainer.gaussians(),
+                rows.empty() ? 0.0 : rows.back().psnr, format_seconds(watch.elapsed()).c_str());
+  }
+  return {trainer.epoch(), trainer.gaussians(), rows.empty() ? 0.0 : rows.back().psnr,
+          rows.empty() ? 0.0 : rows.back().seconds};
+}
+
 void add_train_command(CLI::App& app, GlobalOptions& global) {
   auto* cmd = app.add_subcommand("train", "train Gaussians on ground-truth MIPs by soft-MIP splatting (report §6)");
   auto args = std::make_shared<TrainArgs>();
@@ -117,73 +190,9 @@ void add_train_command(CLI::App& app, GlobalOptions& global) {
   cmd->callback([args, &global] {
     AppConfig config = global.config();
     if (args->epochs) config.train.epochs = *args->epochs;
-    config.train.validate();
-    config.splat.validate();
-    if (config.splat.mode != splat::MipMode::kSoft) {
-      throw io::InputError("train: splat.mode must be soft (training differentiates the soft MIP)");
-    }
-    const std::filesystem::path run = args->out, checkpoints = run / "checkpoints";
-    if (!args->resume && std::filesystem::exists(checkpoints / "latest")) {
-      io::fail_input(run, "already holds a training run (checkpoints/latest); use --resume or another -o");
-    }
-    const splat::Backend backend = splat::resolve_backend(splat::parse_backend_request(args->backend));
-    splat::TrainingData data = splat::load_training_data(std::filesystem::path(args->data) / "train");
-    const gmf::Checkpoint init = gmf::load_checkpoint(args->init);
-    const auto flat = splat::flat_params(init.mixture);
-    // hisnegs worlds are [-a, a] with max a = 1; a model from elsewhere without aspect: 1.
-    const double scene_scale =
-        init.meta.aspect ? *std::max_element(init.meta.aspect->begin(), init.meta.aspect->end()) : 1.0;
-    const int views = data.count(), width = data.intrinsics.width, height = data.intrinsics.height;
-    splat::Trainer trainer(config.train, splat::SplatSettings::from(config.splat), std::move(data),
-                           std::vector<float>(flat.begin(), flat.end()), splat::make_splat_renderer(backend),
-                           scene_scale);
-    gmf::CheckpointMeta meta = init.meta;
-    std::erase_if(meta.extra, [](const auto& kv) { return kv.first == "init"; });
-    meta.extra.emplace_back("init", io::printable(args->init, 200));
-
-    std::vector<LogRow> rows;
-    if (args->resume) {
-      const int epoch = splat::resume_training(checkpoints, trainer);
-      rows = read_log(run / "log.csv", epoch);
-    }
-    if (!global.quiet) {
-      std::printf("train: %d views of %dx%d, K %d, %d epochs%s, %s back end\n", views, width, height,
-                  trainer.gaussians(), config.train.epochs,
-                  args->resume ? (" (resuming after epoch " + std::to_string(trainer.epoch()) + ")").c_str() : "",
-                  std::string(splat::to_string(backend)).c_str());
-      std::fflush(stdout);
-    }
-    const double seconds_before = rows.empty() ? 0.0 : rows.back().seconds;
-    io::Stopwatch watch;
-    const int first_epoch = trainer.epoch();
-    while (!trainer.finished()) {
-      const splat::EpochReport r = trainer.run_epoch();
-      rows.push_back({r.epoch, seconds_before + watch.elapsed(), r.loss, r.psnr, r.gaussians, r.beta, r.lr});
-      const std::string csv = csv_of(rows);
-      io::write_file_atomic(run / "log.csv", csv.data(), csv.size());
-      if (trainer.checkpoint_due()) splat::save_training_checkpoint(checkpoints, trainer, meta);
-      if (!global.quiet) {
-        const double per_epoch = watch.elapsed() / (trainer.epoch() - first_epoch);
-        std::printf("train: epoch %d/%d: loss %.6g, PSNR %.2f dB, K %d, beta %.4g, lr %.3g, %s/epoch, ETA %s",
-                    r.epoch, config.train.epochs, r.loss, r.psnr, r.gaussians, r.beta, r.lr,
-                    format_seconds(r.seconds).c_str(),
-                    format_seconds(per_epoch * (config.train.epochs - trainer.epoch())).c_str());
-        if (r.split + r.cloned + r.pruned > 0) {
-          std::printf(" (%d split, %d cloned, %d pruned)", r.split, r.cloned, r.pruned);
-        }
-        std::printf("\n");
-        std::fflush(stdout);
-      }
-    }
-    gmf::CheckpointMeta final_meta = meta;
-    std::erase_if(final_meta.extra, [](const auto& kv) { return kv.first == "train_epoch"; });
-    final_meta.extra.emplace_back("train_epoch", std::to_string(trainer.epoch()));
-    gmf::save_checkpoint(run / "final.ply", mixture_of(trainer.params()), final_meta);
-    io::write_png(run / "training_curve.png", training_curve(rows));
-    if (!global.quiet) {
-      std::printf("train: wrote %s: K %d, PSNR %.2f dB, %s\n", (run / "final.ply").c_str(), trainer.gaussians(),
-                  rows.empty() ? 0.0 : rows.back().psnr, format_seconds(watch.elapsed()).c_str());
-    }
+    train_model({args->init, std::filesystem::path(args->data) / "train", args->out,
+                 splat::resolve_backend(splat::parse_backend_request(args->backend)), args->resume},
+                config, global.quiet);
   });
 }
 

@@ -1,1 +1,610 @@
-// placeholder (issue 8)
+// export_vdb: per-Gaussian supports -> (leaf, Gaussian) pairs -> per-leaf evaluation
+// of f with TBB -> `density` FloatGrid; the `gaussians` PointDataGrid written with
+// openvdb::points and read back by import_vdb_points.
+#include "gmf/export_vdb.hpp"
+
+#include <openvdb/io/File.h>
+#include <openvdb/points/PointAttribute.h>
+#include <openvdb/points/PointConversion.h>
+#include <openvdb/points/PointCount.h>
+#include <openvdb/points/PointDataGrid.h>
+#include <tbb/blocked_range.h>
+#include <tbb/combinable.h>
+#include <tbb/parallel_for.h>
+#include <tbb/parallel_sort.h>
+
+#include <algorithm>
+#include <array>
+#include <atomic>
+#include <cmath>
+#include <cstdlib>
+#include <cstring>
+#include <fstream>
+#include <limits>
+#include <memory>
+#include <mutex>
+#include <sstream>
+#include <vector>
+
+#include "gmf/gaussian_math.hpp"
+#include "io/atomic_file.hpp"
+#include "io/detail/vdb_grids.hpp"
+#include "io/error.hpp"
+#include "io/timer.hpp"
+
+namespace hisnegs::gmf {
+namespace fs = std::filesystem;
+
+using openvdb::Coord;
+using openvdb::FloatGrid;
+using LeafT = openvdb::FloatTree::LeafNodeType;
+using openvdb::points::PointDataGrid;
+
+namespace {
+
+constexpr int kLeafLog2 = 3;               // OpenVDB leaves are 8^3 voxels
+constexpr int kLeafDim = 1 << kLeafLog2;
+static_assert(LeafT::DIM == kLeafDim);
+// Leaf coordinates are packed into 21 bits per axis (see leaf_key), so voxel
+// indices must stay within ±2^23 (8.4 M voxels from the origin along each axis).
+constexpr int kLeafBits = 21;
+constexpr double kMaxIndex = double(1 << (kLeafBits - 1 + kLeafLog2)) - kLeafDim;
+
+constexpr const char* kDensityGrid = "density";
+constexpr const char* kPointsGrid = "gaussians";
+constexpr const char* kCheckpointMetaKey = "hisnegs_checkpoint";
+constexpr int kVdbFormatVersion = 1;
+
+// Bytes the export may allocate: HISNEGS_MAX_ALLOC_GB (GiB) if set, else the
+// kernel's MemAvailable (the same rule as the TIFF reader), else unlimited.
+double allocatable_bytes() {
+  constexpr double kGiB = 1024.0 * 1024.0 * 1024.0;
+  if (const char* env = std::getenv("HISNEGS_MAX_ALLOC_GB"); env && *env) {
+    char* end = nullptr;
+    const double gib = std::strtod(env, &end);
+    if (end == env || *end != '\0' || !(gib > 0.0)) {
+      throw io::InputError(std::string("HISNEGS_MAX_ALLOC_GB=") + io::printable(env, 40) +
+                           " is not a positive number of GiB");
+    }
+    return gib * kGiB;
+  }
+  std::ifstream meminfo("/proc/meminfo");
+  std::string key;
+  double kib = 0;
+  while (meminfo >> key >> kib) {
+    if (key == "MemAvailable:") return kib * 1024.0;
+    meminfo.ignore(std::numeric_limits<std::streamsize>::max(), '\n');
+  }
+  return std::numeric_limits<double>::infinity();
+}
+
+std::string number_text(double v) {
+  std::ostringstream s;
+  s.precision(6);
+  s << v;
+  return s.str();
+}
+
+// world = origin + voxel_size ⊙ index as an OpenVDB linear transform (row vectors:
+// world = [i j k 1] M, scale on the diagonal, translation in the last row); for
+// VoxelLattice::of(frame) this is io::detail::make_vdb_transform(frame).
+openvdb::math::Transform::Ptr make_transform(const VoxelLattice& l) {
+  const Eigen::Vector3d& s = l.voxel_size_world;
+  const Eigen::Vector3d& o = l.origin_world;
+  const openvdb::math::Mat4d m(s.x(), 0.0, 0.0, 0.0,  //
+                               0.0, s.y(), 0.0, 0.0,  //
+                               0.0, 0.0, s.z(), 0.0,  //
+                               o.x(), o.y(), o.z(), 1.0);
+  try {
+    return openvdb::math::Transform::createLinearTransform(m);
+  } catch (const openvdb::ArithmeticError&) {
+    // OpenVDB refuses maps whose determinant is nearly 0 (voxels of ~1e-5 and below).
+    throw io::InputError("voxel size " + number_text(s.minCoeff()) +
+                         " is too small for an OpenVDB transform; use a larger voxel size");
+  }
+}
+
+// One Gaussian's part in the rasterization: its frame, its support
+// {a exp(-m/2) >= tail} = {m <= delta}, and the voxel-index box holding that support.
+struct Support {
+  GaussianFrame<double> f;
+  double delta = 0;
+  std::array<int, 3> lo{1, 1, 1}, hi{0, 0, 0};  // empty unless lo <= hi on every axis
+  [[nodiscard]] bool empty() const { return lo[0] > hi[0] || lo[1] > hi[1] || lo[2] > hi[2]; }
+};
+
+// Leaf coordinate (voxel index >> 3, may be negative) of each axis in 21 bits.
+std::uint64_t leaf_key(int lx, int ly, int lz) {
+  constexpr int kBias = 1 << (kLeafBits - 1);
+  const auto u = [](int v) { return static_cast<std::uint64_t>(v + kBias); };
+  return (u(lz) << (2 * kLeafBits)) | (u(ly) << kLeafBits) | u(lx);
+}
+Coord leaf_origin(std::uint64_t key) {
+  constexpr int kBias = 1 << (kLeafBits - 1);
+  constexpr std::uint64_t kMask = (std::uint64_t{1} << kLeafBits) - 1;
+  const auto v = [](std::uint64_t bits) { return (static_cast<int>(bits & kMask) - kBias) * kLeafDim; };
+  return Coord(v(key), v(key >> kLeafBits), v(key >> (2 * kLeafBits)));
+}
+
+struct Pair {
+  std::uint64_t leaf;
+  std::uint32_t gaussian;
+  bool operator<(const Pair& o) const { return leaf < o.leaf || (leaf == o.leaf && gaussian < o.gaussian); }
+};
+
+// Supports of all Gaussians; throws when a support leaves the packable index range
+// or the pairs would not fit in memory. *pair_count gets Σ_k leaves of box k.
+std::vector<Support> supports_of(const GaussianMixture& mixture, const VoxelLattice& lattice, double tail,
+                                 const std::string& model, std::int64_t* pair_count) {
+  std::vector<Support> out(mixture.size());
+  std::atomic<bool> out_of_range{false};
+  tbb::combinable<double> pairs(0.0);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, mixture.size(), 1024), [&](const auto& r) {
+    for (std::size_t k = r.begin(); k != r.end(); ++k) {
+      Support& s = out[k];
+      s.f = frame_of(mixture[k]);
+      if (!(s.f.a > tail)) continue;  // never reaches `tail` anywhere: left out entirely
+      s.delta = 2.0 * std::log(s.f.a / tail);
+      double half[3];
+      support_half_extents(s.f, s.delta, half);
+      double leaves = 1.0;
+      for (int d = 0; d < 3; ++d) {
+        const double v = lattice.voxel_size_world[d], o = lattice.origin_world[d];
+        double lo = std::ceil((s.f.mean[d] - half[d] - o) / v);
+        double hi = std::floor((s.f.mean[d] + half[d] - o) / v);
+        if (lattice.clip) {
+          lo = std::max(lo, static_cast<double>(lattice.clip->min[d]));
+          hi = std::min(hi, static_cast<double>(lattice.clip->max[d]));
+        }
+        if (hi < lo) {  // outside the clip box (or between two voxel centres)
+          leaves = 0.0;
+          s.lo = {1, 1, 1};
+          s.hi = {0, 0, 0};
+          break;
+        }
+        if (!(std::abs(lo) <= kMaxIndex && std::abs(hi) <= kMaxIndex)) {
+          out_of_range = true;
+          leaves = 0.0;
+          s.lo = {1, 1, 1};
+          s.hi = {0, 0, 0};
+          break;
+        }
+        s.lo[d] = static_cast<int>(lo);
+        s.hi[d] = static_cast<int>(hi);
+        leaves *= double((s.hi[d] >> kLeafLog2) - (s.lo[d] >> kLeafLog2) + 1);
+      }
+      pairs.local() += leaves;
+    }
+  });
+  const std::string size = lattice.voxel_size_world.x() == lattice.voxel_size_world.y() &&
+                                   lattice.voxel_size_world.y() == lattice.voxel_size_world.z()
+                               ? number_text(lattice.voxel_size_world.x())
+                               : number_text(lattice.voxel_size_world.x()) + "," +
+                                     number_text(lattice.voxel_size_world.y()) + "," +
+                                     number_text(lattice.voxel_size_world.z());
+  if (out_of_range) {
+    io::fail_input(model, "at voxel size " + size + " the Gaussians reach past voxel index ±" +
+                              number_text(kMaxIndex) + "; use a larger voxel size");
+  }
+  const double total = pairs.combine(std::plus<>());
+  // Each candidate pair costs its 16 bytes plus, at worst, its own leaf slot (8 bytes)
+  // while the leaf is evaluated; kept leaves are bounded by the same count.
+  const double need = total * (sizeof(Pair) + sizeof(void*));
+  const double have = allocatable_bytes();
+  if (need > 0.5 * have) {
+    io::fail_input(model, "at voxel size " + size + " the Gaussians' supports reach " + number_text(total) +
+                              " leaves of 8^3 voxels (" + number_text(need / (1024.0 * 1024.0 * 1024.0)) +
+                              " GiB of bookkeeping alone, " + number_text(have / (1024.0 * 1024.0 * 1024.0)) +
+                              " GiB available); use a larger voxel size");
+  }
+  *pair_count = static_cast<std::int64_t>(total);
+  return out;
+}
+
+// The `density` grid: candidate leaves from the supports, evaluated in parallel.
+FloatGrid::Ptr rasterize_density(const GaussianMixture& mixture, const VoxelLattice& lattice,
+                                 const VdbExportOptions& options, const std::string& model,
+                                 const ExportProgress& progress, VdbExportReport& report) {
+  std::int64_t pair_count = 0;
+  const std::vector<Support> supports = supports_of(mixture, lattice, options.tail, model, &pair_count);
+
+  // (leaf, Gaussian) pairs, sorted so that each leaf lists its Gaussians in checkpoint order.
+  std::vector<Pair> pairs;
+  pairs.reserve(static_cast<std::size_t>(pair_count));
+  {
+    tbb::combinable<std::vector<Pair>> local;
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, supports.size(), 256), [&](const auto& r) {
+      auto& out = local.local();
+      for (std::size_t k = r.begin(); k != r.end(); ++k) {
+        const Support& s = supports[k];
+        if (s.empty()) continue;
+        for (int lz = s.lo[2] >> kLeafLog2; lz <= s.hi[2] >> kLeafLog2; ++lz)
+          for (int ly = s.lo[1] >> kLeafLog2; ly <= s.hi[1] >> kLeafLog2; ++ly)
+            for (int lx = s.lo[0] >> kLeafLog2; lx <= s.hi[0] >> kLeafLog2; ++lx)
+              out.push_back({leaf_key(lx, ly, lz), static_cast<std::uint32_t>(k)});
+      }
+    });
+    local.combine_each([&](std::vector<Pair>& v) {
+      pairs.insert(pairs.end(), v.begin(), v.end());
+      std::vector<Pair>().swap(v);
+    });
+  }
+  tbb::parallel_sort(pairs.begin(), pairs.end());
+  std::vector<std::size_t> begin;  // leaf i holds pairs[begin[i] .. begin[i + 1])
+  for (std::size_t i = 0; i < pairs.size(); ++i) {
+    if (i == 0 || pairs[i].leaf != pairs[i - 1].leaf) begin.push_back(i);
+  }
+  const std::size_t n_leaves = begin.size();
+  begin.push_back(pairs.size());
+  report.candidate_leaves = static_cast<std::int64_t>(n_leaves);
+
+  // Each leaf: f at its 512 voxel centres, summed over its Gaussians in checkpoint
+  // order (so values do not depend on threading), kept only if some f > cutoff.
+  std::vector<LeafT*> leaves(n_leaves, nullptr);
+  std::atomic<std::int64_t> done{0};
+  std::mutex progress_mutex;
+  const std::int64_t step = std::max<std::int64_t>(1, static_cast<std::int64_t>(n_leaves) / 20);
+  const Eigen::Vector3d& vs = lattice.voxel_size_world;
+  const Eigen::Vector3d& org = lattice.origin_world;
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n_leaves, 4), [&](const auto& r) {
+    std::array<double, LeafT::SIZE> acc;
+    for (std::size_t i = r.begin(); i != r.end(); ++i) {
+      const Coord origin = leaf_origin(pairs[begin[i]].leaf);
+      acc.fill(0.0);
+      for (std::size_t p = begin[i]; p < begin[i + 1]; ++p) {
+        const Support& s = supports[pairs[p].gaussian];
+        int lo[3], hi[3];
+        bool overlap = true;
+        for (int d = 0; d < 3; ++d) {
+          lo[d] = std::max(s.lo[d], origin[d]);
+          hi[d] = std::min(s.hi[d], origin[d] + kLeafDim - 1);
+          overlap = overlap && lo[d] <= hi[d];
+        }
+        if (!overlap) continue;
+        for (int x = lo[0]; x <= hi[0]; ++x) {
+          for (int y = lo[1]; y <= hi[1]; ++y) {
+            for (int z = lo[2]; z <= hi[2]; ++z) {
+              const double xw[3] = {org.x() + vs.x() * x, org.y() + vs.y() * y, org.z() + vs.z() * z};
+              double local[3];
+              const double m = mahalanobis(s.f, xw, local);
+              if (m > s.delta) continue;
+              // = evaluate_gaussian(s.f, xw, nullptr), without computing m twice.
+              acc[LeafT::coordToOffset(Coord(x, y, z))] += s.f.a * std::exp(-0.5 * m);
+            }
+          }
+        }
+      }
+      LeafT* leaf = nullptr;
+      for (openvdb::Index n = 0; n < LeafT::SIZE; ++n) {
+        if (!(acc[n] > options.cutoff)) continue;
+        if (!leaf) leaf = new LeafT(origin, 0.0f, false);
+        leaf->setValueOn(n, static_cast<float>(acc[n]));
+      }
+      leaves[i] = leaf;
+      const std::int64_t d = ++done;
+      if (progress && d % step == 0) {
+        const std::lock_guard<std::mutex> lock(progress_mutex);
+        progress(d, static_cast<std::int64_t>(n_leaves));
+      }
+    }
+  });
+  std::vector<Pair>().swap(pairs);
+
+  FloatGrid::Ptr grid = FloatGrid::create(0.0f);
+  for (LeafT*& leaf : leaves) {
+    if (leaf) grid->tree().addLeaf(leaf);  // the tree takes ownership
+    leaf = nullptr;
+  }
+  return grid;
+}
+
+openvdb::Vec3d vdb_vec(const std::array<double, 3>& v) { return {v[0], v[1], v[2]}; }
+
+void put_density_meta(FloatGrid& g, const Checkpoint& checkpoint, const VoxelLattice& lattice,
+                      const VdbExportOptions& options, const std::string& model_source) {
+  const CheckpointMeta& m = checkpoint.meta;
+  g.insertMeta("hisnegs_format_version", openvdb::Int32Metadata(kVdbFormatVersion));
+  g.insertMeta("gaussians", openvdb::Int64Metadata(static_cast<openvdb::Int64>(checkpoint.mixture.size())));
+  g.insertMeta("cutoff", openvdb::DoubleMetadata(options.cutoff));
+  g.insertMeta("tail", openvdb::DoubleMetadata(options.tail));
+  g.insertMeta("model", openvdb::StringMetadata(model_source));
+  std::string source;
+  for (const auto& [key, value] : m.extra) {
+    if (key == "source") source = value;
+  }
+  g.insertMeta("source", openvdb::StringMetadata(source));
+  if (m.volume_shape_zyx) {
+    const auto& s = *m.volume_shape_zyx;
+    g.insertMeta("volume_shape_xyz", openvdb::Vec3IMetadata(openvdb::Vec3i(s[2], s[1], s[0])));
+  }
+  if (m.spacing_um) g.insertMeta("spacing_um", openvdb::Vec3DMetadata(vdb_vec(*m.spacing_um)));
+  if (m.aspect) g.insertMeta("aspect", openvdb::Vec3DMetadata(vdb_vec(*m.aspect)));
+  if (!m.normalization.empty()) g.insertMeta("normalization", openvdb::StringMetadata(m.normalization));
+  if (lattice.clip) {
+    const auto& c = *lattice.clip;
+    g.insertMeta("clip_min", openvdb::Vec3IMetadata(openvdb::Vec3i(c.min.x(), c.min.y(), c.min.z())));
+    g.insertMeta("clip_max", openvdb::Vec3IMetadata(openvdb::Vec3i(c.max.x(), c.max.y(), c.max.z())));
+  }
+}
+
+// Attribute layout of the `gaussians` grid, one place for writer and reader.
+constexpr const char* kMeanAttr = "mean";
+constexpr const char* kLogScaleAttr = "log_scale";
+constexpr const char* kRotationAttr = "rotation";
+constexpr const char* kLogitAttr = "intensity_logit";
+constexpr const char* kIntensityAttr = "intensity";
+constexpr const char* kIdAttr = "id";
+
+// Every Gaussian as one point at its mean: `P` (OpenVDB's own position, for viewers),
+// the exact parameters as uncompressed float attributes, a = sigmoid(logit) for
+// display, and `id` (its checkpoint row: points are stored in voxel order).
+PointDataGrid::Ptr make_points(const Checkpoint& checkpoint, const openvdb::math::Transform& transform) {
+  namespace vp = openvdb::points;
+  const GaussianMixture& mixture = checkpoint.mixture;
+  const std::size_t K = mixture.size();
+  if (K > static_cast<std::size_t>(std::numeric_limits<std::int32_t>::max())) {
+    throw std::invalid_argument("export vdb --points: " + std::to_string(K) + " Gaussians exceed the int32 `id`");
+  }
+  std::vector<openvdb::Vec3d> position(K);
+  std::vector<openvdb::Vec3f> mean(K), log_scale(K);
+  std::vector<float> rotation(4 * K), logit(K), intensity(K);
+  std::vector<std::int32_t> id(K);
+  for (std::size_t k = 0; k < K; ++k) {
+    const GaussianParams& g = mixture[k];
+    position[k] = openvdb::Vec3d(g.mean[0], g.mean[1], g.mean[2]);
+    mean[k] = openvdb::Vec3f(g.mean[0], g.mean[1], g.mean[2]);
+    log_scale[k] = openvdb::Vec3f(g.log_scale[0], g.log_scale[1], g.log_scale[2]);
+    for (int c = 0; c < 4; ++c) rotation[4 * k + c] = g.rotation[c];
+    logit[k] = g.intensity_logit;
+    intensity[k] = static_cast<float>(sigmoid(static_cast<double>(g.intensity_logit)));
+    id[k] = static_cast<std::int32_t>(k);
+  }
+  const vp::PointAttributeVector<openvdb::Vec3d> positions(position);
+  const auto index_grid = openvdb::tools::createPointIndexGrid<openvdb::tools::PointIndexGrid>(positions, transform);
+  PointDataGrid::Ptr grid =
+      vp::createPointDataGrid<vp::NullCodec, PointDataGrid>(*index_grid, positions, transform);
+  auto& tree = grid->tree();
+  const auto& index_tree = index_grid->tree();
+  // NullCodec everywhere: the stored floats are the checkpoint's, bit for bit.
+  vp::appendAttribute<openvdb::Vec3f, vp::NullCodec>(tree, kMeanAttr);
+  vp::populateAttribute(tree, index_tree, kMeanAttr, vp::PointAttributeVector<openvdb::Vec3f>(mean));
+  vp::appendAttribute<openvdb::Vec3f, vp::NullCodec>(tree, kLogScaleAttr);
+  vp::populateAttribute(tree, index_tree, kLogScaleAttr, vp::PointAttributeVector<openvdb::Vec3f>(log_scale));
+  vp::appendAttribute<float, vp::NullCodec>(tree, kRotationAttr, 0.0f, /*stride=*/4);
+  vp::populateAttribute(tree, index_tree, kRotationAttr, vp::PointAttributeVector<float>(rotation, 4), 4);
+  vp::appendAttribute<float, vp::NullCodec>(tree, kLogitAttr);
+  vp::populateAttribute(tree, index_tree, kLogitAttr, vp::PointAttributeVector<float>(logit));
+  vp::appendAttribute<float, vp::NullCodec>(tree, kIntensityAttr);
+  vp::populateAttribute(tree, index_tree, kIntensityAttr, vp::PointAttributeVector<float>(intensity));
+  vp::appendAttribute<std::int32_t, vp::NullCodec>(tree, kIdAttr);
+  vp::populateAttribute(tree, index_tree, kIdAttr, vp::PointAttributeVector<std::int32_t>(id));
+
+  // The checkpoint's own header lines, so that import restores its metadata exactly.
+  std::string header;
+  for (const std::string& line : checkpoint_to_ply(GaussianMixture{}, checkpoint.meta).comments) {
+    header += (header.empty() ? "" : "\n") + line;
+  }
+  grid->setName(kPointsGrid);
+  grid->insertMeta(kCheckpointMetaKey, openvdb::StringMetadata(header));
+  grid->insertMeta("hisnegs_format_version", openvdb::Int32Metadata(kVdbFormatVersion));
+  grid->insertMeta("gaussians", openvdb::Int64Metadata(static_cast<openvdb::Int64>(K)));
+  return grid;
+}
+
+}  // namespace
+
+VoxelLattice VoxelLattice::of(const io::WorldFrame& frame) {
+  VoxelLattice l;
+  l.voxel_size_world = frame.voxel_size();
+  l.origin_world = frame.world_from_index(Eigen::Vector3d::Zero());
+  l.clip = IndexBox{Eigen::Vector3i::Zero(), frame.shape() - Eigen::Vector3i::Ones()};
+  return l;
+}
+
+VoxelLattice VoxelLattice::aligned(double voxel_size_world) {
+  VoxelLattice l;
+  l.voxel_size_world = Eigen::Vector3d::Constant(voxel_size_world);
+  l.origin_world = Eigen::Vector3d::Zero();
+  return l;
+}
+
+VoxelLattice VoxelLattice::clipped_to_box(const Eigen::Vector3d& aspect) const {
+  validate();
+  VoxelLattice l = *this;
+  IndexBox box;
+  for (int d = 0; d < 3; ++d) {
+    // Centres origin + v i inside [-a, a]; the index range check of export_vdb
+    // applies afterwards, so the bounds are only kept within int range here.
+    const double lo = std::ceil((-aspect[d] - origin_world[d]) / voxel_size_world[d]);
+    const double hi = std::floor((aspect[d] - origin_world[d]) / voxel_size_world[d]);
+    box.min[d] = static_cast<int>(std::clamp(lo, -2.0 * kMaxIndex, 2.0 * kMaxIndex));
+    box.max[d] = static_cast<int>(std::clamp(hi, -2.0 * kMaxIndex, 2.0 * kMaxIndex));
+  }
+  if (clip) {
+    box.min = box.min.cwiseMax(clip->min);
+    box.max = box.max.cwiseMin(clip->max);
+  }
+  l.clip = box;
+  return l;
+}
+
+void VoxelLattice::validate() const {
+  for (int d = 0; d < 3; ++d) {
+    const double v = voxel_size_world[d];
+    if (!std::isfinite(v) || !(v > 0.0)) {
+      throw io::InputError("voxel size " + number_text(v) + ": must be a finite number > 0 (world units)");
+    }
+    if (!std::isfinite(origin_world[d])) throw io::InputError("lattice origin is not finite");
+  }
+  if (clip && (clip->min.array() > clip->max.array()).any()) {
+    throw io::InputError("lattice clip box is empty: the voxel size exceeds the stack's box");
+  }
+}
+
+std::optional<io::WorldFrame> model_frame(const CheckpointMeta& meta) {
+  if (!meta.volume_shape_zyx || !meta.aspect) return std::nullopt;
+  const auto& s = *meta.volume_shape_zyx;
+  const auto& a = *meta.aspect;
+  return io::WorldFrame(s[2], s[1], s[0], Eigen::Vector3d(a[0], a[1], a[2]));
+}
+
+void require_same_world_box(const CheckpointMeta& meta, const io::WorldFrame& frame, const std::string& volume) {
+  if (!meta.aspect) return;
+  const Eigen::Vector3d model((*meta.aspect)[0], (*meta.aspect)[1], (*meta.aspect)[2]);
+  const Eigen::Vector3d& a = frame.aspect();
+  if (((model - a).array().abs() <= 1e-6 * model.array().abs()).all()) return;
+  io::fail_input(volume, "its world box (aspect " + number_text(a.x()) + " " + number_text(a.y()) + " " +
+                             number_text(a.z()) + ") differs from the model's (aspect " + number_text(model.x()) +
+                             " " + number_text(model.y()) + " " + number_text(model.z()) +
+                             "); give the --spacing / --aspect the model was fitted with");
+}
+
+void VdbExportOptions::validate() const {
+  if (!(cutoff > 0.0 && cutoff < 1.0)) {
+    throw io::InputError("cutoff = " + number_text(cutoff) + ": must be in (0, 1) (normalized intensity)");
+  }
+  if (!(tail > 0.0 && tail <= cutoff)) {
+    throw io::InputError("tail = " + number_text(tail) + ": must be in (0, cutoff = " + number_text(cutoff) + "]");
+  }
+}
+
+VdbExportReport export_vdb(const fs::path& path, const Checkpoint& checkpoint, const VoxelLattice& lattice,
+                           const VdbExportOptions& options, const std::string& model_source,
+                           const ExportProgress& progress) {
+  options.validate();
+  lattice.validate();
+  io::detail::ensure_openvdb_initialized();
+  VdbExportReport report;
+  report.gaussians = static_cast<std::int64_t>(checkpoint.mixture.size());
+  io::Stopwatch watch;
+
+  const auto transform = make_transform(lattice);
+  FloatGrid::Ptr density = rasterize_density(checkpoint.mixture, lattice, options, model_source, progress, report);
+  density->setTransform(transform->copy());
+  density->setName(kDensityGrid);
+  density->setGridClass(openvdb::GRID_FOG_VOLUME);
+  put_density_meta(*density, checkpoint, lattice, options, model_source);
+  report.leaf_count = static_cast<std::int64_t>(density->tree().leafCount());
+  report.active_voxels = static_cast<std::int64_t>(density->activeVoxelCount());
+  report.grid_memory_bytes = static_cast<std::size_t>(density->memUsage());
+  report.rasterize_seconds = watch.lap();
+
+  openvdb::GridPtrVec grids{density};
+  if (options.points) {
+    PointDataGrid::Ptr points = make_points(checkpoint, *transform);
+    report.grid_memory_bytes += static_cast<std::size_t>(points->memUsage());
+    grids.push_back(points);
+    report.points_seconds = watch.lap();
+  }
+
+  io::AtomicFile out(path);
+  try {
+    openvdb::io::File file(out.temp_path().string());
+    file.setCompression(openvdb::io::COMPRESS_BLOSC);
+    file.write(grids);
+    file.close();
+  } catch (const openvdb::Exception& e) {
+    throw std::runtime_error(path.string() + ": cannot write VDB: " + io::printable(e.what()));
+  }
+  out.commit();
+  report.write_seconds = watch.lap();
+  report.file_bytes = fs::file_size(path);
+  return report;
+}
+
+namespace {
+
+// The attribute `name` of a points leaf, checked to hold T with `stride` values per point.
+const openvdb::points::AttributeArray& attribute(const openvdb::points::PointDataTree::LeafNodeType& leaf,
+                                                 const fs::path& path, const char* name, const std::string& type,
+                                                 openvdb::Index stride) {
+  const std::size_t pos = leaf.attributeSet().find(name);
+  if (pos == openvdb::points::AttributeSet::INVALID_POS) {
+    io::fail_input(path, "grid 'gaussians' lacks point attribute '" + std::string(name) + "' (" + type +
+                             ", written by hisnegs export vdb --points)");
+  }
+  const openvdb::points::AttributeArray& array = leaf.constAttributeArray(pos);
+  if (array.valueType() != type || array.stride() != stride) {
+    io::fail_input(path, "point attribute '" + std::string(name) + "' holds " + array.valueType() + " × " +
+                             std::to_string(array.stride()) + ", expected " + type + " × " + std::to_string(stride));
+  }
+  return array;
+}
+
+}  // namespace
+
+Checkpoint import_vdb_points(const fs::path& path) {
+  namespace vp = openvdb::points;
+  io::require_regular_file(path);
+  io::detail::ensure_openvdb_initialized();
+  PointDataGrid::Ptr grid;
+  try {
+    openvdb::io::File file(path.string());
+    file.open(false);
+    if (!file.hasGrid(kPointsGrid)) {
+      file.close();
+      io::fail_input(path, "has no grid named 'gaussians' (export it with hisnegs export vdb --points)");
+    }
+    grid = openvdb::gridPtrCast<PointDataGrid>(file.readGrid(kPointsGrid));
+    file.close();
+  } catch (const openvdb::Exception& e) {
+    io::fail_input(path, "not a readable OpenVDB file: " + io::printable(e.what()));  // OpenVDB messages can span lines
+  }
+  if (!grid) io::fail_input(path, "grid 'gaussians' is not a PointDataGrid");
+  const auto header = grid->getMetadata<openvdb::StringMetadata>(kCheckpointMetaKey);
+  if (!header) {
+    io::fail_input(path, "grid 'gaussians' lacks metadata '" + std::string(kCheckpointMetaKey) +
+                             "' (not written by hisnegs?)");
+  }
+
+  const std::size_t K = static_cast<std::size_t>(vp::pointCount(grid->tree()));
+  GaussianMixture mixture;
+  mixture.resize(K);
+  std::vector<char> seen(K, 0);
+  const std::string vec3 = openvdb::typeNameAsString<openvdb::Vec3f>();
+  const std::string real = openvdb::typeNameAsString<float>();
+  const std::string int32 = openvdb::typeNameAsString<std::int32_t>();
+  try {
+    for (auto leaf = grid->tree().cbeginLeaf(); leaf; ++leaf) {
+      const vp::AttributeHandle<openvdb::Vec3f> mean(attribute(*leaf, path, kMeanAttr, vec3, 1));
+      const vp::AttributeHandle<openvdb::Vec3f> log_scale(attribute(*leaf, path, kLogScaleAttr, vec3, 1));
+      const vp::AttributeHandle<float> rotation(attribute(*leaf, path, kRotationAttr, real, 4));
+      const vp::AttributeHandle<float> logit(attribute(*leaf, path, kLogitAttr, real, 1));
+      const vp::AttributeHandle<std::int32_t> id(attribute(*leaf, path, kIdAttr, int32, 1));
+      for (auto index = leaf->beginIndexAll(); index; ++index) {
+        const openvdb::Index n = *index;
+        const std::int32_t k = id.get(n);
+        if (k < 0 || static_cast<std::size_t>(k) >= K || seen[k]) {
+          io::fail_input(path, "point attribute 'id' = " + std::to_string(k) + " is " +
+                                   (k < 0 || static_cast<std::size_t>(k) >= K ? "outside 0.." + std::to_string(K) + " - 1"
+                                                                              : std::string("given twice")) +
+                                   " (ids must number the " + std::to_string(K) + " points 0..K-1 once each)");
+        }
+        seen[k] = 1;
+        GaussianParams& g = mixture[static_cast<std::size_t>(k)];
+        const openvdb::Vec3f m = mean.get(n), s = log_scale.get(n);
+        g.mean = {m.x(), m.y(), m.z()};
+        g.log_scale = {s.x(), s.y(), s.z()};
+        for (openvdb::Index c = 0; c < 4; ++c) g.rotation[c] = rotation.get(n, c);
+        g.intensity_logit = logit.get(n);
+      }
+    }
+  } catch (const openvdb::Exception& e) {
+    io::fail_input(path, "cannot read grid 'gaussians': " + io::printable(e.what()));
+  }
+
+  // Through the checkpoint's own reader: the same checks (finite values, non-zero
+  // quaternions, well-formed metadata) as loading a .ply, with this file named.
+  io::PlyTable table;
+  std::istringstream lines(header->value());
+  for (std::string line; std::getline(lines, line);) table.comments.push_back(line);
+  std::vector<io::PlyProperty> props;
+  for (std::string_view name : kGaussianParamNames) props.push_back({std::string(name), io::PlyType::kFloat32});
+  io::PlyElement vertex("vertex", static_cast<std::int64_t>(K), std::move(props));
+  static_assert(sizeof(GaussianParams) == kGaussianParamCount * sizeof(float));
+  if (K > 0) std::memcpy(vertex.bytes().data(), mixture.data(), vertex.bytes().size());
+  table.elements.push_back(std::move(vertex));
+  return checkpoint_from_ply(table, path);
+}
+
+}  // namespace hisnegs::gmf

@@ -1,2 +1,118 @@
-// placeholder (issue 8)
+// Checkpoint -> OpenVDB (`hisnegs export vdb`): the mixture f(x) rasterized into a
+// sparse `density` FloatGrid by per-leaf stamping with TBB, optionally a `gaussians`
+// PointDataGrid with every parameter of every Gaussian, and the way back from that
+// points grid to a checkpoint (`hisnegs import vdb`). OpenVDB stays in the .cpp.
 #pragma once
+
+#include <Eigen/Core>
+#include <cstddef>
+#include <cstdint>
+#include <filesystem>
+#include <functional>
+#include <optional>
+#include <string>
+
+#include "gmf/checkpoint.hpp"
+#include "io/volume.hpp"
+
+namespace hisnegs::gmf {
+
+// The voxels a mixture is rasterized on: voxel (i, j, k) (column, row, page) has its
+// centre at origin_world + voxel_size_world ⊙ (i, j, k), so integer indices are
+// voxel centres, as in io::WorldFrame and in OpenVDB's index space. Optionally
+// limited to an index box: the fit saw only the stack, so outside its box f is
+// unconstrained (escaped Gaussians may spread there) and is left out.
+struct VoxelLattice {
+  struct IndexBox {
+    Eigen::Vector3i min{0, 0, 0}, max{0, 0, 0};  // inclusive
+  };
+  Eigen::Vector3d voxel_size_world{1.0, 1.0, 1.0};  // world units per voxel along x, y, z, each finite > 0
+  Eigen::Vector3d origin_world{0.0, 0.0, 0.0};      // centre of voxel (0, 0, 0), world units
+  std::optional<IndexBox> clip;                     // voxels outside stay inactive; none = unbounded
+
+  // The voxels of the stack `frame` describes (CONVENTIONS "World space"): voxel
+  // (i, j, k) of the lattice is voxel (i, j, k) of the stack, clipped to 0..N-1.
+  [[nodiscard]] static VoxelLattice of(const io::WorldFrame& frame);
+  // Cubic voxels of edge `voxel_size_world` with a voxel centre at the world origin,
+  // unbounded.
+  [[nodiscard]] static VoxelLattice aligned(double voxel_size_world);
+  // This lattice clipped to the voxels whose centres lie in the world box
+  // [-aspect, aspect] (a stack's box, CONVENTIONS "World space").
+  [[nodiscard]] VoxelLattice clipped_to_box(const Eigen::Vector3d& aspect) const;
+  // Throws io::InputError("voxel size V: ...") for a non-finite or non-positive size.
+  void validate() const;
+};
+
+// The frame of the stack a checkpoint was fitted to, from its `volume_shape` and
+// `aspect` metadata; nullopt when either is missing (e.g. a model made elsewhere).
+[[nodiscard]] std::optional<io::WorldFrame> model_frame(const CheckpointMeta& meta);
+
+// Checks that `frame` (the stack `volume`) spans the same world box as the stack the
+// model was fitted to (its `aspect` metadata, relative tolerance 1e-6), so that the
+// model's Gaussians sit on that stack's voxels. Does nothing when the checkpoint
+// records no aspect. Throws io::InputError naming `volume` and both aspects otherwise
+// (a different --spacing or --aspect than the fit used gives a different box).
+void require_same_world_box(const CheckpointMeta& meta, const io::WorldFrame& frame, const std::string& volume);
+
+// How `export_vdb` rasterizes and what it writes.
+struct VdbExportOptions {
+  // EPS, normalized intensity in (0, 1): voxels with f <= cutoff are inactive (value 0,
+  // the background), so the grid holds only the region where the model has signal.
+  double cutoff = 1e-3;
+  // Per-Gaussian truncation, in (0, cutoff]: Gaussian k is evaluated only where
+  // a_k exp(-m/2) >= tail, i.e. inside m <= 2 ln(a_k / tail). Each stored value is
+  // below the exact f by at most tail × (Gaussians reaching that voxel); 1e-8 keeps
+  // that under 1e-6 for up to 100 overlapping Gaussians at ~6.1 σ support radius.
+  double tail = 1e-8;
+  // Also write the `gaussians` PointDataGrid (every parameter of every Gaussian).
+  bool points = false;
+
+  void validate() const;  // throws io::InputError("cutoff = VALUE: rule"), likewise tail
+};
+
+// What `export_vdb` made.
+struct VdbExportReport {
+  std::int64_t gaussians = 0;          // K
+  std::int64_t candidate_leaves = 0;   // 8^3 leaves some Gaussian's support reaches
+  std::int64_t leaf_count = 0;         // leaves kept (holding at least one voxel with f > cutoff)
+  std::int64_t active_voxels = 0;      // voxels with f > cutoff
+  std::size_t grid_memory_bytes = 0;   // both grids in memory, as OpenVDB counts it
+  std::uintmax_t file_bytes = 0;       // size of the written .vdb
+  double rasterize_seconds = 0;
+  double points_seconds = 0;           // building the points grid (0 without points)
+  double write_seconds = 0;
+};
+
+// Called from worker threads (serialized) with the leaves evaluated so far and the
+// candidate total, about every 5 % of the work.
+using ExportProgress = std::function<void(std::int64_t done, std::int64_t total)>;
+
+// Writes `path` (atomically: temp file + rename, so no partial file on any throw)
+// holding a FloatGrid `density` (class fog volume): f(x) (report Eq. 1) at the voxel
+// centres of `lattice` inside lattice.clip, active where f > options.cutoff, with
+// the lattice as its linear transform and metadata hisnegs_format_version,
+// gaussians (K), cutoff, tail, model (= `model_source`), source (the checkpoint's
+// `source`), clip_min/clip_max (when clipped) and, when the checkpoint records
+// them, volume_shape_xyz, spacing_um, aspect, normalization.
+// With options.points also a PointDataGrid `gaussians` (see import_vdb_points).
+// Work and memory scale with the leaves the Gaussians' supports reach, never with
+// their bounding box; values do not depend on the thread count (each voxel sums its
+// Gaussians in checkpoint order). Throws io::InputError for invalid options or a
+// lattice so fine that the supports would reach more leaves than memory holds
+// (MemAvailable, or HISNEGS_MAX_ALLOC_GB GiB) or span more than 2^23 voxels along an
+// axis; std::runtime_error naming `path` if writing fails.
+VdbExportReport export_vdb(const std::filesystem::path& path, const Checkpoint& checkpoint,
+                           const VoxelLattice& lattice, const VdbExportOptions& options,
+                           const std::string& model_source, const ExportProgress& progress = {});
+
+// Reads the `gaussians` PointDataGrid of a .vdb written by export_vdb with points:
+// attributes `mean` (vec3f), `log_scale` (vec3f), `rotation` (float, stride 4, w x y
+// z), `intensity_logit` (float) and `id` (int32, the Gaussian's row in the
+// checkpoint, so the order is restored), plus the checkpoint's header lines in the
+// grid metadata `hisnegs_checkpoint`. The result is bit-identical to the exported
+// checkpoint (parameters and metadata). Throws io::InputError naming the file for a
+// non-VDB, a missing grid, attribute or metadata, an attribute of another type,
+// `id`s that are not 0..K-1 each once, and everything checkpoint_from_ply rejects.
+[[nodiscard]] Checkpoint import_vdb_points(const std::filesystem::path& path);
+
+}  // namespace hisnegs::gmf

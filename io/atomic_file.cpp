@@ -1,4 +1,4 @@
-// AtomicFile: temp file + fsync + rename. Also require_regular_file from error.hpp.
+// AtomicFile: temp file + fsync + rename; read_file. Also require_regular_file from error.hpp.
 #include "io/atomic_file.hpp"
 
 #include <fcntl.h>
@@ -8,6 +8,8 @@
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
+#include <fstream>
+#include <sstream>
 #include <stdexcept>
 #include <string>
 #include <system_error>
@@ -79,6 +81,16 @@ void write_file_atomic(const fs::path& target, const void* bytes, std::size_t si
   const bool ok = written == size && std::fclose(f) == 0;
   if (!ok) throw std::runtime_error(target.string() + ": write failed: " + std::strerror(errno));
   file.commit();
+}
+
+std::string read_file(const fs::path& path) {
+  require_regular_file(path);
+  std::ifstream in(path, std::ios::binary);
+  if (!in) fail_input(path, "cannot open");
+  std::ostringstream s;
+  s << in.rdbuf();
+  if (in.bad()) fail_input(path, "cannot be read");
+  return s.str();
 }
 
 }  // namespace hisnegs::io

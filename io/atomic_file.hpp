@@ -1,9 +1,10 @@
-// Atomic output files: write to a temporary name in the target's folder, then
-// rename over the target, so a crash never leaves a half-written output. Does
-// not know any file format.
+// Whole-file I/O: atomic output files (write to a temporary name in the target's
+// folder, then rename over the target, so a crash never leaves a half-written
+// output) and reading a whole file. Does not know any file format.
 #pragma once
 
 #include <filesystem>
+#include <string>
 
 namespace hisnegs::io {
 
@@ -34,5 +35,9 @@ class AtomicFile {
 
 // Writes `bytes` to `target` atomically.
 void write_file_atomic(const std::filesystem::path& target, const void* bytes, std::size_t size);
+
+// The bytes of the regular file `path`; throws InputError naming it if it is
+// missing, not a regular file or cannot be read.
+[[nodiscard]] std::string read_file(const std::filesystem::path& path);
 
 }  // namespace hisnegs::io

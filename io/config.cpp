@@ -13,6 +13,7 @@
 #include <optional>
 #include <set>
 
+#include "io/atomic_file.hpp"
 #include "io/error.hpp"
 
 namespace hisnegs::io {
@@ -77,12 +78,7 @@ ConfigFile ConfigFile::parse(const std::string& text, const std::string& origin)
 }
 
 ConfigFile ConfigFile::load(const std::filesystem::path& path) {
-  require_regular_file(path);
-  std::ifstream in(path, std::ios::binary);
-  if (!in) fail_input(path, "cannot open");
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return parse(ss.str(), path.string());
+  return parse(read_file(path), path.string());
 }
 
 const std::string& ConfigFile::origin() const { return impl_->origin; }

@@ -109,14 +109,6 @@ class Reader {
   std::size_t at_ = 0;
 };
 
-std::string read_whole_file(const std::filesystem::path& path) {
-  io::require_regular_file(path);
-  std::ifstream in(path, std::ios::binary);
-  std::ostringstream s;
-  s << in.rdbuf();
-  if (!in && !in.eof()) io::fail_input(path, "cannot be read");
-  return s.str();
-}
 
 std::string epoch_tag(int epoch) {
   char buf[32];
@@ -512,7 +504,7 @@ void save_training_checkpoint(const std::filesystem::path& dir, const Trainer& t
 int resume_training(const std::filesystem::path& dir, Trainer& trainer) {
   const std::filesystem::path latest = dir / "latest";
   if (!std::filesystem::exists(latest)) io::fail_input(latest, "no checkpoint to resume from (file missing)");
-  const std::string text = read_whole_file(latest);
+  const std::string text = io::read_file(latest);
   int epoch = -1;
   char tail = 0;
   if (std::sscanf(text.c_str(), "%d%c", &epoch, &tail) < 1 || epoch < 0 || (tail != 0 && tail != '\n')) {
@@ -522,7 +514,7 @@ int resume_training(const std::filesystem::path& dir, Trainer& trainer) {
   const auto flat = flat_params(checkpoint.mixture);
   std::vector<float> params(flat.begin(), flat.end());
   const std::filesystem::path state_path = checkpoint_state_path(dir, epoch);
-  trainer.restore_state(read_whole_file(state_path), std::move(params), state_path.string());
+  trainer.restore_state(io::read_file(state_path), std::move(params), state_path.string());
   if (trainer.epoch() != epoch) io::fail_input(state_path, "holds epoch " + std::to_string(trainer.epoch()));
   return epoch;
 }
