@@ -6,6 +6,7 @@
 
 #include <filesystem>
 
+#include "apps/bench/bench_report.hpp"
 #include "apps/bench/benchmarks.hpp"
 #include "apps/cli_support.hpp"
 #include "apps/commands_detail.hpp"
@@ -20,21 +21,42 @@ void add_bench_command(CLI::App& app, GlobalOptions& global) {
     std::string volume;
     std::vector<int> sizes;
     std::vector<int> gaussians{12000, 25000, 37000, 50000, 62000};
-    std::vector<float> betas{1, 10, 50, 100, 500};
+    std::vector<float> betas;
+    std::string out, model, backend = "auto";
+    bench::BenchReportRequest report;
   };
   auto args = std::make_shared<Args>();
-  cmd->add_option("SUITE", args->suite, "io | gt | gmf | render")->required();
+  cmd->add_option("SUITE", args->suite, "io | gt | gmf | render | report")->required();
   cmd->add_option("--sizes", args->sizes, "gt, render: image sizes (default gt 256, render 128,256,512,1024)")
       ->delimiter(',');
   cmd->add_option("--gaussians", args->gaussians, "render: K values at 256² (default 12000,...,62000)")->delimiter(',');
-  cmd->add_option("--betas", args->betas, "render: soft-MIP beta values (default 1,10,50,100,500)")->delimiter(',');
+  cmd->add_option("--betas", args->betas,
+                  "render, report: soft-MIP beta values (default render 1,10,50,100,500; report 1,5,...,500)")
+      ->delimiter(',');
+  cmd->add_option("-o,--output", args->out, "report: output folder (report.md, table7/9/10/11/12.csv)");
+  cmd->add_option("--model", args->model, "report: checkpoint to measure (default: synthetic K = 50000)");
+  cmd->add_option("--backend", args->backend, "report: auto | cpu | cuda");
+  cmd->add_option("--orbit-frames", args->report.orbit_frames, "report: Table 10 orbit frames")->capture_default_str();
+  cmd->add_option("--views", args->report.quality_views, "report: evaluation views for Table 11 images")
+      ->capture_default_str();
+  cmd->add_option("--min-frames", args->report.min_frames, "report: fewest frames per timed case")->capture_default_str();
+  cmd->add_option("--max-frames", args->report.max_frames, "report: most frames per timed case")->capture_default_str();
+  cmd->add_option("--seconds-per-case", args->report.seconds_per_case, "report: time budget per timed case")
+      ->capture_default_str();
   cmd->add_option("--volume", args->volume, "TIFF stack to measure (default: a synthetic stack written to a temp folder)");
   cmd->allow_extras();
   cmd->callback([cmd, args, &global] {
-    if (args->suite != "io" && args->suite != "gt" && args->suite != "gmf" && args->suite != "render") {
-      throw io::InputError("bench: unknown suite '" + args->suite + "'; expected io|gt|gmf|render");
+    const bool report = args->suite == "report";
+    if (args->suite != "io" && args->suite != "gt" && args->suite != "gmf" && args->suite != "render" && !report) {
+      throw io::InputError("bench: unknown suite '" + args->suite + "'; expected io|gt|gmf|render|report");
     }
-    if (args->sizes.empty()) args->sizes = args->suite == "render" ? std::vector<int>{128, 256, 512, 1024} : std::vector<int>{256};
+    if (report && args->out.empty()) throw io::InputError("bench report: give the output folder with -o DIR");
+    if (args->sizes.empty()) {
+      args->sizes = args->suite == "render" || report ? std::vector<int>{128, 256, 512, 1024} : std::vector<int>{256};
+    }
+    if (args->betas.empty()) {
+      args->betas = report ? args->report.betas : std::vector<float>{1, 10, 50, 100, 500};
+    }
     for (int size : args->sizes) {
       if (size < 8 || size > 16384) throw io::InputError("--sizes: " + std::to_string(size) + " is outside [8, 16384]");
     }
@@ -54,6 +76,21 @@ void add_bench_command(CLI::App& app, GlobalOptions& global) {
       write_synthetic_stack(volume, global.config().synth, true);
     } else {
       io::require_regular_file(volume);
+    }
+    if (report) {
+      bench::BenchReportRequest& r = args->report;
+      r.dir = args->out;
+      r.volume = volume;
+      if (!temp.empty()) r.volume_label = "the synthetic neuron (hisnegs synth with the configured synth section)";
+      r.model = args->model;
+      if (!r.model.empty()) io::require_regular_file(r.model);
+      r.backend = splat::resolve_backend(splat::parse_backend_request(args->backend));
+      r.sizes = args->sizes;
+      r.gaussians = args->gaussians;
+      r.betas = args->betas;
+      bench::write_bench_report(r, global.quiet);
+      if (!temp.empty()) std::filesystem::remove_all(temp);
+      return;
     }
     if (args->suite == "io") {
       bench::register_io_benchmarks(volume);

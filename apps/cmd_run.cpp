@@ -269,6 +269,7 @@ void add_run_command(CLI::App& app, GlobalOptions& global) {
   cmd->callback([args, &global] {
     AppConfig config = global.config();
     args->overrides.apply(config.volume);
+    io::require_regular_file(args->volume);  // before the back-end notice: a bad path is the one line
     const splat::Backend backend = splat::resolve_backend(splat::parse_backend_request(args->backend));
     run_pipeline({args->volume, args->out, backend, args->force, args->orbit_frames, args->orbit_elevation}, config,
                  global.quiet);

@@ -8,6 +8,7 @@
 #include <fstream>
 #include <sstream>
 
+#include "apps/run_pipeline.hpp"
 #include "io/error.hpp"
 #include "tests/test_support.hpp"
 
@@ -40,6 +41,15 @@ TEST(AppConfig, EveryShippedConfigLoads) {
 TEST(AppConfig, DefaultYamlEqualsBuiltInDefaults) {
   const AppConfig from_file = load_app_config(kConfigs / "default.yaml");
   EXPECT_EQ(dump_app_config(from_file), dump_app_config(AppConfig{}));
+}
+
+TEST(AppConfig, DemoYamlIsTheBuiltInDemoProfile) {
+  std::ifstream in(kConfigs / "demo.yaml");
+  const std::string text{std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+  EXPECT_EQ(text, kDemoProfile);
+  const AppConfig demo = load_app_config_text(kDemoProfile, "demo profile");
+  EXPECT_EQ(dump_app_config(demo), dump_app_config(load_app_config(kConfigs / "demo.yaml")));
+  EXPECT_NE(dump_app_config(demo), dump_app_config(AppConfig{}));
 }
 
 TEST(AppConfig, DefaultYamlSpellsOutEveryField) {

@@ -1,5 +1,5 @@
 // End-to-end runs of the hisnegs executable: help, synth -> info -> vdb -> info,
-// config dump, demo, and the io benchmark suite on a tiny stack.
+// config dump and the io benchmark suite on a tiny stack.
 #include <gtest/gtest.h>
 
 #include <filesystem>
@@ -58,15 +58,6 @@ TEST(Cli, ConfigDumpReloads) {
   const auto again = run_hisnegs({"--config", dir / "dump.yaml", "config"});
   ASSERT_EQ(again.exit_code, 0) << again.err;
   EXPECT_EQ(again.out, r.out);
-}
-
-TEST(Cli, DemoWritesItsOutputs) {
-  testing::ScratchDir dir;
-  testing::write_text(dir / "small.yaml", "synth:\n  nx: 48\n  ny: 48\n  nz: 16\n");
-  const auto r = run_hisnegs({"--config", dir / "small.yaml", "demo", "-o", dir / "demo"});
-  ASSERT_EQ(r.exit_code, 0) << r.err;
-  EXPECT_TRUE(fs::exists(dir / "demo" / "volume.tif"));
-  EXPECT_TRUE(fs::exists(dir / "demo" / "volume.vdb"));
 }
 
 TEST(Cli, IoBenchmarkSuiteRuns) {
