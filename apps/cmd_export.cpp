@@ -173,7 +173,7 @@ void add_export_command(CLI::App& app, GlobalOptions& global) {
   vdb->add_option("--model", vdb_args->model, "checkpoint (.ply)")->required();
   vdb->add_option("-o,--output", vdb_args->out, "output .vdb")->required();
   auto* voxel = vdb->add_option("--voxel-size", vdb_args->voxel_size,
-                                "cubic voxels of this world size, a voxel centre at the origin");
+                                "cubic voxels of this world size, a voxel centre at the origin (within the model's box)");
   auto* match = vdb->add_option("--match-volume", vdb_args->match_volume,
                                 "use the voxels of this TIFF stack (default: the model's own stack)");
   voxel->excludes(match);

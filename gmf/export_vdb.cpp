@@ -30,6 +30,7 @@
 #include "io/atomic_file.hpp"
 #include "io/detail/vdb_grids.hpp"
 #include "io/error.hpp"
+#include "io/memory_limit.hpp"
 #include "io/timer.hpp"
 
 namespace hisnegs::gmf {
@@ -54,29 +55,6 @@ constexpr const char* kDensityGrid = "density";
 constexpr const char* kPointsGrid = "gaussians";
 constexpr const char* kCheckpointMetaKey = "hisnegs_checkpoint";
 constexpr int kVdbFormatVersion = 1;
-
-// Bytes the export may allocate: HISNEGS_MAX_ALLOC_GB (GiB) if set, else the
-// kernel's MemAvailable (the same rule as the TIFF reader), else unlimited.
-double allocatable_bytes() {
-  constexpr double kGiB = 1024.0 * 1024.0 * 1024.0;
-  if (const char* env = std::getenv("HISNEGS_MAX_ALLOC_GB"); env && *env) {
-    char* end = nullptr;
-    const double gib = std::strtod(env, &end);
-    if (end == env || *end != '\0' || !(gib > 0.0)) {
-      throw io::InputError(std::string("HISNEGS_MAX_ALLOC_GB=") + io::printable(env, 40) +
-                           " is not a positive number of GiB");
-    }
-    return gib * kGiB;
-  }
-  std::ifstream meminfo("/proc/meminfo");
-  std::string key;
-  double kib = 0;
-  while (meminfo >> key >> kib) {
-    if (key == "MemAvailable:") return kib * 1024.0;
-    meminfo.ignore(std::numeric_limits<std::streamsize>::max(), '\n');
-  }
-  return std::numeric_limits<double>::infinity();
-}
 
 std::string number_text(double v) {
   std::ostringstream s;
@@ -187,10 +165,11 @@ std::vector<Support> supports_of(const GaussianMixture& mixture, const VoxelLatt
                               number_text(kMaxIndex) + "; use a larger voxel size");
   }
   const double total = pairs.combine(std::plus<>());
-  // Each candidate pair costs its 16 bytes plus, at worst, its own leaf slot (8 bytes)
-  // while the leaf is evaluated; kept leaves are bounded by the same count.
+  // Each candidate pair costs its 16 bytes plus, at worst, its own leaf slot (8 bytes).
+  // This guards the bookkeeping, which scales with the supports; the grid itself
+  // (~2.1 KiB per kept leaf) is the output and scales with the region where f > EPS.
   const double need = total * (sizeof(Pair) + sizeof(void*));
-  const double have = allocatable_bytes();
+  const double have = io::allocation_limit_bytes();
   if (need > 0.5 * have) {
     io::fail_input(model, "at voxel size " + size + " the Gaussians' supports reach " + number_text(total) +
                               " leaves of 8^3 voxels (" + number_text(need / (1024.0 * 1024.0 * 1024.0)) +
@@ -240,7 +219,7 @@ FloatGrid::Ptr rasterize_density(const GaussianMixture& mixture, const VoxelLatt
 
   // Each leaf: f at its 512 voxel centres, summed over its Gaussians in checkpoint
   // order (so values do not depend on threading), kept only if some f > cutoff.
-  std::vector<LeafT*> leaves(n_leaves, nullptr);
+  std::vector<std::unique_ptr<LeafT>> leaves(n_leaves);  // empty where nothing exceeds the cutoff
   std::atomic<std::int64_t> done{0};
   std::mutex progress_mutex;
   const std::int64_t step = std::max<std::int64_t>(1, static_cast<std::int64_t>(n_leaves) / 20);
@@ -274,13 +253,12 @@ FloatGrid::Ptr rasterize_density(const GaussianMixture& mixture, const VoxelLatt
           }
         }
       }
-      LeafT* leaf = nullptr;
+      std::unique_ptr<LeafT>& leaf = leaves[i];
       for (openvdb::Index n = 0; n < LeafT::SIZE; ++n) {
         if (!(acc[n] > options.cutoff)) continue;
-        if (!leaf) leaf = new LeafT(origin, 0.0f, false);
+        if (!leaf) leaf = std::make_unique<LeafT>(origin, 0.0f, false);
         leaf->setValueOn(n, static_cast<float>(acc[n]));
       }
-      leaves[i] = leaf;
       const std::int64_t d = ++done;
       if (progress && d % step == 0) {
         const std::lock_guard<std::mutex> lock(progress_mutex);
@@ -291,9 +269,8 @@ FloatGrid::Ptr rasterize_density(const GaussianMixture& mixture, const VoxelLatt
   std::vector<Pair>().swap(pairs);
 
   FloatGrid::Ptr grid = FloatGrid::create(0.0f);
-  for (LeafT*& leaf : leaves) {
-    if (leaf) grid->tree().addLeaf(leaf);  // the tree takes ownership
-    leaf = nullptr;
+  for (std::unique_ptr<LeafT>& leaf : leaves) {
+    if (leaf) grid->tree().addLeaf(leaf.release());  // the tree takes ownership
   }
   return grid;
 }
@@ -558,6 +535,11 @@ Checkpoint import_vdb_points(const fs::path& path) {
   }
 
   const std::size_t K = static_cast<std::size_t>(vp::pointCount(grid->tree()));
+  if (const auto count = grid->getMetadata<openvdb::Int64Metadata>("gaussians");
+      count && count->value() != static_cast<openvdb::Int64>(K)) {
+    io::fail_input(path, "grid 'gaussians' holds " + std::to_string(K) + " points but its metadata 'gaussians' says " +
+                             std::to_string(count->value()));
+  }
   GaussianMixture mixture;
   mixture.resize(K);
   std::vector<char> seen(K, 0);

@@ -26,6 +26,7 @@
 #include "io/detail/tiff_handle.hpp"
 #include "io/detail/tiff_metadata.hpp"
 #include "io/error.hpp"
+#include "io/memory_limit.hpp"
 
 namespace hisnegs::io {
 namespace fs = std::filesystem;
@@ -40,36 +41,6 @@ namespace {
 // ---------------------------------------------------------------------------
 // Memory limit for hostile headers.
 
-// Bytes a read may allocate: HISNEGS_MAX_ALLOC_GB (GiB) if set, else MemAvailable.
-double allocation_limit_bytes(std::string* what) {
-  if (const char* env = std::getenv("HISNEGS_MAX_ALLOC_GB"); env && *env) {
-    const std::optional<double> gib = detail::parse_double(env);
-    if (!gib || !std::isfinite(*gib) || *gib <= 0) {
-      throw InputError(std::string("HISNEGS_MAX_ALLOC_GB=") + env + " is not a positive number of GiB");
-    }
-    *what = "HISNEGS_MAX_ALLOC_GB";
-    return *gib * kGiB;
-  }
-  std::ifstream meminfo("/proc/meminfo");
-  std::string key;
-  double kb = 0;
-  std::string unit;
-  while (meminfo >> key >> kb >> unit) {
-    if (key == "MemAvailable:") {
-      *what = "MemAvailable; set HISNEGS_MAX_ALLOC_GB to change it";
-      return kb * 1024.0;
-    }
-  }
-  *what = "unknown";
-  return std::numeric_limits<double>::infinity();
-}
-
-std::string gib_text(double bytes) {
-  char text[64];
-  std::snprintf(text, sizeof text, "%.2f GiB", bytes / kGiB);
-  return text;
-}
-
 // An integer-valued count held in a double: exact digits while the double is
 // exact, else 3 significant digits ("8e+27") rather than spurious ones.
 std::string count_text(double count) {
@@ -78,14 +49,6 @@ std::string count_text(double count) {
   return text;
 }
 
-void check_allocation(const fs::path& path, double bytes, const std::string& what) {
-  std::string limit_source;
-  const double limit = allocation_limit_bytes(&limit_source);
-  if (bytes > limit) {
-    fail_input(path, "would need " + gib_text(bytes) + " for " + what + " but the limit is " +
-                         gib_text(limit) + " (" + limit_source + ")");
-  }
-}
 
 // ---------------------------------------------------------------------------
 // Page format.

@@ -277,6 +277,36 @@ TEST(ExportVdb, ImportRejectsFilesWithoutHisnegsPoints) {
   expect_error(dir / "missing.vdb", "no such file");
 }
 
+TEST(ExportVdb, ImportRejectsIdsThatDoNotNumberThePoints) {
+  ScratchDir dir;
+  VdbExportOptions options;
+  options.points = true;
+  export_vdb(dir / "m.vdb", Checkpoint{random_mixture(20, 12), stack_meta()}, VoxelLattice::of(kFrame), options,
+             "m.ply");
+  // Give the first point of the first leaf the id of the second point: one id twice.
+  auto points = openvdb::gridPtrCast<openvdb::points::PointDataGrid>(read_grid(dir / "m.vdb", "gaussians"));
+  ASSERT_TRUE(points);
+  auto leaf = points->tree().beginLeaf();
+  ASSERT_TRUE(leaf);
+  ASSERT_GE(openvdb::points::pointCount(points->tree()), 2u);
+  std::vector<std::int32_t> ids;
+  for (auto l = points->tree().cbeginLeaf(); l; ++l) {
+    openvdb::points::AttributeHandle<std::int32_t> h(l->constAttributeArray("id"));
+    for (auto i = l->beginIndexAll(); i; ++i) ids.push_back(h.get(*i));
+  }
+  openvdb::points::AttributeWriteHandle<std::int32_t> id(leaf->attributeArray("id"));
+  id.set(0, ids[1]);
+  openvdb::io::File(dir.path().string() + "/bad.vdb").write(openvdb::GridPtrVec{points});
+  try {
+    (void)import_vdb_points(dir / "bad.vdb");
+    ADD_FAILURE() << "duplicate id accepted";
+  } catch (const io::InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("point attribute 'id' = " + std::to_string(ids[1]) + " is given twice"),
+              std::string::npos)
+        << e.what();
+  }
+}
+
 TEST(ExportVdb, RejectsBadOptionsAndLeavesNoFile) {
   ScratchDir dir;
   const Checkpoint cp{random_mixture(2, 8), {}};

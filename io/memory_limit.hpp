@@ -1,0 +1,23 @@
+// How much memory one input may make hisnegs allocate, checked before a large
+// allocation so that a hostile or mistaken header gets a clear error instead of
+// an out-of-memory kill.
+#pragma once
+
+#include <filesystem>
+#include <string>
+
+namespace hisnegs::io {
+
+// Bytes an input may allocate: HISNEGS_MAX_ALLOC_GB (GiB) if set, else the kernel's
+// MemAvailable, else unlimited. `source`, if given, gets where the limit came from.
+// Throws InputError if HISNEGS_MAX_ALLOC_GB is not a positive number.
+[[nodiscard]] double allocation_limit_bytes(std::string* source = nullptr);
+
+// Throws InputError "PATH: would need X GiB for WHAT but the limit is Y GiB (source)"
+// when `bytes` exceeds allocation_limit_bytes().
+void check_allocation(const std::filesystem::path& path, double bytes, const std::string& what);
+
+// "1.50 GiB".
+[[nodiscard]] std::string gib_text(double bytes);
+
+}  // namespace hisnegs::io
