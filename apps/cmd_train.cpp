@@ -132,6 +132,7 @@ TrainOutcome train_model(const TrainRequest& request, const AppConfig& config, b
 
   std::vector<LogRow> rows;
   if (request.resume) {
+    io::remove_stale_temporaries(run);  // e.g. a log.csv write the crash interrupted
     const int epoch = splat::resume_training(checkpoints, trainer);
     rows = read_log(run / "log.csv", epoch);
   }

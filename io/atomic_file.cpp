@@ -15,6 +15,7 @@
 #include <system_error>
 
 #include "io/error.hpp"
+#include "io/fault_injection.hpp"
 
 namespace hisnegs::io {
 namespace fs = std::filesystem;
@@ -66,6 +67,7 @@ void AtomicFile::commit() {
     throw std::runtime_error(target_.string() + ": internal error: nothing was written to commit");
   }
   fsync_path(temp_);
+  fault_point("atomic_commit");  // written in full, not yet renamed
   std::error_code ec;
   fs::rename(temp_, target_, ec);
   if (ec) throw std::runtime_error(target_.string() + ": cannot rename temporary file: " + ec.message());
@@ -81,6 +83,18 @@ void write_file_atomic(const fs::path& target, const void* bytes, std::size_t si
   const bool ok = written == size && std::fclose(f) == 0;
   if (!ok) throw std::runtime_error(target.string() + ": write failed: " + std::strerror(errno));
   file.commit();
+}
+
+int remove_stale_temporaries(const fs::path& dir) {
+  int removed = 0;
+  std::error_code ec;
+  for (const auto& entry : fs::directory_iterator(dir, ec)) {
+    const std::string name = entry.path().filename().string();
+    if (name.size() > 1 && name[0] == '.' && name.find(".tmp-") != std::string::npos && entry.is_regular_file(ec)) {
+      removed += fs::remove(entry.path(), ec) ? 1 : 0;
+    }
+  }
+  return removed;
 }
 
 std::string read_file(const fs::path& path) {

@@ -36,6 +36,11 @@ class AtomicFile {
 // Writes `bytes` to `target` atomically.
 void write_file_atomic(const std::filesystem::path& target, const void* bytes, std::size_t size);
 
+// Removes the temporary files AtomicFile leaves in `dir` when a process is killed
+// between writing and renaming ("."NAME".tmp-*"); returns how many. For folders
+// one process owns, before it writes there again (e.g. a resumed training).
+int remove_stale_temporaries(const std::filesystem::path& dir);
+
 // The bytes of the regular file `path`; throws InputError naming it if it is
 // missing, not a regular file or cannot be read.
 [[nodiscard]] std::string read_file(const std::filesystem::path& path);

@@ -15,6 +15,7 @@
 #include <stdexcept>
 
 #include "io/atomic_file.hpp"
+#include "io/fault_injection.hpp"
 #include "io/error.hpp"
 #include "io/tiff_stack.hpp"
 #include "io/timer.hpp"
@@ -331,6 +332,7 @@ EpochReport Trainer::run_epoch() {
   const std::size_t B = static_cast<std::size_t>(options_.views_per_step);
   for (std::size_t start = 0; start < order.size(); start += B) {
     const std::size_t n = std::min(B, order.size() - start);
+    io::fault_point("train_step");
     const StepSums sums = train_step(std::span<const int>(order).subspan(start, n));
     report.loss += sums.loss;
     report.psnr += sums.psnr;
@@ -395,6 +397,7 @@ DensifyChange Trainer::densify() {
     } else {
       ++change.cloned;
     }
+    io::fault_point("densify");  // some Gaussians split, the rest not yet
     params_.insert(params_.end(), twin.begin(), twin.end());
     m_.insert(m_.end(), kP, 0.0f);
     v_.insert(v_.end(), kP, 0.0f);
@@ -510,6 +513,7 @@ void save_training_checkpoint(const std::filesystem::path& dir, const Trainer& t
   m.extra.emplace_back("train_epoch", std::to_string(trainer.epoch()));
   // Order matters: a crash leaves `latest` naming the previous complete pair.
   gmf::save_checkpoint(checkpoint_ply_path(dir, trainer.epoch()), mixture, m);
+  io::fault_point("checkpoint_write");  // the model is written, its state and `latest` are not yet
   const std::string state = trainer.serialize_state();
   io::write_file_atomic(checkpoint_state_path(dir, trainer.epoch()), state.data(), state.size());
   const std::string latest = epoch_tag(trainer.epoch()) + "\n";
@@ -519,6 +523,7 @@ void save_training_checkpoint(const std::filesystem::path& dir, const Trainer& t
 int resume_training(const std::filesystem::path& dir, Trainer& trainer) {
   const std::filesystem::path latest = dir / "latest";
   if (!std::filesystem::exists(latest)) io::fail_input(latest, "no checkpoint to resume from (file missing)");
+  io::remove_stale_temporaries(dir);  // a write the crash interrupted; `latest` never names one
   const std::string text = io::read_file(latest);
   int epoch = -1;
   char tail = 0;

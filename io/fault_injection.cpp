@@ -1,0 +1,46 @@
+// HISNEGS_FAULT=NAME:N parsing (once) and the SIGKILL at the N-th arrival.
+#include "io/fault_injection.hpp"
+
+#include <csignal>
+#include <cstdlib>
+#include <cstring>
+#include <string>
+
+#include <atomic>
+#include <mutex>
+
+namespace hisnegs::io {
+namespace {
+
+struct Fault {
+  std::string name;  // empty: no fault armed
+  long at = 0;
+  std::atomic<long> seen{0};
+};
+
+Fault& armed_fault() {
+  static Fault fault;
+  static std::once_flag once;
+  std::call_once(once, [] {
+    const char* env = std::getenv("HISNEGS_FAULT");
+    if (!env) return;
+    const char* colon = std::strrchr(env, ':');
+    if (!colon) return;
+    char* end = nullptr;
+    const long at = std::strtol(colon + 1, &end, 10);
+    if (end == colon + 1 || *end != '\0' || at < 1) return;
+    fault.name.assign(env, colon);
+    fault.at = at;
+  });
+  return fault;
+}
+
+}  // namespace
+
+void fault_point(const char* name) {
+  Fault& f = armed_fault();
+  if (f.name.empty() || f.name != name) return;
+  if (f.seen.fetch_add(1) + 1 == f.at) std::raise(SIGKILL);
+}
+
+}  // namespace hisnegs::io
