@@ -146,6 +146,10 @@ RoundOutcome solve_least_squares(const SampleSet& samples, const BrickIndex& ind
   so.callbacks.push_back(&callback);
   ceres::Solver::Summary summary;
   ceres::Solve(so, &problem, &summary);
+  if (summary.termination_type == ceres::FAILURE) {
+    // e.g. a non-finite residual or Jacobian at the start; Ceres rejects non-finite steps itself
+    throw std::runtime_error("fit failed in round " + std::to_string(round) + ": " + summary.message);
+  }
   RoundOutcome out;
   out.iterations = summary.iterations.empty() ? 0 : summary.iterations.back().iteration;
   out.final_loss = summary.final_cost + constant;
@@ -207,6 +211,14 @@ RoundOutcome solve_adam(const FitObjective& objective, double* x, const std::vec
   int step = 0;
   for (; step < max_iterations && round_watch.elapsed() < seconds_left; ++step) {
     loss = objective.evaluate(x, g.data());
+    if (!std::isfinite(loss)) {
+      throw std::runtime_error("fit diverged in round " + std::to_string(round) + ", Adam step " +
+                               std::to_string(step + 1) + ": the loss is not finite");
+    }
+    if (const std::string bad = describe_non_finite<double>(g, "gradient"); !bad.empty()) {
+      throw std::runtime_error("fit diverged in round " + std::to_string(round) + ", Adam step " +
+                               std::to_string(step + 1) + ": " + bad + " is not finite");
+    }
     FitIteration it;
     it.round = round;
     it.iteration = iteration0 + step;

@@ -63,4 +63,9 @@ MixtureStats compute_stats(const GaussianMixture& mixture) {
   return stats;
 }
 
+std::string_view parameter_group(std::size_t i) {
+  const std::size_t j = i % kGaussianParamCount;
+  return j < 3 ? "means" : j < 6 ? "log-scales" : j < 10 ? "rotation" : "intensity";
+}
+
 }  // namespace hisnegs::gmf

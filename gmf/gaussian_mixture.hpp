@@ -11,6 +11,7 @@
 #include <cstddef>
 #include <span>
 #include <stdexcept>
+#include <string>
 #include <string_view>
 #include <type_traits>
 #include <vector>
@@ -175,6 +176,24 @@ struct MixtureStats {
 };
 
 [[nodiscard]] MixtureStats compute_stats(const GaussianMixture& mixture);
+
+// The parameter group of flat index i (11 values per Gaussian): "means",
+// "log-scales", "rotation" or "intensity" (the optimizers' groups).
+[[nodiscard]] std::string_view parameter_group(std::size_t i);
+
+// "" if every value of a flat per-Gaussian array (parameters or their gradient, 11
+// per Gaussian) is finite, else where the first non-finite one is:
+// "the rotation gradient of Gaussian 12 (nan)" for what = "gradient".
+template <class T>
+[[nodiscard]] std::string describe_non_finite(std::span<const T> values, std::string_view what) {
+  for (std::size_t i = 0; i < values.size(); ++i) {
+    if (std::isfinite(values[i])) continue;
+    return "the " + std::string(parameter_group(i)) + " " + std::string(what) + " of Gaussian " +
+           std::to_string(i / kGaussianParamCount) + " (" +
+           (std::isnan(values[i]) ? "nan" : values[i] > 0 ? "+inf" : "-inf") + ")";
+  }
+  return {};
+}
 
 static_assert(kGaussianParamCount == kNumGaussianParams, "PLY order and GaussianParam order must agree");
 

@@ -258,23 +258,12 @@ Trainer::StepSums Trainer::train_step(std::span<const int> view_indices) {
     throw std::runtime_error("training diverged: the loss is not finite in epoch " + std::to_string(epoch_ + 1) +
                              ", step " + std::to_string(step_ + 1));
   }
-  if (const std::string bad = describe_non_finite(grad_); !bad.empty()) {
+  if (const std::string bad = gmf::describe_non_finite<float>(grad_, "gradient"); !bad.empty()) {
     throw std::runtime_error("training diverged in epoch " + std::to_string(epoch_ + 1) + ", step " +
                              std::to_string(step_ + 1) + ": " + bad + " is not finite");
   }
   adam_update(grad_, learning_rate(options_, epoch_));
   return sums;
-}
-
-std::string describe_non_finite(std::span<const float> gradient) {
-  for (std::size_t i = 0; i < gradient.size(); ++i) {
-    if (std::isfinite(gradient[i])) continue;
-    const std::size_t j = i % kP;
-    const char* group = j < 3 ? "means" : j < 6 ? "log-scales" : j < 10 ? "rotation" : "intensity";
-    return std::string("the ") + group + " gradient of Gaussian " + std::to_string(i / kP) + " (" +
-           (std::isnan(gradient[i]) ? "nan" : gradient[i] > 0 ? "+inf" : "-inf") + ")";
-  }
-  return {};
 }
 
 double Trainer::step(std::span<const int> view_indices) {

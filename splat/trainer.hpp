@@ -46,10 +46,6 @@ struct TrainingData {
 // × min(1, e / beta_warmup_epochs), beta_end when beta_warmup_epochs = 0.
 [[nodiscard]] double soft_mip_beta(const TrainOptions& options, int epoch);
 
-// "" if every value of the flat gradient (11 per Gaussian) is finite, else where the
-// first non-finite one is: "the rotation gradient of Gaussian 12 (nan)". Groups:
-// means, log-scales, rotation, intensity (the Adam parameter groups).
-[[nodiscard]] std::string describe_non_finite(std::span<const float> gradient);
 
 // What one epoch did (means over the training views seen in it).
 struct EpochReport {

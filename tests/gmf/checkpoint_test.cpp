@@ -494,5 +494,21 @@ TEST(Checkpoint, SaveRefusesMetadataItCouldNotReadBack) {
   EXPECT_TRUE(dir.entries().empty());
 }
 
+TEST(GaussianMixture, DescribeNonFiniteNamesTheFirstValueAndItsGroup) {
+  std::vector<float> g(3 * kGaussianParamCount, 0.5f);
+  EXPECT_EQ(describe_non_finite<float>(g, "gradient"), "");
+  g[kGaussianParamCount + 7] = std::numeric_limits<float>::quiet_NaN();  // Gaussian 1, rot_1
+  g[2 * kGaussianParamCount + 0] = std::numeric_limits<float>::infinity();
+  EXPECT_EQ(describe_non_finite<float>(g, "gradient"), "the rotation gradient of Gaussian 1 (nan)");
+  g[kGaussianParamCount + 7] = 0.0f;
+  EXPECT_EQ(describe_non_finite<float>(g, "gradient"), "the means gradient of Gaussian 2 (+inf)");
+  g[2 * kGaussianParamCount] = 0.0f;
+  g[4] = -std::numeric_limits<float>::infinity();
+  EXPECT_EQ(describe_non_finite<float>(g, "gradient"), "the log-scales gradient of Gaussian 0 (-inf)");
+  g[4] = 0.0f;
+  g[10] = std::numeric_limits<float>::quiet_NaN();
+  EXPECT_EQ(describe_non_finite<float>(g, "gradient"), "the intensity gradient of Gaussian 0 (nan)");
+}
+
 }  // namespace
 }  // namespace hisnegs::gmf

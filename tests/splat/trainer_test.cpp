@@ -311,21 +311,5 @@ TEST(Trainer, TinySceneTrainsAbove35dB) {
   EXPECT_GT(end, 35.0) << "from " << start << " dB; last epoch's mean " << last.psnr << " dB";
 }
 
-TEST(TrainerGuards, NamesTheFirstNonFiniteGradientAndItsGroup) {
-  std::vector<float> g(3 * gmf::kGaussianParamCount, 0.5f);
-  EXPECT_EQ(describe_non_finite(g), "");
-  g[gmf::kGaussianParamCount + 7] = std::numeric_limits<float>::quiet_NaN();  // Gaussian 1, rot_1
-  g[2 * gmf::kGaussianParamCount + 0] = std::numeric_limits<float>::infinity();
-  EXPECT_EQ(describe_non_finite(g), "the rotation gradient of Gaussian 1 (nan)");
-  g[gmf::kGaussianParamCount + 7] = 0.0f;
-  EXPECT_EQ(describe_non_finite(g), "the means gradient of Gaussian 2 (+inf)");
-  g[2 * gmf::kGaussianParamCount] = 0.0f;
-  g[4] = -std::numeric_limits<float>::infinity();
-  EXPECT_EQ(describe_non_finite(g), "the log-scales gradient of Gaussian 0 (-inf)");
-  g[4] = 0.0f;
-  g[10] = std::numeric_limits<float>::quiet_NaN();
-  EXPECT_EQ(describe_non_finite(g), "the intensity gradient of Gaussian 0 (nan)");
-}
-
 }  // namespace
 }  // namespace hisnegs::splat
