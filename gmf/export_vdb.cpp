@@ -474,16 +474,7 @@ VdbExportReport export_vdb(const fs::path& path, const Checkpoint& checkpoint, c
     report.points_seconds = watch.lap();
   }
 
-  io::AtomicFile out(path);
-  try {
-    openvdb::io::File file(out.temp_path().string());
-    file.setCompression(openvdb::io::COMPRESS_BLOSC);
-    file.write(grids);
-    file.close();
-  } catch (const openvdb::Exception& e) {
-    throw std::runtime_error(path.string() + ": cannot write VDB: " + io::printable(e.what()));
-  }
-  out.commit();
+  io::detail::write_vdb_file(path, grids);
   report.write_seconds = watch.lap();
   report.file_bytes = fs::file_size(path);
   return report;

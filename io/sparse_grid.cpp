@@ -40,6 +40,19 @@ void ensure_openvdb_initialized() {
   std::call_once(once, [] { openvdb::initialize(); });
 }
 
+void write_vdb_file(const std::filesystem::path& path, const openvdb::GridPtrVec& grids) {
+  AtomicFile out(path);
+  try {
+    openvdb::io::File file(out.temp_path().string());
+    file.setCompression(openvdb::io::COMPRESS_BLOSC);
+    file.write(grids);
+    file.close();
+  } catch (const openvdb::Exception& e) {
+    throw std::runtime_error(path.string() + ": cannot write VDB: " + printable(e.what()));
+  }
+  out.commit();
+}
+
 openvdb::math::Transform::Ptr make_vdb_transform(const WorldFrame& frame) {
   // OpenVDB maps row vectors: world = [i j k 1] * M, so the scale sits on the
   // diagonal and the translation in the last row. world = scale * index + offset.
@@ -252,16 +265,7 @@ void write_vdb(const std::filesystem::path& path, const SparseGrid& grid) {
   put_meta(*impl.volume, impl.meta);
   openvdb::GridPtrVec grids{impl.volume};
   if (impl.background->activeVoxelCount() > 0) grids.push_back(impl.background);
-  AtomicFile out(path);
-  try {
-    openvdb::io::File file(out.temp_path().string());
-    file.setCompression(openvdb::io::COMPRESS_BLOSC);
-    file.write(grids);
-    file.close();
-  } catch (const openvdb::Exception& e) {
-    throw std::runtime_error(path.string() + ": cannot write VDB: " + e.what());
-  }
-  out.commit();
+  detail::write_vdb_file(path, grids);
 }
 
 SparseGrid read_vdb(const std::filesystem::path& path) {

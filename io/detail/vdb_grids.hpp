@@ -4,6 +4,8 @@
 
 #include <openvdb/openvdb.h>
 
+#include <filesystem>
+
 #include "io/sparse_grid.hpp"
 
 namespace hisnegs::io {
@@ -19,6 +21,9 @@ namespace detail {
 void ensure_openvdb_initialized();
 // The CONVENTIONS index->world map as an OpenVDB linear transform.
 openvdb::math::Transform::Ptr make_vdb_transform(const WorldFrame& frame);
+// Writes `grids` to a .vdb file (Blosc) atomically; an OpenVDB failure becomes a
+// std::runtime_error naming `path`, and leaves no file.
+void write_vdb_file(const std::filesystem::path& path, const openvdb::GridPtrVec& grids);
 }  // namespace detail
 
 }  // namespace hisnegs::io
