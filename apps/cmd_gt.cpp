@@ -8,6 +8,7 @@
 
 #include "apps/cli_support.hpp"
 #include "apps/commands_detail.hpp"
+#include "apps/report_support.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
 #include "io/load_volume.hpp"
@@ -28,13 +29,6 @@ struct GtArgs {
   std::optional<int> ring_views;
   VolumeOverrides overrides;
 };
-
-double median(std::vector<double> v) {
-  if (v.empty()) return 0.0;
-  std::sort(v.begin(), v.end());
-  const std::size_t n = v.size();
-  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
-}
 
 }  // namespace
 

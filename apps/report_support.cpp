@@ -100,6 +100,13 @@ double file_bytes(const std::string& path) {
   return ec ? 0.0 : static_cast<double>(n);
 }
 
+double median(std::vector<double> values) {
+  if (values.empty()) return 0.0;
+  std::sort(values.begin(), values.end());
+  const std::size_t n = values.size();
+  return n % 2 ? values[n / 2] : 0.5 * (values[n / 2 - 1] + values[n / 2]);
+}
+
 Table frame_time_table(std::vector<double> seconds) {
   Table t{{"metric", "value"}, {}};
   if (seconds.empty()) return t;
@@ -110,10 +117,9 @@ Table frame_time_table(std::vector<double> seconds) {
   const double mean = sum / n;
   for (double s : seconds) sq += (s - mean) * (s - mean);
   const std::size_t m = seconds.size();
-  const double median = m % 2 ? seconds[m / 2] : 0.5 * (seconds[m / 2 - 1] + seconds[m / 2]);
   t.add({"frames", std::to_string(m)});
   t.add({"mean frame time", strf("%.2f ms", 1e3 * mean)});
-  t.add({"median frame time", strf("%.2f ms", 1e3 * median)});
+  t.add({"median frame time", strf("%.2f ms", 1e3 * median(seconds))});
   t.add({"best frame time", strf("%.2f ms", 1e3 * seconds.front())});
   t.add({"worst frame time", strf("%.2f ms", 1e3 * seconds.back())});
   t.add({"standard deviation", strf("%.2f ms", 1e3 * std::sqrt(sq / n))});

@@ -24,6 +24,9 @@ struct Table {
 // printf-style formatting into a std::string ("%.2f" etc.).
 [[nodiscard]] std::string strf(const char* format, ...) __attribute__((format(printf, 1, 2)));
 
+// The median of `values` (mean of the middle two for an even count), 0 if empty.
+[[nodiscard]] double median(std::vector<double> values);
+
 // "AMD EPYC 7B13 (2 logical CPUs), 23.5 GiB RAM; GPU: none (reason)" for the top of reports.
 [[nodiscard]] std::string machine_description();
 
