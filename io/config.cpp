@@ -60,6 +60,15 @@ std::string at_line(const std::string& origin, const YAML::Node& node) {
   return origin + ":" + std::to_string(m.line + 1);
 }
 
+// The text of a map key; YAML also allows lists and maps as keys ("? [a, b]"),
+// which name no section or field. `what` is "section" or "key".
+std::string key_text(const std::string& origin, const YAML::Node& key, const char* what) {
+  if (!key.IsScalar()) {
+    throw InputError(at_line(origin, key) + ": a " + what + " name must be a word, got a list or map");
+  }
+  return key.Scalar();
+}
+
 }  // namespace
 
 ConfigFile ConfigFile::parse(const std::string& text, const std::string& origin) {
@@ -68,7 +77,7 @@ ConfigFile ConfigFile::parse(const std::string& text, const std::string& origin)
   try {
     impl->root = YAML::Load(text);
   } catch (const YAML::Exception& e) {
-    throw InputError(origin + ":" + std::to_string(e.mark.line + 1) + ": invalid YAML: " + e.msg);
+    throw InputError(origin + ":" + std::to_string(e.mark.line + 1) + ": invalid YAML: " + printable(e.msg));
   }
   if (impl->root.IsNull()) impl->root = YAML::Node(YAML::NodeType::Map);
   if (!impl->root.IsMap()) throw InputError(origin + ": expected a map of sections at the top level");
@@ -86,9 +95,9 @@ const std::string& ConfigFile::origin() const { return impl_->origin; }
 void ConfigFile::check_sections(std::initializer_list<std::string_view> known) const {
   std::set<std::string, std::less<>> names(known.begin(), known.end());
   for (const auto& kv : impl_->root) {
-    const std::string key = kv.first.as<std::string>();
+    const std::string key = key_text(impl_->origin, kv.first, "section");
     if (!names.count(key)) {
-      throw InputError(at_line(impl_->origin, kv.first) + ": unknown section '" + key + "'" +
+      throw InputError(at_line(impl_->origin, kv.first) + ": unknown section '" + printable(key) + "'" +
                        suggestion(key, names));
     }
   }
@@ -117,8 +126,9 @@ ConfigReader::~ConfigReader() = default;
 
 void ConfigReader::fail(std::string_view key, const std::string& message) const {
   const YAML::Node n = state_->node ? state_->node[std::string(key)] : YAML::Node();
+  // `message` may quote the file's text: printable() keeps it one line.
   throw InputError((n ? at_line(state_->origin, n) : state_->origin) + ": " + state_->section + "." +
-                   std::string(key) + ": " + message);
+                   std::string(key) + ": " + printable(message));
 }
 
 namespace {
@@ -234,9 +244,10 @@ void ConfigReader::operator()(std::string_view key, std::array<double, 3>& value
 void ConfigReader::finish() const {
   if (!state_->node) return;
   for (const auto& kv : state_->node) {
-    const std::string key = kv.first.as<std::string>();
+    const std::string key = key_text(state_->origin, kv.first, "key");
     if (!state_->used.count(key)) {
-      throw InputError(at_line(state_->origin, kv.first) + ": unknown key '" + state_->section + "." + key + "'" +
+      throw InputError(at_line(state_->origin, kv.first) + ": unknown key '" + state_->section + "." +
+                       printable(key) + "'" +
                        suggestion(key, state_->used));
     }
   }

@@ -223,6 +223,9 @@ struct PendingElement {
 };
 
 void byteswap_in_place(PlyElement& element) {
+  // An element without rows has no buffer: base would be null, and null plus an
+  // offset is undefined behaviour.
+  if (element.count() == 0) return;
   std::byte* base = element.bytes().data();
   const std::size_t stride = element.row_size();
   for (std::size_t p = 0; p < element.properties().size(); ++p) {

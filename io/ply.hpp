@@ -261,6 +261,7 @@ template <PlyConvertible T>
 std::vector<T> PlyElement::column_as(std::size_t prop) const {
   require_index(prop);
   std::vector<T> out(static_cast<std::size_t>(count_));
+  if (out.empty()) return out;  // no rows, no buffer: null + offset would be undefined
   const std::byte* p = bytes_.data() + offsets_[prop];
   detail::visit_ply_type(properties_[prop].type, [&](auto tag) {
     using S = decltype(tag);
@@ -284,6 +285,7 @@ void PlyElement::set_column(std::size_t prop, std::span<const T> values) {
                                 "': " + std::to_string(values.size()) + " values for " +
                                 std::to_string(count_) + " rows");
   }
+  if (values.empty()) return;  // no rows, no buffer: null + offset would be undefined
   std::byte* p = bytes_.data() + offsets_[prop];
   detail::visit_ply_type(properties_[prop].type, [&](auto tag) {
     using S = decltype(tag);

@@ -187,16 +187,21 @@ void normalize(Volume& volume, const NormalizationOptions& options) {
     }
   }
 
-  const float flo = static_cast<float>(lo);
+  // A float stack may span more than the float range (e.g. -3e38 .. 3e38): then
+  // v - lo and hi - lo overflow to inf and x would be NaN. Halving every term (a
+  // power of two, exact but for denormals) keeps them finite; other data keep
+  // scale 1 and bit-identical results.
+  const float scale = hi - lo > std::numeric_limits<float>::max() ? 0.5f : 1.0f;
+  const float flo = static_cast<float>(lo * scale);
   // Divide (not multiply by a reciprocal) so that the maximum maps to exactly 1.
-  const float range = static_cast<float>(hi - lo);
+  const float range = static_cast<float>((hi - lo) * scale);
   const bool clip = options.method == NormalizationMethod::kPercentile;
   const std::int64_t clipped = tbb::parallel_reduce(
       tbb::blocked_range<std::size_t>(0, volume.voxels.size(), 1 << 16), std::int64_t{0},
       [&](const tbb::blocked_range<std::size_t>& r, std::int64_t n) {
         float* v = volume.voxels.data();
         for (std::size_t i = r.begin(); i != r.end(); ++i) {
-          float x = (v[i] - flo) / range;
+          float x = (v[i] * scale - flo) / range;
           if (clip) {
             n += (x < 0.0f) | (x > 1.0f);
             x = std::clamp(x, 0.0f, 1.0f);

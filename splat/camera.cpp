@@ -3,12 +3,15 @@
 
 #include <Eigen/Geometry>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <fstream>
+#include <limits>
 #include <nlohmann/json.hpp>
 #include <numbers>
 #include <set>
 #include <sstream>
+#include <utility>
 
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
@@ -136,16 +139,25 @@ namespace {
 
 using Json = nlohmann::json;
 
+// A value for a message: scalars as written, arrays and objects by kind only
+// (dump() recurses, so a hostile deeply nested value would overflow the stack).
+std::string describe_value(const Json& value) {
+  if (value.is_array()) return "an array";
+  if (value.is_object()) return "an object";
+  return io::printable(value.dump(), 80);
+}
+
 class JsonReader {
  public:
   explicit JsonReader(std::filesystem::path path) : path_(std::move(path)) {}
+  // `where` and `what` may quote the file (keys, values): printable() keeps the message one line.
   [[noreturn]] void fail(const std::string& where, const std::string& what) const {
-    io::fail_input(path_, where + ": " + what);
+    io::fail_input(path_, io::printable(where + ": " + what));
   }
   double number(const Json& obj, const std::string& key, const std::string& where) const {
     const auto it = obj.find(key);
     if (it == obj.end()) fail(where, "missing key '" + key + "'");
-    if (!it->is_number()) fail(where + key, "expected a number, got " + it->dump());
+    if (!it->is_number()) fail(where + key, "expected a number, got " + describe_value(*it));
     const double v = it->get<double>();
     if (!std::isfinite(v)) fail(where + key, "is not finite");
     return v;
@@ -153,7 +165,13 @@ class JsonReader {
   int integer(const Json& obj, const std::string& key) const {
     const auto it = obj.find(key);
     if (it == obj.end()) fail("", "missing key '" + key + "'");
-    if (!it->is_number_integer()) fail(key, "expected an integer, got " + it->dump());
+    if (!it->is_number_integer()) fail(key, "expected an integer, got " + describe_value(*it));
+    // get<int>() would silently wrap a larger value (4294967297 -> 1).
+    const bool fits = it->is_number_unsigned() ? std::in_range<int>(it->get<std::uint64_t>())
+                                               : std::in_range<int>(it->get<std::int64_t>());
+    if (!fits) {
+      fail(key, it->dump() + " is out of range (at most " + std::to_string(std::numeric_limits<int>::max()) + ")");
+    }
     return it->get<int>();
   }
   void only_keys(const Json& obj, const std::set<std::string>& allowed, const std::string& where) const {

@@ -95,6 +95,38 @@ TEST(Config, UnknownSectionIsAnError) {
   }
 }
 
+// Found by fuzzing (fuzz_config): YAML allows lists and maps as keys; reading
+// their name threw YAML::TypedBadConversion instead of an InputError.
+TEST(Config, ListOrMapAsKeyIsAnInputError) {
+  EXPECT_THROW(ConfigFile::parse("? [a, b]\n: 1\n", "cfg.yaml").check_sections({"demo"}), InputError);
+  const std::string e = error_of("demo:\n  ? {n: 1}\n  : 2\n");
+  EXPECT_NE(e.find("cfg.yaml:2: a key name must be a word"), std::string::npos) << e;
+}
+
+// Found by fuzzing (fuzz_config): the file's text quoted in a message (a key, a
+// value, yaml-cpp's message on a bad escape) carried its line breaks and control bytes.
+TEST(Config, MessagesQuotingTheFileStayOneLine) {
+  const std::string bad_escape(" [1, \b\0\n", 8);
+  const std::vector<std::string> cases = {
+      "demo:\n  n: \"1\\n2\"\n",  // a value with a line break
+      "demo:\n  \"a\\rb\": 1\n",  // an unknown key with a carriage return
+      "\"x\\ny\": 1\n",          // an unknown section with a line break
+      "(\xb1\r\r\r\r\r:",       // the fuzzer's input: a section name ending in CRs
+      bad_escape,                // the fuzzer's input: invalid YAML quoting a control byte
+  };
+  for (const std::string& yaml : cases) {
+    try {
+      Demo d;
+      const ConfigFile file = ConfigFile::parse(yaml, "cfg.yaml");
+      file.check_sections({"demo"});
+      file.read("demo", d);
+      ADD_FAILURE() << "accepted: " << yaml;
+    } catch (const InputError& e) {
+      EXPECT_EQ(std::string(e.what()).find_first_of("\r\n"), std::string::npos) << e.what();
+    }
+  }
+}
+
 TEST(Config, WriterOutputReadsBackIdentically) {
   Demo d;
   d.n = -3;

@@ -117,6 +117,15 @@ TEST(PlyElement, ColumnsArePackedRowByRow) {
   EXPECT_THROW((void)e.value(0, 3), std::out_of_range);
 }
 
+// Like the reader's byte swap (BigEndianEmptyElementWithSeveralProperties): without
+// rows there is no buffer, so a column past the first must not offset a null pointer.
+TEST(PlyElement, EmptyElementColumnsPastTheFirst) {
+  PlyElement e("v", 0, {{"a", PlyType::kFloat32}, {"b", PlyType::kFloat64}});
+  EXPECT_TRUE(e.column_as<double>("b").empty());
+  EXPECT_NO_THROW(e.set_column<double>(1, {}));
+  EXPECT_EQ(e.count(), 0);
+}
+
 TEST(PlyElement, ColumnAsMissingPropertyThrows) {
   PlyElement e("vertex");
   e.add_column<float>("x", std::vector<float>{1.0f});
@@ -254,6 +263,19 @@ TEST(PlyRead, BigEndianEqualsLittleEndian) {
   write_text(dir / "be.ply", be);
   EXPECT_TRUE(read_ply(dir / "be.ply") == read_ply(dir / "le.ply"));
   EXPECT_EQ(read_ply(dir / "be.ply").find("all_types")->value(4, 5), 99.0);
+}
+
+// Found by fuzzing (fuzz_ply, UBSan): byte-swapping a big-endian element with no
+// rows added the second property's offset to the null data pointer.
+TEST(PlyRead, BigEndianEmptyElementWithSeveralProperties) {
+  ScratchDir dir;
+  write_text(dir / "e.ply",
+             "ply\nformat binary_big_endian 1.0\nelement vertex 0\nproperty float x\nproperty double y\n"
+             "property short z\nend_header\n");
+  const PlyTable t = read_ply(dir / "e.ply");
+  ASSERT_NE(t.find("vertex"), nullptr);
+  EXPECT_EQ(t.find("vertex")->count(), 0);
+  EXPECT_EQ(t.find("vertex")->properties().size(), 3u);
 }
 
 TEST(PlyRead, MissingFileAndDirectoryAreInputErrors) {

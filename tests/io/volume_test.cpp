@@ -138,6 +138,28 @@ TEST(VolumeNormalize, NonFiniteIsAnErrorNamingTheVoxel) {
   }
 }
 
+// Found by fuzzing (fuzz_tiff): a float stack spanning more than the float range
+// made v - lo and hi - lo overflow to inf, and normalized voxels NaN.
+TEST(VolumeNormalize, RangeWiderThanFloatStaysInUnitInterval) {
+  const float big = std::numeric_limits<float>::max();
+  for (NormalizationMethod method : {NormalizationMethod::kMinMax, NormalizationMethod::kPercentile}) {
+    Volume v;
+    v.nx = 4;
+    v.ny = 1;
+    v.nz = 1;
+    v.voxels = {-big, 0.0f, big, -big};
+    NormalizationOptions o;
+    o.method = method;
+    o.percentile_lo = 0;
+    o.percentile_hi = 100;
+    normalize(v, o);
+    EXPECT_EQ(v.voxels[0], 0.0f);
+    EXPECT_EQ(v.voxels[1], 0.5f);
+    EXPECT_EQ(v.voxels[2], 1.0f);
+    EXPECT_EQ(v.voxels[3], 0.0f);
+  }
+}
+
 TEST(VolumeNormalize, RejectsBadPercentiles) {
   NormalizationOptions o;
   o.percentile_lo = 50;

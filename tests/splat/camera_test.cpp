@@ -139,5 +139,48 @@ TEST(Camera, JsonErrorsNameTheKey) {
   }
 }
 
+// Found by fuzzing (fuzz_cameras): the message for a non-number dumped the whole
+// value, and dump() recursing through a deeply nested array overflowed the stack.
+TEST(Camera, JsonDeeplyNestedValueIsAnInputError) {
+  testing::ScratchDir dir;
+  constexpr std::size_t kDepth = 1000000;
+  testing::write_text(dir / "c.json", R"({"width": )" + std::string(kDepth, '[') + std::string(kDepth, ']') + "}");
+  try {
+    (void)read_cameras_json(dir / "c.json");
+    FAIL() << "accepted";
+  } catch (const io::InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("width: expected an integer, got an array"), std::string::npos) << e.what();
+  }
+}
+
+// get<int>() wrapped integers outside int silently: 4294967297 read as width 1.
+TEST(Camera, JsonIntegerOutOfRangeIsAnError) {
+  testing::ScratchDir dir;
+  const std::string rest = R"("fx": 8, "fy": 8, "cx": 4, "cy": 4, "near": 0.01, "far": 10,
+      "views": [{"name": "a", "R": [[1,0,0],[0,1,0],[0,0,1]], "T": [0,0,2.5]}]})";
+  for (const char* width : {"4294967297", "18446744073709551615", "-4294967295"}) {
+    testing::write_text(dir / "c.json", std::string(R"({"width": )") + width + R"(, "height": 8, )" + rest);
+    try {
+      (void)read_cameras_json(dir / "c.json");
+      ADD_FAILURE() << "accepted width " << width;
+    } catch (const io::InputError& e) {
+      EXPECT_NE(std::string(e.what()).find(std::string("width: ") + width + " is out of range"), std::string::npos)
+          << e.what();
+    }
+  }
+}
+
+// Keys and names quoted in messages may hold escaped line breaks ("a\nb"): one line still.
+TEST(Camera, JsonMessageQuotingAKeyStaysOneLine) {
+  testing::ScratchDir dir;
+  testing::write_text(dir / "c.json", R"({"wid\nth": 8})");
+  try {
+    (void)read_cameras_json(dir / "c.json");
+    FAIL() << "accepted";
+  } catch (const io::InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("wid th: unknown key"), std::string::npos) << e.what();
+  }
+}
+
 }  // namespace
 }  // namespace hisnegs::splat
