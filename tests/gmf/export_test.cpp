@@ -376,7 +376,9 @@ TEST(ExportFormats, SplatPlyMapsEveryGaussianOntoViewerFields) {
   }
   SplatPlyOptions rest;
   rest.sh_rest = true;
-  const io::PlyElement* r = splat_ply_table(m, rest).find("vertex");
+  const io::PlyTable rest_table = splat_ply_table(m, rest);  // kept alive: find() points into it
+  const io::PlyElement* r = rest_table.find("vertex");
+  ASSERT_NE(r, nullptr);
   EXPECT_EQ(r->properties().size(), 62u);  // the reference 3DGS layout at SH degree 3
   EXPECT_EQ(r->properties()[9].name, "f_rest_0");
   EXPECT_EQ(r->properties()[54].name, "opacity");
