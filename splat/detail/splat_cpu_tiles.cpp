@@ -23,64 +23,6 @@ namespace hn = hwy::HWY_NAMESPACE;
 
 constexpr int kTile = 16;
 
-// Rows [r0, r1] of the tile (tile-local) that the ellipse q <= δ can reach, one row
-// of margin each side against rounding (the per-lane test decides exactly).
-struct Span {
-  int lo, hi;
-};
-inline Span row_span(const TileFrame& f, float v, float A, float B, float C) {
-  // max |dy| on the ellipse: sqrt(δ A / (A C − B²)) = sqrt(δ Σ_yy)
-  const float detc = A * C - B * B;
-  const float half = std::sqrt(f.cutoff * A / detc);
-  const float lo = v - half - static_cast<float>(f.y0) - 0.5f, hi = v + half - static_cast<float>(f.y0) - 0.5f;
-  Span s{static_cast<int>(std::ceil(lo)) - 1, static_cast<int>(std::floor(hi)) + 1};
-  s.lo = std::max(s.lo, 0);
-  s.hi = std::min(s.hi, f.height - 1);
-  return s;
-}
-
-// One Gaussian's conic with what the row spans need precomputed (no division per row).
-struct Conic {
-  float u, A, B, C, inv_A, det;  // det = A C − B²
-  Conic(float u_, float A_, float B_, float C_) : u(u_), A(A_), B(B_), C(C_), inv_A(1.0f / A_), det(A_ * C_ - B_ * B_) {}
-};
-
-// Continuous column range (tile-local, pixel-centre units) of row `dy` (py − v)
-// inside q <= cutoff; lo > hi when the row misses the ellipse.
-inline void row_extent(const TileFrame& f, const Conic& k, float dy, float cutoff, float& lo, float& hi) {
-  const float D = k.A * cutoff - dy * dy * k.det;
-  if (D < 0.0f) {
-    lo = 1.0f;
-    hi = 0.0f;
-    return;
-  }
-  const float root = std::sqrt(D), mid = k.u - k.B * dy * k.inv_A - static_cast<float>(f.x0) - 0.5f;
-  lo = mid - root * k.inv_A;
-  hi = mid + root * k.inv_A;
-}
-
-// Columns of the row inside q <= cutoff, with one column of margin against
-// rounding (the per-lane test decides exactly); empty when hi < lo.
-inline Span column_span(const TileFrame& f, const Conic& k, float dy, float cutoff) {
-  float lo, hi;
-  row_extent(f, k, dy, cutoff * (1.0f + 1e-3f), lo, hi);
-  if (lo > hi) return {1, 0};
-  Span s{static_cast<int>(std::ceil(lo)) - 1, static_cast<int>(std::floor(hi)) + 1};
-  s.lo = std::max(s.lo, 0);
-  s.hi = std::min(s.hi, f.width - 1);
-  return s;
-}
-
-// Pixel centres of the row inside q <= cutoff (no margin): for the skip counter.
-inline int pixels_within(const TileFrame& f, const Conic& k, float dy, float cutoff) {
-  float lo, hi;
-  row_extent(f, k, dy, cutoff, lo, hi);
-  if (!(hi >= 0.0f) || lo > static_cast<float>(f.width - 1) || lo > hi) return 0;
-  const int c0 = std::max(0, static_cast<int>(std::ceil(lo)));
-  const int c1 = std::min(f.width - 1, static_cast<int>(std::floor(hi)));
-  return std::max(0, c1 - c0 + 1);
-}
-
 // ln x for x > 0 to ~1e-6 absolute, without libm (it dominated the culling's cost):
 // x = 2^e · r with r in [√½, √2), ln r = 2 atanh(z), z = (r − 1)/(r + 1), |z| < 0.172.
 inline float fast_log(float x) {
@@ -109,8 +51,9 @@ constexpr float kCutoffMargin = 1e-3f;
 // effective cutoff: ln_floor[r] = ln(m_row − skip) (soft) or ln(m_row) (hard),
 // −∞ when nothing can be skipped yet.
 struct RowFloors {
-  float ln_floor[kTile];
+  HWY_ALIGN float ln_floor[kTile];
   void refresh(const TileFrame& f, const float* m, bool exact_soft) {
+    std::fill(ln_floor + f.height, ln_floor + kTile, std::numeric_limits<float>::infinity());  // rows off the image
     for (int r = 0; r < f.height; ++r) {
       float lowest = std::numeric_limits<float>::infinity();
       for (int c = 0; c < f.width; ++c) lowest = std::min(lowest, m[r * kTile + c]);
@@ -124,6 +67,69 @@ struct RowFloors {
   }
 };
 constexpr int kRefreshEvery = 8;  // Gaussians between refreshes of the row floors
+
+// One Gaussian's columns in every row of a tile, computed for all rows at once in
+// SIMD (rows across lanes): row r evaluates columns [lo[r], hi[r]] (empty when
+// hi < lo) with the q cutoff cut[r]; dy[r] = py − v. The columns are those whose
+// centres can lie inside q <= cut (the ellipse's chord, one column of margin each
+// side against rounding: the per-lane test decides exactly).
+struct RowSpans {
+  HWY_ALIGN float cut[kTile];
+  HWY_ALIGN float dy[kTile];
+  HWY_ALIGN std::int32_t lo[kTile];
+  HWY_ALIGN std::int32_t hi[kTile];
+};
+
+// Fills `spans` for the Gaussian (u, v, conic A, B, C) whose row cutoffs are
+// floors.cutoff(r, ln_peak, δ). With count_skipped, returns the soft-MIP terms the
+// cutoffs drop: pixel centres of the tile inside q <= δ but outside q <= cut[r].
+inline std::int64_t row_spans(const TileFrame& f, const RowFloors& floors, float u, float v, float A, float B,
+                              float C, float ln_peak, bool count_skipped, RowSpans& spans) {
+  const hn::ScalableTag<float> d;
+  const hn::RebindToSigned<decltype(d)> di;
+  const int N = static_cast<int>(hn::Lanes(d));
+  const float inv_A = 1.0f / A, det = A * C - B * B;
+  const auto vA = hn::Set(d, A), vdet = hn::Set(d, det), vinv_A = hn::Set(d, inv_A);
+  const auto delta = hn::Set(d, f.cutoff), zero = hn::Zero(d), one = hn::Set(d, 1.0f);
+  const auto last_col = hn::Set(d, static_cast<float>(f.width - 1)), height = hn::Set(d, static_cast<float>(f.height));
+  const auto dy0 = hn::Set(d, static_cast<float>(f.y0) + 0.5f - v);
+  const auto mid0 = hn::Set(d, u - static_cast<float>(f.x0) - 0.5f), B_over_A = hn::Set(d, B * inv_A);
+  const auto peak2 = hn::Set(d, 2.0f * ln_peak), margin = hn::Set(d, kCutoffMargin);
+  const auto widen = hn::Set(d, 1.0f + 1e-3f);
+  // Pixel centres of each row inside q <= x (no margin); 0 where x <= 0 or the row misses.
+  auto inside = [&](auto row_ok, auto dy2det, auto mid, auto x) {
+    const auto D = hn::NegMulAdd(one, dy2det, hn::Mul(vA, x));
+    const auto root = hn::Mul(hn::Sqrt(hn::Max(D, zero)), vinv_A);
+    const auto c0 = hn::Max(hn::Ceil(hn::Sub(mid, root)), zero);
+    const auto c1 = hn::Min(hn::Floor(hn::Add(mid, root)), last_col);
+    const auto ok = hn::And(row_ok, hn::And(hn::Ge(D, zero), hn::Gt(x, zero)));
+    return hn::IfThenElseZero(ok, hn::Max(hn::Add(hn::Sub(c1, c0), one), zero));
+  };
+  auto skipped = zero;
+  for (int r0 = 0; r0 < kTile; r0 += N) {
+    const auto row = hn::Iota(d, static_cast<float>(r0));
+    const auto row_ok = hn::Lt(row, height);
+    const auto dy = hn::Add(dy0, row);
+    const auto cut = hn::Min(delta, hn::Add(hn::Sub(peak2, hn::Mul(hn::Set(d, 2.0f), hn::Load(d, floors.ln_floor + r0))), margin));
+    const auto dy2det = hn::Mul(hn::Mul(dy, dy), vdet);
+    const auto mid = hn::NegMulAdd(B_over_A, dy, mid0);  // chord centre: u − B dy / A, tile-local
+    const auto D = hn::NegMulAdd(one, dy2det, hn::Mul(vA, hn::Mul(cut, widen)));
+    const auto root = hn::Mul(hn::Sqrt(hn::Max(D, zero)), vinv_A);
+    // Clamped in float so the int conversion never sees an out-of-range value.
+    const auto lo = hn::Min(hn::Max(hn::Sub(hn::Ceil(hn::Sub(mid, root)), one), zero), last_col);
+    const auto hi = hn::Max(hn::Min(hn::Add(hn::Floor(hn::Add(mid, root)), one), last_col), hn::Set(d, -1.0f));
+    const auto ok = hn::And(row_ok, hn::And(hn::Ge(D, zero), hn::Gt(cut, zero)));
+    hn::Store(cut, d, spans.cut + r0);
+    hn::Store(dy, d, spans.dy + r0);
+    hn::Store(hn::ConvertTo(di, lo), di, spans.lo + r0);
+    hn::Store(hn::ConvertTo(di, hn::IfThenElse(ok, hi, hn::Set(d, -1.0f))), di, spans.hi + r0);
+    if (count_skipped) {
+      const auto dropped = hn::Sub(inside(row_ok, dy2det, mid, delta), inside(row_ok, dy2det, mid, cut));
+      skipped = hn::Add(skipped, hn::IfThenElseZero(hn::Lt(cut, delta), dropped));
+    }
+  }
+  return count_skipped ? static_cast<std::int64_t>(hn::GetLane(hn::SumOfLanes(d, skipped))) : 0;
+}
 
 void ForwardTile(const TileFrame& f, const TileGaussians& gs, float* m_out, float* S_out, float* I_out,
                  std::int64_t* skipped_out) {
@@ -142,35 +148,42 @@ void ForwardTile(const TileFrame& f, const TileGaussians& gs, float* m_out, floa
   // Soft-MIP without skipping (skip_log_weight 0) is exact: no row floors.
   const bool exact_soft = f.soft && !(f.skip_log_weight > 0.0f);
   RowFloors floors;
+  // Soft-MIP with skipping counts the terms it drops (SplatFrameStats::skipped_terms).
+  const bool count_skipped = f.soft && !exact_soft;
+  RowSpans spans;
   for (int i = 0; i < gs.count; ++i) {
-    if (i % kRefreshEvery == 0) floors.refresh(f, m, exact_soft);
     const float u = gs.u[i], v = gs.v[i], A = gs.con_a[i], B = gs.con_b[i], C = gs.con_c[i], amp = gs.amplitude[i];
-    const Span rows = row_span(f, v, A, B, C);
-    const Conic conic(u, A, B, C);
-    const auto vA = hn::Set(d, A), v2B = hn::Set(d, 2.0f * B), vC = hn::Set(d, C), vamp = hn::Set(d, amp);
-    const float ln_peak = fast_log(f.soft ? f.beta * amp : amp);
-    if (!f.soft && i % kRefreshEvery == 0) {
-      // Hard MIP: the list is in amplitude order (1024 buckets, so a later amplitude is
-      // below this one + 1/1024); once that cannot raise any pixel of the tile, none can.
-      const float ln_bound = fast_log(amp + 1.0f / 1024.0f);
+    if (i % kRefreshEvery == 0) {
+      floors.refresh(f, m, exact_soft);
+      // The list is in amplitude order (1024 buckets, so a later amplitude is below
+      // this one + 1/1024). Once a Gaussian that bright could not raise any pixel
+      // (hard) or would be skipped everywhere (soft), neither can any later one:
+      // stop, counting what the rest would have contributed as skipped.
+      const float a_bound = amp + 1.0f / 1024.0f;
+      const float ln_bound = fast_log(f.soft ? f.beta * a_bound : a_bound);
       bool any = false;
       for (int r = 0; r < f.height && !any; ++r) any = floors.cutoff(r, ln_bound, f.cutoff) > 0.0f;
-      if (!any) break;
-    }
-    for (int r = rows.lo; r <= rows.hi; ++r) {
-      const float dy = static_cast<float>(f.y0 + r) + 0.5f - v;
-      const float cut = floors.cutoff(r, ln_peak, f.cutoff);
-      if (f.soft && cut < f.cutoff) {
-        skipped += pixels_within(f, conic, dy, f.cutoff) - (cut > 0.0f ? pixels_within(f, conic, dy, cut) : 0);
+      if (!any) {
+        if (count_skipped) {
+          for (int j = i; j < gs.count; ++j) {
+            skipped += row_spans(f, floors, gs.u[j], gs.v[j], gs.con_a[j], gs.con_b[j], gs.con_c[j],
+                                 -std::numeric_limits<float>::infinity(), true, spans);
+          }
+        }
+        break;
       }
-      if (!(cut > 0.0f)) continue;
-      const Span cols = column_span(f, conic, dy, cut);
-      if (cols.hi < cols.lo) continue;
-      const auto vcut = hn::Set(d, cut);
-      const auto vdy = hn::Set(d, dy);
+    }
+    const float ln_peak = fast_log(f.soft ? f.beta * amp : amp);
+    skipped += row_spans(f, floors, u, v, A, B, C, ln_peak, count_skipped, spans);
+    const auto vA = hn::Set(d, A), v2B = hn::Set(d, 2.0f * B), vC = hn::Set(d, C), vamp = hn::Set(d, amp);
+    for (int r = 0; r < f.height; ++r) {
+      const int lo = spans.lo[r], hi = spans.hi[r];
+      if (hi < lo) continue;
+      const auto vcut = hn::Set(d, spans.cut[r]);
+      const auto vdy = hn::Set(d, spans.dy[r]);
       const auto Cdy2 = hn::Mul(vC, hn::Mul(vdy, vdy));
       const auto twoBdy = hn::Mul(v2B, vdy);
-      for (int c = (cols.lo / lanes) * lanes; c <= cols.hi; c += lanes) {
+      for (int c = (lo / lanes) * lanes; c <= hi; c += lanes) {
         const int at = r * kTile + c;
         const auto dx = hn::Sub(hn::Add(iota, hn::Set(d, static_cast<float>(f.x0 + c))), hn::Set(d, u));
         const auto q = hn::MulAdd(hn::MulAdd(vA, dx, twoBdy), dx, Cdy2);
@@ -253,22 +266,18 @@ void BackwardTile(const TileFrame& f, const TileGaussians& gs, const float* m_in
     for (int at = 0; at < kTile * kTile; ++at) m_floor[at] = inv_S[at] > 0.0f ? m[at] : std::numeric_limits<float>::infinity();
     floors.refresh(f, m_floor, !(f.skip_log_weight > 0.0f));
   }
+  RowSpans spans;
   for (int i = 0; i < gs.count; ++i) {
     const float u = gs.u[i], v = gs.v[i], A = gs.con_a[i], B = gs.con_b[i], C = gs.con_c[i], amp = gs.amplitude[i];
-    const Span rows = row_span(f, v, A, B, C);
-    const Conic conic(u, A, B, C);
     const auto vA = hn::Set(d, A), vB = hn::Set(d, B), vC = hn::Set(d, C), vamp = hn::Set(d, amp);
-    const float ln_peak = fast_log(f.beta * amp);
+    row_spans(f, floors, u, v, A, B, C, fast_log(f.beta * amp), false, spans);
     auto su = hn::Zero(d), sv = hn::Zero(d), sA = hn::Zero(d), sB = hn::Zero(d), sC = hn::Zero(d), samp = hn::Zero(d);
-    for (int r = rows.lo; r <= rows.hi; ++r) {
-      const float dy = static_cast<float>(f.y0 + r) + 0.5f - v;
-      const float cut = floors.cutoff(r, ln_peak, f.cutoff);
-      if (!(cut > 0.0f)) continue;
-      const Span cols = column_span(f, conic, dy, cut);
-      if (cols.hi < cols.lo) continue;
-      const auto cutoff = hn::Set(d, cut);
-      const auto vdy = hn::Set(d, dy);
-      for (int c = (cols.lo / lanes) * lanes; c <= cols.hi; c += lanes) {
+    for (int r = 0; r < f.height; ++r) {
+      const int lo = spans.lo[r], hi = spans.hi[r];
+      if (hi < lo) continue;
+      const auto cutoff = hn::Set(d, spans.cut[r]);
+      const auto vdy = hn::Set(d, spans.dy[r]);
+      for (int c = (lo / lanes) * lanes; c <= hi; c += lanes) {
         const int at = r * kTile + c;
         const auto dx = hn::Sub(hn::Add(iota, hn::Set(d, static_cast<float>(f.x0 + c))), hn::Set(d, u));
         const auto q = hn::MulAdd(hn::MulAdd(vA, dx, hn::Mul(hn::Mul(two, vB), vdy)), dx, hn::Mul(vC, hn::Mul(vdy, vdy)));
