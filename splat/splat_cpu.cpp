@@ -184,6 +184,7 @@ detail::TileFrame CpuSplatRenderer::tile_frame(int tile) const {
   f.cutoff = settings_.cutoff;
   f.skip_log_weight = settings_.skip_log_weight;
   f.soft = settings_.mode == MipMode::kSoft;
+  f.count_skipped = f.soft && settings_.count_skipped;
   return f;
 }
 

@@ -24,6 +24,10 @@ struct SplatSettings {
   float cutoff = 16.0f;          // δ
   float low_pass = 0.0f;         // pixels², added to Σ2D's diagonal
   float skip_log_weight = 20.0f; // 0 = never skip (see SplatOptions)
+  // Fill SplatFrameStats::skipped_terms. The CPU back end then counts the pixels of
+  // every skipped ellipse (about 1.5x its soft-MIP time), so it is off by default;
+  // the CUDA back end counts always (free there).
+  bool count_skipped = false;
   static SplatSettings from(const SplatOptions& options);
   [[nodiscard]] KernelSettings kernel() const;
 };
@@ -33,6 +37,7 @@ struct SplatFrameStats {
   int visible = 0;                  // Gaussians in front of the camera whose ellipse meets the image
   std::int64_t tile_entries = 0;    // (Gaussian, tile) pairs rasterized
   std::int64_t skipped_terms = 0;   // soft-MIP (pixel, Gaussian) terms skipped by skip_log_weight
+                                    // (CPU: only with SplatSettings::count_skipped, else 0)
 };
 
 // World->camera parameters of a view in the kernels' form.

@@ -59,11 +59,17 @@ struct RowFloors {
       for (int c = 0; c < f.width; ++c) lowest = std::min(lowest, m[r * kTile + c]);
       const float floor = f.soft ? lowest - f.skip_log_weight : lowest;
       ln_floor[r] = (exact_soft || !(floor > 0.0f)) ? -std::numeric_limits<float>::infinity() : fast_log(floor);
+      tile_floor = r == 0 ? ln_floor[r] : std::min(tile_floor, ln_floor[r]);
     }
   }
+  float tile_floor = 0.0f;  // the smallest ln_floor of the tile's rows
   // The row's cutoff for a Gaussian with ln_peak = ln(β a) (soft) or ln(a) (hard).
   [[nodiscard]] float cutoff(int r, float ln_peak, float delta) const {
     return std::min(delta, 2.0f * (ln_peak - ln_floor[r]) + kCutoffMargin);
+  }
+  // The largest row cutoff of the tile.
+  [[nodiscard]] float cutoff_of_tile(float ln_peak, float delta) const {
+    return std::min(delta, 2.0f * (ln_peak - tile_floor) + kCutoffMargin);
   }
 };
 constexpr int kRefreshEvery = 8;  // Gaussians between refreshes of the row floors
@@ -131,6 +137,23 @@ inline std::int64_t row_spans(const TileFrame& f, const RowFloors& floors, float
   return count_skipped ? static_cast<std::int64_t>(hn::GetLane(hn::SumOfLanes(d, skipped))) : 0;
 }
 
+// The smallest q = dᵀ Σ⁻¹ d of the Gaussian (u, v, conic A, B, C) over the tile's
+// pixel centres (the rectangle they span; 0 when it contains the centre). q is
+// convex, so off the rectangle its minimum lies on an edge, where it is a 1D
+// quadratic minimized at a clamped vertex.
+inline float tile_min_q(const TileFrame& f, float u, float v, float A, float B, float C) {
+  const float xa = static_cast<float>(f.x0) + 0.5f - u, xb = xa + static_cast<float>(f.width - 1);
+  const float ya = static_cast<float>(f.y0) + 0.5f - v, yb = ya + static_cast<float>(f.height - 1);
+  if (xa <= 0.0f && xb >= 0.0f && ya <= 0.0f && yb >= 0.0f) return 0.0f;
+  auto q = [&](float x, float y) { return (A * x + 2.0f * B * y) * x + C * y * y; };
+  auto along_x = [&](float y) { return q(std::clamp(-B * y / A, xa, xb), y); };  // edge at fixed y
+  auto along_y = [&](float x) { return q(x, std::clamp(-B * x / C, ya, yb)); };  // edge at fixed x
+  return std::min(std::min(along_x(ya), along_x(yb)), std::min(along_y(xa), along_y(xb)));
+}
+// tile_min_q is compared with a cutoff widened by this factor, so rounding never
+// drops a Gaussian that a lane's own test would keep.
+constexpr float kRejectSlack = 1.0f + 1e-3f;
+
 void ForwardTile(const TileFrame& f, const TileGaussians& gs, float* m_out, float* S_out, float* I_out,
                  std::int64_t* skipped_out) {
   const hn::ScalableTag<float> d;
@@ -148,8 +171,8 @@ void ForwardTile(const TileFrame& f, const TileGaussians& gs, float* m_out, floa
   // Soft-MIP without skipping (skip_log_weight 0) is exact: no row floors.
   const bool exact_soft = f.soft && !(f.skip_log_weight > 0.0f);
   RowFloors floors;
-  // Soft-MIP with skipping counts the terms it drops (SplatFrameStats::skipped_terms).
-  const bool count_skipped = f.soft && !exact_soft;
+  // Soft-MIP with skipping counts the terms it drops when asked (SplatFrameStats::skipped_terms).
+  const bool count_skipped = f.count_skipped && !exact_soft;
   RowSpans spans;
   for (int i = 0; i < gs.count; ++i) {
     const float u = gs.u[i], v = gs.v[i], A = gs.con_a[i], B = gs.con_b[i], C = gs.con_c[i], amp = gs.amplitude[i];
@@ -174,6 +197,12 @@ void ForwardTile(const TileFrame& f, const TileGaussians& gs, float* m_out, floa
       }
     }
     const float ln_peak = fast_log(f.soft ? f.beta * amp : amp);
+    if (!count_skipped) {
+      // Whole-tile test first: most of a tile's Gaussians touch none of its pixels
+      // within their (floor-limited) cutoff.
+      const float cut = floors.cutoff_of_tile(ln_peak, f.cutoff);
+      if (!(cut > 0.0f) || tile_min_q(f, u, v, A, B, C) > cut * kRejectSlack) continue;
+    }
     skipped += row_spans(f, floors, u, v, A, B, C, ln_peak, count_skipped, spans);
     const auto vA = hn::Set(d, A), v2B = hn::Set(d, 2.0f * B), vC = hn::Set(d, C), vamp = hn::Set(d, amp);
     for (int r = 0; r < f.height; ++r) {
@@ -270,7 +299,14 @@ void BackwardTile(const TileFrame& f, const TileGaussians& gs, const float* m_in
   for (int i = 0; i < gs.count; ++i) {
     const float u = gs.u[i], v = gs.v[i], A = gs.con_a[i], B = gs.con_b[i], C = gs.con_c[i], amp = gs.amplitude[i];
     const auto vA = hn::Set(d, A), vB = hn::Set(d, B), vC = hn::Set(d, C), vamp = hn::Set(d, amp);
-    row_spans(f, floors, u, v, A, B, C, fast_log(f.beta * amp), false, spans);
+    const float ln_peak = fast_log(f.beta * amp);
+    float* out = grads + 6 * static_cast<std::size_t>(i);
+    const float tile_cut = floors.cutoff_of_tile(ln_peak, f.cutoff);
+    if (!(tile_cut > 0.0f) || tile_min_q(f, u, v, A, B, C) > tile_cut * kRejectSlack) {
+      std::fill(out, out + 6, 0.0f);
+      continue;
+    }
+    row_spans(f, floors, u, v, A, B, C, ln_peak, false, spans);
     auto su = hn::Zero(d), sv = hn::Zero(d), sA = hn::Zero(d), sB = hn::Zero(d), sC = hn::Zero(d), samp = hn::Zero(d);
     for (int r = 0; r < f.height; ++r) {
       const int lo = spans.lo[r], hi = spans.hi[r];
@@ -303,7 +339,6 @@ void BackwardTile(const TileFrame& f, const TileGaussians& gs, const float* m_in
         sv = hn::MulAdd(dL_dq, hn::MulAdd(vB, dx, hn::Mul(vC, vdy)), sv);
       }
     }
-    float* out = grads + 6 * static_cast<std::size_t>(i);
     out[0] = -2.0f * hn::GetLane(hn::SumOfLanes(d, su));
     out[1] = -2.0f * hn::GetLane(hn::SumOfLanes(d, sv));
     out[2] = hn::GetLane(hn::SumOfLanes(d, sA));

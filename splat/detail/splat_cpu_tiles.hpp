@@ -26,6 +26,7 @@ struct TileFrame {
   float beta, cutoff;
   float skip_log_weight;  // 0 = never skip
   bool soft;
+  bool count_skipped;     // soft: count the terms skip_log_weight drops
 };
 
 // Renders the tile: writes the per-pixel softmax state m (β-scaled max), S and the

@@ -80,6 +80,7 @@ TEST(SplatCpu, SkippedTermsAreCountedAndNegligible) {
   SplatSettings exact;
   exact.skip_log_weight = 0.0f;
   exact.beta = 50.0f;
+  exact.count_skipped = true;
   const std::vector<float> a = render_cpu(*renderer, scene, exact);
   EXPECT_EQ(renderer->stats().skipped_terms, 0);
   SplatSettings skip = exact;
@@ -90,6 +91,14 @@ TEST(SplatCpu, SkippedTermsAreCountedAndNegligible) {
   double diff = 0;
   for (std::size_t i = 0; i < a.size(); ++i) diff = std::max(diff, double(std::abs(a[i] - b[i])));
   EXPECT_LT(diff, 60 * std::exp(-8.0) + 1e-6);
+  // Without counting (the default, and its faster culling) the image is the same
+  // up to the same bound, and the count stays 0.
+  skip.count_skipped = false;
+  const std::vector<float> c = render_cpu(*renderer, scene, skip);
+  EXPECT_EQ(renderer->stats().skipped_terms, 0);
+  double diff_uncounted = 0;
+  for (std::size_t i = 0; i < a.size(); ++i) diff_uncounted = std::max(diff_uncounted, double(std::abs(a[i] - c[i])));
+  EXPECT_LT(diff_uncounted, 60 * std::exp(-8.0) + 1e-6);
 }
 
 // Backward against the reference: both chain the same per-pixel terms; in float the
