@@ -15,6 +15,7 @@
 
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
+#include "io/memory_limit.hpp"
 
 namespace hisnegs::splat {
 namespace {
@@ -202,7 +203,12 @@ CameraSet read_cameras_json(const std::filesystem::path& path) {
   Intrinsics& K = set.intrinsics;
   K.width = r.integer(j, "width");
   K.height = r.integer(j, "height");
-  if (K.width <= 0 || K.height <= 0) r.fail("width/height", "must be positive");
+  // The same bound as the config's camera.width/height: a hostile size gets an
+  // error here, not an out-of-memory failure in the renderer.
+  if (K.width <= 0 || K.height <= 0 || K.width > kMaxImageSide || K.height > kMaxImageSide) {
+    r.fail("width/height", std::to_string(K.width) + "x" + std::to_string(K.height) + " is outside [1, " +
+                               std::to_string(kMaxImageSide) + "]");
+  }
   K.fx = r.number(j, "fx", "");
   K.fy = r.number(j, "fy", "");
   K.cx = r.number(j, "cx", "");
@@ -214,6 +220,9 @@ CameraSet read_cameras_json(const std::filesystem::path& path) {
   const auto views = j.find("views");
   if (views == j.end() || !views->is_array()) r.fail("views", "missing or not a list");
   if (views->empty()) r.fail("views", "is empty");
+  io::check_allocation(path, 4.0 * K.width * K.height * static_cast<double>(views->size()),
+                       std::to_string(views->size()) + " float32 images of " + std::to_string(K.width) + "x" +
+                           std::to_string(K.height));
   for (std::size_t i = 0; i < views->size(); ++i) {
     const Json& jv = (*views)[i];
     const std::string where = "views[" + std::to_string(i) + "].";

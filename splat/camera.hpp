@@ -14,6 +14,9 @@
 namespace hisnegs::splat {
 
 // Shared by every view of a camera set.
+// The largest image side hisnegs renders (config camera.width/height, cameras.json).
+inline constexpr int kMaxImageSide = 16384;
+
 struct Intrinsics {
   int width = 256, height = 256;  // pixels
   double fx = 0, fy = 0;          // focal lengths, pixels

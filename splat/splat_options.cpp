@@ -1,12 +1,14 @@
 // validate() of the splat-layer option structs.
 #include "splat/splat_options.hpp"
 
+#include "splat/camera.hpp"
+
 namespace hisnegs::splat {
 
 void CameraOptions::validate() const {
   constexpr const char* s = "camera";
-  io::require_in_range(s, "width", width, 8, 16384);
-  io::require_in_range(s, "height", height, 8, 16384);
+  io::require_in_range(s, "width", width, 8, kMaxImageSide);
+  io::require_in_range(s, "height", height, 8, kMaxImageSide);
   io::require_in_range(s, "fov_deg", fov_deg, 1e-3, 179.999);
   io::require_positive(s, "near", near);
   if (!(far > near)) io::fail_option(s, "far", std::to_string(far), "must be greater than camera.near");

@@ -7,6 +7,7 @@
 #include <Eigen/LU>
 
 #include <cmath>
+#include <cstdlib>
 #include <numbers>
 
 #include "io/error.hpp"
@@ -168,6 +169,41 @@ TEST(Camera, JsonIntegerOutOfRangeIsAnError) {
           << e.what();
     }
   }
+}
+
+// Hostile sizes (issue 9): a side over 16384, or views whose images would not fit
+// in the allocation limit, get an error naming the file before anything is allocated.
+TEST(Camera, JsonHostileSizesAreRefusedBeforeAllocating) {
+  testing::ScratchDir dir;
+  const std::string view = R"({"name": "a", "R": [[1,0,0],[0,1,0],[0,0,1]], "T": [0,0,2.5]})";
+  auto cameras = [&](int side, int views) {
+    std::string list;
+    for (int i = 0; i < views; ++i) list += (i ? "," : "") + view;
+    return R"({"width": )" + std::to_string(side) + R"(, "height": )" + std::to_string(side) +
+           R"(, "fx": 8, "fy": 8, "cx": 4, "cy": 4, "near": 0.01, "far": 10, "views": [)" + list + "]}";
+  };
+  testing::write_text(dir / "big.json", cameras(100000, 1));
+  try {
+    (void)read_cameras_json(dir / "big.json");
+    ADD_FAILURE() << "accepted a 100000x100000 camera";
+  } catch (const io::InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("width/height: 100000x100000 is outside [1, 16384]"), std::string::npos)
+        << e.what();
+  }
+  // 64 views of 16384² floats are 64 GiB; with a 1 GiB limit that is refused.
+  ::setenv("HISNEGS_MAX_ALLOC_GB", "1", 1);
+  testing::write_text(dir / "many.json", cameras(16384, 64));
+  try {
+    (void)read_cameras_json(dir / "many.json");
+    ADD_FAILURE() << "accepted 64 GiB of images";
+  } catch (const io::InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("would need 64.00 GiB for 64 float32 images of 16384x16384"),
+              std::string::npos)
+        << e.what();
+  }
+  testing::write_text(dir / "fits.json", cameras(64, 64));
+  EXPECT_EQ(read_cameras_json(dir / "fits.json").views.size(), 64u);
+  ::unsetenv("HISNEGS_MAX_ALLOC_GB");
 }
 
 // Keys and names quoted in messages may hold escaped line breaks ("a\nb"): one line still.
