@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <cmath>
 #include <memory>
+#include <utility>
 #include <stdexcept>
 #include <vector>
 
@@ -46,7 +47,7 @@ class CpuSplatRenderer final : public SplatRenderer {
   std::vector<std::uint32_t> order_;          // visible Gaussians, amplitude descending
   std::vector<std::uint32_t> bucket_count_;
   std::vector<std::uint32_t> tile_offset_;    // tiles + 1
-  std::vector<std::uint32_t> tile_cursor_;
+  std::vector<std::uint32_t> chunk_cursor_;   // per (chunk of order_, tile): entry count, then write cursor
   std::vector<std::uint32_t> entries_;        // Gaussian id per (tile, rank)
   std::vector<float> soa_;                    // entries_ gathered: 6 floats per entry, per tile blocks of SoA
   std::vector<float> m_, S_, I_;              // per pixel
@@ -137,24 +138,51 @@ void CpuSplatRenderer::bin(std::size_t K) {
   }
   stats_.visible = visible;
 
+  // (tile, order) pairs: order_ is cut into chunks that count their entries per tile
+  // and then scatter them in parallel; offsets run tile-major, chunk-minor, so
+  // entries_ is exactly what one serial pass would write (deterministic).
   const int tiles = tiles_x_ * tiles_y_;
-  tile_offset_.assign(static_cast<std::size_t>(tiles) + 1, 0);
-  for (std::uint32_t k : order_) {
+  const int chunks = std::clamp(visible / 4096, 1, 32);
+  chunk_cursor_.assign(static_cast<std::size_t>(chunks) * tiles, 0);
+  auto chunk_range = [&](int c) {
+    return std::pair<std::size_t, std::size_t>(static_cast<std::size_t>(visible) * c / chunks,
+                                               static_cast<std::size_t>(visible) * (c + 1) / chunks);
+  };
+  auto for_each_tile = [&](std::uint32_t k, auto&& fn) {
     const int x0 = tile_lo_[k] & 0xffff, y0 = tile_lo_[k] >> 16, x1 = tile_hi_[k] & 0xffff, y1 = tile_hi_[k] >> 16;
     for (int ty = y0; ty <= y1; ++ty) {
-      for (int tx = x0; tx <= x1; ++tx) ++tile_offset_[ty * tiles_x_ + tx + 1];
+      for (int tx = x0; tx <= x1; ++tx) fn(ty * tiles_x_ + tx);
+    }
+  };
+  tbb::parallel_for(0, chunks, [&](int c) {
+    std::uint32_t* count = chunk_cursor_.data() + static_cast<std::size_t>(c) * tiles;
+    const auto [lo, hi] = chunk_range(c);
+    for (std::size_t i = lo; i < hi; ++i) for_each_tile(order_[i], [&](int t) { ++count[t]; });
+  });
+  tile_offset_.resize(static_cast<std::size_t>(tiles) + 1);
+  std::uint32_t running = 0;
+  for (int t = 0; t < tiles; ++t) {
+    tile_offset_[t] = running;
+    for (int c = 0; c < chunks; ++c) {
+      std::uint32_t& slot = chunk_cursor_[static_cast<std::size_t>(c) * tiles + t];
+      const std::uint32_t n = slot;
+      slot = running;
+      running += n;
     }
   }
-  for (int t = 0; t < tiles; ++t) tile_offset_[t + 1] += tile_offset_[t];
-  entries_.resize(tile_offset_[tiles]);
+  tile_offset_[tiles] = running;
+  entries_.resize(running);
   stats_.tile_entries = static_cast<std::int64_t>(entries_.size());
-  tile_cursor_.assign(tile_offset_.begin(), tile_offset_.end() - 1);
-  for (std::uint32_t k : order_) {
-    const int x0 = tile_lo_[k] & 0xffff, y0 = tile_lo_[k] >> 16, x1 = tile_hi_[k] & 0xffff, y1 = tile_hi_[k] >> 16;
-    for (int ty = y0; ty <= y1; ++ty) {
-      for (int tx = x0; tx <= x1; ++tx) entries_[tile_cursor_[ty * tiles_x_ + tx]++] = k;
+  tbb::parallel_for(0, chunks, [&](int c) {
+    std::uint32_t* cursor = chunk_cursor_.data() + static_cast<std::size_t>(c) * tiles;
+    const auto [lo, hi] = chunk_range(c);
+    for (std::size_t i = lo; i < hi; ++i) {
+      const std::uint32_t k = order_[i];
+      for_each_tile(k, [&](int t) { entries_[cursor[t]++] = k; });
     }
-  }
+  });
+  // Each tile's 2D parameters gathered into one SoA block (writes in order; a
+  // scatter straight into the six arrays was slower).
   soa_.resize(6 * entries_.size());
   tbb::parallel_for(tbb::blocked_range<int>(0, tiles, 4), [&](const auto& range) {
     for (int t = range.begin(); t != range.end(); ++t) {
