@@ -184,6 +184,9 @@ Trainer::Trainer(const TrainOptions& options, const SplatSettings& splat, Traini
   if (!renderer_) throw std::invalid_argument("Trainer: no renderer");
   if (splat_.mode != MipMode::kSoft) throw std::invalid_argument("Trainer: training needs splat.mode soft");
   if (params_.size() % kP != 0) throw std::invalid_argument("Trainer: params size is not a multiple of 11");
+  if (const std::string bad = gmf::describe_non_finite<float>(params_, "value"); !bad.empty()) {
+    throw std::invalid_argument("Trainer: " + bad + " of the initial model is not finite");
+  }
   if (!(scene_scale_ > 0) || !std::isfinite(scene_scale_)) throw std::invalid_argument("Trainer: scene_scale must be > 0");
   const int edge = std::min(data_.intrinsics.width, data_.intrinsics.height);
   if (options_.crop_size > edge) {
@@ -263,6 +266,10 @@ Trainer::StepSums Trainer::train_step(std::span<const int> view_indices) {
                              std::to_string(step_ + 1) + ": " + bad + " is not finite");
   }
   adam_update(grad_, learning_rate(options_, epoch_));
+  if (const std::string bad = gmf::describe_non_finite<float>(params_, "value"); !bad.empty()) {
+    throw std::runtime_error("training diverged in epoch " + std::to_string(epoch_ + 1) + ", step " +
+                             std::to_string(step_) + ": the update made " + bad + " not finite");
+  }
   return sums;
 }
 

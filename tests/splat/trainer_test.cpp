@@ -131,6 +131,41 @@ TEST(Trainer, OneFullBatchStepLowersTheLoss) {
   EXPECT_EQ(trainer.step_count(), 1);
 }
 
+// Numerical guards (issue 9): a non-finite initial value is refused naming the
+// Gaussian and group; a diverging training stops with the epoch and step named.
+TEST(Trainer, NonFiniteValuesStopNamingWhereTheyAre) {
+  std::vector<float> init = perturbed(true_params());
+  std::vector<float> bad = init;
+  bad[kP * 2 + 4] = std::numeric_limits<float>::quiet_NaN();  // Gaussian 2's second log-scale
+  try {
+    (void)make_trainer(quiet_options(3), bad);
+    FAIL() << "a NaN initial value was accepted";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("the log-scales value of Gaussian 2 (nan) of the initial model is not finite"),
+              std::string::npos)
+        << e.what();
+  }
+  // A learning rate of 1e38 walks the parameters past the float range within a few
+  // Adam steps (each moves a parameter by about lr): the step that does it stops.
+  TrainOptions wild = quiet_options(3);
+  wild.lr_initial = wild.lr_final = 1e38;
+  Trainer trainer = make_trainer(wild, init);
+  std::vector<int> all(static_cast<std::size_t>(trainer.data().count()));
+  std::iota(all.begin(), all.end(), 0);
+  std::string message;
+  for (int i = 0; i < 10 && message.empty(); ++i) {
+    try {
+      (void)trainer.step(all);
+    } catch (const std::runtime_error& e) {
+      message = e.what();
+    }
+  }
+  // The loss guard or the parameter guard, whichever sees it first, names epoch and step.
+  EXPECT_EQ(message.rfind("training diverged", 0), 0u) << message;
+  EXPECT_NE(message.find("epoch 1, step "), std::string::npos) << message;
+  EXPECT_NE(message.find("not finite"), std::string::npos) << message;
+}
+
 TEST(Trainer, PruneKeepsSurvivorsAndTheirMomentsAligned) {
   std::vector<float> init = perturbed(true_params());
   init[1 * kP + 10] = -12.0f;  // Gaussian 1: a ≈ 6e-6, far below prune_intensity even after a few steps
