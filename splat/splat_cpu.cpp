@@ -49,7 +49,7 @@ class CpuSplatRenderer final : public SplatRenderer {
   std::vector<std::uint32_t> tile_offset_;    // tiles + 1
   std::vector<std::uint32_t> chunk_cursor_;   // per (chunk of order_, tile): entry count, then write cursor
   std::vector<std::uint32_t> entries_;        // Gaussian id per (tile, rank)
-  std::vector<float> soa_;                    // entries_ gathered: 6 floats per entry, per tile blocks of SoA
+  std::vector<float> packed_;                 // per Gaussian: detail::kPackedFloats 2D parameters
   std::vector<float> m_, S_, I_;              // per pixel
   std::vector<float> entry_grads_;            // 6 per entry
   std::vector<double> gaussian_grads_;        // 6 per Gaussian
@@ -75,6 +75,7 @@ void CpuSplatRenderer::forward(std::span<const float> params, const Intrinsics& 
 
   // 1. Project every Gaussian (Eq. 2-6) and find its tile rectangle.
   splats_.resize(count);
+  packed_.resize(detail::kPackedFloats * count);
   tile_lo_.resize(count);
   tile_hi_.resize(count);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, count, 1024), [&](const auto& range) {
@@ -97,6 +98,14 @@ void CpuSplatRenderer::forward(std::span<const float> params, const Intrinsics& 
         }
       }
       splats_[k] = s;
+      float* p = &packed_[detail::kPackedFloats * k];
+      p[0] = s.u;
+      p[1] = s.v;
+      p[2] = s.con_a;
+      p[3] = s.con_b;
+      p[4] = s.con_c;
+      p[5] = s.amplitude;
+      p[6] = p[7] = 0.0f;
     }
   });
   bin(count);
@@ -181,24 +190,6 @@ void CpuSplatRenderer::bin(std::size_t K) {
       for_each_tile(k, [&](int t) { entries_[cursor[t]++] = k; });
     }
   });
-  // Each tile's 2D parameters gathered into one SoA block (writes in order; a
-  // scatter straight into the six arrays was slower).
-  soa_.resize(6 * entries_.size());
-  tbb::parallel_for(tbb::blocked_range<int>(0, tiles, 4), [&](const auto& range) {
-    for (int t = range.begin(); t != range.end(); ++t) {
-      const std::uint32_t lo = tile_offset_[t], n = tile_offset_[t + 1] - lo;
-      float* base = soa_.data() + 6 * static_cast<std::size_t>(lo);
-      for (std::uint32_t i = 0; i < n; ++i) {
-        const Splat2D<float>& s = splats_[entries_[lo + i]];
-        base[i] = s.u;
-        base[n + i] = s.v;
-        base[2 * n + i] = s.con_a;
-        base[3 * n + i] = s.con_b;
-        base[4 * n + i] = s.con_c;
-        base[5 * n + i] = s.amplitude;
-      }
-    }
-  });
 }
 
 detail::TileFrame CpuSplatRenderer::tile_frame(int tile) const {
@@ -216,11 +207,10 @@ detail::TileFrame CpuSplatRenderer::tile_frame(int tile) const {
   return f;
 }
 
-// The tile's block of soa_: six arrays of n floats.
+// The tile's entries (Gaussian ids) into the packed 2D parameters.
 detail::TileGaussians CpuSplatRenderer::tile_gaussians(int tile) const {
   const std::uint32_t lo = tile_offset_[tile], n = tile_offset_[tile + 1] - lo;
-  const float* base = soa_.data() + 6 * static_cast<std::size_t>(lo);
-  return {base, base + n, base + 2 * n, base + 3 * n, base + 4 * n, base + 5 * n, static_cast<int>(n)};
+  return {packed_.data(), entries_.data() + lo, static_cast<int>(n)};
 }
 
 void CpuSplatRenderer::backward(std::span<const float> dL_dimage, std::span<float> dL_dparams,

@@ -175,7 +175,8 @@ void ForwardTile(const TileFrame& f, const TileGaussians& gs, float* m_out, floa
   const bool count_skipped = f.count_skipped && !exact_soft;
   RowSpans spans;
   for (int i = 0; i < gs.count; ++i) {
-    const float u = gs.u[i], v = gs.v[i], A = gs.con_a[i], B = gs.con_b[i], C = gs.con_c[i], amp = gs.amplitude[i];
+    const float* g = gs[i];
+    const float u = g[0], v = g[1], A = g[2], B = g[3], C = g[4], amp = g[5];
     if (i % kRefreshEvery == 0) {
       floors.refresh(f, m, exact_soft);
       // The list is in amplitude order (1024 buckets, so a later amplitude is below
@@ -189,7 +190,8 @@ void ForwardTile(const TileFrame& f, const TileGaussians& gs, float* m_out, floa
       if (!any) {
         if (count_skipped) {
           for (int j = i; j < gs.count; ++j) {
-            skipped += row_spans(f, floors, gs.u[j], gs.v[j], gs.con_a[j], gs.con_b[j], gs.con_c[j],
+            const float* h = gs[j];
+            skipped += row_spans(f, floors, h[0], h[1], h[2], h[3], h[4],
                                  -std::numeric_limits<float>::infinity(), true, spans);
           }
         }
@@ -297,7 +299,8 @@ void BackwardTile(const TileFrame& f, const TileGaussians& gs, const float* m_in
   }
   RowSpans spans;
   for (int i = 0; i < gs.count; ++i) {
-    const float u = gs.u[i], v = gs.v[i], A = gs.con_a[i], B = gs.con_b[i], C = gs.con_c[i], amp = gs.amplitude[i];
+    const float* g = gs[i];
+    const float u = g[0], v = g[1], A = g[2], B = g[3], C = g[4], amp = g[5];
     const auto vA = hn::Set(d, A), vB = hn::Set(d, B), vC = hn::Set(d, C), vamp = hn::Set(d, amp);
     const float ln_peak = fast_log(f.beta * amp);
     float* out = grads + 6 * static_cast<std::size_t>(i);

@@ -3,20 +3,22 @@
 // the best instruction set. Binning and per-Gaussian work live in splat_cpu.cpp.
 #pragma once
 
+#include <cstddef>
 #include <cstdint>
 
 namespace hisnegs::splat::detail {
 
-// One tile's Gaussians as structure of arrays, in rasterization order
-// (amplitude descending, so the running max settles early).
+// The 2D parameters of every Gaussian of a frame, packed 8 floats per Gaussian (one
+// half cache line): u, v, con_a, con_b, con_c, amplitude, 0, 0.
+inline constexpr int kPackedFloats = 8;
+
+// One tile's Gaussians: their ids in rasterization order (amplitude descending, so
+// the running max settles early) into the frame's packed parameters.
 struct TileGaussians {
-  const float* u;
-  const float* v;
-  const float* con_a;
-  const float* con_b;
-  const float* con_c;
-  const float* amplitude;
+  const float* packed;
+  const std::uint32_t* ids;
   int count;
+  [[nodiscard]] const float* operator[](int i) const { return packed + kPackedFloats * static_cast<std::size_t>(ids[i]); }
 };
 
 struct TileFrame {
