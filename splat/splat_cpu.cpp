@@ -8,8 +8,8 @@
 #include <algorithm>
 #include <cmath>
 #include <memory>
-#include <utility>
 #include <stdexcept>
+#include <utility>
 #include <vector>
 
 #include "io/error.hpp"
