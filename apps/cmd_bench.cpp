@@ -11,6 +11,7 @@
 #include "apps/cli_support.hpp"
 #include "apps/commands_detail.hpp"
 #include "io/error.hpp"
+#include "splat/camera.hpp"
 
 namespace hisnegs::apps {
 
@@ -58,7 +59,10 @@ void add_bench_command(CLI::App& app, GlobalOptions& global) {
       args->betas = report ? args->report.betas : std::vector<float>{1, 10, 50, 100, 500};
     }
     for (int size : args->sizes) {
-      if (size < 8 || size > 16384) throw io::InputError("--sizes: " + std::to_string(size) + " is outside [8, 16384]");
+      if (size < 8 || size > splat::kMaxImageSide) {
+        throw io::InputError("--sizes: " + std::to_string(size) + " is outside [8, " +
+                             std::to_string(splat::kMaxImageSide) + "]");
+      }
     }
     for (int K : args->gaussians) {
       if (K < 1 || K > 10000000) throw io::InputError("--gaussians: " + std::to_string(K) + " is outside [1, 10^7]");

@@ -63,11 +63,8 @@ struct RowFloors {
     }
   }
   float tile_floor = 0.0f;  // the smallest ln_floor of the tile's rows
-  // The row's cutoff for a Gaussian with ln_peak = ln(β a) (soft) or ln(a) (hard).
-  [[nodiscard]] float cutoff(int r, float ln_peak, float delta) const {
-    return std::min(delta, 2.0f * (ln_peak - ln_floor[r]) + kCutoffMargin);
-  }
-  // The largest row cutoff of the tile.
+  // The largest row cutoff of the tile for a Gaussian with ln_peak = ln(β a) (soft)
+  // or ln(a) (hard); row r's own is min(δ, 2 (ln_peak − ln_floor[r]) + margin).
   [[nodiscard]] float cutoff_of_tile(float ln_peak, float delta) const {
     return std::min(delta, 2.0f * (ln_peak - tile_floor) + kCutoffMargin);
   }
@@ -87,7 +84,7 @@ struct RowSpans {
 };
 
 // Fills `spans` for the Gaussian (u, v, conic A, B, C) whose row cutoffs are
-// floors.cutoff(r, ln_peak, δ). With count_skipped, returns the soft-MIP terms the
+// min(δ, 2 (ln_peak − floors.ln_floor[r]) + margin). With count_skipped, returns the soft-MIP terms the
 // cutoffs drop: pixel centres of the tile inside q <= δ but outside q <= cut[r].
 inline std::int64_t row_spans(const TileFrame& f, const RowFloors& floors, float u, float v, float A, float B,
                               float C, float ln_peak, bool count_skipped, RowSpans& spans) {
@@ -154,6 +151,14 @@ inline float tile_min_q(const TileFrame& f, float u, float v, float A, float B, 
 // drops a Gaussian that a lane's own test would keep.
 constexpr float kRejectSlack = 1.0f + 1e-3f;
 
+// Whole-tile test, before any per-row work: true when the Gaussian reaches none of
+// the tile's pixels within its loosest (floor-limited) cutoff.
+inline bool misses_tile(const TileFrame& f, const RowFloors& floors, float u, float v, float A, float B, float C,
+                        float ln_peak) {
+  const float cut = floors.cutoff_of_tile(ln_peak, f.cutoff);
+  return !(cut > 0.0f) || tile_min_q(f, u, v, A, B, C) > cut * kRejectSlack;
+}
+
 void ForwardTile(const TileFrame& f, const TileGaussians& gs, float* m_out, float* S_out, float* I_out,
                  std::int64_t* skipped_out) {
   const hn::ScalableTag<float> d;
@@ -185,9 +190,7 @@ void ForwardTile(const TileFrame& f, const TileGaussians& gs, float* m_out, floa
       // stop, counting what the rest would have contributed as skipped.
       const float a_bound = amp + 1.0f / 1024.0f;
       const float ln_bound = fast_log(f.soft ? f.beta * a_bound : a_bound);
-      bool any = false;
-      for (int r = 0; r < f.height && !any; ++r) any = floors.cutoff(r, ln_bound, f.cutoff) > 0.0f;
-      if (!any) {
+      if (!(floors.cutoff_of_tile(ln_bound, f.cutoff) > 0.0f)) {
         if (count_skipped) {
           for (int j = i; j < gs.count; ++j) {
             const float* h = gs[j];
@@ -199,12 +202,7 @@ void ForwardTile(const TileFrame& f, const TileGaussians& gs, float* m_out, floa
       }
     }
     const float ln_peak = fast_log(f.soft ? f.beta * amp : amp);
-    if (!count_skipped) {
-      // Whole-tile test first: most of a tile's Gaussians touch none of its pixels
-      // within their (floor-limited) cutoff.
-      const float cut = floors.cutoff_of_tile(ln_peak, f.cutoff);
-      if (!(cut > 0.0f) || tile_min_q(f, u, v, A, B, C) > cut * kRejectSlack) continue;
-    }
+    if (!count_skipped && misses_tile(f, floors, u, v, A, B, C, ln_peak)) continue;  // most do
     skipped += row_spans(f, floors, u, v, A, B, C, ln_peak, count_skipped, spans);
     const auto vA = hn::Set(d, A), v2B = hn::Set(d, 2.0f * B), vC = hn::Set(d, C), vamp = hn::Set(d, amp);
     for (int r = 0; r < f.height; ++r) {
@@ -301,15 +299,14 @@ void BackwardTile(const TileFrame& f, const TileGaussians& gs, const float* m_in
   for (int i = 0; i < gs.count; ++i) {
     const float* g = gs[i];
     const float u = g[0], v = g[1], A = g[2], B = g[3], C = g[4], amp = g[5];
-    const auto vA = hn::Set(d, A), vB = hn::Set(d, B), vC = hn::Set(d, C), vamp = hn::Set(d, amp);
     const float ln_peak = fast_log(f.beta * amp);
     float* out = grads + 6 * static_cast<std::size_t>(i);
-    const float tile_cut = floors.cutoff_of_tile(ln_peak, f.cutoff);
-    if (!(tile_cut > 0.0f) || tile_min_q(f, u, v, A, B, C) > tile_cut * kRejectSlack) {
+    if (misses_tile(f, floors, u, v, A, B, C, ln_peak)) {
       std::fill(out, out + 6, 0.0f);
       continue;
     }
     row_spans(f, floors, u, v, A, B, C, ln_peak, false, spans);
+    const auto vA = hn::Set(d, A), vB = hn::Set(d, B), vC = hn::Set(d, C), vamp = hn::Set(d, amp);
     auto su = hn::Zero(d), sv = hn::Zero(d), sA = hn::Zero(d), sB = hn::Zero(d), sC = hn::Zero(d), samp = hn::Zero(d);
     for (int r = 0; r < f.height; ++r) {
       const int lo = spans.lo[r], hi = spans.hi[r];
