@@ -105,7 +105,8 @@ void CpuSplatRenderer::forward(std::span<const float> params, const Intrinsics& 
       p[3] = s.con_b;
       p[4] = s.con_c;
       p[5] = s.amplitude;
-      p[6] = p[7] = 0.0f;
+      p[6] = std::log(std::max(s.amplitude, 1e-30f));  // ln a, finite
+      p[7] = 0.0f;
     }
   });
   bin(count);

@@ -68,29 +68,57 @@ HWY_INLINE V ExpNonPositive(D d, V x) {
   return hn::BitCast(d, hn::Add(hn::BitCast(di, p), scale));
 }
 
-// Culling by the pixels' running maxima. A term is skipped when it cannot matter:
-// hard MIP, g <= m (exact); soft-MIP, β g < m − skip_log_weight (weight below
-// e^-skip). With m_row the smallest m of a tile row, g = a e^{-q/2} is below the
-// bound wherever q > 2 (ln(β a) − ln(m_row − skip)), so that q is the row's
-// effective cutoff: ln_floor[r] = ln(m_row − skip) (soft) or ln(m_row) (hard),
-// −∞ when nothing can be skipped yet.
+// Culling by per-row floors. A term is skipped when it cannot matter:
+// hard MIP, g <= m (exact); soft-MIP, β g < M − skip_log_weight (weight below
+// e^-skip, M the pixel's largest β g). With the row's smallest bound, g = a e^{-q/2}
+// is below it wherever q > 2 (ln_peak − ln_floor[r]) with ln_peak = ln a (hard) or
+// ln(β a) (soft): that q is the row's effective cutoff. ln_floor[r] is the row's
+// smallest ln m (hard, running) or ln(M_row − skip) (soft, final), −∞ when nothing
+// can be skipped yet; +∞ for rows off the image.
 struct RowFloors {
   HWY_ALIGN float ln_floor[kTile];
-  void refresh(const TileFrame& f, const float* m, bool exact_soft) {
-    std::fill(ln_floor + f.height, ln_floor + kTile, std::numeric_limits<float>::infinity());  // rows off the image
+  float tile_floor = 0.0f;  // the smallest ln_floor of the tile's rows
+
+  // Hard: from the running ln max of every pixel (padding columns hold +∞).
+  void from_log_max(const TileFrame& f, const float* lm) {
+    const hn::ScalableTag<float> d;
+    const int N = static_cast<int>(hn::Lanes(d));
+    for (int r = 0; r < kTile; ++r) {
+      auto lowest = hn::Load(d, lm + r * kTile);
+      for (int c = N; c < kTile; c += N) lowest = hn::Min(lowest, hn::Load(d, lm + r * kTile + c));
+      ln_floor[r] = r < f.height ? hn::GetLane(hn::MinOfLanes(d, lowest)) : std::numeric_limits<float>::infinity();
+    }
+    tile_floor = min_of_rows(f);
+  }
+  // Soft: from the final β-scaled maxima M (+∞ where no Gaussian reaches the pixel:
+  // no term is evaluated there). `exact` (skip 0): nothing is skipped.
+  void from_soft_max(const TileFrame& f, const float* M, bool exact) {
+    std::fill(ln_floor + f.height, ln_floor + kTile, std::numeric_limits<float>::infinity());
     for (int r = 0; r < f.height; ++r) {
       float lowest = std::numeric_limits<float>::infinity();
-      for (int c = 0; c < f.width; ++c) lowest = std::min(lowest, m[r * kTile + c]);
-      const float floor = f.soft ? lowest - f.skip_log_weight : lowest;
-      ln_floor[r] = (exact_soft || !(floor > 0.0f)) ? -std::numeric_limits<float>::infinity() : fast_log(floor);
-      tile_floor = r == 0 ? ln_floor[r] : std::min(tile_floor, ln_floor[r]);
+      for (int c = 0; c < f.width; ++c) lowest = std::min(lowest, M[r * kTile + c]);
+      const float floor = lowest - f.skip_log_weight;
+      ln_floor[r] = (exact || !(floor > 0.0f)) ? -std::numeric_limits<float>::infinity()
+                    : floor == std::numeric_limits<float>::infinity() ? floor : fast_log(floor);
     }
+    tile_floor = min_of_rows(f);
   }
-  float tile_floor = 0.0f;  // the smallest ln_floor of the tile's rows
-  // The largest row cutoff of the tile for a Gaussian with ln_peak = ln(β a) (soft)
-  // or ln(a) (hard); row r's own is min(δ, 2 (ln_peak − ln_floor[r]) + margin).
+  [[nodiscard]] float min_of_rows(const TileFrame& f) const {
+    float lowest = ln_floor[0];
+    for (int r = 1; r < f.height; ++r) lowest = std::min(lowest, ln_floor[r]);
+    return lowest;
+  }
+  // The largest row cutoff of the tile for a Gaussian with peak ln_peak; row r's
+  // own is min(δ, 2 (ln_peak − ln_floor[r]) + margin).
   [[nodiscard]] float cutoff_of_tile(float ln_peak, float delta) const {
     return std::min(delta, 2.0f * (ln_peak - tile_floor) + kCutoffMargin);
+  }
+  // True once no Gaussian of amplitude below a_bound (the list is amplitude
+  // descending in 1024 buckets, so every later one is below this one's + 1/1024)
+  // reaches any pixel within its cutoff.
+  [[nodiscard]] bool none_after(const TileFrame& f, float amp, float ln_beta) const {
+    const float ln_bound = fast_log(amp + 1.0f / 1024.0f) + (f.soft ? ln_beta : 0.0f);
+    return !(cutoff_of_tile(ln_bound, f.cutoff) > 0.0f);
   }
 };
 constexpr int kRefreshEvery = 8;  // Gaussians between refreshes of the row floors
@@ -183,110 +211,146 @@ inline bool misses_tile(const TileFrame& f, const RowFloors& floors, float u, fl
   return !(cut > 0.0f) || tile_min_q(f, u, v, A, B, C) > cut * kRejectSlack;
 }
 
+// Calls visit(lo_chunk, r, mask-building data) for every SIMD chunk of every row
+// of the Gaussian's spans: body(at, dx, q, mask) with q its Mahalanobis distance
+// at the chunk's pixel centres and mask the lanes inside the row's cutoff and the
+// tile; chunks with no such lane are not visited.
+template <class Body>
+HWY_INLINE void for_each_chunk(const TileFrame& f, const RowSpans& spans, float u, float A, float B, float C,
+                               Body&& body) {
+  const hn::ScalableTag<float> d;
+  const int lanes = std::min(static_cast<int>(hn::Lanes(d)), kTile);  // chunks never cross the tile's 16 columns
+  const auto iota = hn::Iota(d, 0.5f);
+  const auto vA = hn::Set(d, A), v2B = hn::Set(d, 2.0f * B), vC = hn::Set(d, C);
+  const auto x_minus_u = hn::Set(d, static_cast<float>(f.x0) - u);
+  for (int r = 0; r < f.height; ++r) {
+    const int lo = spans.lo[r], hi = spans.hi[r];
+    if (hi < lo) continue;
+    const auto vcut = hn::Set(d, spans.cut[r]);
+    const auto vdy = hn::Set(d, spans.dy[r]);
+    const auto Cdy2 = hn::Mul(vC, hn::Mul(vdy, vdy));
+    const auto twoBdy = hn::Mul(v2B, vdy);
+    for (int c = (lo / lanes) * lanes; c <= hi; c += lanes) {
+      const auto dx = hn::Add(iota, hn::Add(x_minus_u, hn::Set(d, static_cast<float>(c))));
+      const auto q = hn::MulAdd(hn::MulAdd(vA, dx, twoBdy), dx, Cdy2);
+      auto mask = hn::Le(q, vcut);
+      if (c + lanes > f.width) mask = hn::And(mask, hn::Lt(hn::Iota(d, static_cast<float>(c)), hn::Set(d, static_cast<float>(f.width))));
+      if (hn::AllFalse(d, mask)) continue;
+      body(r * kTile + c, vdy, dx, q, mask);
+    }
+  }
+}
+
+// Pass 1, both modes: lm = ln of the largest g = a e^{-q/2} over the terms with
+// q <= δ at each pixel, exact, in the log domain (ln g = ln a − q/2: no exp).
+// Gaussians that cannot raise a pixel are culled by the running row floors.
+void LogMaxPass(const TileFrame& f, const TileGaussians& gs, float* lm) {
+  const hn::ScalableTag<float> d;
+  const auto minus_half = hn::Set(d, -0.5f);
+  RowFloors floors;
+  RowSpans spans;
+  for (int i = 0; i < gs.count; ++i) {
+    const float* g = gs[i];
+    const float u = g[0], v = g[1], A = g[2], B = g[3], C = g[4], amp = g[5], ln_amp = g[6];
+    if (i % kRefreshEvery == 0) {
+      floors.from_log_max(f, lm);
+      if (floors.none_after(f, amp, 0.0f)) break;
+    }
+    if (misses_tile(f, floors, u, v, A, B, C, ln_amp)) continue;  // most do
+    row_spans(f, floors, u, v, A, B, C, ln_amp, false, spans);
+    const auto vln_amp = hn::Set(d, ln_amp);
+    for_each_chunk(f, spans, u, A, B, C, [&](int at, auto, auto, auto q, auto mask) {
+      const auto old = hn::Load(d, lm + at);
+      hn::Store(hn::IfThenElse(mask, hn::Max(old, hn::MulAdd(minus_half, q, vln_amp)), old), d, lm + at);
+    });
+  }
+}
+
+// Pass 2, soft-MIP: with every pixel's final M = β max g known, the online softmax
+// of §9.3 needs no rescaling: S = Σ e^{βg − M}, W = Σ e^{βg − M} g. The floors are
+// final from the first Gaussian, so the skip rule culls as much as it ever can.
+std::int64_t SoftPass(const TileFrame& f, const TileGaussians& gs, const float* M, float* S, float* W) {
+  const hn::ScalableTag<float> d;
+  const auto minus_half = hn::Set(d, -0.5f);
+  const auto beta = hn::Set(d, f.beta);
+  const float ln_beta = fast_log(f.beta);
+  const bool exact = !(f.skip_log_weight > 0.0f);
+  const bool count_skipped = f.count_skipped && !exact;
+  RowFloors floors;
+  floors.from_soft_max(f, M, exact);
+  RowSpans spans;
+  std::int64_t skipped = 0;
+  for (int i = 0; i < gs.count; ++i) {
+    const float* g = gs[i];
+    const float u = g[0], v = g[1], A = g[2], B = g[3], C = g[4], amp = g[5];
+    if (i % kRefreshEvery == 0 && floors.none_after(f, amp, ln_beta)) {
+      if (count_skipped) {  // what the rest would have contributed
+        for (int j = i; j < gs.count; ++j) {
+          const float* h = gs[j];
+          skipped += row_spans(f, floors, h[0], h[1], h[2], h[3], h[4], -std::numeric_limits<float>::infinity(), true, spans);
+        }
+      }
+      break;
+    }
+    const float ln_peak = ln_beta + g[6];
+    if (!count_skipped && misses_tile(f, floors, u, v, A, B, C, ln_peak)) continue;  // most do
+    skipped += row_spans(f, floors, u, v, A, B, C, ln_peak, count_skipped, spans);
+    const auto vamp = hn::Set(d, amp);
+    for_each_chunk(f, spans, u, A, B, C, [&](int at, auto, auto, auto q, auto mask) {
+      const auto gk = hn::Mul(vamp, ExpNonPositive(d, hn::Mul(minus_half, q)));
+      const auto e = hn::IfThenElseZero(mask, ExpNonPositive(d, hn::MulSub(beta, gk, hn::Load(d, M + at))));
+      hn::Store(hn::Add(hn::Load(d, S + at), e), d, S + at);
+      hn::Store(hn::MulAdd(e, gk, hn::Load(d, W + at)), d, W + at);
+    });
+  }
+  return skipped;
+}
+
 void ForwardTile(const TileFrame& f, const TileGaussians& gs, float* m_out, float* S_out, float* I_out,
                  std::int64_t* skipped_out) {
   const hn::ScalableTag<float> d;
   const int N = static_cast<int>(hn::Lanes(d));
-  const int lanes = std::min(N, kTile);  // chunks never cross the tile's 16 columns
-  HWY_ALIGN float m[kTile * kTile], S[kTile * kTile], W[kTile * kTile];
-  std::fill(m, m + kTile * kTile, -std::numeric_limits<float>::infinity());
-  std::fill(S, S + kTile * kTile, 0.0f);
-  std::fill(W, W + kTile * kTile, 0.0f);
-  std::int64_t skipped = 0;
-  const auto iota = hn::Iota(d, 0.5f);
-  const auto beta = hn::Set(d, f.beta);
-  const auto minus_half = hn::Set(d, -0.5f);
-  const auto one = hn::Set(d, 1.0f);
-  // Soft-MIP without skipping (skip_log_weight 0) is exact: no row floors.
-  const bool exact_soft = f.soft && !(f.skip_log_weight > 0.0f);
-  RowFloors floors;
-  // Soft-MIP with skipping counts the terms it drops when asked (SplatFrameStats::skipped_terms).
-  const bool count_skipped = f.count_skipped && !exact_soft;
-  RowSpans spans;
-  for (int i = 0; i < gs.count; ++i) {
-    const float* g = gs[i];
-    const float u = g[0], v = g[1], A = g[2], B = g[3], C = g[4], amp = g[5];
-    if (i % kRefreshEvery == 0) {
-      floors.refresh(f, m, exact_soft);
-      // The list is in amplitude order (1024 buckets, so a later amplitude is below
-      // this one + 1/1024). Once a Gaussian that bright could not raise any pixel
-      // (hard) or would be skipped everywhere (soft), neither can any later one:
-      // stop, counting what the rest would have contributed as skipped.
-      const float a_bound = amp + 1.0f / 1024.0f;
-      const float ln_bound = fast_log(f.soft ? f.beta * a_bound : a_bound);
-      if (!(floors.cutoff_of_tile(ln_bound, f.cutoff) > 0.0f)) {
-        if (count_skipped) {
-          for (int j = i; j < gs.count; ++j) {
-            const float* h = gs[j];
-            skipped += row_spans(f, floors, h[0], h[1], h[2], h[3], h[4],
-                                 -std::numeric_limits<float>::infinity(), true, spans);
-          }
-        }
-        break;
-      }
-    }
-    const float ln_peak = fast_log(f.soft ? f.beta * amp : amp);
-    if (!count_skipped && misses_tile(f, floors, u, v, A, B, C, ln_peak)) continue;  // most do
-    skipped += row_spans(f, floors, u, v, A, B, C, ln_peak, count_skipped, spans);
-    const auto vA = hn::Set(d, A), v2B = hn::Set(d, 2.0f * B), vC = hn::Set(d, C), vamp = hn::Set(d, amp);
-    for (int r = 0; r < f.height; ++r) {
-      const int lo = spans.lo[r], hi = spans.hi[r];
-      if (hi < lo) continue;
-      const auto vcut = hn::Set(d, spans.cut[r]);
-      const auto vdy = hn::Set(d, spans.dy[r]);
-      const auto Cdy2 = hn::Mul(vC, hn::Mul(vdy, vdy));
-      const auto twoBdy = hn::Mul(v2B, vdy);
-      for (int c = (lo / lanes) * lanes; c <= hi; c += lanes) {
-        const int at = r * kTile + c;
-        const auto dx = hn::Sub(hn::Add(iota, hn::Set(d, static_cast<float>(f.x0 + c))), hn::Set(d, u));
-        const auto q = hn::MulAdd(hn::MulAdd(vA, dx, twoBdy), dx, Cdy2);
-        auto mask = hn::Le(q, vcut);
-        if (c + lanes > f.width) mask = hn::And(mask, hn::Lt(hn::Iota(d, static_cast<float>(c)), hn::Set(d, static_cast<float>(f.width))));
-        if (hn::AllFalse(d, mask)) continue;
-        const auto m_old = hn::Load(d, m + at);
-        const auto g = hn::Mul(vamp, ExpNonPositive(d, hn::Mul(minus_half, q)));
-        if (!f.soft) {
-          hn::Store(hn::IfThenElse(mask, hn::Max(m_old, g), m_old), d, m + at);
-          continue;
-        }
-        // One exp per term: t = e^{-|βg − m|}; if βg > m the old sums are scaled by t
-        // and the new term is 1, else the new term is t (report §9.3, rearranged).
-        const auto bg = hn::Mul(beta, g);
-        const auto t = ExpNonPositive(d, hn::Neg(hn::Abs(hn::Sub(bg, m_old))));
-        const auto raises = hn::Gt(bg, m_old);
-        const auto scale = hn::IfThenElse(raises, t, one);
-        const auto e = hn::IfThenElse(raises, one, t);
-        const auto S_old = hn::Load(d, S + at), W_old = hn::Load(d, W + at);
-        hn::Store(hn::IfThenElse(mask, hn::MulAdd(S_old, scale, e), S_old), d, S + at);
-        hn::Store(hn::IfThenElse(mask, hn::MulAdd(W_old, scale, hn::Mul(e, g)), W_old), d, W + at);
-        hn::Store(hn::IfThenElse(mask, hn::Max(m_old, bg), m_old), d, m + at);
-      }
-    }
+  constexpr float kInf = std::numeric_limits<float>::infinity();
+  // Tile-local rows of 16; the padding columns past the image hold +∞ in lm and M
+  // (they never lower a row's floor) and are never written by the passes.
+  HWY_ALIGN float lm[kTile * kTile], M[kTile * kTile], S[kTile * kTile], W[kTile * kTile];
+  for (int r = 0; r < kTile; ++r) {
+    for (int c = 0; c < kTile; ++c) lm[r * kTile + c] = c < f.width ? -kInf : kInf;
+  }
+  LogMaxPass(f, gs, lm);
+  // M = β e^{lm} (soft) or e^{lm} (hard): the largest (β) g; +∞ where nothing reaches
+  // the pixel (lm = −∞), so such pixels never lower a soft row floor.
+  const auto scale = hn::Set(d, f.soft ? f.beta : 1.0f);
+  for (int at = 0; at < kTile * kTile; at += N) {
+    const auto x = hn::Load(d, lm + at);
+    const auto touched = hn::Gt(x, hn::Set(d, -kInf));
+    hn::Store(hn::IfThenElse(touched, hn::Mul(scale, ExpNonPositive(d, x)), hn::Set(d, kInf)), d, M + at);
+  }
+  if (f.soft) {
+    std::fill(S, S + kTile * kTile, 0.0f);
+    std::fill(W, W + kTile * kTile, 0.0f);
+    *skipped_out += SoftPass(f, gs, M, S, W);
   }
   for (int r = 0; r < f.height; ++r) {
     const std::size_t row = static_cast<std::size_t>(f.y0 + r) * f.stride + f.x0;
     for (int c = 0; c < f.width; ++c) {
       const int at = r * kTile + c;
+      const bool touched = lm[at] > -kInf;
+      m_out[row + c] = touched ? M[at] : -kInf;
       if (f.soft) {
-        m_out[row + c] = m[at];
         S_out[row + c] = S[at];
         I_out[row + c] = S[at] > 0.0f ? W[at] / S[at] : 0.0f;
       } else {
-        const bool touched = m[at] > -std::numeric_limits<float>::infinity();
-        m_out[row + c] = m[at];
         S_out[row + c] = touched ? 1.0f : 0.0f;
-        I_out[row + c] = touched ? m[at] : 0.0f;
+        I_out[row + c] = touched ? M[at] : 0.0f;
       }
     }
   }
-  *skipped_out += skipped;
 }
 
 void BackwardTile(const TileFrame& f, const TileGaussians& gs, const float* m_in, const float* S_in,
                   const float* I_in, const float* dL_dI_in, float* grads) {
   const hn::ScalableTag<float> d;
-  const int N = static_cast<int>(hn::Lanes(d));
-  const int lanes = std::min(N, kTile);
   // Tile-local copies: m, 1/S, I and dL/dI (0 where nothing touched the pixel).
   HWY_ALIGN float m[kTile * kTile], inv_S[kTile * kTile], I[kTile * kTile], G[kTile * kTile];
   std::fill(m, m + kTile * kTile, 0.0f);
@@ -305,26 +369,30 @@ void BackwardTile(const TileFrame& f, const TileGaussians& gs, const float* m_in
       }
     }
   }
-  const auto iota = hn::Iota(d, 0.5f);
   const auto beta = hn::Set(d, f.beta);
   const auto minus_half = hn::Set(d, -0.5f);
   const auto one = hn::Set(d, 1.0f);
   const auto two = hn::Set(d, 2.0f);
-  // The forward's skip rule on the final m (>= the running m the forward saw), so
-  // the terms dropped here have weight below e^-skip as well. Untouched pixels (no
-  // gradient flows through them) do not lower a row's floor.
+  const float ln_beta = fast_log(f.beta);
+  // The forward's skip rule on the same final m, so exactly the terms the forward
+  // summed are differentiated. Untouched pixels (no gradient flows through them)
+  // do not lower a row's floor.
   RowFloors floors;
   {
     HWY_ALIGN float m_floor[kTile * kTile];
     for (int at = 0; at < kTile * kTile; ++at) m_floor[at] = inv_S[at] > 0.0f ? m[at] : std::numeric_limits<float>::infinity();
-    floors.refresh(f, m_floor, !(f.skip_log_weight > 0.0f));
+    floors.from_soft_max(f, m_floor, !(f.skip_log_weight > 0.0f));
   }
   RowSpans spans;
   for (int i = 0; i < gs.count; ++i) {
     const float* g = gs[i];
     const float u = g[0], v = g[1], A = g[2], B = g[3], C = g[4], amp = g[5];
-    const float ln_peak = fast_log(f.beta * amp);
+    const float ln_peak = ln_beta + g[6];
     float* out = grads + 6 * static_cast<std::size_t>(i);
+    if (i % kRefreshEvery == 0 && floors.none_after(f, amp, ln_beta)) {  // as the forward's early stop
+      std::fill(out, grads + 6 * static_cast<std::size_t>(gs.count), 0.0f);
+      break;
+    }
     if (misses_tile(f, floors, u, v, A, B, C, ln_peak)) {
       std::fill(out, out + 6, 0.0f);
       continue;
@@ -332,37 +400,25 @@ void BackwardTile(const TileFrame& f, const TileGaussians& gs, const float* m_in
     row_spans(f, floors, u, v, A, B, C, ln_peak, false, spans);
     const auto vA = hn::Set(d, A), vB = hn::Set(d, B), vC = hn::Set(d, C), vamp = hn::Set(d, amp);
     auto su = hn::Zero(d), sv = hn::Zero(d), sA = hn::Zero(d), sB = hn::Zero(d), sC = hn::Zero(d), samp = hn::Zero(d);
-    for (int r = 0; r < f.height; ++r) {
-      const int lo = spans.lo[r], hi = spans.hi[r];
-      if (hi < lo) continue;
-      const auto cutoff = hn::Set(d, spans.cut[r]);
-      const auto vdy = hn::Set(d, spans.dy[r]);
-      for (int c = (lo / lanes) * lanes; c <= hi; c += lanes) {
-        const int at = r * kTile + c;
-        const auto dx = hn::Sub(hn::Add(iota, hn::Set(d, static_cast<float>(f.x0 + c))), hn::Set(d, u));
-        const auto q = hn::MulAdd(hn::MulAdd(vA, dx, hn::Mul(hn::Mul(two, vB), vdy)), dx, hn::Mul(vC, hn::Mul(vdy, vdy)));
-        auto mask = hn::Le(q, cutoff);
-        if (c + lanes > f.width) mask = hn::And(mask, hn::Lt(hn::Iota(d, static_cast<float>(c)), hn::Set(d, static_cast<float>(f.width))));
-        const auto dL_dI = hn::Load(d, G + at);
-        mask = hn::And(mask, hn::Ne(dL_dI, hn::Zero(d)));
-        if (hn::AllFalse(d, mask)) continue;
-        const auto m_px = hn::Load(d, m + at);
-        const auto Gk = ExpNonPositive(d, hn::Mul(minus_half, q));
-        const auto g = hn::Mul(vamp, Gk);
-        // dI/dg = w (1 + β (g − I)), w = e^{βg − m} / S
-        const auto w = hn::Mul(ExpNonPositive(d, hn::Sub(hn::Mul(beta, g), m_px)), hn::Load(d, inv_S + at));
-        const auto dI_dg = hn::Mul(w, hn::MulAdd(beta, hn::Sub(g, hn::Load(d, I + at)), one));
-        const auto dL_dg = hn::IfThenElseZero(mask, hn::Mul(dL_dI, dI_dg));
-        samp = hn::MulAdd(dL_dg, Gk, samp);
-        const auto dL_dq = hn::Mul(hn::Mul(minus_half, dL_dg), g);  // d(a e^{-q/2})/dq = −½ g
-        sA = hn::MulAdd(dL_dq, hn::Mul(dx, dx), sA);
-        sB = hn::MulAdd(dL_dq, hn::Mul(two, hn::Mul(dx, vdy)), sB);
-        sC = hn::MulAdd(dL_dq, hn::Mul(vdy, vdy), sC);
-        // dq/du = −2 (A dx + B dy), dq/dv = −2 (B dx + C dy)
-        su = hn::MulAdd(dL_dq, hn::MulAdd(vA, dx, hn::Mul(vB, vdy)), su);
-        sv = hn::MulAdd(dL_dq, hn::MulAdd(vB, dx, hn::Mul(vC, vdy)), sv);
-      }
-    }
+    for_each_chunk(f, spans, u, A, B, C, [&](int at, auto vdy, auto dx, auto q, auto mask) {
+      const auto dL_dI = hn::Load(d, G + at);
+      mask = hn::And(mask, hn::Ne(dL_dI, hn::Zero(d)));
+      if (hn::AllFalse(d, mask)) return;
+      const auto Gk = ExpNonPositive(d, hn::Mul(minus_half, q));
+      const auto gk = hn::Mul(vamp, Gk);
+      // dI/dg = w (1 + β (g − I)), w = e^{βg − m} / S
+      const auto w = hn::Mul(ExpNonPositive(d, hn::MulSub(beta, gk, hn::Load(d, m + at))), hn::Load(d, inv_S + at));
+      const auto dI_dg = hn::Mul(w, hn::MulAdd(beta, hn::Sub(gk, hn::Load(d, I + at)), one));
+      const auto dL_dg = hn::IfThenElseZero(mask, hn::Mul(dL_dI, dI_dg));
+      samp = hn::MulAdd(dL_dg, Gk, samp);
+      const auto dL_dq = hn::Mul(hn::Mul(minus_half, dL_dg), gk);  // d(a e^{-q/2})/dq = −½ g
+      sA = hn::MulAdd(dL_dq, hn::Mul(dx, dx), sA);
+      sB = hn::MulAdd(dL_dq, hn::Mul(two, hn::Mul(dx, vdy)), sB);
+      sC = hn::MulAdd(dL_dq, hn::Mul(vdy, vdy), sC);
+      // dq/du = −2 (A dx + B dy), dq/dv = −2 (B dx + C dy)
+      su = hn::MulAdd(dL_dq, hn::MulAdd(vA, dx, hn::Mul(vB, vdy)), su);
+      sv = hn::MulAdd(dL_dq, hn::MulAdd(vB, dx, hn::Mul(vC, vdy)), sv);
+    });
     out[0] = -2.0f * hn::GetLane(hn::SumOfLanes(d, su));
     out[1] = -2.0f * hn::GetLane(hn::SumOfLanes(d, sv));
     out[2] = hn::GetLane(hn::SumOfLanes(d, sA));

@@ -9,7 +9,7 @@
 namespace hisnegs::splat::detail {
 
 // The 2D parameters of every Gaussian of a frame, packed 8 floats per Gaussian (one
-// half cache line): u, v, con_a, con_b, con_c, amplitude, 0, 0.
+// half cache line): u, v, con_a, con_b, con_c, amplitude, ln amplitude, 0.
 inline constexpr int kPackedFloats = 8;
 
 // One tile's Gaussians: their ids in rasterization order (amplitude descending, so
