@@ -21,6 +21,10 @@ namespace {
 
 constexpr int kParams = gmf::kNumGaussianParams;
 constexpr int kAmplitudeBuckets = 1024;
+// Binning widens δ by this factor and the ellipse by kBinPad pixels each side, so
+// rounding never drops a tile the kernels' per-pixel test q <= δ would reach.
+constexpr float kBinWiden = 1.0f + 1e-3f;
+constexpr float kBinPad = 0.25f;
 
 class CpuSplatRenderer final : public SplatRenderer {
  public:
@@ -32,6 +36,30 @@ class CpuSplatRenderer final : public SplatRenderer {
 
  private:
   void bin(std::size_t K);
+  // Calls fn(ty, tx0, tx1) for the tile rows of Gaussian k's bounding box and the
+  // tiles of each its δ ellipse reaches (elongated ellipses leave many box tiles
+  // untouched).
+  template <class Fn>
+  void for_each_band(std::size_t k, Fn&& fn) const {
+    const int x0 = tile_lo_[k] & 0xffff, y0 = tile_lo_[k] >> 16, x1 = tile_hi_[k] & 0xffff, y1 = tile_hi_[k] >> 16;
+    for_each_ellipse_band(rows_[k], y0, y1, kTileSize, kBinPad, [&](int ty, int c0, int c1) {
+      if (c1 >= 0) fn(ty, std::max(x0, std::max(c0, 0) / kTileSize), std::min(x1, c1 / kTileSize));
+    });
+  }
+  // Gaussian k's tile rows, kept when there are at most kStoredBands of them
+  // (computed once in the parallel projection, read by both binning passes).
+  void store_bands(std::size_t k) {
+    const int y0 = tile_lo_[k] >> 16, y1 = tile_hi_[k] >> 16;
+    if (y1 - y0 >= kStoredBands) return;
+    TileBands& b = bands_[k];
+    std::fill(std::begin(b.tx0), std::end(b.tx0), std::uint16_t{1});
+    std::fill(std::begin(b.tx1), std::end(b.tx1), std::uint16_t{0});
+    for_each_band(k, [&](int ty, int tx0, int tx1) {
+      if (tx0 > tx1) return;
+      b.tx0[ty - y0] = static_cast<std::uint16_t>(tx0);
+      b.tx1[ty - y0] = static_cast<std::uint16_t>(tx1);
+    });
+  }
   [[nodiscard]] detail::TileFrame tile_frame(int tile) const;
   [[nodiscard]] detail::TileGaussians tile_gaussians(int tile) const;
 
@@ -44,6 +72,12 @@ class CpuSplatRenderer final : public SplatRenderer {
   int tiles_x_ = 0, tiles_y_ = 0;
   std::vector<Splat2D<float>> splats_;
   std::vector<int> tile_lo_, tile_hi_;        // per Gaussian: tile rectangle packed (x0 | y0 << 16), (x1 | y1 << 16)
+  std::vector<EllipseRows<float>> rows_;       // per Gaussian: its ellipse row by row, for binning
+  static constexpr int kStoredBands = 8;
+  struct TileBands {
+    std::uint16_t tx0[kStoredBands], tx1[kStoredBands];  // tile columns per tile row (tx1 < tx0: none)
+  };
+  std::vector<TileBands> bands_;               // per Gaussian with at most kStoredBands tile rows
   std::vector<std::uint32_t> order_;          // visible Gaussians, amplitude descending
   std::vector<std::uint32_t> bucket_count_;
   std::vector<std::uint32_t> tile_offset_;    // tiles + 1
@@ -78,6 +112,8 @@ void CpuSplatRenderer::forward(std::span<const float> params, const Intrinsics& 
   packed_.resize(detail::kPackedFloats * count);
   tile_lo_.resize(count);
   tile_hi_.resize(count);
+  rows_.resize(count);
+  bands_.resize(count);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, count, 1024), [&](const auto& range) {
     for (std::size_t k = range.begin(); k != range.end(); ++k) {
       Splat2D<float> s = project_gaussian(&params_[kParams * k], view_params_, settings.cutoff, settings.low_pass);
@@ -95,6 +131,8 @@ void CpuSplatRenderer::forward(std::span<const float> params, const Intrinsics& 
         } else {
           tile_lo_[k] = (c0 / kTileSize) | ((r0 / kTileSize) << 16);
           tile_hi_[k] = (c1 / kTileSize) | ((r1 / kTileSize) << 16);
+          rows_[k] = ellipse_rows(s, settings.cutoff, kBinWiden);
+          store_bands(k);
         }
       }
       splats_[k] = s;
@@ -158,10 +196,19 @@ void CpuSplatRenderer::bin(std::size_t K) {
     return std::pair<std::size_t, std::size_t>(static_cast<std::size_t>(visible) * c / chunks,
                                                static_cast<std::size_t>(visible) * (c + 1) / chunks);
   };
+  // The tiles of a Gaussian's bounding-box rectangle that its δ ellipse reaches,
+  // row band by row band (elongated ellipses leave many box tiles untouched).
   auto for_each_tile = [&](std::uint32_t k, auto&& fn) {
-    const int x0 = tile_lo_[k] & 0xffff, y0 = tile_lo_[k] >> 16, x1 = tile_hi_[k] & 0xffff, y1 = tile_hi_[k] >> 16;
-    for (int ty = y0; ty <= y1; ++ty) {
-      for (int tx = x0; tx <= x1; ++tx) fn(ty * tiles_x_ + tx);
+    const int y0 = tile_lo_[k] >> 16, y1 = tile_hi_[k] >> 16;
+    if (y1 - y0 < kStoredBands) {
+      const TileBands& b = bands_[k];
+      for (int ty = y0; ty <= y1; ++ty) {
+        for (int tx = b.tx0[ty - y0]; tx <= b.tx1[ty - y0]; ++tx) fn(ty * tiles_x_ + tx);
+      }
+    } else {
+      for_each_band(k, [&](int ty, int tx0, int tx1) {
+        for (int tx = tx0; tx <= tx1; ++tx) fn(ty * tiles_x_ + tx);
+      });
     }
   };
   tbb::parallel_for(0, chunks, [&](int c) {
@@ -182,7 +229,7 @@ void CpuSplatRenderer::bin(std::size_t K) {
   }
   tile_offset_[tiles] = running;
   entries_.resize(running);
-  stats_.tile_entries = static_cast<std::int64_t>(entries_.size());
+  stats_.tile_entries = static_cast<std::int64_t>(entries_.size()); if (getenv("KST")) fprintf(stderr, "entries %zu\n", entries_.size());
   tbb::parallel_for(0, chunks, [&](int c) {
     std::uint32_t* cursor = chunk_cursor_.data() + static_cast<std::size_t>(c) * tiles;
     const auto [lo, hi] = chunk_range(c);

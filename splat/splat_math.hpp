@@ -141,6 +141,80 @@ HISNEGS_HD Splat2D<T> project_gaussian(const T p[gmf::kNumGaussianParams], const
   return s;
 }
 
+// The δ ellipse of a Gaussian (dᵀΣ⁻¹d <= δ, conic [[a, b], [b, c]]) row by row,
+// for binning Gaussians to the tiles they really touch rather than their bounding
+// box's: at dy = y − v its chord is x = u + slope dy ± √(k1 − k2 dy²), with
+// slope = −b/a, k1 = δ/a, k2 = det/a². Its rightmost point is (u + x_right,
+// v + dy_right), its leftmost the mirror image through (u, v).
+template <class T>
+struct EllipseRows {
+  T u, v, slope, k1, k2, x_right, dy_right;
+};
+
+// `widen` (>= 1) scales δ, against rounding.
+template <class T>
+HISNEGS_HD EllipseRows<T> ellipse_rows(const Splat2D<T>& s, T cutoff, T widen) {
+  const T A = s.con_a, B = s.con_b, C = s.con_c, det = A * C - B * B;
+  const T delta = cutoff * widen, inv_A = T(1) / A;
+  // ∇q ∥ (1, 0) ⇒ b dx + c dy = 0, and q = δ there: dx = √(δ c / det), dy = −b dx / c.
+  const T x_right = static_cast<T>(sqrt(delta * C / det));
+  return {s.u, s.v, -B * inv_A, delta * inv_A, det * inv_A * inv_A, x_right, -B * x_right / C};
+}
+
+// For each band of rows [tile·ty, tile·(ty + 1)] (ty in [ty0, ty1]) that the
+// ellipse crosses, calls fn(ty, c0, c1) with the pixel columns [c0, c1] whose
+// centres it can reach there (padded by `pad` pixels each side; clamped to
+// [−2, 2^30] so huge extents cannot overflow). The ellipse ∩ band is convex, so
+// its right edge (concave in y) is largest at the rightmost point's y clamped to
+// the band, which is on the band's edge unless the band holds that point: one
+// square root per band edge, shared by the bands on both sides.
+template <class T, class Fn>
+HISNEGS_HD void for_each_ellipse_band(const EllipseRows<T>& e, int ty0, int ty1, int tile, T pad, Fn&& fn) {
+  struct Chord {
+    T lo, hi;
+    bool ok;
+  };
+  auto chord = [&](int edge) {
+    const T dy = T(tile) * T(edge) - e.v, D = e.k1 - e.k2 * dy * dy;
+    const T root = D >= T(0) ? static_cast<T>(sqrt(D)) : T(0), mid = e.u + e.slope * dy;
+    return Chord{mid - root, mid + root, D >= T(0)};
+  };
+  auto clamped = [](T x) { return x < T(-2) ? T(-2) : (x > T(1 << 30) ? T(1 << 30) : x); };
+  auto ceil_int = [&](T x) {  // via truncation toward zero
+    x = clamped(x);
+    const int t = static_cast<int>(x);
+    return t + (x > T(t) ? 1 : 0);
+  };
+  auto floor_int = [&](T x) {
+    x = clamped(x);
+    const int t = static_cast<int>(x);
+    return t - (x < T(t) ? 1 : 0);
+  };
+  Chord top = chord(ty0);
+  for (int ty = ty0; ty <= ty1; ++ty) {
+    const Chord bottom = chord(ty + 1);
+    const T ya = T(tile) * T(ty) - e.v, yb = ya + T(tile);
+    bool hit = true;
+    T right = e.u + e.x_right, left = e.u - e.x_right;
+    if (e.dy_right < ya) {
+      right = top.hi, hit = top.ok;
+    } else if (e.dy_right > yb) {
+      right = bottom.hi, hit = bottom.ok;
+    }
+    if (-e.dy_right < ya) {
+      left = top.lo, hit = hit && top.ok;
+    } else if (-e.dy_right > yb) {
+      left = bottom.lo, hit = hit && bottom.ok;
+    }
+    // Columns c with left <= c + ½ <= right: c0 = ⌈left − ½⌉, c1 = ⌊right − ½⌋.
+    if (hit) {
+      const int c0 = ceil_int(left - pad - T(0.5)), c1 = floor_int(right + pad - T(0.5));
+      if (c0 <= c1) fn(ty, c0, c1);
+    }
+    top = bottom;
+  }
+}
+
 // The squared 2D Mahalanobis distance of pixel centre (px, py) (Eq. 7's exponent × -2).
 template <class T>
 HISNEGS_HD T splat_distance(const Splat2D<T>& s, T px, T py) {
