@@ -44,28 +44,38 @@ inline float fast_log(float x) {
 // cutoffs are raised by this margin (in q units) before use.
 constexpr float kCutoffMargin = 1e-3f;
 
-// e^x for x <= 0 in SIMD, as 2^y with y = x log2 e: y = k + r with k = round(y) and
+// 2^y for y <= 0 (correct up to y = 127) in SIMD: y = k + r with k = round(y) and
 // |r| <= ½ exact, 2^r by its degree-6 Taylor polynomial (relative error 1.2e-7),
-// 2^k added to the exponent bits. The product x log2 e adds a relative error of
-// 6e-8·|x| (5e-7 at the δ = 16 edge of a Gaussian, where e^x is 3e-4). Below
-// x = −87 the result is a value under 2e-38 instead of 0, harmless in sums and
-// products with the softmax terms. Half the instructions of hn::Exp, which handles
-// every x; the tile kernels spend most of their time here.
+// 2^k added to the exponent bits. k comes from the float's own rounding: adding
+// 1.5·2^23 leaves round(y) in the low mantissa bits, so (bits << 23) is k << 23
+// and no float-to-int conversion (with its overflow fix-ups) is needed. Below
+// y = −126 the result is a value under 2e-38 instead of 0, harmless in sums and
+// products with the softmax terms. Fewer than half the instructions of hn::Exp,
+// which handles every x; the tile kernels spend most of their time here.
+constexpr float kLog2e = 1.44269504f;
+template <class D, class V>
+HWY_INLINE V Exp2NonPositive(D d, V y) {
+  const hn::RebindToSigned<D> di;
+  const auto magic = hn::Set(d, 12582912.0f);  // 1.5 · 2^23
+  y = hn::Max(y, hn::Set(d, -126.0f));
+  const auto shifted = hn::Add(y, magic);
+  const auto r = hn::Sub(y, hn::Sub(shifted, magic));
+  // Estrin's scheme: three multiply-adds deep instead of Horner's six (the kernels
+  // are bound by this latency more than by instruction count).
+  const auto r2 = hn::Mul(r, r), r4 = hn::Mul(r2, r2);
+  const auto p01 = hn::MulAdd(hn::Set(d, 6.9314718e-1f), r, hn::Set(d, 1.0f));
+  const auto p23 = hn::MulAdd(hn::Set(d, 5.5504109e-2f), r, hn::Set(d, 2.4022651e-1f));
+  const auto p45 = hn::MulAdd(hn::Set(d, 1.3333558e-3f), r, hn::Set(d, 9.6181291e-3f));
+  const auto p456 = hn::MulAdd(hn::Set(d, 1.5403530e-4f), r2, p45);
+  const auto p = hn::MulAdd(p456, r4, hn::MulAdd(p23, r2, p01));
+  return hn::BitCast(d, hn::Add(hn::BitCast(di, p), hn::ShiftLeft<23>(hn::BitCast(di, shifted))));
+}
+// e^x = 2^{x log2 e}; the product adds a relative error of 6e-8·|x| (5e-7 at the
+// δ = 16 edge of a Gaussian, where e^x is 3e-4). Hot loops fold log2 e into their
+// constants and call Exp2NonPositive directly.
 template <class D, class V>
 HWY_INLINE V ExpNonPositive(D d, V x) {
-  const hn::RebindToSigned<D> di;
-  const auto y = hn::Max(hn::Mul(x, hn::Set(d, 1.44269504f)), hn::Set(d, -126.0f));
-  const auto k = hn::Round(y);
-  const auto r = hn::Sub(y, k);
-  auto p = hn::Set(d, 1.5403530e-4f);
-  p = hn::MulAdd(p, r, hn::Set(d, 1.3333558e-3f));
-  p = hn::MulAdd(p, r, hn::Set(d, 9.6181291e-3f));
-  p = hn::MulAdd(p, r, hn::Set(d, 5.5504109e-2f));
-  p = hn::MulAdd(p, r, hn::Set(d, 2.4022651e-1f));
-  p = hn::MulAdd(p, r, hn::Set(d, 6.9314718e-1f));
-  p = hn::MulAdd(p, r, hn::Set(d, 1.0f));
-  const auto scale = hn::ShiftLeft<23>(hn::ConvertTo(di, k));
-  return hn::BitCast(d, hn::Add(hn::BitCast(di, p), scale));
+  return Exp2NonPositive(d, hn::Mul(x, hn::Set(d, kLog2e)));
 }
 
 // Culling by per-row floors. A term is skipped when it cannot matter:
@@ -271,13 +281,18 @@ void LogMaxPass(const TileFrame& f, const TileGaussians& gs, float* lm) {
 // final from the first Gaussian, so the skip rule culls as much as it ever can.
 std::int64_t SoftPass(const TileFrame& f, const TileGaussians& gs, const float* M, float* S, float* W) {
   const hn::ScalableTag<float> d;
-  const auto minus_half = hn::Set(d, -0.5f);
-  const auto beta = hn::Set(d, f.beta);
+  // In base 2: g = a 2^{−q log2e / 2}, e = 2^{β' g − M'} with β' = β log2e, M' = M log2e.
+  const auto minus_half_log2e = hn::Set(d, -0.5f * kLog2e);
+  const auto beta2 = hn::Set(d, f.beta * kLog2e);
   const float ln_beta = fast_log(f.beta);
   const bool exact = !(f.skip_log_weight > 0.0f);
   const bool count_skipped = f.count_skipped && !exact;
   RowFloors floors;
   floors.from_soft_max(f, M, exact);
+  HWY_ALIGN float M2[kTile * kTile];
+  for (int at = 0; at < kTile * kTile; at += static_cast<int>(hn::Lanes(d))) {
+    hn::Store(hn::Mul(hn::Load(d, M + at), hn::Set(d, kLog2e)), d, M2 + at);
+  }
   RowSpans spans;
   std::int64_t skipped = 0;
   for (int i = 0; i < gs.count; ++i) {
@@ -297,8 +312,8 @@ std::int64_t SoftPass(const TileFrame& f, const TileGaussians& gs, const float* 
     skipped += row_spans(f, floors, u, v, A, B, C, ln_peak, count_skipped, spans);
     const auto vamp = hn::Set(d, amp);
     for_each_chunk(f, spans, u, A, B, C, [&](int at, auto, auto, auto q, auto mask) {
-      const auto gk = hn::Mul(vamp, ExpNonPositive(d, hn::Mul(minus_half, q)));
-      const auto e = hn::IfThenElseZero(mask, ExpNonPositive(d, hn::MulSub(beta, gk, hn::Load(d, M + at))));
+      const auto gk = hn::Mul(vamp, Exp2NonPositive(d, hn::Mul(minus_half_log2e, q)));
+      const auto e = hn::IfThenElseZero(mask, Exp2NonPositive(d, hn::MulSub(beta2, gk, hn::Load(d, M2 + at))));
       hn::Store(hn::Add(hn::Load(d, S + at), e), d, S + at);
       hn::Store(hn::MulAdd(e, gk, hn::Load(d, W + at)), d, W + at);
     });
