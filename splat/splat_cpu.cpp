@@ -83,7 +83,7 @@ class CpuSplatRenderer final : public SplatRenderer {
   std::vector<std::uint32_t> tile_offset_;    // tiles + 1
   std::vector<std::uint32_t> chunk_cursor_;   // per (chunk of order_, tile): entry count, then write cursor
   std::vector<std::uint32_t> entries_;        // Gaussian id per (tile, rank)
-  std::vector<float> packed_;                 // per Gaussian: detail::kPackedFloats 2D parameters
+  std::vector<detail::PackedSplat> packed_;   // per Gaussian: its 2D parameters for the tile kernels
   std::vector<float> m_, S_, I_;              // per pixel
   std::vector<float> entry_grads_;            // 6 per entry
   std::vector<double> gaussian_grads_;        // 6 per Gaussian
@@ -109,7 +109,7 @@ void CpuSplatRenderer::forward(std::span<const float> params, const Intrinsics& 
 
   // 1. Project every Gaussian (Eq. 2-6) and find its tile rectangle.
   splats_.resize(count);
-  packed_.resize(detail::kPackedFloats * count);
+  packed_.resize(count);
   tile_lo_.resize(count);
   tile_hi_.resize(count);
   rows_.resize(count);
@@ -136,15 +136,17 @@ void CpuSplatRenderer::forward(std::span<const float> params, const Intrinsics& 
         }
       }
       splats_[k] = s;
-      float* p = &packed_[detail::kPackedFloats * k];
-      p[0] = s.u;
-      p[1] = s.v;
-      p[2] = s.con_a;
-      p[3] = s.con_b;
-      p[4] = s.con_c;
-      p[5] = s.amplitude;
-      p[6] = std::log(std::max(s.amplitude, 1e-30f));  // ln a, finite
-      p[7] = 0.0f;
+      detail::PackedSplat& p = packed_[k];
+      p.u = s.u;
+      p.v = s.v;
+      p.A = s.con_a;
+      p.B = s.con_b;
+      p.C = s.con_c;
+      p.amp = s.amplitude;
+      p.ln_amp = std::log(std::max(s.amplitude, 1e-30f));  // finite
+      p.inv_A = s.visible ? 1.0f / s.con_a : 0.0f;
+      p.inv_C = s.visible ? 1.0f / s.con_c : 0.0f;
+      p.det = s.con_a * s.con_c - s.con_b * s.con_b;
     }
   });
   bin(count);

@@ -148,17 +148,17 @@ struct RowSpans {
 // Fills `spans` for the Gaussian (u, v, conic A, B, C) whose row cutoffs are
 // min(δ, 2 (ln_peak − floors.ln_floor[r]) + margin). With count_skipped, returns the soft-MIP terms the
 // cutoffs drop: pixel centres of the tile inside q <= δ but outside q <= cut[r].
-inline std::int64_t row_spans(const TileFrame& f, const RowFloors& floors, float u, float v, float A, float B,
-                              float C, float ln_peak, bool count_skipped, RowSpans& spans) {
+inline std::int64_t row_spans(const TileFrame& f, const RowFloors& floors, const PackedSplat& g, float ln_peak,
+                              bool count_skipped, RowSpans& spans) {
   const hn::ScalableTag<float> d;
   const hn::RebindToSigned<decltype(d)> di;
   const int N = static_cast<int>(hn::Lanes(d));
-  const float inv_A = 1.0f / A, det = A * C - B * B;
-  const auto vA = hn::Set(d, A), vdet = hn::Set(d, det), vinv_A = hn::Set(d, inv_A);
+  const float u = g.u, v = g.v, A = g.A, B = g.B;
+  const auto vA = hn::Set(d, A), vdet = hn::Set(d, g.det), vinv_A = hn::Set(d, g.inv_A);
   const auto delta = hn::Set(d, f.cutoff), zero = hn::Zero(d), one = hn::Set(d, 1.0f);
   const auto last_col = hn::Set(d, static_cast<float>(f.width - 1)), height = hn::Set(d, static_cast<float>(f.height));
   const auto dy0 = hn::Set(d, static_cast<float>(f.y0) + 0.5f - v);
-  const auto mid0 = hn::Set(d, u - static_cast<float>(f.x0) - 0.5f), B_over_A = hn::Set(d, B * inv_A);
+  const auto mid0 = hn::Set(d, u - static_cast<float>(f.x0) - 0.5f), B_over_A = hn::Set(d, B * g.inv_A);
   const auto peak2 = hn::Set(d, 2.0f * ln_peak), margin = hn::Set(d, kCutoffMargin);
   const auto widen = hn::Set(d, 1.0f + 1e-3f);
   // Pixel centres of each row inside q <= x (no margin); 0 where x <= 0 or the row misses.
@@ -200,13 +200,14 @@ inline std::int64_t row_spans(const TileFrame& f, const RowFloors& floors, float
 // pixel centres (the rectangle they span; 0 when it contains the centre). q is
 // convex, so off the rectangle its minimum lies on an edge, where it is a 1D
 // quadratic minimized at a clamped vertex.
-inline float tile_min_q(const TileFrame& f, float u, float v, float A, float B, float C) {
+inline float tile_min_q(const TileFrame& f, const PackedSplat& g) {
+  const float u = g.u, v = g.v, A = g.A, B = g.B, C = g.C;
   const float xa = static_cast<float>(f.x0) + 0.5f - u, xb = xa + static_cast<float>(f.width - 1);
   const float ya = static_cast<float>(f.y0) + 0.5f - v, yb = ya + static_cast<float>(f.height - 1);
   if (xa <= 0.0f && xb >= 0.0f && ya <= 0.0f && yb >= 0.0f) return 0.0f;
   auto q = [&](float x, float y) { return (A * x + 2.0f * B * y) * x + C * y * y; };
-  auto along_x = [&](float y) { return q(std::clamp(-B * y / A, xa, xb), y); };  // edge at fixed y
-  auto along_y = [&](float x) { return q(x, std::clamp(-B * x / C, ya, yb)); };  // edge at fixed x
+  auto along_x = [&](float y) { return q(std::clamp(-B * y * g.inv_A, xa, xb), y); };  // edge at fixed y
+  auto along_y = [&](float x) { return q(x, std::clamp(-B * x * g.inv_C, ya, yb)); };  // edge at fixed x
   return std::min(std::min(along_x(ya), along_x(yb)), std::min(along_y(xa), along_y(xb)));
 }
 // tile_min_q is compared with a cutoff widened by this factor, so rounding never
@@ -215,10 +216,9 @@ constexpr float kRejectSlack = 1.0f + 1e-3f;
 
 // Whole-tile test, before any per-row work: true when the Gaussian reaches none of
 // the tile's pixels within its loosest (floor-limited) cutoff.
-inline bool misses_tile(const TileFrame& f, const RowFloors& floors, float u, float v, float A, float B, float C,
-                        float ln_peak) {
+inline bool misses_tile(const TileFrame& f, const RowFloors& floors, const PackedSplat& g, float ln_peak) {
   const float cut = floors.cutoff_of_tile(ln_peak, f.cutoff);
-  return !(cut > 0.0f) || tile_min_q(f, u, v, A, B, C) > cut * kRejectSlack;
+  return !(cut > 0.0f) || tile_min_q(f, g) > cut * kRejectSlack;
 }
 
 // Calls visit(lo_chunk, r, mask-building data) for every SIMD chunk of every row
@@ -226,8 +226,8 @@ inline bool misses_tile(const TileFrame& f, const RowFloors& floors, float u, fl
 // at the chunk's pixel centres and mask the lanes inside the row's cutoff and the
 // tile; chunks with no such lane are not visited.
 template <class Body>
-HWY_INLINE void for_each_chunk(const TileFrame& f, const RowSpans& spans, float u, float A, float B, float C,
-                               Body&& body) {
+HWY_INLINE void for_each_chunk(const TileFrame& f, const RowSpans& spans, const PackedSplat& g, Body&& body) {
+  const float u = g.u, A = g.A, B = g.B, C = g.C;
   const hn::ScalableTag<float> d;
   const int lanes = std::min(static_cast<int>(hn::Lanes(d)), kTile);  // chunks never cross the tile's 16 columns
   const auto iota = hn::Iota(d, 0.5f);
@@ -260,16 +260,16 @@ void LogMaxPass(const TileFrame& f, const TileGaussians& gs, float* lm) {
   RowFloors floors;
   RowSpans spans;
   for (int i = 0; i < gs.count; ++i) {
-    const float* g = gs[i];
-    const float u = g[0], v = g[1], A = g[2], B = g[3], C = g[4], amp = g[5], ln_amp = g[6];
+    const PackedSplat& g = gs[i];
+    const float amp = g.amp, ln_amp = g.ln_amp;
     if (i % kRefreshEvery == 0) {
       floors.from_log_max(f, lm);
       if (floors.none_after(f, amp, 0.0f)) break;
     }
-    if (misses_tile(f, floors, u, v, A, B, C, ln_amp)) continue;  // most do
-    row_spans(f, floors, u, v, A, B, C, ln_amp, false, spans);
+    if (misses_tile(f, floors, g, ln_amp)) continue;  // most do
+    row_spans(f, floors, g, ln_amp, false, spans);
     const auto vln_amp = hn::Set(d, ln_amp);
-    for_each_chunk(f, spans, u, A, B, C, [&](int at, auto, auto, auto q, auto mask) {
+    for_each_chunk(f, spans, g, [&](int at, auto, auto, auto q, auto mask) {
       const auto old = hn::Load(d, lm + at);
       hn::Store(hn::IfThenElse(mask, hn::Max(old, hn::MulAdd(minus_half, q, vln_amp)), old), d, lm + at);
     });
@@ -296,22 +296,21 @@ std::int64_t SoftPass(const TileFrame& f, const TileGaussians& gs, const float* 
   RowSpans spans;
   std::int64_t skipped = 0;
   for (int i = 0; i < gs.count; ++i) {
-    const float* g = gs[i];
-    const float u = g[0], v = g[1], A = g[2], B = g[3], C = g[4], amp = g[5];
+    const PackedSplat& g = gs[i];
+    const float amp = g.amp;
     if (i % kRefreshEvery == 0 && floors.none_after(f, amp, ln_beta)) {
       if (count_skipped) {  // what the rest would have contributed
         for (int j = i; j < gs.count; ++j) {
-          const float* h = gs[j];
-          skipped += row_spans(f, floors, h[0], h[1], h[2], h[3], h[4], -std::numeric_limits<float>::infinity(), true, spans);
+          skipped += row_spans(f, floors, gs[j], -std::numeric_limits<float>::infinity(), true, spans);
         }
       }
       break;
     }
-    const float ln_peak = ln_beta + g[6];
-    if (!count_skipped && misses_tile(f, floors, u, v, A, B, C, ln_peak)) continue;  // most do
-    skipped += row_spans(f, floors, u, v, A, B, C, ln_peak, count_skipped, spans);
+    const float ln_peak = ln_beta + g.ln_amp;
+    if (!count_skipped && misses_tile(f, floors, g, ln_peak)) continue;  // most do
+    skipped += row_spans(f, floors, g, ln_peak, count_skipped, spans);
     const auto vamp = hn::Set(d, amp);
-    for_each_chunk(f, spans, u, A, B, C, [&](int at, auto, auto, auto q, auto mask) {
+    for_each_chunk(f, spans, g, [&](int at, auto, auto, auto q, auto mask) {
       const auto gk = hn::Mul(vamp, Exp2NonPositive(d, hn::Mul(minus_half_log2e, q)));
       const auto e = hn::IfThenElseZero(mask, Exp2NonPositive(d, hn::MulSub(beta2, gk, hn::Load(d, M2 + at))));
       hn::Store(hn::Add(hn::Load(d, S + at), e), d, S + at);
@@ -400,22 +399,22 @@ void BackwardTile(const TileFrame& f, const TileGaussians& gs, const float* m_in
   }
   RowSpans spans;
   for (int i = 0; i < gs.count; ++i) {
-    const float* g = gs[i];
-    const float u = g[0], v = g[1], A = g[2], B = g[3], C = g[4], amp = g[5];
-    const float ln_peak = ln_beta + g[6];
+    const PackedSplat& g = gs[i];
+    const float A = g.A, B = g.B, C = g.C, amp = g.amp;
+    const float ln_peak = ln_beta + g.ln_amp;
     float* out = grads + 6 * static_cast<std::size_t>(i);
     if (i % kRefreshEvery == 0 && floors.none_after(f, amp, ln_beta)) {  // as the forward's early stop
       std::fill(out, grads + 6 * static_cast<std::size_t>(gs.count), 0.0f);
       break;
     }
-    if (misses_tile(f, floors, u, v, A, B, C, ln_peak)) {
+    if (misses_tile(f, floors, g, ln_peak)) {
       std::fill(out, out + 6, 0.0f);
       continue;
     }
-    row_spans(f, floors, u, v, A, B, C, ln_peak, false, spans);
+    row_spans(f, floors, g, ln_peak, false, spans);
     const auto vA = hn::Set(d, A), vB = hn::Set(d, B), vC = hn::Set(d, C), vamp = hn::Set(d, amp);
     auto su = hn::Zero(d), sv = hn::Zero(d), sA = hn::Zero(d), sB = hn::Zero(d), sC = hn::Zero(d), samp = hn::Zero(d);
-    for_each_chunk(f, spans, u, A, B, C, [&](int at, auto vdy, auto dx, auto q, auto mask) {
+    for_each_chunk(f, spans, g, [&](int at, auto vdy, auto dx, auto q, auto mask) {
       const auto dL_dI = hn::Load(d, G + at);
       mask = hn::And(mask, hn::Ne(dL_dI, hn::Zero(d)));
       if (hn::AllFalse(d, mask)) return;

@@ -8,17 +8,23 @@
 
 namespace hisnegs::splat::detail {
 
-// The 2D parameters of every Gaussian of a frame, packed 8 floats per Gaussian (one
-// half cache line): u, v, con_a, con_b, con_c, amplitude, ln amplitude, 0.
-inline constexpr int kPackedFloats = 8;
+// One Gaussian's 2D parameters as the tile kernels read them, with the per-Gaussian
+// constants their tests would otherwise divide for at every (tile, Gaussian) entry:
+// one cache line, read through the tile's id list.
+struct alignas(64) PackedSplat {
+  float u, v;        // centre, pixels
+  float A, B, C;     // conic Σ2D⁻¹ = [[A, B], [B, C]]
+  float amp, ln_amp; // a and ln a
+  float inv_A, inv_C, det;  // 1/A, 1/C, A C − B²
+};
 
 // One tile's Gaussians: their ids in rasterization order (amplitude descending, so
 // the running max settles early) into the frame's packed parameters.
 struct TileGaussians {
-  const float* packed;
+  const PackedSplat* packed;
   const std::uint32_t* ids;
   int count;
-  [[nodiscard]] const float* operator[](int i) const { return packed + kPackedFloats * static_cast<std::size_t>(ids[i]); }
+  [[nodiscard]] const PackedSplat& operator[](int i) const { return packed[ids[i]]; }
 };
 
 struct TileFrame {
