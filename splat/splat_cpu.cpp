@@ -36,28 +36,29 @@ class CpuSplatRenderer final : public SplatRenderer {
 
  private:
   void bin(std::size_t K);
-  // Calls fn(ty, tx0, tx1) for the tile rows of Gaussian k's bounding box and the
-  // tiles of each its δ ellipse reaches (elongated ellipses leave many box tiles
-  // untouched).
+  // The tiles a Gaussian's δ ellipse reaches: its bounding box's tile rectangle
+  // [x0, x1] × [ty0, ty1] and, when it has at most kStoredBands tile rows, the
+  // columns [tx0[i], tx1[i]] of row ty0 + i that the ellipse itself reaches
+  // (elongated ellipses leave many box tiles untouched; tx1 < tx0: none).
+  static constexpr int kStoredBands = detail::kBandsAtOnce;
+  struct GaussianTiles {
+    std::int16_t ty0, ty1, x0, x1;
+    std::int16_t tx0[kStoredBands], tx1[kStoredBands];
+  };
+  bool find_tiles(std::size_t k, const Splat2D<float>& s);
+  // Calls fn(tile) for every tile of `t` (Gaussian k).
   template <class Fn>
-  void for_each_band(std::size_t k, Fn&& fn) const {
-    const int x0 = tile_lo_[k] & 0xffff, y0 = tile_lo_[k] >> 16, x1 = tile_hi_[k] & 0xffff, y1 = tile_hi_[k] >> 16;
-    for_each_ellipse_band(rows_[k], y0, y1, kTileSize, kBinPad, [&](int ty, int c0, int c1) {
-      if (c1 >= 0) fn(ty, std::max(x0, std::max(c0, 0) / kTileSize), std::min(x1, c1 / kTileSize));
-    });
-  }
-  // Gaussian k's tile rows, kept when there are at most kStoredBands of them
-  // (computed once in the parallel projection, read by both binning passes).
-  void store_bands(std::size_t k) {
-    const int y0 = tile_lo_[k] >> 16, y1 = tile_hi_[k] >> 16;
-    if (y1 - y0 >= kStoredBands) return;
-    TileBands& b = bands_[k];
-    std::fill(std::begin(b.tx0), std::end(b.tx0), std::uint16_t{1});
-    std::fill(std::begin(b.tx1), std::end(b.tx1), std::uint16_t{0});
-    for_each_band(k, [&](int ty, int tx0, int tx1) {
-      if (tx0 > tx1) return;
-      b.tx0[ty - y0] = static_cast<std::uint16_t>(tx0);
-      b.tx1[ty - y0] = static_cast<std::uint16_t>(tx1);
+  void for_each_tile(const GaussianTiles& t, std::size_t k, Fn&& fn) const {
+    if (t.ty1 - t.ty0 < kStoredBands) {
+      for (int ty = t.ty0; ty <= t.ty1; ++ty) {
+        for (int tx = t.tx0[ty - t.ty0]; tx <= t.tx1[ty - t.ty0]; ++tx) fn(ty * tiles_x_ + tx);
+      }
+      return;
+    }
+    for_each_ellipse_band(rows_[k], t.ty0, t.ty1, kTileSize, kBinPad, [&](int ty, int c0, int c1) {
+      if (c1 < 0) return;
+      const int hi = std::min<int>(t.x1, c1 / kTileSize);
+      for (int tx = std::max<int>(t.x0, std::max(c0, 0) / kTileSize); tx <= hi; ++tx) fn(ty * tiles_x_ + tx);
     });
   }
   [[nodiscard]] detail::TileFrame tile_frame(int tile) const;
@@ -71,13 +72,10 @@ class CpuSplatRenderer final : public SplatRenderer {
   ViewParams<float> view_params_{};
   int tiles_x_ = 0, tiles_y_ = 0;
   std::vector<Splat2D<float>> splats_;
-  std::vector<int> tile_lo_, tile_hi_;        // per Gaussian: tile rectangle packed (x0 | y0 << 16), (x1 | y1 << 16)
-  std::vector<EllipseRows<float>> rows_;       // per Gaussian: its ellipse row by row, for binning
-  static constexpr int kStoredBands = 8;
-  struct TileBands {
-    std::uint16_t tx0[kStoredBands], tx1[kStoredBands];  // tile columns per tile row (tx1 < tx0: none)
-  };
-  std::vector<TileBands> bands_;               // per Gaussian with at most kStoredBands tile rows
+  std::vector<std::int16_t> bucket_;          // per Gaussian: amplitude bucket (descending), −1 when not visible
+  std::vector<GaussianTiles> tiles_;          // per Gaussian
+  std::vector<GaussianTiles> ordered_tiles_;  // per visible Gaussian, in order_
+  std::vector<EllipseRows<float>> rows_;      // per Gaussian: its ellipse row by row, for binning
   std::vector<std::uint32_t> order_;          // visible Gaussians, amplitude descending
   std::vector<std::uint32_t> bucket_count_;
   std::vector<std::uint32_t> tile_offset_;    // tiles + 1
@@ -110,31 +108,17 @@ void CpuSplatRenderer::forward(std::span<const float> params, const Intrinsics& 
   // 1. Project every Gaussian (Eq. 2-6) and find its tile rectangle.
   splats_.resize(count);
   packed_.resize(count);
-  tile_lo_.resize(count);
-  tile_hi_.resize(count);
+  tiles_.resize(count);
   rows_.resize(count);
-  bands_.resize(count);
+  bucket_.resize(count);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, count, 1024), [&](const auto& range) {
     for (std::size_t k = range.begin(); k != range.end(); ++k) {
       Splat2D<float> s = project_gaussian(&params_[kParams * k], view_params_, settings.cutoff, settings.low_pass);
-      if (s.visible) {
-        // Pixels whose centres can lie in the ellipse's bounding box.
-        // Clamped in float first so huge extents cannot overflow the int conversion.
-        auto pixel = [](float x, int size) { return static_cast<int>(std::clamp(x, -1.0f, static_cast<float>(size))); };
-        const int c0 = std::max(0, pixel(std::ceil(s.u - s.half_w - 0.5f), K.width) - 1);
-        const int c1 = std::min(K.width - 1, pixel(std::floor(s.u + s.half_w - 0.5f), K.width) + 1);
-        const int r0 = std::max(0, pixel(std::ceil(s.v - s.half_h - 0.5f), K.height) - 1);
-        const int r1 = std::min(K.height - 1, pixel(std::floor(s.v + s.half_h - 0.5f), K.height) + 1);
-        if (!std::isfinite(s.u) || !std::isfinite(s.v) || !std::isfinite(s.half_w) || !std::isfinite(s.half_h) ||
-            c0 > c1 || r0 > r1) {
-          s.visible = false;
-        } else {
-          tile_lo_[k] = (c0 / kTileSize) | ((r0 / kTileSize) << 16);
-          tile_hi_[k] = (c1 / kTileSize) | ((r1 / kTileSize) << 16);
-          rows_[k] = ellipse_rows(s, settings.cutoff, kBinWiden);
-          store_bands(k);
-        }
-      }
+      if (s.visible) s.visible = find_tiles(k, s);
+      bucket_[k] = s.visible ? static_cast<std::int16_t>(kAmplitudeBuckets - 1 -
+                                                          std::clamp(static_cast<int>(s.amplitude * kAmplitudeBuckets), 0,
+                                                                     kAmplitudeBuckets - 1))
+                             : std::int16_t{-1};
       splats_[k] = s;
       detail::PackedSplat& p = packed_[k];
       p.u = s.u;
@@ -167,24 +151,62 @@ void CpuSplatRenderer::forward(std::span<const float> params, const Intrinsics& 
   std::copy(I_.begin(), I_.end(), image.begin());
 }
 
+// Gaussian k's tiles (GaussianTiles); false when its bounding box misses the image
+// or is not finite.
+bool CpuSplatRenderer::find_tiles(std::size_t k, const Splat2D<float>& s) {
+  // Pixels whose centres can lie in the ellipse's bounding box.
+  // Clamped in float first so huge extents cannot overflow the int conversion.
+  const int W = intrinsics_.width, H = intrinsics_.height;
+  auto pixel = [](float x, int size) { return static_cast<int>(std::clamp(x, -1.0f, static_cast<float>(size))); };
+  const int c0 = std::max(0, pixel(std::ceil(s.u - s.half_w - 0.5f), W) - 1);
+  const int c1 = std::min(W - 1, pixel(std::floor(s.u + s.half_w - 0.5f), W) + 1);
+  const int r0 = std::max(0, pixel(std::ceil(s.v - s.half_h - 0.5f), H) - 1);
+  const int r1 = std::min(H - 1, pixel(std::floor(s.v + s.half_h - 0.5f), H) + 1);
+  if (!std::isfinite(s.u) || !std::isfinite(s.v) || !std::isfinite(s.half_w) || !std::isfinite(s.half_h) || c0 > c1 ||
+      r0 > r1) {
+    return false;
+  }
+  GaussianTiles& t = tiles_[k];
+  t.x0 = static_cast<std::int16_t>(c0 / kTileSize);
+  t.x1 = static_cast<std::int16_t>(c1 / kTileSize);
+  t.ty0 = static_cast<std::int16_t>(r0 / kTileSize);
+  t.ty1 = static_cast<std::int16_t>(r1 / kTileSize);
+  rows_[k] = ellipse_rows(s, settings_.cutoff, kBinWiden);
+  const int rows = t.ty1 - t.ty0 + 1;
+  if (rows <= kStoredBands) {
+    const EllipseRows<float>& e = rows_[k];
+    std::int32_t tx0[kStoredBands], tx1[kStoredBands];
+    detail::tile_bands({e.u, e.v, e.slope, e.k1, e.k2, e.x_right, e.dy_right, kBinPad}, t.ty0, rows, t.x0, t.x1, tx0,
+                       tx1);
+    for (int i = 0; i < rows; ++i) {
+      t.tx0[i] = static_cast<std::int16_t>(tx0[i]);
+      t.tx1[i] = static_cast<std::int16_t>(tx1[i]);
+    }
+  }
+  return true;
+}
+
 // Counting sorts: visible Gaussians by amplitude (descending, ties by index) into
 // order_, then (tile, order) pairs into entries_, and their 2D parameters gathered
 // as one SoA block per tile.
 void CpuSplatRenderer::bin(std::size_t K) {
   bucket_count_.assign(kAmplitudeBuckets + 1, 0);
-  auto bucket_of = [](float a) {
-    return kAmplitudeBuckets - 1 - std::clamp(static_cast<int>(a * kAmplitudeBuckets), 0, kAmplitudeBuckets - 1);
-  };
   int visible = 0;
   for (std::size_t k = 0; k < K; ++k) {
-    if (!splats_[k].visible) continue;
-    ++bucket_count_[bucket_of(splats_[k].amplitude) + 1];
+    if (bucket_[k] < 0) continue;
+    ++bucket_count_[bucket_[k] + 1];
     ++visible;
   }
   for (int b = 0; b < kAmplitudeBuckets; ++b) bucket_count_[b + 1] += bucket_count_[b];
+  // The tile lists are copied into amplitude order too, so that both passes below
+  // read them sequentially (reading them through order_ cost a cache miss each).
   order_.resize(static_cast<std::size_t>(visible));
+  ordered_tiles_.resize(static_cast<std::size_t>(visible));
   for (std::size_t k = 0; k < K; ++k) {
-    if (splats_[k].visible) order_[bucket_count_[bucket_of(splats_[k].amplitude)]++] = static_cast<std::uint32_t>(k);
+    if (bucket_[k] < 0) continue;
+    const std::uint32_t at = bucket_count_[bucket_[k]]++;
+    order_[at] = static_cast<std::uint32_t>(k);
+    ordered_tiles_[at] = tiles_[k];
   }
   stats_.visible = visible;
 
@@ -198,25 +220,10 @@ void CpuSplatRenderer::bin(std::size_t K) {
     return std::pair<std::size_t, std::size_t>(static_cast<std::size_t>(visible) * c / chunks,
                                                static_cast<std::size_t>(visible) * (c + 1) / chunks);
   };
-  // The tiles of a Gaussian's bounding-box rectangle that its δ ellipse reaches,
-  // row band by row band (elongated ellipses leave many box tiles untouched).
-  auto for_each_tile = [&](std::uint32_t k, auto&& fn) {
-    const int y0 = tile_lo_[k] >> 16, y1 = tile_hi_[k] >> 16;
-    if (y1 - y0 < kStoredBands) {
-      const TileBands& b = bands_[k];
-      for (int ty = y0; ty <= y1; ++ty) {
-        for (int tx = b.tx0[ty - y0]; tx <= b.tx1[ty - y0]; ++tx) fn(ty * tiles_x_ + tx);
-      }
-    } else {
-      for_each_band(k, [&](int ty, int tx0, int tx1) {
-        for (int tx = tx0; tx <= tx1; ++tx) fn(ty * tiles_x_ + tx);
-      });
-    }
-  };
   tbb::parallel_for(0, chunks, [&](int c) {
     std::uint32_t* count = chunk_cursor_.data() + static_cast<std::size_t>(c) * tiles;
     const auto [lo, hi] = chunk_range(c);
-    for (std::size_t i = lo; i < hi; ++i) for_each_tile(order_[i], [&](int t) { ++count[t]; });
+    for (std::size_t i = lo; i < hi; ++i) for_each_tile(ordered_tiles_[i], order_[i], [&](int t) { ++count[t]; });
   });
   tile_offset_.resize(static_cast<std::size_t>(tiles) + 1);
   std::uint32_t running = 0;
@@ -231,13 +238,13 @@ void CpuSplatRenderer::bin(std::size_t K) {
   }
   tile_offset_[tiles] = running;
   entries_.resize(running);
-  stats_.tile_entries = static_cast<std::int64_t>(entries_.size()); if (getenv("KST")) fprintf(stderr, "entries %zu\n", entries_.size());
+  stats_.tile_entries = static_cast<std::int64_t>(entries_.size());
   tbb::parallel_for(0, chunks, [&](int c) {
     std::uint32_t* cursor = chunk_cursor_.data() + static_cast<std::size_t>(c) * tiles;
     const auto [lo, hi] = chunk_range(c);
     for (std::size_t i = lo; i < hi; ++i) {
       const std::uint32_t k = order_[i];
-      for_each_tile(k, [&](int t) { entries_[cursor[t]++] = k; });
+      for_each_tile(ordered_tiles_[i], k, [&](int t) { entries_[cursor[t]++] = k; });
     }
   });
 }

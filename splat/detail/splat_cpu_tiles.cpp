@@ -442,6 +442,50 @@ void BackwardTile(const TileFrame& f, const TileGaussians& gs, const float* m_in
   }
 }
 
+void TileBands(const EllipseBands& e, int ty0, int rows, int x0, int x1, std::int32_t* tx0_out,
+               std::int32_t* tx1_out) {
+  const hn::ScalableTag<float> d;
+  const hn::RebindToSigned<decltype(d)> di;
+  const int N = static_cast<int>(hn::Lanes(d));
+  const auto u = hn::Set(d, e.u), slope = hn::Set(d, e.slope), k1 = hn::Set(d, e.k1), k2 = hn::Set(d, e.k2);
+  const auto dy_right = hn::Set(d, e.dy_right), dy_left = hn::Set(d, -e.dy_right), zero = hn::Zero(d);
+  const auto tile = hn::Set(d, static_cast<float>(kTile)), inv_tile = hn::Set(d, 1.0f / kTile);
+  const auto lowest = hn::Set(d, -2.0f), highest = hn::Set(d, static_cast<float>(1 << 30));
+  const auto x0f = hn::Set(d, static_cast<float>(x0)), x1f = hn::Set(d, static_cast<float>(x1));
+  for (int b0 = 0; b0 < rows; b0 += N) {
+    const auto band = hn::Iota(d, static_cast<float>(b0));
+    const auto ya = hn::Sub(hn::Mul(hn::Add(band, hn::Set(d, static_cast<float>(ty0))), tile), hn::Set(d, e.v));
+    const auto yb = hn::Add(ya, tile);
+    // The chords at the band's two edges: x = u + slope y ± √(k1 − k2 y²).
+    const auto Da = hn::NegMulAdd(hn::Mul(k2, ya), ya, k1), Db = hn::NegMulAdd(hn::Mul(k2, yb), yb, k1);
+    const auto ra = hn::Sqrt(hn::Max(Da, zero)), rb = hn::Sqrt(hn::Max(Db, zero));
+    const auto ma = hn::MulAdd(slope, ya, u), mb = hn::MulAdd(slope, yb, u);
+    const auto oka = hn::Ge(Da, zero), okb = hn::Ge(Db, zero);
+    // Right edge: at the rightmost point's dy clamped to the band; left likewise.
+    const auto above_r = hn::Lt(dy_right, ya), below_r = hn::Gt(dy_right, yb);
+    const auto above_l = hn::Lt(dy_left, ya), below_l = hn::Gt(dy_left, yb);
+    auto right = hn::IfThenElse(above_r, hn::Add(ma, ra), hn::IfThenElse(below_r, hn::Add(mb, rb), hn::Add(u, hn::Set(d, e.x_right))));
+    auto left = hn::IfThenElse(above_l, hn::Sub(ma, ra), hn::IfThenElse(below_l, hn::Sub(mb, rb), hn::Sub(u, hn::Set(d, e.x_right))));
+    const auto ok_r = hn::Or(hn::And(above_r, oka), hn::Or(hn::And(below_r, okb), hn::Not(hn::Or(above_r, below_r))));
+    const auto ok_l = hn::Or(hn::And(above_l, oka), hn::Or(hn::And(below_l, okb), hn::Not(hn::Or(above_l, below_l))));
+    const auto hit = hn::And(hn::And(ok_r, ok_l), hn::Lt(band, hn::Set(d, static_cast<float>(rows))));
+    // Pixel columns ⌈left − pad − ½⌉ .. ⌊right + pad − ½⌋, then tiles within [x0, x1].
+    const auto half_pad = hn::Set(d, e.pad + 0.5f);
+    const auto c0 = hn::Ceil(hn::Min(hn::Max(hn::Sub(left, half_pad), lowest), highest));
+    const auto c1 = hn::Floor(hn::Min(hn::Max(hn::Sub(hn::Add(right, hn::Set(d, e.pad)), hn::Set(d, 0.5f)), lowest), highest));
+    const auto t0 = hn::Max(x0f, hn::Floor(hn::Mul(hn::Max(c0, zero), inv_tile)));
+    const auto t1 = hn::Min(x1f, hn::Floor(hn::Mul(c1, inv_tile)));
+    const auto none = hn::Not(hn::And(hit, hn::And(hn::Le(c0, c1), hn::Le(t0, t1))));
+    HWY_ALIGN std::int32_t lo[hn::MaxLanes(d)], hi[hn::MaxLanes(d)];
+    hn::Store(hn::ConvertTo(di, hn::IfThenElse(none, zero, t0)), di, lo);
+    hn::Store(hn::ConvertTo(di, hn::IfThenElse(none, hn::Set(d, -1.0f), t1)), di, hi);
+    for (int i = 0; i < N && b0 + i < rows; ++i) {
+      tx0_out[b0 + i] = lo[i];
+      tx1_out[b0 + i] = hi[i];
+    }
+  }
+}
+
 }  // namespace HWY_NAMESPACE
 }  // namespace hisnegs::splat::detail
 HWY_AFTER_NAMESPACE();
@@ -451,6 +495,11 @@ namespace hisnegs::splat::detail {
 
 HWY_EXPORT(ForwardTile);
 HWY_EXPORT(BackwardTile);
+HWY_EXPORT(TileBands);
+
+void tile_bands(const EllipseBands& e, int ty0, int rows, int x0, int x1, std::int32_t* tx0, std::int32_t* tx1) {
+  HWY_DYNAMIC_DISPATCH(TileBands)(e, ty0, rows, x0, x1, tx0, tx1);
+}
 
 void forward_tile(const TileFrame& frame, const TileGaussians& gaussians, float* m, float* S, float* I,
                   std::int64_t* skipped) {

@@ -37,6 +37,17 @@ struct TileFrame {
   bool count_skipped;     // soft: count the terms skip_log_weight drops
 };
 
+// Binning, for the tile rows ty0 .. ty0 + rows − 1 (rows <= kBandsAtOnce) of a
+// Gaussian's bounding box whose tile columns are [x0, x1]: the columns its δ
+// ellipse reaches in each, [tx0[i], tx1[i]] (tx1[i] = −1 when none), the same
+// band rule as for_each_ellipse_band (splat_math.hpp) in SIMD across the rows.
+inline constexpr int kBandsAtOnce = 8;
+struct EllipseBands {
+  float u, v, slope, k1, k2, x_right, dy_right;  // EllipseRows<float>
+  float pad;                                      // pixels added each side
+};
+void tile_bands(const EllipseBands& e, int ty0, int rows, int x0, int x1, std::int32_t* tx0, std::int32_t* tx1);
+
 // Renders the tile: writes the per-pixel softmax state m (β-scaled max), S and the
 // image value I (all image-sized, row-major, `stride`), and adds the soft-MIP terms
 // skipped to `*skipped`. Hard mode writes m = I = max g and S = 1 where touched.
