@@ -8,6 +8,7 @@
 #include <utility>
 #include <vector>
 
+#include "splat/detail/splat_cpu_tiles.hpp"
 #include "splat/splat_math.hpp"
 #include "splat/splat_reference.hpp"
 #include "splat/splat_renderer.hpp"
@@ -34,7 +35,8 @@ double max_abs_diff(const std::vector<float>& a, const std::vector<double>& b) {
 
 // Binning: every pixel centre inside the δ ellipse lies in the columns reported
 // for its band of 16 rows (no term is ever lost), on random ellipses of every
-// size, elongation and angle, including ones partly off the image.
+// size, elongation and angle, including ones partly off the image; both the
+// scalar rule and the back end's SIMD tile_bands.
 TEST(SplatCpu, EllipseBandsHoldEveryPixelInsideTheCutoff) {
   std::mt19937_64 rng(5);
   std::uniform_real_distribution<double> u01(0, 1);
@@ -55,6 +57,18 @@ TEST(SplatCpu, EllipseBandsHoldEveryPixelInsideTheCutoff) {
     const EllipseRows<double> e = ellipse_rows(g, delta, 1.0);
     std::vector<std::pair<int, int>> cols(kRows / kTile, {1, 0});
     for_each_ellipse_band(e, 0, kRows / kTile - 1, kTile, 1e-6, [&](int ty, int c0, int c1) { cols[ty] = {c0, c1}; });
+    // The SIMD version the CPU back end bins with (float, δ widened as there),
+    // for the image's 6 tile rows and 12 tile columns.
+    Splat2D<float> gf{};
+    gf.u = static_cast<float>(g.u);
+    gf.v = static_cast<float>(g.v);
+    gf.con_a = static_cast<float>(g.con_a);
+    gf.con_b = static_cast<float>(g.con_b);
+    gf.con_c = static_cast<float>(g.con_c);
+    const EllipseRows<float> ef = ellipse_rows(gf, static_cast<float>(delta), 1.0f + 1e-3f);
+    std::int32_t tx0[detail::kBandsAtOnce], tx1[detail::kBandsAtOnce];
+    detail::tile_bands({ef.u, ef.v, ef.slope, ef.k1, ef.k2, ef.x_right, ef.dy_right, 0.25f}, 0, kRows / kTile, 0, 11, tx0,
+                       tx1);
     const double half_w = std::sqrt(delta * sxx);
     for (int ty = 0; ty < kRows / kTile; ++ty) {
       for (int y = ty * kTile; y < (ty + 1) * kTile; ++y) {
@@ -63,6 +77,11 @@ TEST(SplatCpu, EllipseBandsHoldEveryPixelInsideTheCutoff) {
           EXPECT_TRUE(x >= cols[ty].first && x <= cols[ty].second)
               << "trial " << trial << " pixel (" << x << ", " << y << ") outside band " << ty << " columns ["
               << cols[ty].first << ", " << cols[ty].second << "]";
+          if (x < 12 * kTile) {
+            EXPECT_TRUE(x / kTile >= tx0[ty] && x / kTile <= tx1[ty])
+                << "trial " << trial << " pixel (" << x << ", " << y << ") outside tile_bands row " << ty << " ["
+                << tx0[ty] << ", " << tx1[ty] << "]";
+          }
         }
       }
       if (cols[ty].first <= cols[ty].second) {
