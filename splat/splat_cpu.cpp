@@ -6,6 +6,7 @@
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <memory>
 #include <stdexcept>
@@ -46,6 +47,7 @@ class CpuSplatRenderer final : public SplatRenderer {
     std::int16_t tx0[kStoredBands], tx1[kStoredBands];
   };
   bool find_tiles(std::size_t k, const Splat2D<float>& s);
+  bool band_job(std::size_t k, detail::BandJob* job);
   // Calls fn(tile) for every tile of `t` (Gaussian k).
   template <class Fn>
   void for_each_tile(const GaussianTiles& t, std::size_t k, Fn&& fn) const {
@@ -80,6 +82,7 @@ class CpuSplatRenderer final : public SplatRenderer {
   std::vector<std::uint32_t> bucket_count_;
   std::vector<std::uint32_t> tile_offset_;    // tiles + 1
   std::vector<std::uint32_t> chunk_cursor_;   // per (chunk of order_, tile): entry count, then write cursor
+  std::vector<std::int32_t> chunk_diff_;      // per (chunk, tile row, tile column + 1): count differences
   std::vector<std::uint32_t> entries_;        // Gaussian id per (tile, rank)
   std::vector<detail::PackedSplat> packed_;   // per Gaussian: its 2D parameters for the tile kernels
   std::vector<float> m_, S_, I_;              // per pixel
@@ -112,9 +115,15 @@ void CpuSplatRenderer::forward(std::span<const float> params, const Intrinsics& 
   rows_.resize(count);
   bucket_.resize(count);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, count, 1024), [&](const auto& range) {
+    std::array<detail::BandJob, 256> jobs;  // tile_bands in batches
+    std::size_t pending = 0;
     for (std::size_t k = range.begin(); k != range.end(); ++k) {
       Splat2D<float> s = project_gaussian(&params_[kParams * k], view_params_, settings.cutoff, settings.low_pass);
       if (s.visible) s.visible = find_tiles(k, s);
+      if (s.visible && band_job(k, &jobs[pending]) && ++pending == jobs.size()) {
+        detail::tile_bands(jobs.data(), pending);
+        pending = 0;
+      }
       bucket_[k] = s.visible ? static_cast<std::int16_t>(kAmplitudeBuckets - 1 -
                                                           std::clamp(static_cast<int>(s.amplitude * kAmplitudeBuckets), 0,
                                                                      kAmplitudeBuckets - 1))
@@ -132,6 +141,7 @@ void CpuSplatRenderer::forward(std::span<const float> params, const Intrinsics& 
       p.inv_C = s.visible ? 1.0f / s.con_c : 0.0f;
       p.det = s.con_a * s.con_c - s.con_b * s.con_b;
     }
+    detail::tile_bands(jobs.data(), pending);
   });
   bin(count);
 
@@ -172,17 +182,16 @@ bool CpuSplatRenderer::find_tiles(std::size_t k, const Splat2D<float>& s) {
   t.ty0 = static_cast<std::int16_t>(r0 / kTileSize);
   t.ty1 = static_cast<std::int16_t>(r1 / kTileSize);
   rows_[k] = ellipse_rows(s, settings_.cutoff, kBinWiden);
+  return true;
+}
+
+// The tile_bands job of Gaussian k, false when it has more tile rows than are kept.
+bool CpuSplatRenderer::band_job(std::size_t k, detail::BandJob* job) {
+  GaussianTiles& t = tiles_[k];
   const int rows = t.ty1 - t.ty0 + 1;
-  if (rows <= kStoredBands) {
-    const EllipseRows<float>& e = rows_[k];
-    std::int32_t tx0[kStoredBands], tx1[kStoredBands];
-    detail::tile_bands({e.u, e.v, e.slope, e.k1, e.k2, e.x_right, e.dy_right, kBinPad}, t.ty0, rows, t.x0, t.x1, tx0,
-                       tx1);
-    for (int i = 0; i < rows; ++i) {
-      t.tx0[i] = static_cast<std::int16_t>(tx0[i]);
-      t.tx1[i] = static_cast<std::int16_t>(tx1[i]);
-    }
-  }
+  if (rows > kStoredBands) return false;
+  const EllipseRows<float>& e = rows_[k];
+  *job = {{e.u, e.v, e.slope, e.k1, e.k2, e.x_right, e.dy_right, kBinPad}, t.ty0, rows, t.x0, t.x1, t.tx0, t.tx1};
   return true;
 }
 
@@ -215,15 +224,42 @@ void CpuSplatRenderer::bin(std::size_t K) {
   // entries_ is exactly what one serial pass would write (deterministic).
   const int tiles = tiles_x_ * tiles_y_;
   const int chunks = std::clamp(visible / 4096, 1, 32);
-  chunk_cursor_.assign(static_cast<std::size_t>(chunks) * tiles, 0);
+  chunk_cursor_.resize(static_cast<std::size_t>(chunks) * tiles);  // written by the count pass
   auto chunk_range = [&](int c) {
     return std::pair<std::size_t, std::size_t>(static_cast<std::size_t>(visible) * c / chunks,
                                                static_cast<std::size_t>(visible) * (c + 1) / chunks);
   };
+  // Counted as differences along each tile row (+1 at a run's first tile, −1 past
+  // its last), then summed: two updates per row run instead of one per tile, and
+  // no branch per tile.
+  const int stride = tiles_x_ + 1;
+  chunk_diff_.assign(static_cast<std::size_t>(chunks) * tiles_y_ * stride, 0);
   tbb::parallel_for(0, chunks, [&](int c) {
-    std::uint32_t* count = chunk_cursor_.data() + static_cast<std::size_t>(c) * tiles;
+    std::int32_t* diff = chunk_diff_.data() + static_cast<std::size_t>(c) * tiles_y_ * stride;
     const auto [lo, hi] = chunk_range(c);
-    for (std::size_t i = lo; i < hi; ++i) for_each_tile(ordered_tiles_[i], order_[i], [&](int t) { ++count[t]; });
+    for (std::size_t i = lo; i < hi; ++i) {
+      const GaussianTiles& t = ordered_tiles_[i];
+      if (t.ty1 - t.ty0 < kStoredBands) {
+        for (int r = 0; r <= t.ty1 - t.ty0; ++r) {  // an empty row (tx1 = −1, tx0 = 0) adds nothing
+          std::int32_t* row = diff + (t.ty0 + r) * stride;
+          ++row[t.tx0[r]];
+          --row[t.tx1[r] + 1];
+        }
+      } else {
+        for_each_tile(t, order_[i], [&](int tile) {
+          ++diff[(tile / tiles_x_) * stride + tile % tiles_x_];
+          --diff[(tile / tiles_x_) * stride + tile % tiles_x_ + 1];
+        });
+      }
+    }
+    std::uint32_t* count = chunk_cursor_.data() + static_cast<std::size_t>(c) * tiles;
+    for (int ty = 0; ty < tiles_y_; ++ty) {
+      std::int32_t running = 0;
+      for (int tx = 0; tx < tiles_x_; ++tx) {
+        running += diff[ty * stride + tx];
+        count[ty * tiles_x_ + tx] = static_cast<std::uint32_t>(running);
+      }
+    }
   });
   tile_offset_.resize(static_cast<std::size_t>(tiles) + 1);
   std::uint32_t running = 0;

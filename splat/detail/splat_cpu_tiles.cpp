@@ -442,8 +442,8 @@ void BackwardTile(const TileFrame& f, const TileGaussians& gs, const float* m_in
   }
 }
 
-void TileBands(const EllipseBands& e, int ty0, int rows, int x0, int x1, std::int32_t* tx0_out,
-               std::int32_t* tx1_out) {
+HWY_INLINE void OneTileBands(const EllipseBands& e, int ty0, int rows, int x0, int x1, std::int16_t* tx0_out,
+                             std::int16_t* tx1_out) {
   const hn::ScalableTag<float> d;
   const hn::RebindToSigned<decltype(d)> di;
   const int N = static_cast<int>(hn::Lanes(d));
@@ -480,9 +480,16 @@ void TileBands(const EllipseBands& e, int ty0, int rows, int x0, int x1, std::in
     hn::Store(hn::ConvertTo(di, hn::IfThenElse(none, zero, t0)), di, lo);
     hn::Store(hn::ConvertTo(di, hn::IfThenElse(none, hn::Set(d, -1.0f), t1)), di, hi);
     for (int i = 0; i < N && b0 + i < rows; ++i) {
-      tx0_out[b0 + i] = lo[i];
-      tx1_out[b0 + i] = hi[i];
+      tx0_out[b0 + i] = static_cast<std::int16_t>(lo[i]);
+      tx1_out[b0 + i] = static_cast<std::int16_t>(hi[i]);
     }
+  }
+}
+
+void TileBands(const BandJob* jobs, std::size_t count) {
+  for (std::size_t i = 0; i < count; ++i) {
+    const BandJob& j = jobs[i];
+    OneTileBands(j.e, j.ty0, j.rows, j.x0, j.x1, j.tx0, j.tx1);
   }
 }
 
@@ -497,9 +504,7 @@ HWY_EXPORT(ForwardTile);
 HWY_EXPORT(BackwardTile);
 HWY_EXPORT(TileBands);
 
-void tile_bands(const EllipseBands& e, int ty0, int rows, int x0, int x1, std::int32_t* tx0, std::int32_t* tx1) {
-  HWY_DYNAMIC_DISPATCH(TileBands)(e, ty0, rows, x0, x1, tx0, tx1);
-}
+void tile_bands(const BandJob* jobs, std::size_t count) { HWY_DYNAMIC_DISPATCH(TileBands)(jobs, count); }
 
 void forward_tile(const TileFrame& frame, const TileGaussians& gaussians, float* m, float* S, float* I,
                   std::int64_t* skipped) {

@@ -41,12 +41,19 @@ struct TileFrame {
 // Gaussian's bounding box whose tile columns are [x0, x1]: the columns its δ
 // ellipse reaches in each, [tx0[i], tx1[i]] (tx1[i] = −1 when none), the same
 // band rule as for_each_ellipse_band (splat_math.hpp) in SIMD across the rows.
+// Jobs come in batches (one dispatch for many Gaussians).
 inline constexpr int kBandsAtOnce = 8;
 struct EllipseBands {
   float u, v, slope, k1, k2, x_right, dy_right;  // EllipseRows<float>
   float pad;                                      // pixels added each side
 };
-void tile_bands(const EllipseBands& e, int ty0, int rows, int x0, int x1, std::int32_t* tx0, std::int32_t* tx1);
+struct BandJob {
+  EllipseBands e;
+  int ty0, rows, x0, x1;
+  std::int16_t* tx0;  // `rows` entries each
+  std::int16_t* tx1;
+};
+void tile_bands(const BandJob* jobs, std::size_t count);
 
 // Renders the tile: writes the per-pixel softmax state m (β-scaled max), S and the
 // image value I (all image-sized, row-major, `stride`), and adds the soft-MIP terms
