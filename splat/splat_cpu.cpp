@@ -322,7 +322,8 @@ void CpuSplatRenderer::backward(std::span<const float> dL_dimage, std::span<floa
                             entry_grads_.data() + 6 * static_cast<std::size_t>(tile_offset_[t]));
     }
   });
-  // 2. Combined per Gaussian in entry order (deterministic), in double.
+  // 2. Combined per Gaussian in entry order (deterministic), in double. (Split by
+  // Gaussian id ranges over the two hardware threads, it was slower: 3.6 -> 5.2 ms.)
   const std::size_t K = splats_.size();
   gaussian_grads_.assign(6 * K, 0.0);
   for (std::size_t e = 0; e < entries_.size(); ++e) {
@@ -333,13 +334,14 @@ void CpuSplatRenderer::backward(std::span<const float> dL_dimage, std::span<floa
   const ViewParams<double> view = make_splat_view<double>(intrinsics_, view_);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, K, 512), [&](const auto& range) {
     for (std::size_t k = range.begin(); k != range.end(); ++k) {
-      if (!splats_[k].visible) continue;
+      const double* g6 = &gaussian_grads_[6 * k];
+      // Invisible, or no gradient reached it (every term skipped): it would add 0.
+      if (!splats_[k].visible || std::all_of(g6, g6 + 6, [](double x) { return x == 0.0; })) continue;
       double p[kParams];
       for (int i = 0; i < kParams; ++i) p[i] = params_[kParams * k + i];
       ProjectionCache<double> cache;
       const Splat2D<double> s = project_gaussian(p, view, double(settings_.cutoff), double(settings_.low_pass), &cache);
       if (!s.visible) continue;
-      const double* g6 = &gaussian_grads_[6 * k];
       Splat2DGrad<double> g{g6[0], g6[1], g6[2], g6[3], g6[4], g6[5]};
       double out[kParams] = {};
       project_gaussian_backward(p, view, cache, g, out);

@@ -397,6 +397,13 @@ void BackwardTile(const TileFrame& f, const TileGaussians& gs, const float* m_in
     for (int at = 0; at < kTile * kTile; ++at) m_floor[at] = inv_S[at] > 0.0f ? m[at] : std::numeric_limits<float>::infinity();
     floors.from_soft_max(f, m_floor, !(f.skip_log_weight > 0.0f));
   }
+  // In base 2, as the forward: G = 2^{−q log2e / 2}, e^{βg − m} = 2^{β' g − m'}.
+  const auto minus_half_log2e = hn::Set(d, -0.5f * kLog2e);
+  const auto beta2 = hn::Set(d, f.beta * kLog2e);
+  HWY_ALIGN float m2[kTile * kTile];
+  for (int at = 0; at < kTile * kTile; at += static_cast<int>(hn::Lanes(d))) {
+    hn::Store(hn::Mul(hn::Load(d, m + at), hn::Set(d, kLog2e)), d, m2 + at);
+  }
   RowSpans spans;
   for (int i = 0; i < gs.count; ++i) {
     const PackedSplat& g = gs[i];
@@ -418,10 +425,10 @@ void BackwardTile(const TileFrame& f, const TileGaussians& gs, const float* m_in
       const auto dL_dI = hn::Load(d, G + at);
       mask = hn::And(mask, hn::Ne(dL_dI, hn::Zero(d)));
       if (hn::AllFalse(d, mask)) return;
-      const auto Gk = ExpNonPositive(d, hn::Mul(minus_half, q));
+      const auto Gk = Exp2NonPositive(d, hn::Mul(minus_half_log2e, q));
       const auto gk = hn::Mul(vamp, Gk);
       // dI/dg = w (1 + β (g − I)), w = e^{βg − m} / S
-      const auto w = hn::Mul(ExpNonPositive(d, hn::MulSub(beta, gk, hn::Load(d, m + at))), hn::Load(d, inv_S + at));
+      const auto w = hn::Mul(Exp2NonPositive(d, hn::MulSub(beta2, gk, hn::Load(d, m2 + at))), hn::Load(d, inv_S + at));
       const auto dI_dg = hn::Mul(w, hn::MulAdd(beta, hn::Sub(gk, hn::Load(d, I + at)), one));
       const auto dL_dg = hn::IfThenElseZero(mask, hn::Mul(dL_dI, dI_dg));
       samp = hn::MulAdd(dL_dg, Gk, samp);
