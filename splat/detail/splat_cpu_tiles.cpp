@@ -131,7 +131,8 @@ struct RowFloors {
     return !(cutoff_of_tile(ln_bound, f.cutoff) > 0.0f);
   }
 };
-constexpr int kRefreshEvery = 8;  // Gaussians between refreshes of the row floors
+constexpr int kRefreshEvery = 8;  // entries per batch: the running row floors are refreshed and the
+                                  // whole-tile test run (batch_hits) once per batch
 
 // One Gaussian's columns in every row of a tile, computed for all rows at once in
 // SIMD (rows across lanes): row r evaluates columns [lo[r], hi[r]] (empty when
@@ -196,35 +197,66 @@ inline std::int64_t row_spans(const TileFrame& f, const RowFloors& floors, const
   return count_skipped ? static_cast<std::int64_t>(hn::GetLane(hn::SumOfLanes(d, skipped))) : 0;
 }
 
-// The smallest q = dᵀ Σ⁻¹ d of the Gaussian (u, v, conic A, B, C) over the tile's
-// pixel centres (the rectangle they span; 0 when it contains the centre). q is
+// Whole-tile test, before any per-row work, for the kRefreshEvery entries from i0
+// at once (SIMD across Gaussians): bit j is set when entry i0 + j may reach one of
+// the tile's pixels within its loosest (floor-limited) cutoff, whose peak is
+// ln_add + ln a. That is, the smallest q = dᵀ Σ⁻¹ d over the tile's pixel centres
+// (the rectangle they span; 0 when it holds the centre) is within the cutoff; q is
 // convex, so off the rectangle its minimum lies on an edge, where it is a 1D
-// quadratic minimized at a clamped vertex.
-inline float tile_min_q(const TileFrame& f, const PackedSplat& g) {
-  const float u = g.u, v = g.v, A = g.A, B = g.B, C = g.C;
-  const float xa = static_cast<float>(f.x0) + 0.5f - u, xb = xa + static_cast<float>(f.width - 1);
-  const float ya = static_cast<float>(f.y0) + 0.5f - v, yb = ya + static_cast<float>(f.height - 1);
-  if (xa <= 0.0f && xb >= 0.0f && ya <= 0.0f && yb >= 0.0f) return 0.0f;
-  auto q = [&](float x, float y) { return (A * x + 2.0f * B * y) * x + C * y * y; };
-  auto along_x = [&](float y) { return q(std::clamp(-B * y * g.inv_A, xa, xb), y); };  // edge at fixed y
-  auto along_y = [&](float x) { return q(x, std::clamp(-B * x * g.inv_C, ya, yb)); };  // edge at fixed x
-  return std::min(std::min(along_x(ya), along_x(yb)), std::min(along_y(xa), along_y(xb)));
-}
-// tile_min_q is compared with a cutoff widened by this factor, so rounding never
-// drops a Gaussian that a lane's own test would keep.
+// quadratic minimized at a clamped vertex. The minimum is compared with the
+// cutoff widened by kRejectSlack, so rounding never drops a Gaussian that a lane's
+// own test would keep.
 constexpr float kRejectSlack = 1.0f + 1e-3f;
-
-// Whole-tile test, before any per-row work: true when the Gaussian reaches none of
-// the tile's pixels within its loosest (floor-limited) cutoff.
-inline bool misses_tile(const TileFrame& f, const RowFloors& floors, const PackedSplat& g, float ln_peak) {
-  const float cut = floors.cutoff_of_tile(ln_peak, f.cutoff);
-  return !(cut > 0.0f) || tile_min_q(f, g) > cut * kRejectSlack;
+HWY_INLINE std::uint32_t batch_hits(const TileFrame& f, const RowFloors& floors, const TileGaussians& gs, int i0,
+                                    float ln_add) {
+  const hn::ScalableTag<float> d;
+  const int N = static_cast<int>(hn::Lanes(d));
+  constexpr int kSlots = hn::MaxLanes(d) > kRefreshEvery ? static_cast<int>(hn::MaxLanes(d)) : kRefreshEvery;
+  const int n = std::min(kRefreshEvery, gs.count - i0);
+  HWY_ALIGN float u[kSlots] = {}, v[kSlots] = {}, A[kSlots] = {}, B[kSlots] = {}, C[kSlots] = {};
+  HWY_ALIGN float inv_A[kSlots] = {}, inv_C[kSlots] = {}, ln_amp[kSlots] = {};
+  for (int j = 0; j < n; ++j) {
+    const PackedSplat& g = gs[i0 + j];
+    u[j] = g.u, v[j] = g.v, A[j] = g.A, B[j] = g.B, C[j] = g.C;
+    inv_A[j] = g.inv_A, inv_C[j] = g.inv_C, ln_amp[j] = g.ln_amp;
+  }
+  const auto zero = hn::Zero(d), two = hn::Set(d, 2.0f);
+  const auto px = hn::Set(d, static_cast<float>(f.x0) + 0.5f), py = hn::Set(d, static_cast<float>(f.y0) + 0.5f);
+  const auto w1 = hn::Set(d, static_cast<float>(f.width - 1)), h1 = hn::Set(d, static_cast<float>(f.height - 1));
+  const auto delta = hn::Set(d, f.cutoff), floor2 = hn::Set(d, 2.0f * (ln_add - floors.tile_floor));
+  std::uint32_t bits = 0;
+  for (int j0 = 0; j0 < kRefreshEvery; j0 += N) {
+    const auto vA = hn::Load(d, A + j0), vB = hn::Load(d, B + j0), vC = hn::Load(d, C + j0);
+    const auto xa = hn::Sub(px, hn::Load(d, u + j0)), xb = hn::Add(xa, w1);
+    const auto ya = hn::Sub(py, hn::Load(d, v + j0)), yb = hn::Add(ya, h1);
+    auto q = [&](auto x, auto y) {
+      return hn::MulAdd(hn::MulAdd(vA, x, hn::Mul(two, hn::Mul(vB, y))), x, hn::Mul(vC, hn::Mul(y, y)));
+    };
+    const auto minus_B_inv_A = hn::Neg(hn::Mul(vB, hn::Load(d, inv_A + j0)));
+    const auto minus_B_inv_C = hn::Neg(hn::Mul(vB, hn::Load(d, inv_C + j0)));
+    auto along_x = [&](auto y) { return q(hn::Min(hn::Max(hn::Mul(minus_B_inv_A, y), xa), xb), y); };  // edge at fixed y
+    auto along_y = [&](auto x) { return q(x, hn::Min(hn::Max(hn::Mul(minus_B_inv_C, x), ya), yb)); };  // edge at fixed x
+    const auto edges = hn::Min(hn::Min(along_x(ya), along_x(yb)), hn::Min(along_y(xa), along_y(xb)));
+    const auto inside = hn::And(hn::And(hn::Le(xa, zero), hn::Ge(xb, zero)), hn::And(hn::Le(ya, zero), hn::Ge(yb, zero)));
+    const auto min_q = hn::IfThenZeroElse(inside, edges);
+    // The tile's loosest cutoff: min(δ, 2 (ln_peak − tile floor) + margin).
+    const auto cut = hn::Min(delta, hn::Add(hn::MulAdd(two, hn::Load(d, ln_amp + j0), floor2), hn::Set(d, kCutoffMargin)));
+    const auto hit = hn::And(hn::And(hn::Gt(cut, zero), hn::Le(min_q, hn::Mul(cut, hn::Set(d, kRejectSlack)))),
+                             hn::Lt(hn::Iota(d, static_cast<float>(j0)), hn::Set(d, static_cast<float>(n))));
+    std::uint8_t mask_bits[8] = {};
+    hn::StoreMaskBits(d, hit, mask_bits);
+    std::uint32_t lane_bits = 0;
+    for (int byte = 0; byte < (N + 7) / 8 && byte < 4; ++byte) lane_bits |= static_cast<std::uint32_t>(mask_bits[byte]) << (8 * byte);
+    bits |= lane_bits << j0;
+  }
+  return bits & ((1u << kRefreshEvery) - 1u);
 }
 
-// Calls visit(lo_chunk, r, mask-building data) for every SIMD chunk of every row
-// of the Gaussian's spans: body(at, dx, q, mask) with q its Mahalanobis distance
-// at the chunk's pixel centres and mask the lanes inside the row's cutoff and the
-// tile; chunks with no such lane are not visited.
+// Calls body(at, dy, dx, q, mask) for every SIMD chunk of every row of the
+// Gaussian's spans: `at` its first pixel (r·16 + c), dx and dy the offsets of its
+// pixel centres from the Gaussian's centre, q their Mahalanobis distance, mask the
+// lanes inside the row's cutoff and the image; chunks with no such lane are not
+// visited.
 template <class Body>
 HWY_INLINE void for_each_chunk(const TileFrame& f, const RowSpans& spans, const PackedSplat& g, Body&& body) {
   const float u = g.u, A = g.A, B = g.B, C = g.C;
@@ -259,14 +291,16 @@ void LogMaxPass(const TileFrame& f, const TileGaussians& gs, float* lm) {
   const auto minus_half = hn::Set(d, -0.5f);
   RowFloors floors;
   RowSpans spans;
+  std::uint32_t hits = 0;
   for (int i = 0; i < gs.count; ++i) {
     const PackedSplat& g = gs[i];
     const float amp = g.amp, ln_amp = g.ln_amp;
     if (i % kRefreshEvery == 0) {
       floors.from_log_max(f, lm);
       if (floors.none_after(f, amp, 0.0f)) break;
+      hits = batch_hits(f, floors, gs, i, 0.0f);
     }
-    if (misses_tile(f, floors, g, ln_amp)) continue;  // most do
+    if (!((hits >> (i % kRefreshEvery)) & 1u)) continue;  // most miss
     row_spans(f, floors, g, ln_amp, false, spans);
     const auto vln_amp = hn::Set(d, ln_amp);
     for_each_chunk(f, spans, g, [&](int at, auto, auto, auto q, auto mask) {
@@ -295,19 +329,24 @@ std::int64_t SoftPass(const TileFrame& f, const TileGaussians& gs, const float* 
   }
   RowSpans spans;
   std::int64_t skipped = 0;
+  std::uint32_t hits = 0;
   for (int i = 0; i < gs.count; ++i) {
     const PackedSplat& g = gs[i];
     const float amp = g.amp;
-    if (i % kRefreshEvery == 0 && floors.none_after(f, amp, ln_beta)) {
-      if (count_skipped) {  // what the rest would have contributed
-        for (int j = i; j < gs.count; ++j) {
-          skipped += row_spans(f, floors, gs[j], -std::numeric_limits<float>::infinity(), true, spans);
+    if (i % kRefreshEvery == 0) {
+      if (floors.none_after(f, amp, ln_beta)) {
+        if (count_skipped) {  // what the rest would have contributed
+          for (int j = i; j < gs.count; ++j) {
+            skipped += row_spans(f, floors, gs[j], -std::numeric_limits<float>::infinity(), true, spans);
+          }
         }
+        break;
       }
-      break;
+      // Counting skipped terms needs every Gaussian's spans.
+      hits = count_skipped ? ~0u : batch_hits(f, floors, gs, i, ln_beta);
     }
+    if (!((hits >> (i % kRefreshEvery)) & 1u)) continue;  // most miss
     const float ln_peak = ln_beta + g.ln_amp;
-    if (!count_skipped && misses_tile(f, floors, g, ln_peak)) continue;  // most do
     skipped += row_spans(f, floors, g, ln_peak, count_skipped, spans);
     const auto vamp = hn::Set(d, amp);
     for_each_chunk(f, spans, g, [&](int at, auto, auto, auto q, auto mask) {
@@ -405,16 +444,20 @@ void BackwardTile(const TileFrame& f, const TileGaussians& gs, const float* m_in
     hn::Store(hn::Mul(hn::Load(d, m + at), hn::Set(d, kLog2e)), d, m2 + at);
   }
   RowSpans spans;
+  std::uint32_t hits = 0;
   for (int i = 0; i < gs.count; ++i) {
     const PackedSplat& g = gs[i];
     const float A = g.A, B = g.B, C = g.C, amp = g.amp;
     const float ln_peak = ln_beta + g.ln_amp;
     float* out = grads + 6 * static_cast<std::size_t>(i);
-    if (i % kRefreshEvery == 0 && floors.none_after(f, amp, ln_beta)) {  // as the forward's early stop
-      std::fill(out, grads + 6 * static_cast<std::size_t>(gs.count), 0.0f);
-      break;
+    if (i % kRefreshEvery == 0) {
+      if (floors.none_after(f, amp, ln_beta)) {  // as the forward's early stop
+        std::fill(out, grads + 6 * static_cast<std::size_t>(gs.count), 0.0f);
+        break;
+      }
+      hits = batch_hits(f, floors, gs, i, ln_beta);
     }
-    if (misses_tile(f, floors, g, ln_peak)) {
+    if (!((hits >> (i % kRefreshEvery)) & 1u)) {
       std::fill(out, out + 6, 0.0f);
       continue;
     }
