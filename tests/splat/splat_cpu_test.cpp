@@ -137,6 +137,34 @@ TEST(SplatCpu, ForwardMatchesReferenceAtDefaultCutoff) {
   EXPECT_GE(renderer->stats().tile_entries, renderer->stats().visible);
 }
 
+// Gaussians taller than 8 tiles (binned by the scalar band rule instead of the
+// stored SIMD bands) on an image of 12 x 10 tiles, soft and hard, with the skip
+// rule on: every tile they reach is rendered as the reference renders it.
+TEST(SplatCpu, LargeGaussiansOverManyTilesMatchReference) {
+  auto renderer = make_splat_renderer(Backend::kCpu);
+  const auto scene = make_splat_scene(12, 31, 190, 160, 0.15, 0.35);
+  const ViewParams<double> view = make_splat_view<double>(scene.K, scene.view);
+  for (MipMode mode : {MipMode::kSoft, MipMode::kHard}) {
+    SplatSettings s;
+    s.mode = mode;
+    const std::vector<double> ref = render_reference(scene.params, view, s);
+    const std::vector<float> img = render_cpu(*renderer, scene, s);
+    // Skipped terms move a pixel by at most (terms) e^-20; boundary pixels as above.
+    EXPECT_LT(max_abs_diff(img, ref), testing::boundary_flip_bound(s) + 1e-4);
+    int close = 0;
+    for (std::size_t i = 0; i < img.size(); ++i) close += std::abs(img[i] - ref[i]) < 1e-4 ? 1 : 0;
+    EXPECT_GT(close, static_cast<int>(0.99 * img.size())) << "hard " << (mode == MipMode::kHard);
+    // Some Gaussian spans more than 8 tile rows (8 * 16 = 128 pixels).
+    double tallest = 0;
+    for (std::size_t k = 0; k < scene.params.size() / gmf::kNumGaussianParams; ++k) {
+      const Splat2D<double> g =
+          project_gaussian(&scene.params[gmf::kNumGaussianParams * k], view, double(s.cutoff), 0.0);
+      if (g.visible) tallest = std::max(tallest, 2 * g.half_h);
+    }
+    EXPECT_GT(tallest, 9 * 16.0);
+  }
+}
+
 // The skip rule drops only terms whose weight is below e^-skip of the pixel's max,
 // so the image moves by less than (terms skipped) e^-skip; the count is reported.
 TEST(SplatCpu, SkippedTermsAreCountedAndNegligible) {
