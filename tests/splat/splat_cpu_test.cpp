@@ -227,6 +227,40 @@ TEST(SplatCpu, BackwardMatchesReference) {
 }
 
 // backward() adds: two calls give twice the gradient (mini-batches of views rely on it).
+// The backward with the skip rule on (the default): it differentiates exactly the
+// terms the forward summed, culled by the same row floors and whole-tile test, and
+// the terms it drops weigh below e^-20, so it matches the exact reference. A few
+// bright Gaussians over dim ones make the rule drop terms (checked by the count).
+TEST(SplatCpu, BackwardWithSkippingMatchesReference) {
+  auto renderer = make_splat_renderer(Backend::kCpu);
+  auto scene = make_splat_scene(40, 41, 64, 48, 0.3, 0.5);  // wide: every row has bright pixels only
+  for (int k = 0; k < 40; ++k) scene.params[11 * k + 10] = k % 8 == 0 ? 3.0 : -2.5;
+  const ViewParams<double> view = make_splat_view<double>(scene.K, scene.view);
+  SplatSettings s;
+  s.cutoff = 1e6f;  // no δ boundary (see ForwardMatchesReference)
+  s.beta = 50.0f;
+  ASSERT_GT(s.skip_log_weight, 0.0f);
+  std::mt19937_64 rng(41);
+  std::uniform_real_distribution<double> u(-1, 1);
+  std::vector<double> w(static_cast<std::size_t>(scene.K.width) * scene.K.height);
+  for (double& x : w) x = u(rng);
+  SplatSettings exact = s;
+  exact.skip_log_weight = 0.0f;
+  const std::vector<double> ref = render_reference_backward(scene.params, view, exact, w, nullptr);
+  SplatSettings counted = s;
+  counted.count_skipped = true;
+  render_cpu(*renderer, scene, counted);
+  EXPECT_GT(renderer->stats().skipped_terms, 1000);
+  render_cpu(*renderer, scene, s);
+  std::vector<float> grad(scene.params.size(), 0.0f);
+  renderer->backward(to_float(w), grad, {});
+  double largest[11] = {};
+  for (std::size_t i = 0; i < ref.size(); ++i) largest[i % 11] = std::max(largest[i % 11], std::abs(ref[i]));
+  for (std::size_t i = 0; i < ref.size(); ++i) {
+    EXPECT_LT(std::abs(grad[i] - ref[i]), 1e-3 * largest[i % 11] + 1e-9) << "param " << i;
+  }
+}
+
 TEST(SplatCpu, BackwardAccumulates) {
   auto renderer = make_splat_renderer(Backend::kCpu);
   const auto scene = make_splat_scene(10, 41, 48, 32);
