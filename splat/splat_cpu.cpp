@@ -48,19 +48,16 @@ class CpuSplatRenderer final : public SplatRenderer {
   };
   bool find_tiles(std::size_t k, const Splat2D<float>& s);
   bool band_job(std::size_t k, detail::BandJob* job);
-  // Calls fn(tile) for every tile of `t` (Gaussian k).
+  // Calls fn(ty, tx0, tx1) for every tile row ty of `t` (Gaussian k) with the run
+  // of tile columns [tx0, tx1] the ellipse reaches there (tx1 < tx0: none).
   template <class Fn>
-  void for_each_tile(const GaussianTiles& t, std::size_t k, Fn&& fn) const {
+  void for_each_run(const GaussianTiles& t, std::size_t k, Fn&& fn) const {
     if (t.ty1 - t.ty0 < kStoredBands) {
-      for (int ty = t.ty0; ty <= t.ty1; ++ty) {
-        for (int tx = t.tx0[ty - t.ty0]; tx <= t.tx1[ty - t.ty0]; ++tx) fn(ty * tiles_x_ + tx);
-      }
+      for (int ty = t.ty0; ty <= t.ty1; ++ty) fn(ty, t.tx0[ty - t.ty0], t.tx1[ty - t.ty0]);
       return;
     }
     for_each_ellipse_band(rows_[k], t.ty0, t.ty1, kTileSize, kBinPad, [&](int ty, int c0, int c1) {
-      if (c1 < 0) return;
-      const int hi = std::min<int>(t.x1, c1 / kTileSize);
-      for (int tx = std::max<int>(t.x0, std::max(c0, 0) / kTileSize); tx <= hi; ++tx) fn(ty * tiles_x_ + tx);
+      if (c1 >= 0) fn(ty, std::max<int>(t.x0, std::max(c0, 0) / kTileSize), std::min<int>(t.x1, c1 / kTileSize));
     });
   }
   [[nodiscard]] detail::TileFrame tile_frame(int tile) const;
@@ -196,8 +193,7 @@ bool CpuSplatRenderer::band_job(std::size_t k, detail::BandJob* job) {
 }
 
 // Counting sorts: visible Gaussians by amplitude (descending, ties by index) into
-// order_, then (tile, order) pairs into entries_, and their 2D parameters gathered
-// as one SoA block per tile.
+// order_, then (tile, order) pairs into entries_.
 void CpuSplatRenderer::bin(std::size_t K) {
   bucket_count_.assign(kAmplitudeBuckets + 1, 0);
   int visible = 0;
@@ -238,19 +234,11 @@ void CpuSplatRenderer::bin(std::size_t K) {
     std::int32_t* diff = chunk_diff_.data() + static_cast<std::size_t>(c) * tiles_y_ * stride;
     const auto [lo, hi] = chunk_range(c);
     for (std::size_t i = lo; i < hi; ++i) {
-      const GaussianTiles& t = ordered_tiles_[i];
-      if (t.ty1 - t.ty0 < kStoredBands) {
-        for (int r = 0; r <= t.ty1 - t.ty0; ++r) {  // an empty row (tx1 = −1, tx0 = 0) adds nothing
-          std::int32_t* row = diff + (t.ty0 + r) * stride;
-          ++row[t.tx0[r]];
-          --row[t.tx1[r] + 1];
-        }
-      } else {
-        for_each_tile(t, order_[i], [&](int tile) {
-          ++diff[(tile / tiles_x_) * stride + tile % tiles_x_];
-          --diff[(tile / tiles_x_) * stride + tile % tiles_x_ + 1];
-        });
-      }
+      for_each_run(ordered_tiles_[i], order_[i], [&](int ty, int tx0, int tx1) {
+        if (tx0 > tx1) return;
+        ++diff[ty * stride + tx0];
+        --diff[ty * stride + tx1 + 1];
+      });
     }
     std::uint32_t* count = chunk_cursor_.data() + static_cast<std::size_t>(c) * tiles;
     for (int ty = 0; ty < tiles_y_; ++ty) {
@@ -280,7 +268,9 @@ void CpuSplatRenderer::bin(std::size_t K) {
     const auto [lo, hi] = chunk_range(c);
     for (std::size_t i = lo; i < hi; ++i) {
       const std::uint32_t k = order_[i];
-      for_each_tile(ordered_tiles_[i], k, [&](int t) { entries_[cursor[t]++] = k; });
+      for_each_run(ordered_tiles_[i], k, [&](int ty, int tx0, int tx1) {
+        for (int tx = tx0; tx <= tx1; ++tx) entries_[cursor[ty * tiles_x_ + tx]++] = k;
+      });
     }
   });
 }

@@ -78,6 +78,14 @@ HWY_INLINE V ExpNonPositive(D d, V x) {
   return Exp2NonPositive(d, hn::Mul(x, hn::Set(d, kLog2e)));
 }
 
+// out = in · log2 e for a tile's pixels (per-pixel maxima into base 2).
+inline void times_log2e(const float* in, float* out) {
+  const hn::ScalableTag<float> d;
+  for (int at = 0; at < kTile * kTile; at += static_cast<int>(hn::Lanes(d))) {
+    hn::Store(hn::Mul(hn::Load(d, in + at), hn::Set(d, kLog2e)), d, out + at);
+  }
+}
+
 // Culling by per-row floors. A term is skipped when it cannot matter:
 // hard MIP, g <= m (exact); soft-MIP, β g < M − skip_log_weight (weight below
 // e^-skip, M the pixel's largest β g). With the row's smallest bound, g = a e^{-q/2}
@@ -324,9 +332,7 @@ std::int64_t SoftPass(const TileFrame& f, const TileGaussians& gs, const float* 
   RowFloors floors;
   floors.from_soft_max(f, M, exact);
   HWY_ALIGN float M2[kTile * kTile];
-  for (int at = 0; at < kTile * kTile; at += static_cast<int>(hn::Lanes(d))) {
-    hn::Store(hn::Mul(hn::Load(d, M + at), hn::Set(d, kLog2e)), d, M2 + at);
-  }
+  times_log2e(M, M2);
   RowSpans spans;
   std::int64_t skipped = 0;
   std::uint32_t hits = 0;
@@ -440,9 +446,7 @@ void BackwardTile(const TileFrame& f, const TileGaussians& gs, const float* m_in
   const auto minus_half_log2e = hn::Set(d, -0.5f * kLog2e);
   const auto beta2 = hn::Set(d, f.beta * kLog2e);
   HWY_ALIGN float m2[kTile * kTile];
-  for (int at = 0; at < kTile * kTile; at += static_cast<int>(hn::Lanes(d))) {
-    hn::Store(hn::Mul(hn::Load(d, m + at), hn::Set(d, kLog2e)), d, m2 + at);
-  }
+  times_log2e(m, m2);
   RowSpans spans;
   std::uint32_t hits = 0;
   for (int i = 0; i < gs.count; ++i) {
