@@ -9,7 +9,7 @@
 #include "gmf/checkpoint.hpp"
 #include "gmf/export_formats.hpp"
 #include "gmf/export_vdb.hpp"
-#include "gmf/init.hpp"
+#include "gmf/psnr.hpp"
 #include "io/error.hpp"
 #include "io/load_volume.hpp"
 #include "io/tiff_stack.hpp"
@@ -153,7 +153,7 @@ void run_export_volume(const VolumeArgs& args, GlobalOptions& global) {
   std::string psnr;
   if (matched) {
     char buf[256];
-    std::snprintf(buf, sizeof buf, ", 3D PSNR %.2f dB against %s", gmf::psnr_3d(f, matched->volume),
+    std::snprintf(buf, sizeof buf, ", 3D PSNR %.2f dB against %s", gmf::psnr(f, matched->volume.voxels),
                   args.match_volume.c_str());
     psnr = buf;
   }

@@ -16,6 +16,7 @@
 #include "io/png.hpp"
 #include "io/timer.hpp"
 #include "splat/trainer.hpp"
+#include "splat/training_checkpoint.hpp"
 
 namespace hisnegs::apps {
 namespace {

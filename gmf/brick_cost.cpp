@@ -37,7 +37,7 @@ bool BrickCost::Evaluate(double const* const* parameters, double* residuals, dou
       }
     }
   }
-  double grad[kNumGaussianParams];
+  double grad[kGaussianParamCount];
   for (std::uint32_t j = 0; j < count_; ++j) {
     const std::size_t s = first_ + j;
     const double x[3] = {samples_.x[s], samples_.y[s], samples_.z[s]};

@@ -335,4 +335,23 @@ void save_checkpoint(const fs::path& path, const GaussianMixture& mixture, const
 
 Checkpoint load_checkpoint(const fs::path& path) { return checkpoint_from_ply(io::read_ply(path), path); }
 
+std::optional<io::WorldFrame> model_frame(const CheckpointMeta& meta) {
+  if (!meta.volume_shape_zyx || !meta.aspect) return std::nullopt;
+  const auto& s = *meta.volume_shape_zyx;
+  const auto& a = *meta.aspect;
+  return io::WorldFrame(s[2], s[1], s[0], Eigen::Vector3d(a[0], a[1], a[2]));
+}
+
+void require_same_world_box(const CheckpointMeta& meta, const io::WorldFrame& frame, const std::string& volume) {
+  if (!meta.aspect) return;
+  const Eigen::Vector3d model((*meta.aspect)[0], (*meta.aspect)[1], (*meta.aspect)[2]);
+  const Eigen::Vector3d& a = frame.aspect();
+  if (((model - a).array().abs() <= 1e-6 * model.array().abs()).all()) return;
+  const auto text = [](const Eigen::Vector3d& v) {
+    return io::number_text(v.x()) + " " + io::number_text(v.y()) + " " + io::number_text(v.z());
+  };
+  io::fail_input(volume, "its world box (aspect " + text(a) + ") differs from the model's (aspect " + text(model) +
+                             "); give the --spacing / --aspect the model was fitted with");
+}
+
 }  // namespace hisnegs::gmf

@@ -1,6 +1,7 @@
 // The checkpoint file (CONVENTIONS "Files → Checkpoint"): the mapping between a
-// GaussianMixture plus its metadata and io's generic PLY table, and saving /
-// loading it. Does not parse PLY itself (io/ply.hpp) nor know about fitting.
+// GaussianMixture plus its metadata and io's generic PLY table, saving / loading
+// it, and the stack frame its metadata record. Does not parse PLY itself
+// (io/ply.hpp) nor know about fitting.
 #pragma once
 
 #include <array>
@@ -12,6 +13,7 @@
 
 #include "gmf/gaussian_mixture.hpp"
 #include "io/ply.hpp"
+#include "io/volume.hpp"
 
 namespace hisnegs::gmf {
 
@@ -74,5 +76,16 @@ void save_checkpoint(const std::filesystem::path& path, const GaussianMixture& m
 // same properties). Throws io::InputError naming the file for every problem of
 // io::read_ply and checkpoint_from_ply.
 [[nodiscard]] Checkpoint load_checkpoint(const std::filesystem::path& path);
+
+// The frame of the stack a checkpoint was fitted to, from its `volume_shape` and
+// `aspect` metadata; nullopt when either is missing (e.g. a model made elsewhere).
+[[nodiscard]] std::optional<io::WorldFrame> model_frame(const CheckpointMeta& meta);
+
+// Checks that `frame` (the stack `volume`) spans the same world box as the stack the
+// model was fitted to (its `aspect` metadata, relative tolerance 1e-6), so that the
+// model's Gaussians sit on that stack's voxels. Does nothing when the checkpoint
+// records no aspect. Throws io::InputError naming `volume` and both aspects otherwise
+// (a different --spacing or --aspect than the fit used gives a different box).
+void require_same_world_box(const CheckpointMeta& meta, const io::WorldFrame& frame, const std::string& volume);
 
 }  // namespace hisnegs::gmf

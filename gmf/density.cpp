@@ -1,11 +1,12 @@
-// adapt_density: per-sample residuals through the brick index, error shares,
-// Eq. 17 splits and residual-driven clones.
+// adapt_density: per-sample residuals through the brick index, error shares, and
+// which Gaussians to split (Eq. 17) and where to add new ones (density_ops.hpp).
 #include "gmf/density.hpp"
 
 #include <algorithm>
 #include <cmath>
 #include <numeric>
 
+#include "gmf/density_ops.hpp"
 #include "gmf/gaussian_math.hpp"
 
 namespace hisnegs::gmf {
@@ -57,23 +58,8 @@ DensityChange adapt_density(GaussianMixture& mixture, const SampleSet& samples, 
   for (std::size_t k : order) {
     if (change.split >= per_call || room <= 0 || error[k] <= mean + 2 * sd) break;
     GaussianParams& p = mixture[k];
-    int axis = 0;
-    for (int a = 1; a < 3; ++a) {
-      if (p.log_scale[a] > p.log_scale[axis]) axis = a;
-    }
-    const double s_max = std::exp(p.log_scale[axis]);
-    if (s_max <= voxel) continue;  // already at the voxel scale: splitting cannot help
-    const GaussianFrame<double>& f = frames[k];
-    GaussianParams twin = p;
-    for (int r = 0; r < 3; ++r) {
-      const double step = options.split_offset * s_max * f.R[3 * r + axis];  // column `axis` of R
-      p.mean[r] = static_cast<float>(p.mean[r] + step);
-      twin.mean[r] = static_cast<float>(twin.mean[r] - step);
-    }
-    for (int a = 0; a < 3; ++a) {
-      p.log_scale[a] = static_cast<float>(p.log_scale[a] + std::log(options.split_scale));
-      twin.log_scale[a] = p.log_scale[a];
-    }
+    if (std::exp(p.log_scale[longest_axis(p)]) <= voxel) continue;  // already at the voxel scale: splitting cannot help
+    const GaussianParams twin = split_gaussian(p, options.split_offset, options.split_scale);
     added.push_back(twin);
     ++change.split;
     --room;
@@ -91,14 +77,7 @@ DensityChange adapt_density(GaussianMixture& mixture, const SampleSet& samples, 
     for (const auto& q : placed) near = near || (q - p).norm() < min_dist;
     if (near) continue;
     placed.push_back(p);
-    GaussianParams g2;
-    for (int a = 0; a < 3; ++a) {
-      g2.mean[a] = static_cast<float>(p[a]);
-      g2.log_scale[a] = static_cast<float>(std::log(frame.voxel_size()[a]));
-    }
-    g2.rotation = {1.0f, 0.0f, 0.0f, 0.0f};
-    const double a = std::clamp(c.residual, 0.02, 0.98);
-    g2.intensity_logit = static_cast<float>(std::log(a / (1 - a)));
+    const GaussianParams g2 = isotropic_gaussian(p, frame.voxel_size(), c.residual);
     added.push_back(g2);
     ++change.cloned;
     --room;

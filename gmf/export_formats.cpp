@@ -1,4 +1,4 @@
-// Splat-viewer PLY rows and dense resampling of a mixture (on gmf/init's rasterizer).
+// Splat-viewer PLY rows and dense resampling of a mixture (on gmf/rasterize's rasterizer).
 #include "gmf/export_formats.hpp"
 
 #include <algorithm>
@@ -7,7 +7,7 @@
 #include <stdexcept>
 #include <string>
 
-#include "gmf/init.hpp"
+#include "gmf/rasterize.hpp"
 
 namespace hisnegs::gmf {
 
@@ -82,11 +82,7 @@ void write_splat_ply(const std::filesystem::path& path, const GaussianMixture& m
 
 std::vector<float> rasterize_dense(const GaussianMixture& mixture, const io::WorldFrame& frame, double tail) {
   if (!(tail > 0.0)) throw std::invalid_argument("rasterize_dense: tail must be > 0");
-  double a_max = 0.0;
-  for (const GaussianParams& g : mixture) a_max = std::max(a_max, intensity<double>(g));
-  // a_k exp(-m/2) >= tail needs m <= 2 ln(a_k / tail) <= 2 ln(a_max / tail).
-  const double cutoff = a_max > tail ? 2.0 * std::log(a_max / tail) : 0.0;
-  return rasterize_mixture(mixture, frame, cutoff);
+  return rasterize_mixture(mixture, frame, RasterizeOptions{.tail = tail});
 }
 
 }  // namespace hisnegs::gmf

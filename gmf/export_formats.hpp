@@ -49,8 +49,8 @@ void write_splat_ply(const std::filesystem::path& path, const GaussianMixture& m
                      const SplatPlyOptions& options);
 
 // f(x) at every voxel centre of `frame`, x fastest like io::Volume (float32), through
-// gmf::rasterize_mixture with the Mahalanobis cutoff 2 ln(a_max / tail): every term
-// a_k exp(-m/2) >= tail is included, so each value is below the exact f by at most
+// gmf::rasterize_mixture with the per-term bound `tail`: every term a_k exp(-m/2) >=
+// tail is included, so each value is below the exact f by at most
 // tail × (Gaussians reaching the voxel). `tail` > 0, the same meaning as
 // VdbExportOptions::tail. Memory: 4 bytes per voxel of the frame.
 [[nodiscard]] std::vector<float> rasterize_dense(const GaussianMixture& mixture, const io::WorldFrame& frame,

@@ -26,7 +26,7 @@
 #include <sstream>
 #include <vector>
 
-#include "gmf/gaussian_math.hpp"
+#include "gmf/rasterize.hpp"
 #include "io/atomic_file.hpp"
 #include "io/detail/vdb_grids.hpp"
 #include "io/error.hpp"
@@ -43,25 +43,14 @@ using openvdb::points::PointDataGrid;
 
 namespace {
 
-constexpr int kLeafLog2 = 3;               // OpenVDB leaves are 8^3 voxels
-constexpr int kLeafDim = 1 << kLeafLog2;
-static_assert(LeafT::DIM == kLeafDim);
-// Leaf coordinates are packed into 21 bits per axis (see leaf_key), so voxel
-// indices must stay within ±2^23 (8.4 M voxels from the origin along each axis).
-constexpr int kLeafBits = 21;
-constexpr double kMaxIndex = double(1 << (kLeafBits - 1 + kLeafLog2)) - kLeafDim;
+// The rasterizer's blocks are OpenVDB leaves, offsets included (block_offset is
+// LeafNode::coordToOffset: z fastest).
+static_assert(LeafT::LOG2DIM == kRasterBlockLog2 && LeafT::SIZE == kRasterBlockVoxels);
 
 constexpr const char* kDensityGrid = "density";
 constexpr const char* kPointsGrid = "gaussians";
 constexpr const char* kCheckpointMetaKey = "hisnegs_checkpoint";
 constexpr int kVdbFormatVersion = 1;
-
-std::string number_text(double v) {
-  std::ostringstream s;
-  s.precision(6);
-  s << v;
-  return s.str();
-}
 
 // world = origin + voxel_size ⊙ index as an OpenVDB linear transform (row vectors:
 // world = [i j k 1] M, scale on the diagonal, translation in the last row); for
@@ -77,186 +66,33 @@ openvdb::math::Transform::Ptr make_transform(const VoxelLattice& l) {
     return openvdb::math::Transform::createLinearTransform(m);
   } catch (const openvdb::ArithmeticError&) {
     // OpenVDB refuses maps whose determinant is nearly 0 (voxels of ~1e-5 and below).
-    throw io::InputError("voxel size " + number_text(s.minCoeff()) +
+    throw io::InputError("voxel size " + io::number_text(s.minCoeff()) +
                          " is too small for an OpenVDB transform; use a larger voxel size");
   }
 }
 
-// One Gaussian's part in the rasterization: its frame, its support
-// {a exp(-m/2) >= tail} = {m <= delta}, and the voxel-index box holding that support.
-struct Support {
-  GaussianFrame<double> f;
-  double delta = 0;
-  std::array<int, 3> lo{1, 1, 1}, hi{0, 0, 0};  // empty unless lo <= hi on every axis
-  [[nodiscard]] bool empty() const { return lo[0] > hi[0] || lo[1] > hi[1] || lo[2] > hi[2]; }
-};
-
-// Leaf coordinate (voxel index >> 3, may be negative) of each axis in 21 bits.
-std::uint64_t leaf_key(int lx, int ly, int lz) {
-  constexpr int kBias = 1 << (kLeafBits - 1);
-  const auto u = [](int v) { return static_cast<std::uint64_t>(v + kBias); };
-  return (u(lz) << (2 * kLeafBits)) | (u(ly) << kLeafBits) | u(lx);
-}
-Coord leaf_origin(std::uint64_t key) {
-  constexpr int kBias = 1 << (kLeafBits - 1);
-  constexpr std::uint64_t kMask = (std::uint64_t{1} << kLeafBits) - 1;
-  const auto v = [](std::uint64_t bits) { return (static_cast<int>(bits & kMask) - kBias) * kLeafDim; };
-  return Coord(v(key), v(key >> kLeafBits), v(key >> (2 * kLeafBits)));
-}
-
-struct Pair {
-  std::uint64_t leaf;
-  std::uint32_t gaussian;
-  bool operator<(const Pair& o) const { return leaf < o.leaf || (leaf == o.leaf && gaussian < o.gaussian); }
-};
-
-// Supports of all Gaussians; throws when a support leaves the packable index range
-// or the pairs would not fit in memory. *pair_count gets Σ_k leaves of box k.
-std::vector<Support> supports_of(const GaussianMixture& mixture, const VoxelLattice& lattice, double tail,
-                                 const std::string& model, std::int64_t* pair_count) {
-  std::vector<Support> out(mixture.size());
-  std::atomic<bool> out_of_range{false};
-  tbb::combinable<double> pairs(0.0);
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, mixture.size(), 1024), [&](const auto& r) {
-    for (std::size_t k = r.begin(); k != r.end(); ++k) {
-      Support& s = out[k];
-      s.f = frame_of(mixture[k]);
-      if (!(s.f.a > tail)) continue;  // never reaches `tail` anywhere: left out entirely
-      s.delta = 2.0 * std::log(s.f.a / tail);
-      double half[3];
-      support_half_extents(s.f, s.delta, half);
-      double leaves = 1.0;
-      for (int d = 0; d < 3; ++d) {
-        const double v = lattice.voxel_size_world[d], o = lattice.origin_world[d];
-        double lo = std::ceil((s.f.mean[d] - half[d] - o) / v);
-        double hi = std::floor((s.f.mean[d] + half[d] - o) / v);
-        if (lattice.clip) {
-          lo = std::max(lo, static_cast<double>(lattice.clip->min[d]));
-          hi = std::min(hi, static_cast<double>(lattice.clip->max[d]));
-        }
-        if (hi < lo) {  // outside the clip box (or between two voxel centres)
-          leaves = 0.0;
-          s.lo = {1, 1, 1};
-          s.hi = {0, 0, 0};
-          break;
-        }
-        if (!(std::abs(lo) <= kMaxIndex && std::abs(hi) <= kMaxIndex)) {
-          out_of_range = true;
-          leaves = 0.0;
-          s.lo = {1, 1, 1};
-          s.hi = {0, 0, 0};
-          break;
-        }
-        s.lo[d] = static_cast<int>(lo);
-        s.hi[d] = static_cast<int>(hi);
-        leaves *= double((s.hi[d] >> kLeafLog2) - (s.lo[d] >> kLeafLog2) + 1);
-      }
-      pairs.local() += leaves;
-    }
-  });
-  const std::string size = lattice.voxel_size_world.x() == lattice.voxel_size_world.y() &&
-                                   lattice.voxel_size_world.y() == lattice.voxel_size_world.z()
-                               ? number_text(lattice.voxel_size_world.x())
-                               : number_text(lattice.voxel_size_world.x()) + "," +
-                                     number_text(lattice.voxel_size_world.y()) + "," +
-                                     number_text(lattice.voxel_size_world.z());
-  if (out_of_range) {
-    io::fail_input(model, "at voxel size " + size + " the Gaussians reach past voxel index ±" +
-                              number_text(kMaxIndex) + "; use a larger voxel size");
-  }
-  const double total = pairs.combine(std::plus<>());
-  // Each candidate pair costs its 16 bytes plus, at worst, its own leaf slot (8 bytes).
-  // This guards the bookkeeping, which scales with the supports; the grid itself
-  // (~2.1 KiB per kept leaf) is the output and scales with the region where f > EPS.
-  const double need = total * (sizeof(Pair) + sizeof(void*));
-  const double have = io::allocation_limit_bytes();
-  if (need > 0.5 * have) {
-    io::fail_input(model, "at voxel size " + size + " the Gaussians' supports reach " + number_text(total) +
-                              " leaves of 8^3 voxels (" + number_text(need / (1024.0 * 1024.0 * 1024.0)) +
-                              " GiB of bookkeeping alone, " + number_text(have / (1024.0 * 1024.0 * 1024.0)) +
-                              " GiB available); use a larger voxel size");
-  }
-  *pair_count = static_cast<std::int64_t>(total);
-  return out;
-}
-
-// The `density` grid: candidate leaves from the supports, evaluated in parallel.
+// The `density` grid: the core rasterizer's blocks are OpenVDB leaves (8³ voxels,
+// the same z-fastest offsets), evaluated in parallel; a leaf is kept where some f
+// exceeds the cutoff.
 FloatGrid::Ptr rasterize_density(const GaussianMixture& mixture, const VoxelLattice& lattice,
                                  const VdbExportOptions& options, const std::string& model,
                                  const ExportProgress& progress, VdbExportReport& report) {
-  std::int64_t pair_count = 0;
-  const std::vector<Support> supports = supports_of(mixture, lattice, options.tail, model, &pair_count);
-
-  // (leaf, Gaussian) pairs, sorted so that each leaf lists its Gaussians in checkpoint order.
-  std::vector<Pair> pairs;
-  pairs.reserve(static_cast<std::size_t>(pair_count));
-  {
-    tbb::combinable<std::vector<Pair>> local;
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, supports.size(), 256), [&](const auto& r) {
-      auto& out = local.local();
-      for (std::size_t k = r.begin(); k != r.end(); ++k) {
-        const Support& s = supports[k];
-        if (s.empty()) continue;
-        for (int lz = s.lo[2] >> kLeafLog2; lz <= s.hi[2] >> kLeafLog2; ++lz)
-          for (int ly = s.lo[1] >> kLeafLog2; ly <= s.hi[1] >> kLeafLog2; ++ly)
-            for (int lx = s.lo[0] >> kLeafLog2; lx <= s.hi[0] >> kLeafLog2; ++lx)
-              out.push_back({leaf_key(lx, ly, lz), static_cast<std::uint32_t>(k)});
-      }
-    });
-    local.combine_each([&](std::vector<Pair>& v) {
-      pairs.insert(pairs.end(), v.begin(), v.end());
-      std::vector<Pair>().swap(v);
-    });
-  }
-  tbb::parallel_sort(pairs.begin(), pairs.end());
-  std::vector<std::size_t> begin;  // leaf i holds pairs[begin[i] .. begin[i + 1])
-  for (std::size_t i = 0; i < pairs.size(); ++i) {
-    if (i == 0 || pairs[i].leaf != pairs[i - 1].leaf) begin.push_back(i);
-  }
-  const std::size_t n_leaves = begin.size();
-  begin.push_back(pairs.size());
+  const BlockRasterizer raster(mixture, lattice, RasterizeOptions{.tail = options.tail}, model);
+  const std::size_t n_leaves = raster.blocks();
   report.candidate_leaves = static_cast<std::int64_t>(n_leaves);
-
-  // Each leaf: f at its 512 voxel centres, summed over its Gaussians in checkpoint
-  // order (so values do not depend on threading), kept only if some f > cutoff.
   std::vector<std::unique_ptr<LeafT>> leaves(n_leaves);  // empty where nothing exceeds the cutoff
   std::atomic<std::int64_t> done{0};
   std::mutex progress_mutex;
   const std::int64_t step = std::max<std::int64_t>(1, static_cast<std::int64_t>(n_leaves) / 20);
-  const Eigen::Vector3d& vs = lattice.voxel_size_world;
-  const Eigen::Vector3d& org = lattice.origin_world;
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n_leaves, 4), [&](const auto& r) {
-    std::array<double, LeafT::SIZE> acc;
+    BlockValues acc;
     for (std::size_t i = r.begin(); i != r.end(); ++i) {
-      const Coord origin = leaf_origin(pairs[begin[i]].leaf);
-      acc.fill(0.0);
-      for (std::size_t p = begin[i]; p < begin[i + 1]; ++p) {
-        const Support& s = supports[pairs[p].gaussian];
-        int lo[3], hi[3];
-        bool overlap = true;
-        for (int d = 0; d < 3; ++d) {
-          lo[d] = std::max(s.lo[d], origin[d]);
-          hi[d] = std::min(s.hi[d], origin[d] + kLeafDim - 1);
-          overlap = overlap && lo[d] <= hi[d];
-        }
-        if (!overlap) continue;
-        for (int x = lo[0]; x <= hi[0]; ++x) {
-          for (int y = lo[1]; y <= hi[1]; ++y) {
-            for (int z = lo[2]; z <= hi[2]; ++z) {
-              const double xw[3] = {org.x() + vs.x() * x, org.y() + vs.y() * y, org.z() + vs.z() * z};
-              double local[3];
-              const double m = mahalanobis(s.f, xw, local);
-              if (m > s.delta) continue;
-              // = evaluate_gaussian(s.f, xw, nullptr), without computing m twice.
-              acc[LeafT::coordToOffset(Coord(x, y, z))] += s.f.a * std::exp(-0.5 * m);
-            }
-          }
-        }
-      }
+      raster.evaluate(i, acc);
+      const Eigen::Vector3i o = raster.block_origin(i);
       std::unique_ptr<LeafT>& leaf = leaves[i];
       for (openvdb::Index n = 0; n < LeafT::SIZE; ++n) {
         if (!(acc[n] > options.cutoff)) continue;
-        if (!leaf) leaf = std::make_unique<LeafT>(origin, 0.0f, false);
+        if (!leaf) leaf = std::make_unique<LeafT>(Coord(o.x(), o.y(), o.z()), 0.0f, false);
         leaf->setValueOn(n, static_cast<float>(acc[n]));
       }
       const std::int64_t d = ++done;
@@ -266,8 +102,6 @@ FloatGrid::Ptr rasterize_density(const GaussianMixture& mixture, const VoxelLatt
       }
     }
   });
-  std::vector<Pair>().swap(pairs);
-
   FloatGrid::Ptr grid = FloatGrid::create(0.0f);
   for (std::unique_ptr<LeafT>& leaf : leaves) {
     if (leaf) grid->tree().addLeaf(leaf.release());  // the tree takes ownership
@@ -370,78 +204,12 @@ PointDataGrid::Ptr make_points(const Checkpoint& checkpoint, const openvdb::math
 
 }  // namespace
 
-VoxelLattice VoxelLattice::of(const io::WorldFrame& frame) {
-  VoxelLattice l;
-  l.voxel_size_world = frame.voxel_size();
-  l.origin_world = frame.world_from_index(Eigen::Vector3d::Zero());
-  l.clip = IndexBox{Eigen::Vector3i::Zero(), frame.shape() - Eigen::Vector3i::Ones()};
-  return l;
-}
-
-VoxelLattice VoxelLattice::aligned(double voxel_size_world) {
-  VoxelLattice l;
-  l.voxel_size_world = Eigen::Vector3d::Constant(voxel_size_world);
-  l.origin_world = Eigen::Vector3d::Zero();
-  return l;
-}
-
-VoxelLattice VoxelLattice::clipped_to_box(const Eigen::Vector3d& aspect) const {
-  validate();
-  VoxelLattice l = *this;
-  IndexBox box;
-  for (int d = 0; d < 3; ++d) {
-    // Centres origin + v i inside [-a, a]; the index range check of export_vdb
-    // applies afterwards, so the bounds are only kept within int range here.
-    const double lo = std::ceil((-aspect[d] - origin_world[d]) / voxel_size_world[d]);
-    const double hi = std::floor((aspect[d] - origin_world[d]) / voxel_size_world[d]);
-    box.min[d] = static_cast<int>(std::clamp(lo, -2.0 * kMaxIndex, 2.0 * kMaxIndex));
-    box.max[d] = static_cast<int>(std::clamp(hi, -2.0 * kMaxIndex, 2.0 * kMaxIndex));
-  }
-  if (clip) {
-    box.min = box.min.cwiseMax(clip->min);
-    box.max = box.max.cwiseMin(clip->max);
-  }
-  l.clip = box;
-  return l;
-}
-
-void VoxelLattice::validate() const {
-  for (int d = 0; d < 3; ++d) {
-    const double v = voxel_size_world[d];
-    if (!std::isfinite(v) || !(v > 0.0)) {
-      throw io::InputError("voxel size " + number_text(v) + ": must be a finite number > 0 (world units)");
-    }
-    if (!std::isfinite(origin_world[d])) throw io::InputError("lattice origin is not finite");
-  }
-  if (clip && (clip->min.array() > clip->max.array()).any()) {
-    throw io::InputError("lattice clip box is empty: the voxel size exceeds the stack's box");
-  }
-}
-
-std::optional<io::WorldFrame> model_frame(const CheckpointMeta& meta) {
-  if (!meta.volume_shape_zyx || !meta.aspect) return std::nullopt;
-  const auto& s = *meta.volume_shape_zyx;
-  const auto& a = *meta.aspect;
-  return io::WorldFrame(s[2], s[1], s[0], Eigen::Vector3d(a[0], a[1], a[2]));
-}
-
-void require_same_world_box(const CheckpointMeta& meta, const io::WorldFrame& frame, const std::string& volume) {
-  if (!meta.aspect) return;
-  const Eigen::Vector3d model((*meta.aspect)[0], (*meta.aspect)[1], (*meta.aspect)[2]);
-  const Eigen::Vector3d& a = frame.aspect();
-  if (((model - a).array().abs() <= 1e-6 * model.array().abs()).all()) return;
-  io::fail_input(volume, "its world box (aspect " + number_text(a.x()) + " " + number_text(a.y()) + " " +
-                             number_text(a.z()) + ") differs from the model's (aspect " + number_text(model.x()) +
-                             " " + number_text(model.y()) + " " + number_text(model.z()) +
-                             "); give the --spacing / --aspect the model was fitted with");
-}
-
 void VdbExportOptions::validate() const {
   if (!(cutoff > 0.0 && cutoff < 1.0)) {
-    throw io::InputError("cutoff = " + number_text(cutoff) + ": must be in (0, 1) (normalized intensity)");
+    throw io::InputError("cutoff = " + io::number_text(cutoff) + ": must be in (0, 1) (normalized intensity)");
   }
   if (!(tail > 0.0 && tail <= cutoff)) {
-    throw io::InputError("tail = " + number_text(tail) + ": must be in (0, cutoff = " + number_text(cutoff) + "]");
+    throw io::InputError("tail = " + io::number_text(tail) + ": must be in (0, cutoff = " + io::number_text(cutoff) + "]");
   }
 }
 

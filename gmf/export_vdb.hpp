@@ -1,5 +1,5 @@
 // Checkpoint -> OpenVDB (`hisnegs export vdb`): the mixture f(x) rasterized into a
-// sparse `density` FloatGrid by per-leaf stamping with TBB, optionally a `gaussians`
+// sparse `density` FloatGrid (gmf/rasterize.hpp's blocks are its leaves), optionally a `gaussians`
 // PointDataGrid with every parameter of every Gaussian, and the way back from that
 // points grid to a checkpoint (`hisnegs import vdb`). OpenVDB stays in the .cpp.
 #pragma once
@@ -13,46 +13,10 @@
 #include <string>
 
 #include "gmf/checkpoint.hpp"
+#include "gmf/rasterize.hpp"
 #include "io/volume.hpp"
 
 namespace hisnegs::gmf {
-
-// The voxels a mixture is rasterized on: voxel (i, j, k) (column, row, page) has its
-// centre at origin_world + voxel_size_world ⊙ (i, j, k), so integer indices are
-// voxel centres, as in io::WorldFrame and in OpenVDB's index space. Optionally
-// limited to an index box: the fit saw only the stack, so outside its box f is
-// unconstrained (escaped Gaussians may spread there) and is left out.
-struct VoxelLattice {
-  struct IndexBox {
-    Eigen::Vector3i min{0, 0, 0}, max{0, 0, 0};  // inclusive
-  };
-  Eigen::Vector3d voxel_size_world{1.0, 1.0, 1.0};  // world units per voxel along x, y, z, each finite > 0
-  Eigen::Vector3d origin_world{0.0, 0.0, 0.0};      // centre of voxel (0, 0, 0), world units
-  std::optional<IndexBox> clip;                     // voxels outside stay inactive; none = unbounded
-
-  // The voxels of the stack `frame` describes (CONVENTIONS "World space"): voxel
-  // (i, j, k) of the lattice is voxel (i, j, k) of the stack, clipped to 0..N-1.
-  [[nodiscard]] static VoxelLattice of(const io::WorldFrame& frame);
-  // Cubic voxels of edge `voxel_size_world` with a voxel centre at the world origin,
-  // unbounded.
-  [[nodiscard]] static VoxelLattice aligned(double voxel_size_world);
-  // This lattice clipped to the voxels whose centres lie in the world box
-  // [-aspect, aspect] (a stack's box, CONVENTIONS "World space").
-  [[nodiscard]] VoxelLattice clipped_to_box(const Eigen::Vector3d& aspect) const;
-  // Throws io::InputError("voxel size V: ...") for a non-finite or non-positive size.
-  void validate() const;
-};
-
-// The frame of the stack a checkpoint was fitted to, from its `volume_shape` and
-// `aspect` metadata; nullopt when either is missing (e.g. a model made elsewhere).
-[[nodiscard]] std::optional<io::WorldFrame> model_frame(const CheckpointMeta& meta);
-
-// Checks that `frame` (the stack `volume`) spans the same world box as the stack the
-// model was fitted to (its `aspect` metadata, relative tolerance 1e-6), so that the
-// model's Gaussians sit on that stack's voxels. Does nothing when the checkpoint
-// records no aspect. Throws io::InputError naming `volume` and both aspects otherwise
-// (a different --spacing or --aspect than the fit used gives a different box).
-void require_same_world_box(const CheckpointMeta& meta, const io::WorldFrame& frame, const std::string& volume);
 
 // How `export_vdb` rasterizes and what it writes.
 struct VdbExportOptions {

@@ -13,12 +13,16 @@
 #include <string>
 #include <thread>
 
+#include "gmf/adam.hpp"
 #include "gmf/brick_index.hpp"
+#include "gmf/density_ops.hpp"
 #include "gmf/density.hpp"
 #include "gmf/detail/brick_cost.hpp"
 #include "gmf/gaussian_math.hpp"
 #include "gmf/init.hpp"
 #include "gmf/objective.hpp"
+#include "gmf/psnr.hpp"
+#include "gmf/rasterize.hpp"
 #include "gmf/samples.hpp"
 #include "io/error.hpp"
 #include "io/timer.hpp"
@@ -26,7 +30,7 @@
 namespace hisnegs::gmf {
 namespace {
 
-using Params = std::array<double, kNumGaussianParams>;
+using Params = std::array<double, kGaussianParamCount>;
 
 // The stored float parameters in double and back (same GaussianParam order).
 Params to_double(const GaussianParams& g) {
@@ -112,10 +116,10 @@ RoundOutcome solve_least_squares(const SampleSet& samples, const BrickIndex& ind
     problem.AddParameterBlock(&p[kRotW], 4, &quaternion_manifold);
     problem.AddParameterBlock(&p[kLogit], 1);
     for (int i = 0; i < 3; ++i) {
-      problem.SetParameterLowerBound(&p[kLogScale0], i, lower[11 * k + kLogScale0 + i]);
-      problem.SetParameterUpperBound(&p[kLogScale0], i, upper[11 * k + kLogScale0 + i]);
-      problem.SetParameterLowerBound(&p[kMeanX], i, lower[11 * k + kMeanX + i]);
-      problem.SetParameterUpperBound(&p[kMeanX], i, upper[11 * k + kMeanX + i]);
+      problem.SetParameterLowerBound(&p[kLogScale0], i, lower[kGaussianParamCount * k + kLogScale0 + i]);
+      problem.SetParameterUpperBound(&p[kLogScale0], i, upper[kGaussianParamCount * k + kLogScale0 + i]);
+      problem.SetParameterLowerBound(&p[kMeanX], i, lower[kGaussianParamCount * k + kMeanX + i]);
+      problem.SetParameterUpperBound(&p[kMeanX], i, upper[kGaussianParamCount * k + kMeanX + i]);
     }
   }
   const double constant = unreached_loss(samples, index);
@@ -196,15 +200,18 @@ RoundOutcome solve_lbfgs(const FitObjective& objective, double* x, const std::ve
   return out;
 }
 
-// One round of Adam (the report's PyTorch baseline): β1 0.9, β2 0.999, ε 1e-8,
-// step gmf.adam_learning_rate, times the smallest voxel size for means (world
-// units); each step is projected onto the round's box. Moments restart each round.
+// One round of Adam (the report's PyTorch baseline, gmf/adam.hpp): β1 0.9, β2 0.999,
+// ε 1e-8, step gmf.adam_learning_rate, times the smallest voxel size for means
+// (world units); each step is projected onto the round's box. Moments restart each round.
 RoundOutcome solve_adam(const FitObjective& objective, double* x, const std::vector<double>& lower,
                         const std::vector<double>& upper, const GmfOptions& options, int max_iterations,
                         double seconds_left, double min_voxel, FitLog& log, int round, int iteration0, int K) {
   const std::size_t n = objective.parameters();
-  std::vector<double> g(n), m(n, 0.0), v(n, 0.0);
-  constexpr double kB1 = 0.9, kB2 = 0.999, kEps = 1e-8;
+  std::vector<double> g(n);
+  Adam<double> adam(AdamOptions{}, n / kGaussianParamCount);
+  const double lr = options.adam_learning_rate;
+  const GroupRates rates = {lr * min_voxel, lr, lr, lr};
+  const std::span<double> params(x, n);
   io::Stopwatch round_watch;
   RoundOutcome out;
   double loss = 0;
@@ -226,15 +233,8 @@ RoundOutcome solve_adam(const FitObjective& objective, double* x, const std::vec
     it.loss = loss;
     it.gaussians = K;
     if (log.add(it)) break;  // at stop_loss: x is the point that reached it
-    const double c1 = 1 - std::pow(kB1, step + 1), c2 = 1 - std::pow(kB2, step + 1);
-    for (std::size_t i = 0; i < n; ++i) {
-      m[i] = kB1 * m[i] + (1 - kB1) * g[i];
-      v[i] = kB2 * v[i] + (1 - kB2) * g[i] * g[i];
-      const int param = static_cast<int>(i % kNumGaussianParams);
-      const double lr = options.adam_learning_rate * (param <= kMeanZ ? min_voxel : 1.0);
-      x[i] -= lr * (m[i] / c1) / (std::sqrt(v[i] / c2) + kEps);
-      x[i] = std::clamp(x[i], lower[i], upper[i]);
-    }
+    adam.step(params, g, rates);
+    for (std::size_t i = 0; i < n; ++i) x[i] = std::clamp(x[i], lower[i], upper[i]);
   }
   out.iterations = step;
   out.final_loss = objective.evaluate(x, nullptr);
@@ -278,20 +278,20 @@ FitResult fit_mixture(const io::Volume& volume, const io::SparseGrid& grid, Gaus
 
     // Bounds of this round: scales within [0.2 smallest voxel, 32 largest voxel] and
     // the trust region above; everything else free.
-    const std::size_t n = params.size() * kNumGaussianParams;
+    const std::size_t n = params.size() * kGaussianParamCount;
     std::vector<double> lower(n, -std::numeric_limits<double>::infinity()), upper(n, std::numeric_limits<double>::infinity());
     const double scale_lo = std::log(0.2 * min_voxel), scale_hi = std::log(std::min(0.5, 32.0 * max_voxel));
     for (std::size_t k = 0; k < params.size(); ++k) {
       Params& p = params[k];
       for (int i = 0; i < 3; ++i) {
         p[kLogScale0 + i] = std::clamp(p[kLogScale0 + i], scale_lo, scale_hi);
-        lower[11 * k + kLogScale0 + i] = scale_lo;
-        upper[11 * k + kLogScale0 + i] = std::max(scale_lo, std::min(scale_hi, p[kLogScale0 + i] + std::log(kScaleGrowth)));
-        lower[11 * k + kMeanX + i] = p[kMeanX + i] - move;
-        upper[11 * k + kMeanX + i] = p[kMeanX + i] + move;
+        lower[kGaussianParamCount * k + kLogScale0 + i] = scale_lo;
+        upper[kGaussianParamCount * k + kLogScale0 + i] = std::max(scale_lo, std::min(scale_hi, p[kLogScale0 + i] + std::log(kScaleGrowth)));
+        lower[kGaussianParamCount * k + kMeanX + i] = p[kMeanX + i] - move;
+        upper[kGaussianParamCount * k + kMeanX + i] = p[kMeanX + i] + move;
       }
     }
-    static_assert(sizeof(Params) == kNumGaussianParams * sizeof(double), "Params must be a plain array of doubles");
+    static_assert(sizeof(Params) == kGaussianParamCount * sizeof(double), "Params must be a plain array of doubles");
     double* x = params.empty() ? nullptr : params[0].data();
     RoundOutcome outcome;
     if (options.optimizer == Optimizer::kLbfgs || options.optimizer == Optimizer::kAdam) {
@@ -309,19 +309,12 @@ FitResult fit_mixture(const io::Volume& volume, const io::SparseGrid& grid, Gaus
     result.stop_reason = outcome.message;
 
     // Back to float, pruning a < prune_intensity.
-    GaussianMixture next;
-    next.reserve(params.size());
+    for (std::size_t k = 0; k < params.size(); ++k) mixture[k] = to_float(params[k]);
+    const std::vector<std::uint32_t> kept = bright_gaussians(flat_params(mixture), options.prune_intensity);
     FitRound stats;
     stats.round = round;
-    for (const Params& p : params) {
-      const double a = 1.0 / (1.0 + std::exp(-p[kLogit]));
-      if (a < options.prune_intensity) {
-        ++stats.pruned;
-        continue;
-      }
-      next.push_back(to_float(p));
-    }
-    mixture = std::move(next);
+    stats.pruned = static_cast<int>(mixture.size() - kept.size());
+    keep_gaussians(mixture, kept);
     result.pruned += stats.pruned;
 
     FitIteration end;
@@ -331,7 +324,7 @@ FitResult fit_mixture(const io::Volume& volume, const io::SparseGrid& grid, Gaus
     end.loss = outcome.final_loss;
     {
       io::Stopwatch measuring;
-      end.psnr_3d = psnr_3d(rasterize_mixture(mixture, frame, options.mahalanobis_cutoff), volume);
+      end.psnr_3d = psnr(rasterize_mixture(mixture, frame, {.cutoff = options.mahalanobis_cutoff}), volume.voxels);
       clock.excluded += measuring.elapsed();
     }
     end.gaussians = static_cast<int>(mixture.size());

@@ -5,11 +5,13 @@
 #include <algorithm>
 #include <bit>
 #include <limits>
+#include <stdexcept>
+#include <string>
 
 namespace hisnegs::gmf {
 
 std::array<float, kGaussianParamCount> to_array(const GaussianParams& g) {
-  // 11 packed floats (static_asserts in the header), so a bit cast is exact.
+  // kGaussianParamCount packed floats (static_asserts in the header), so a bit cast is exact.
   return std::bit_cast<std::array<float, kGaussianParamCount>>(g);
 }
 
@@ -64,8 +66,28 @@ MixtureStats compute_stats(const GaussianMixture& mixture) {
 }
 
 std::string_view parameter_group(std::size_t i) {
-  const std::size_t j = i % kGaussianParamCount;
-  return j < 3 ? "means" : j < 6 ? "log-scales" : j < 10 ? "rotation" : "intensity";
+  constexpr std::array<std::string_view, kParamGroupCount> kNames = {"means", "log-scales", "rotation", "intensity"};
+  return kNames[group_of(static_cast<int>(i % kGaussianParamCount))];
+}
+
+std::span<const float> flat_params(const GaussianMixture& mixture) {
+  // GaussianParams is kGaussianParamCount packed floats (static_asserts in the header).
+  return {reinterpret_cast<const float*>(mixture.data()), mixture.size() * kGaussianParamCount};
+}
+
+std::span<float> flat_params(GaussianMixture& mixture) {
+  return {reinterpret_cast<float*>(mixture.data()), mixture.size() * kGaussianParamCount};
+}
+
+GaussianMixture mixture_from_flat(std::span<const float> params) {
+  if (params.size() % kGaussianParamCount != 0) {
+    throw std::invalid_argument("mixture_from_flat: " + std::to_string(params.size()) +
+                                " values is not a whole number of Gaussians");
+  }
+  GaussianMixture mixture;
+  mixture.resize(params.size() / kGaussianParamCount);
+  std::copy(params.begin(), params.end(), flat_params(mixture).begin());
+  return mixture;
 }
 
 }  // namespace hisnegs::gmf

@@ -31,7 +31,6 @@ struct GaussianParams {
   std::array<float, 4> rotation{1.0f, 0.0f, 0.0f, 0.0f};  // w x y z
   float intensity_logit = 0.0f;
 };
-inline constexpr std::size_t kGaussianParamCount = 11;
 static_assert(std::is_trivially_copyable_v<GaussianParams> && std::is_standard_layout_v<GaussianParams>);
 static_assert(sizeof(GaussianParams) == kGaussianParamCount * sizeof(float),
               "GaussianParams must be 11 packed floats");
@@ -79,16 +78,7 @@ class GaussianMixture {
   std::vector<GaussianParams> gaussians_;
 };
 
-// ----- closed-form helpers (T = float or double) -----
-
-// 1 / (1 + exp(-logit)), evaluated without overflow for any finite logit
-// (exp is only taken of a non-positive number).
-template <std::floating_point T>
-[[nodiscard]] inline T sigmoid(T logit) {
-  if (logit >= T(0)) return T(1) / (T(1) + std::exp(-logit));
-  const T e = std::exp(logit);
-  return e / (T(1) + e);
-}
+// ----- closed-form helpers (T = float or double), on gaussian_math.hpp's ops -----
 
 // Peak intensity a = sigmoid(intensity_logit).
 template <std::floating_point T = double>
@@ -124,11 +114,8 @@ template <std::floating_point T = double>
 template <std::floating_point T = double>
 [[nodiscard]] inline Eigen::Matrix<T, 3, 3> rotation_matrix(const Eigen::Matrix<T, 4, 1>& q_wxyz) {
   const Eigen::Matrix<T, 4, 1> q = normalized_quaternion<T>(q_wxyz);
-  const T w = q[0], x = q[1], y = q[2], z = q[3];
-  Eigen::Matrix<T, 3, 3> r;
-  r << T(1) - T(2) * (y * y + z * z), T(2) * (x * y - w * z), T(2) * (x * z + w * y),  //
-      T(2) * (x * y + w * z), T(1) - T(2) * (x * x + z * z), T(2) * (y * z - w * x),   //
-      T(2) * (x * z - w * y), T(2) * (y * z + w * x), T(1) - T(2) * (x * x + y * y);
+  Eigen::Matrix<T, 3, 3, Eigen::RowMajor> r;
+  quat_to_rotmat(q.data(), r.data());
   return r;
 }
 template <std::floating_point T = double>
@@ -136,16 +123,14 @@ template <std::floating_point T = double>
   return rotation_matrix<T>(Eigen::Matrix<T, 4, 1>(g.rotation[0], g.rotation[1], g.rotation[2], g.rotation[3]));
 }
 
-// Σ = R(q) diag(s²) R(q)ᵀ = M Mᵀ with M = R diag(s), world units². Positive
-// definite for finite parameters and exactly symmetric (the upper triangle is
-// computed and mirrored, so Σ_ij and Σ_ji never differ in the last bit).
+// Σ = R(q) diag(s²) R(q)ᵀ = M Mᵀ with M = R diag(s), world units² (covariance_from_axes).
+// Positive definite for finite parameters and exactly symmetric.
 template <std::floating_point T = double>
 [[nodiscard]] inline Eigen::Matrix<T, 3, 3> covariance(const GaussianParams& g) {
-  const Eigen::Matrix<T, 3, 3> m = rotation_matrix<T>(g) * scales<T>(g).asDiagonal();
-  Eigen::Matrix<T, 3, 3> sigma;
-  for (int i = 0; i < 3; ++i) {
-    for (int j = i; j < 3; ++j) sigma(i, j) = sigma(j, i) = m.row(i).dot(m.row(j));
-  }
+  const Eigen::Matrix<T, 3, 3, Eigen::RowMajor> r = rotation_matrix<T>(g);
+  const Eigen::Matrix<T, 3, 1> s = scales<T>(g);
+  Eigen::Matrix<T, 3, 3, Eigen::RowMajor> sigma;
+  covariance_from_axes(r.data(), s.data(), sigma.data());
   return sigma;
 }
 
@@ -177,12 +162,12 @@ struct MixtureStats {
 
 [[nodiscard]] MixtureStats compute_stats(const GaussianMixture& mixture);
 
-// The parameter group of flat index i (11 values per Gaussian): "means",
-// "log-scales", "rotation" or "intensity" (the optimizers' groups).
+// The name of the parameter group (param_layout.hpp) of flat index i: "means",
+// "log-scales", "rotation" or "intensity".
 [[nodiscard]] std::string_view parameter_group(std::size_t i);
 
-// "" if every value of a flat per-Gaussian array (parameters or their gradient, 11
-// per Gaussian) is finite, else where the first non-finite one is:
+// "" if every value of a flat per-Gaussian array (parameters or their gradient,
+// kGaussianParamCount per Gaussian) is finite, else where the first non-finite one is:
 // "the rotation gradient of Gaussian 12 (nan)" for what = "gradient".
 template <class T>
 [[nodiscard]] std::string describe_non_finite(std::span<const T> values, std::string_view what) {
@@ -195,7 +180,12 @@ template <class T>
   return {};
 }
 
-static_assert(kGaussianParamCount == kNumGaussianParams, "PLY order and GaussianParam order must agree");
+// The mixture's parameters as one flat array (K × kGaussianParamCount floats in
+// GaussianParam order), viewing the mixture's own storage; and a mixture from such
+// an array (its size must be a multiple of kGaussianParamCount, else std::invalid_argument).
+[[nodiscard]] std::span<const float> flat_params(const GaussianMixture& mixture);
+[[nodiscard]] std::span<float> flat_params(GaussianMixture& mixture);
+[[nodiscard]] GaussianMixture mixture_from_flat(std::span<const float> params);
 
 // The double-precision evaluation frame (gaussian_math.hpp) of a stored Gaussian.
 [[nodiscard]] inline GaussianFrame<double> frame_of(const GaussianParams& p) {

@@ -1,15 +1,11 @@
-// Grid initialization, dense rasterization of a mixture and the 3D PSNR.
+// Grid initialization.
 #include "gmf/init.hpp"
-
-#include <tbb/blocked_range.h>
-#include <tbb/parallel_for.h>
-#include <tbb/parallel_reduce.h>
 
 #include <algorithm>
 #include <cmath>
 #include <unordered_map>
 
-#include "gmf/gaussian_math.hpp"
+#include "gmf/density_ops.hpp"
 #include "io/error.hpp"
 
 namespace hisnegs::gmf {
@@ -76,13 +72,9 @@ GaussianMixture initialize_on_grid(const io::Volume& volume, const io::WorldFram
   mixture.reserve(sorted.size());
   const Eigen::Vector3d voxel = frame.voxel_size();
   for (const auto& [key, c] : sorted) {
-    GaussianParams g;
-    g.mean = {static_cast<float>(c.px / c.wsum), static_cast<float>(c.py / c.wsum), static_cast<float>(c.pz / c.wsum)};
     // σ = half a grid step, but never below half a voxel along an axis.
-    for (int a = 0; a < 3; ++a) g.log_scale[a] = static_cast<float>(std::log(std::max(0.5 * cell, 0.5 * voxel[a])));
-    g.rotation = {1.0f, 0.0f, 0.0f, 0.0f};
-    const double a = std::clamp(c.vsum / c.count, 0.02, 0.98);
-    g.intensity_logit = static_cast<float>(std::log(a / (1 - a)));
+    const Eigen::Vector3d sigma = (0.5 * voxel).cwiseMax(0.5 * cell);
+    const GaussianParams g = isotropic_gaussian(Eigen::Vector3d(c.px, c.py, c.pz) / c.wsum, sigma, c.vsum / c.count);
     mixture.push_back(g);
   }
   if (report) {
@@ -90,66 +82,6 @@ GaussianMixture initialize_on_grid(const io::Volume& volume, const io::WorldFram
     report->foreground = static_cast<std::int64_t>(pos.size());
   }
   return mixture;
-}
-
-std::vector<float> rasterize_mixture(const GaussianMixture& mixture, const io::WorldFrame& frame, double cutoff) {
-  const Eigen::Vector3i n = frame.shape();
-  const std::size_t plane = static_cast<std::size_t>(n.x()) * n.y();
-  std::vector<float> out(plane * n.z(), 0.0f);
-  // Per Gaussian: frame and index-space box; binned by z slice.
-  struct Item {
-    GaussianFrame<double> f;
-    int lo[3], hi[3];
-  };
-  std::vector<Item> items(mixture.size());
-  std::vector<std::vector<std::uint32_t>> by_slice(n.z());
-  for (std::size_t k = 0; k < mixture.size(); ++k) {
-    Item& it = items[k];
-    it.f = frame_of(mixture[k]);
-    const double* mean = it.f.mean;
-    double half[3];
-    support_half_extents(it.f, cutoff, half);
-    const Eigen::Vector3d a = frame.index_from_world(Eigen::Vector3d(mean[0] - half[0], mean[1] - half[1], mean[2] - half[2]));
-    const Eigen::Vector3d b = frame.index_from_world(Eigen::Vector3d(mean[0] + half[0], mean[1] + half[1], mean[2] + half[2]));
-    for (int d = 0; d < 3; ++d) {
-      it.lo[d] = std::max(0, static_cast<int>(std::ceil(a[d])));
-      it.hi[d] = std::min(n[d] - 1, static_cast<int>(std::floor(b[d])));
-    }
-    for (int z = it.lo[2]; z <= it.hi[2]; ++z) by_slice[z].push_back(static_cast<std::uint32_t>(k));
-  }
-  tbb::parallel_for(tbb::blocked_range<int>(0, n.z()), [&](const tbb::blocked_range<int>& r) {
-    for (int z = r.begin(); z != r.end(); ++z) {
-      float* slice = out.data() + plane * z;
-      for (std::uint32_t k : by_slice[z]) {
-        const Item& it = items[k];
-        if (it.lo[0] > it.hi[0] || it.lo[1] > it.hi[1]) continue;
-        for (int y = it.lo[1]; y <= it.hi[1]; ++y)
-          for (int x = it.lo[0]; x <= it.hi[0]; ++x) {
-            const Eigen::Vector3d p = frame.world_from_index(Eigen::Vector3d(x, y, z));
-            const double xp[3] = {p.x(), p.y(), p.z()};
-            double zz[3];
-            if (mahalanobis(it.f, xp, zz) > cutoff) continue;
-            slice[static_cast<std::size_t>(y) * n.x() + x] += static_cast<float>(evaluate_gaussian<double>(it.f, xp, nullptr));
-          }
-      }
-    }
-  });
-  return out;
-}
-
-double psnr_3d(const std::vector<float>& f, const io::Volume& volume) {
-  const double sse = tbb::parallel_reduce(
-      tbb::blocked_range<std::size_t>(0, f.size(), 1 << 16), 0.0,
-      [&](const tbb::blocked_range<std::size_t>& r, double acc) {
-        for (std::size_t i = r.begin(); i != r.end(); ++i) {
-          const double d = static_cast<double>(f[i]) - volume.voxels[i];
-          acc += d * d;
-        }
-        return acc;
-      },
-      std::plus<>());
-  const double mse = sse / static_cast<double>(f.size());
-  return mse > 0 ? 10.0 * std::log10(1.0 / mse) : 999.0;
 }
 
 }  // namespace hisnegs::gmf

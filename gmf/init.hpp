@@ -1,7 +1,8 @@
 // Initial Gaussians for the GMF fit (report §5.1): one per occupied cell of a
 // regular world-space grid over the foreground, the cell size chosen so that
 // the count meets the budget; centres at the cell's intensity-weighted centroid,
-// scales from the grid step, intensities from the local values.
+// scales from the grid step, intensities from the local values. Rasterizing a
+// mixture is gmf/rasterize.hpp's.
 #pragma once
 
 #include "gmf/gaussian_mixture.hpp"
@@ -19,12 +20,5 @@ struct InitReport {
 // voxel is above the threshold.
 GaussianMixture initialize_on_grid(const io::Volume& volume, const io::WorldFrame& frame, double threshold,
                                    int budget, InitReport* report = nullptr);
-
-// f(x) = Σ a_k exp(-½ m_k) at every voxel centre (terms with m_k > cutoff left
-// out), x fastest like io::Volume. TBB over z slices; deterministic.
-std::vector<float> rasterize_mixture(const GaussianMixture& mixture, const io::WorldFrame& frame, double cutoff);
-
-// 10 log10(1 / MSE) of `f` against the volume over all voxels (CONVENTIONS "Metrics").
-double psnr_3d(const std::vector<float>& f, const io::Volume& volume);
 
 }  // namespace hisnegs::gmf

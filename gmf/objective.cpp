@@ -51,7 +51,7 @@ double FitObjective::evaluate(const double* params, double* gradient) const {
       const auto& ids = blocks_->gaussians[c];
       p.clear();
       for (std::uint32_t k : ids) {
-        const double* g = params + 11 * static_cast<std::size_t>(k);
+        const double* g = params + kGaussianParamCount * static_cast<std::size_t>(k);
         p.push_back(g + kMeanX);
         p.push_back(g + kLogScale0);
         p.push_back(g + kRotW);
@@ -60,7 +60,7 @@ double FitObjective::evaluate(const double* params, double* gradient) const {
       const int nr = cost.num_residuals();
       residuals.resize(nr);
       if (gradient) {
-        jac_storage.resize(static_cast<std::size_t>(nr) * 11 * ids.size());
+        jac_storage.resize(static_cast<std::size_t>(nr) * kGaussianParamCount * ids.size());
         jac.resize(ids.size() * detail::kBlocksPerGaussian);
         std::size_t offset = 0;
         for (std::size_t i = 0; i < jac.size(); ++i) {
@@ -73,7 +73,7 @@ double FitObjective::evaluate(const double* params, double* gradient) const {
       if (!gradient) continue;
       // ∇ = Σ_j r_j ∂r_j/∂θ, block by block.
       for (std::size_t g = 0; g < ids.size(); ++g) {
-        double* out = grad.data() + 11 * static_cast<std::size_t>(ids[g]);
+        double* out = grad.data() + kGaussianParamCount * static_cast<std::size_t>(ids[g]);
         int param = 0;
         for (int b = 0; b < detail::kBlocksPerGaussian; ++b) {
           const double* J = jac[g * detail::kBlocksPerGaussian + b];

@@ -1,5 +1,5 @@
 // The GMF loss ½ Σ w² (f − V)² over every residual block and its gradient with
-// respect to all 11 K parameters (layout: Gaussian k's parameters at 11 k, in
+// respect to all parameters (flat: Gaussian k's at kGaussianParamCount × k, in
 // GaussianParam order), for the first-order optimizers (L-BFGS, Adam). Built
 // from the same BrickCost blocks as the least-squares problem. Ceres stays in the .cpp.
 #pragma once
@@ -19,10 +19,11 @@ class FitObjective {
   FitObjective(const FitObjective&) = delete;
   FitObjective& operator=(const FitObjective&) = delete;
 
-  // Loss at `params` (11 K values); fills `gradient` (11 K) when not null. TBB-parallel
+  // Loss at `params` (kGaussianParamCount × K values); fills `gradient` (as many)
+  // when not null. TBB-parallel
   // over fixed chunks of residual blocks, combined in chunk order (deterministic).
   double evaluate(const double* params, double* gradient) const;
-  [[nodiscard]] std::size_t parameters() const { return 11 * gaussians_; }
+  [[nodiscard]] std::size_t parameters() const { return kGaussianParamCount * gaussians_; }
   // ½ Σ (w V)² of the samples no Gaussian reaches (included in evaluate()).
   [[nodiscard]] double constant() const { return constant_; }
 

@@ -1,4 +1,5 @@
-// AtomicFile: temp file + fsync + rename; read_file. Also require_regular_file from error.hpp.
+// AtomicFile: temp file + fsync + rename; read_file. Also require_regular_file and
+// number_text from error.hpp.
 #include "io/atomic_file.hpp"
 
 #include <fcntl.h>
@@ -26,6 +27,12 @@ void require_regular_file(const fs::path& path) {
   if (ec || !fs::exists(st)) fail_input(path, "no such file");
   if (fs::is_directory(st)) fail_input(path, "is a directory, expected a file");
   if (!fs::is_regular_file(st)) fail_input(path, "is not a regular file");
+}
+
+std::string number_text(double v) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "%g", v);
+  return buf;
 }
 
 namespace {

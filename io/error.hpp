@@ -42,6 +42,9 @@ class InputError : public std::runtime_error {
   return out;
 }
 
+// A number as a user would type it in a message: 6 significant digits, "0.002", "1e-06".
+[[nodiscard]] std::string number_text(double v);
+
 // Checks that `path` names an existing regular file; throws InputError naming it
 // ("no such file", "is a directory", "is not a regular file") otherwise.
 void require_regular_file(const std::filesystem::path& path);

@@ -514,17 +514,16 @@ double intensity_kl_impl(std::span<const T> render, std::span<const T> target, i
 template <class T>
 double scale_regularizer_impl(std::span<const T> params, double s_min, double s_max, double weight,
                               std::span<T> grad) {
-  constexpr std::size_t kP = gmf::kNumGaussianParams;
-  if (params.size() % kP != 0 || (!grad.empty() && grad.size() != params.size()))
+  if (params.size() % gmf::kGaussianParamCount != 0 || (!grad.empty() && grad.size() != params.size()))
     throw std::invalid_argument("scale_regularizer: params/grad hold " + std::to_string(params.size()) + "/" +
-                                std::to_string(grad.size()) + " values, expected a multiple of 11 (grad may be empty)");
+                                std::to_string(grad.size()) + " values, expected whole Gaussians (grad may be empty)");
   if (!(s_min > 0 && s_max > s_min))
     throw std::invalid_argument("scale_regularizer: s_min " + std::to_string(s_min) + ", s_max " +
                                 std::to_string(s_max) + ", expected 0 < s_min < s_max");
   if (!std::isfinite(weight))
     throw std::invalid_argument("scale_regularizer: weight " + std::to_string(weight) + " is not finite");
   double sum = 0;
-  for (std::size_t k = 0; k < params.size(); k += kP) {
+  for (std::size_t k = 0; k < params.size(); k += gmf::kGaussianParamCount) {
     for (std::size_t a = 0; a < 3; ++a) {
       const std::size_t i = k + gmf::kLogScale0 + a;
       const double s = std::exp(double(params[i]));

@@ -1,5 +1,5 @@
-// image_metrics (PSNR and MAE directly, SSIM through losses.hpp's scikit-image-
-// equivalent ssim_loss), summarize, comparison_image.
+// image_metrics (PSNR through gmf/psnr.hpp, MAE directly, SSIM through
+// losses.hpp's scikit-image-equivalent ssim_loss), summarize, comparison_image.
 #include "splat/metrics.hpp"
 
 #include <algorithm>
@@ -8,20 +8,10 @@
 #include <stdexcept>
 #include <string>
 
+#include "gmf/psnr.hpp"
 #include "splat/losses.hpp"
 
 namespace hisnegs::splat {
-
-double image_psnr(std::span<const float> image, std::span<const float> target) {
-  if (image.size() != target.size() || image.empty()) throw std::invalid_argument("image_psnr: size mismatch");
-  double se = 0;
-  for (std::size_t i = 0; i < image.size(); ++i) {
-    const double d = static_cast<double>(image[i]) - target[i];
-    se += d * d;
-  }
-  const double mse = se / static_cast<double>(image.size());
-  return mse > 0 ? 10.0 * std::log10(1.0 / mse) : std::numeric_limits<double>::infinity();
-}
 
 ViewMetrics image_metrics(std::span<const float> render, std::span<const float> target, int width, int height) {
   const std::size_t n = static_cast<std::size_t>(width) * height;
@@ -33,7 +23,7 @@ ViewMetrics image_metrics(std::span<const float> render, std::span<const float> 
   double ae = 0;
   for (std::size_t i = 0; i < n; ++i) ae += std::abs(static_cast<double>(render[i]) - target[i]);
   ViewMetrics m;
-  m.psnr = image_psnr(render, target);
+  m.psnr = gmf::psnr(render, target);
   m.mae = ae / static_cast<double>(n);
   LossWorkspace workspace;
   m.ssim = 1.0 - ssim_loss(render, target, width, height, 0.0, std::span<float>(), workspace);

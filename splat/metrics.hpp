@@ -1,5 +1,5 @@
-// Image metrics of CONVENTIONS "Metrics" (PSNR, MAE, SSIM with the 11x11 σ 1.5
-// Gaussian window, data range 1) per view and their mean ± std over views, and the
+// Image metrics of CONVENTIONS "Metrics" (PSNR of gmf/psnr.hpp, MAE, SSIM with the
+// 11x11 σ 1.5 Gaussian window, data range 1) per view and their mean ± std over views, and the
 // ground truth | render | |error| comparison image. No rendering here.
 #pragma once
 
@@ -17,10 +17,6 @@ struct ViewMetrics {
 struct MetricSummary {
   double mean = 0, std = 0, min = 0, max = 0;  // std: population standard deviation
 };
-
-// PSNR in dB of `image` against `target` (same size, data range 1): 10 log10(1 / MSE),
-// infinite when they are equal. Throws std::invalid_argument for a size mismatch.
-[[nodiscard]] double image_psnr(std::span<const float> image, std::span<const float> target);
 
 // Metrics of `render` against `target` (H x W each, row-major, values in [0, 1]).
 // SSIM needs images of at least 11 x 11. Throws std::invalid_argument for a size mismatch.

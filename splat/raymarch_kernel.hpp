@@ -13,7 +13,7 @@
 
 #include <cmath>
 
-#include "splat/hd.hpp"
+#include "gmf/hd.hpp"
 
 namespace hisnegs::splat::kernels {
 

@@ -20,7 +20,7 @@
 namespace hisnegs::splat {
 namespace {
 
-constexpr int kParams = gmf::kNumGaussianParams;
+using gmf::kGaussianParamCount;
 constexpr int kAmplitudeBuckets = 1024;
 // Binning widens δ by this factor and the ellipse by kBinPad pixels each side, so
 // rounding never drops a tile the kernels' per-pixel test q <= δ would reach.
@@ -90,9 +90,9 @@ class CpuSplatRenderer final : public SplatRenderer {
 
 void CpuSplatRenderer::forward(std::span<const float> params, const Intrinsics& K, const CameraView& view,
                                const SplatSettings& settings, std::span<float> image) {
-  if (params.size() % kParams != 0) {
+  if (params.size() % kGaussianParamCount != 0) {
     throw std::invalid_argument("splat: parameter array of " + std::to_string(params.size()) +
-                                " floats is not a multiple of 11");
+                                " floats is not a whole number of Gaussians");
   }
   const std::size_t pixels = static_cast<std::size_t>(K.width) * K.height;
   if (image.size() != pixels) throw std::invalid_argument("splat: image span does not match the intrinsics");
@@ -101,7 +101,7 @@ void CpuSplatRenderer::forward(std::span<const float> params, const Intrinsics& 
   view_ = view;
   settings_ = settings;
   view_params_ = make_splat_view<float>(K, view);
-  const std::size_t count = params.size() / kParams;
+  const std::size_t count = params.size() / kGaussianParamCount;
   tiles_x_ = (K.width + kTileSize - 1) / kTileSize;
   tiles_y_ = (K.height + kTileSize - 1) / kTileSize;
 
@@ -115,7 +115,7 @@ void CpuSplatRenderer::forward(std::span<const float> params, const Intrinsics& 
     std::array<detail::BandJob, 256> jobs;  // tile_bands in batches
     std::size_t pending = 0;
     for (std::size_t k = range.begin(); k != range.end(); ++k) {
-      Splat2D<float> s = project_gaussian(&params_[kParams * k], view_params_, settings.cutoff, settings.low_pass);
+      Splat2D<float> s = project_gaussian(&params_[kGaussianParamCount * k], view_params_, settings.cutoff, settings.low_pass);
       if (s.visible) s.visible = find_tiles(k, s);
       if (s.visible && band_job(k, &jobs[pending]) && ++pending == jobs.size()) {
         detail::tile_bands(jobs.data(), pending);
@@ -327,15 +327,15 @@ void CpuSplatRenderer::backward(std::span<const float> dL_dimage, std::span<floa
       const double* g6 = &gaussian_grads_[6 * k];
       // Invisible, or no gradient reached it (every term skipped): it would add 0.
       if (!splats_[k].visible || std::all_of(g6, g6 + 6, [](double x) { return x == 0.0; })) continue;
-      double p[kParams];
-      for (int i = 0; i < kParams; ++i) p[i] = params_[kParams * k + i];
+      double p[kGaussianParamCount];
+      for (int i = 0; i < kGaussianParamCount; ++i) p[i] = params_[kGaussianParamCount * k + i];
       ProjectionCache<double> cache;
       const Splat2D<double> s = project_gaussian(p, view, double(settings_.cutoff), double(settings_.low_pass), &cache);
       if (!s.visible) continue;
       Splat2DGrad<double> g{g6[0], g6[1], g6[2], g6[3], g6[4], g6[5]};
-      double out[kParams] = {};
+      double out[kGaussianParamCount] = {};
       project_gaussian_backward(p, view, cache, g, out);
-      for (int i = 0; i < kParams; ++i) dL_dparams[kParams * k + i] += static_cast<float>(out[i]);
+      for (int i = 0; i < kGaussianParamCount; ++i) dL_dparams[kGaussianParamCount * k + i] += static_cast<float>(out[i]);
       if (!screen_grad.empty()) screen_grad[k] += static_cast<float>(std::hypot(g6[0], g6[1]));
     }
   });

@@ -16,7 +16,8 @@
 #include <cmath>
 
 #include "gmf/gaussian_math.hpp"
-#include "splat/hd.hpp"
+#include "gmf/hd.hpp"
+#include "gmf/param_layout.hpp"
 
 namespace hisnegs::splat {
 
@@ -57,20 +58,6 @@ struct ProjectionCache {
   T cov2d[3];  // Σ2D entries (a, b, c) including low_pass
 };
 
-// Σ = M Mᵀ with M = R(q̂) diag(s): the world covariance, symmetric, row-major 3x3.
-template <class T>
-HISNEGS_HD void world_covariance(const gmf::GaussianFrame<T>& f, T cov[9]) {
-  T M[9];
-  for (int r = 0; r < 3; ++r) {
-    for (int c = 0; c < 3; ++c) M[3 * r + c] = f.R[3 * r + c] / f.inv_scale[c];
-  }
-  for (int r = 0; r < 3; ++r) {
-    for (int c = 0; c < 3; ++c) {
-      cov[3 * r + c] = M[3 * r + 0] * M[3 * c + 0] + M[3 * r + 1] * M[3 * c + 1] + M[3 * r + 2] * M[3 * c + 2];
-    }
-  }
-}
-
 // W = J R (2x3, row-major), J the pinhole Jacobian of Eq. 4 at μ_cam; also J's
 // entries (j00, j02, j11, j12), which the backward needs.
 template <class T>
@@ -89,7 +76,7 @@ HISNEGS_HD void projection_jacobian(const ViewParams<T>& view, const T mc[3], T 
 // Eq. 2-6: projects Gaussian `p` (11 parameters, gmf::GaussianParam order) into `view`.
 // `cutoff` is δ. Fills `cache` when not null.
 template <class T>
-HISNEGS_HD Splat2D<T> project_gaussian(const T p[gmf::kNumGaussianParams], const ViewParams<T>& view, T cutoff,
+HISNEGS_HD Splat2D<T> project_gaussian(const T p[gmf::kGaussianParamCount], const ViewParams<T>& view, T cutoff,
                                        T low_pass, ProjectionCache<T>* cache = nullptr) {
   using std::sqrt;
   Splat2D<T> s{};
@@ -102,9 +89,9 @@ HISNEGS_HD Splat2D<T> project_gaussian(const T p[gmf::kNumGaussianParams], const
   s.depth = mc[2];
   if (!(mc[2] >= view.near_z && mc[2] <= view.far_z)) return s;
   gmf::GaussianFrame<T> f;
-  gmf::prepare_gaussian(&p[gmf::kMeanX], &p[gmf::kLogScale0], &p[gmf::kRotW], p[gmf::kLogit], f);
+  gmf::prepare_gaussian(p, f);
   T cov[9];
-  world_covariance(f, cov);
+  gmf::world_covariance(f, cov);
   T W[6], j[4];
   projection_jacobian(view, mc, W, j);
   const T iz = T(1) / mc[2];
@@ -251,13 +238,12 @@ HISNEGS_HD void accumulate_pixel_grad(const Splat2D<T>& s, T px, T py, T dL_dg, 
 // gives dL/dΣ = Wᵀ G W and dL/dW = 2 G W Σ; W = J R and J(μ_cam) of Eq. 4 give the
 // mean's second path; Σ = M Mᵀ, M = R(q̂) diag(s) gives dL/dM = 2 (dL/dΣ) M.
 template <class T>
-HISNEGS_HD void project_gaussian_backward(const T p[gmf::kNumGaussianParams], const ViewParams<T>& view,
+HISNEGS_HD void project_gaussian_backward(const T p[gmf::kGaussianParamCount], const ViewParams<T>& view,
                                           const ProjectionCache<T>& cache, const Splat2DGrad<T>& g,
-                                          T out[gmf::kNumGaussianParams]) {
+                                          T out[gmf::kGaussianParamCount]) {
   gmf::GaussianFrame<T> f;
-  gmf::prepare_gaussian(&p[gmf::kMeanX], &p[gmf::kLogScale0], &p[gmf::kRotW], p[gmf::kLogit], f);
-  // Intensity: a = sigmoid(ℓ).
-  out[gmf::kLogit] += g.amplitude * f.a * (T(1) - f.a);
+  gmf::prepare_gaussian(p, f);
+  out[gmf::kLogit] += gmf::sigmoid_vjp(f.a, g.amplitude);
 
   // Conic -> Σ2D. P = [[pa, pb], [pb, pc]]; Ĝ = [[ga, gb/2], [gb/2, gc]].
   const T a = cache.cov2d[0], b = cache.cov2d[1], c = cache.cov2d[2];
@@ -277,7 +263,7 @@ HISNEGS_HD void project_gaussian_backward(const T p[gmf::kNumGaussianParams], co
   T W[6], j[4];
   projection_jacobian(view, mc, W, j);
   T cov[9];
-  world_covariance(f, cov);
+  gmf::world_covariance(f, cov);
   // dL/dΣ = Wᵀ G_S W (3x3 symmetric)
   T GW[6];  // G_S W (2x3)
   for (int k = 0; k < 3; ++k) {
@@ -315,40 +301,12 @@ HISNEGS_HD void project_gaussian_backward(const T p[gmf::kNumGaussianParams], co
     out[gmf::kMeanX + k] += view.R[k] * dmc[0] + view.R[3 + k] * dmc[1] + view.R[6 + k] * dmc[2];
   }
 
-  // Σ = M Mᵀ, M = R(q̂) diag(s): dL/dM = 2 dL/dΣ M (dL/dΣ symmetric).
-  T M[9];
-  for (int r = 0; r < 3; ++r) {
-    for (int k = 0; k < 3; ++k) M[3 * r + k] = f.R[3 * r + k] / f.inv_scale[k];
-  }
-  T dM[9];
-  for (int r = 0; r < 3; ++r) {
-    for (int k = 0; k < 3; ++k) {
-      dM[3 * r + k] = T(2) * (dcov[3 * r] * M[k] + dcov[3 * r + 1] * M[3 + k] + dcov[3 * r + 2] * M[6 + k]);
-    }
-  }
-  T dR[9];
-  for (int k = 0; k < 3; ++k) {
-    const T s = T(1) / f.inv_scale[k];
-    T ds = 0;
-    for (int r = 0; r < 3; ++r) {
-      ds += dM[3 * r + k] * f.R[3 * r + k];
-      dR[3 * r + k] = dM[3 * r + k] * s;
-    }
-    out[gmf::kLogScale0 + k] += ds * s;  // s = exp(log s)
-  }
-  // R(q̂) of gmf::quaternion_to_rotation, differentiated entry by entry.
-  const T w = f.q_hat[0], x = f.q_hat[1], y = f.q_hat[2], z = f.q_hat[3];
-  T dq[4];
-  dq[0] = T(2) * (-z * dR[1] + y * dR[2] + z * dR[3] - x * dR[5] - y * dR[6] + x * dR[7]);
-  dq[1] = T(2) * (y * dR[1] + z * dR[2] + y * dR[3] - T(2) * x * dR[4] - w * dR[5] + z * dR[6] + w * dR[7] -
-                  T(2) * x * dR[8]);
-  dq[2] = T(2) * (-T(2) * y * dR[0] + x * dR[1] + w * dR[2] + x * dR[3] + z * dR[5] - w * dR[6] + z * dR[7] -
-                  T(2) * y * dR[8]);
-  dq[3] = T(2) * (-T(2) * z * dR[0] - w * dR[1] + x * dR[2] + w * dR[3] - T(2) * z * dR[4] + y * dR[5] +
-                  x * dR[6] + y * dR[7]);
-  // q̂ = q / |q|: dL/dq = (dL/dq̂ − q̂ (q̂ · dL/dq̂)) / |q|
-  const T dot = w * dq[0] + x * dq[1] + y * dq[2] + z * dq[3];
-  for (int k = 0; k < 4; ++k) out[gmf::kRotW + k] += (dq[k] - f.q_hat[k] * dot) * f.inv_q_norm;
+  // Σ = M Mᵀ, M = R(q̂) diag(s) (dL/dΣ is symmetric), then s = exp(log s) and q̂ = q / |q|.
+  T dR[9], ds[3], dq[4];
+  gmf::covariance_from_axes_vjp(f.R, f.scale, dcov, dR, ds);
+  for (int k = 0; k < 3; ++k) out[gmf::kLogScale0 + k] += ds[k] * f.scale[k];
+  gmf::rotation_vjp(f, dR, dq);
+  for (int k = 0; k < 4; ++k) out[gmf::kRotW + k] += dq[k];
 }
 
 // The online soft-max state of one pixel (report §9.3): m = max β g so far,

@@ -15,12 +15,12 @@ struct Projected {
 };
 
 Projected project_all(std::span<const double> params, const ViewParams<double>& view, const SplatSettings& s) {
-  const std::size_t K = params.size() / gmf::kNumGaussianParams;
+  const std::size_t K = params.size() / gmf::kGaussianParamCount;
   Projected p;
   p.splats.resize(K);
   p.caches.resize(K);
   for (std::size_t k = 0; k < K; ++k) {
-    p.splats[k] = project_gaussian(&params[gmf::kNumGaussianParams * k], view, double(s.cutoff), double(s.low_pass),
+    p.splats[k] = project_gaussian(&params[gmf::kGaussianParamCount * k], view, double(s.cutoff), double(s.low_pass),
                                    &p.caches[k]);
   }
   return p;
@@ -100,8 +100,8 @@ std::vector<double> render_reference_backward(std::span<const double> params, co
   if (screen_grad != nullptr) screen_grad->assign(K, 0.0);
   for (std::size_t k = 0; k < K; ++k) {
     if (!p.splats[k].visible) continue;
-    project_gaussian_backward(&params[gmf::kNumGaussianParams * k], view, p.caches[k], grads[k],
-                              &out[gmf::kNumGaussianParams * k]);
+    project_gaussian_backward(&params[gmf::kGaussianParamCount * k], view, p.caches[k], grads[k],
+                              &out[gmf::kGaussianParamCount * k]);
     if (screen_grad != nullptr) (*screen_grad)[k] = std::hypot(grads[k].u, grads[k].v);
   }
   return out;

@@ -31,11 +31,11 @@ class CudaSplatRenderer final : public SplatRenderer {
  public:
   void forward(std::span<const float> params, const Intrinsics& K, const CameraView& view,
                const SplatSettings& settings, std::span<float> image) override {
-    if (params.size() % gmf::kNumGaussianParams != 0 ||
+    if (params.size() % gmf::kGaussianParamCount != 0 ||
         image.size() != static_cast<std::size_t>(K.width) * K.height) {
       throw std::invalid_argument("splat: parameter or image span of the wrong size");
     }
-    count_ = params.size() / gmf::kNumGaussianParams;
+    count_ = params.size() / gmf::kGaussianParamCount;
     pixels_ = image.size();
     soft_ = settings.mode == MipMode::kSoft;
     splatter_.forward(params.data(), count_, make_splat_view<float>(K, view), settings.kernel(), image.data());
@@ -45,7 +45,7 @@ class CudaSplatRenderer final : public SplatRenderer {
   }
   void backward(std::span<const float> dL_dimage, std::span<float> dL_dparams, std::span<float> screen_grad) override {
     if (!soft_) throw std::logic_error("splat: backward needs a soft-MIP forward");
-    if (dL_dimage.size() != pixels_ || dL_dparams.size() != count_ * gmf::kNumGaussianParams ||
+    if (dL_dimage.size() != pixels_ || dL_dparams.size() != count_ * gmf::kGaussianParamCount ||
         (!screen_grad.empty() && screen_grad.size() != count_)) {
       throw std::invalid_argument("splat: backward spans do not match the last forward");
     }
@@ -94,10 +94,6 @@ ViewParams<T> make_splat_view(const Intrinsics& K, const CameraView& view) {
 template ViewParams<float> make_splat_view<float>(const Intrinsics&, const CameraView&);
 template ViewParams<double> make_splat_view<double>(const Intrinsics&, const CameraView&);
 
-std::span<const float> flat_params(const gmf::GaussianMixture& mixture) {
-  // GaussianParams is 11 packed floats (static_assert in gmf/gaussian_mixture.hpp).
-  return {reinterpret_cast<const float*>(mixture.data()), mixture.size() * gmf::kNumGaussianParams};
-}
 
 std::unique_ptr<SplatRenderer> make_splat_renderer(Backend backend) {
   if (backend == Backend::kCpu) return make_cpu_splat_renderer();

@@ -64,7 +64,7 @@ class SplatRenderer {
 // The TBB back end, or CUDA (throws io::InputError when this build or machine has none).
 std::unique_ptr<SplatRenderer> make_splat_renderer(Backend backend);
 
-// A mixture's parameters as the renderer reads them (11 K floats).
-std::span<const float> flat_params(const gmf::GaussianMixture& mixture);
+// A mixture's parameters as the renderer reads them (gmf/gaussian_mixture.hpp).
+using gmf::flat_params;
 
 }  // namespace hisnegs::splat

@@ -1,6 +1,7 @@
 // Stage-2 MIP-splatting training (report §6): Adam with per-group learning rates,
 // cosine lr decay and β warm-up (Table 4), the Eq. 16 loss, density control (§6.4,
-// Eq. 17), and resumable checkpoints. Not the losses (losses.hpp), not the renderer.
+// Eq. 17) and its resumable state. Not the losses (losses.hpp), the renderer, the
+// data (training_data.hpp) nor the checkpoint files (training_checkpoint.hpp).
 #pragma once
 
 #include <cstdint>
@@ -11,32 +12,14 @@
 #include <string>
 #include <vector>
 
-#include "gmf/checkpoint.hpp"
+#include "gmf/adam.hpp"
 #include "splat/camera.hpp"
 #include "splat/losses.hpp"
 #include "splat/splat_options.hpp"
 #include "splat/splat_renderer.hpp"
+#include "splat/training_data.hpp"
 
 namespace hisnegs::splat {
-
-// The training views: one camera set and one H x W target image per view
-// (row-major, values in [0, 1]), `images` holding view i at [i H W, (i + 1) H W).
-struct TrainingData {
-  Intrinsics intrinsics;
-  std::vector<CameraView> views;
-  std::vector<float> images;
-
-  [[nodiscard]] int count() const { return static_cast<int>(views.size()); }
-  [[nodiscard]] std::span<const float> image(int i) const;
-  // Throws std::invalid_argument when images.size() != views * width * height or there are no views.
-  void check() const;
-};
-
-// Reads DIR/cameras.json and DIR/mips.tif (float32, page i = view i; `hisnegs gt` writes
-// GTDIR/train and GTDIR/eval so). Throws io::InputError, one line naming the file, when
-// either is missing or unreadable, the page count differs from the number of views or
-// the page size from the cameras' width x height.
-[[nodiscard]] TrainingData load_training_data(const std::filesystem::path& dir);
 
 // Learning rate of 0-based epoch `epoch` (Table 4): cosine decay
 // lr_final + ½ (lr_initial − lr_final)(1 + cos(π e / (epochs − 1))), so epoch 0 trains
@@ -82,7 +65,7 @@ class Trainer {
  public:
   // `renderer` must be non-null; `splat` gives mode (must be soft), cutoff, low-pass and
   // skip threshold (β comes from the schedule). Throws std::invalid_argument for a
-  // params size not a multiple of 11, invalid data, or options that fail validate().
+  // params size that is not a whole number of Gaussians, invalid data, or options that fail validate().
   Trainer(const TrainOptions& options, const SplatSettings& splat, TrainingData data, std::vector<float> params,
           std::unique_ptr<SplatRenderer> renderer, double scene_scale = 1.0);
   ~Trainer();
@@ -97,7 +80,7 @@ class Trainer {
   // Epochs completed (0 at the start).
   [[nodiscard]] int epoch() const { return epoch_; }
   // Adam steps taken.
-  [[nodiscard]] std::int64_t step_count() const { return step_; }
+  [[nodiscard]] std::int64_t step_count() const { return adam_.steps(); }
   // Whether the epoch just completed is a checkpoint epoch (epoch() % save_every == 0).
   [[nodiscard]] bool checkpoint_due() const { return epoch_ > 0 && epoch_ % options_.save_every == 0; }
 
@@ -128,8 +111,8 @@ class Trainer {
   [[nodiscard]] int gaussians() const { return static_cast<int>(params_.size() / gmf::kGaussianParamCount); }
   [[nodiscard]] std::span<const float> params() const { return params_; }
   // Adam first/second moments, 11 K each, aligned with params().
-  [[nodiscard]] std::span<const float> adam_m() const { return m_; }
-  [[nodiscard]] std::span<const float> adam_v() const { return v_; }
+  [[nodiscard]] std::span<const float> adam_m() const { return adam_.m(); }
+  [[nodiscard]] std::span<const float> adam_v() const { return adam_.v(); }
   // Density statistics since the last densify (K each): the sum over views of
   // |∂L_view/∂μ2D| × (pixels of the view) — the gradient of the per-view pixel SUM, so
   // the threshold does not depend on the image size — and the number of views in
@@ -164,10 +147,9 @@ class Trainer {
   double scene_scale_ = 1.0;
   ImageLossWeights weights_;
 
-  std::vector<float> m_, v_;
+  gmf::Adam<float> adam_{gmf::AdamOptions{.epsilon = 1e-15}};
   std::vector<double> grad_accum_;
   std::vector<std::uint32_t> grad_count_;
-  std::int64_t step_ = 0;
   int epoch_ = 0;
   std::mt19937_64 rng_;
 
@@ -175,16 +157,5 @@ class Trainer {
   std::vector<float> grad_, image_, dimage_, target_crop_, view_screen_grad_;
   LossWorkspace workspace_;
 };
-
-// RUNDIR/checkpoints files: epoch_NNNNN.ply, state_NNNNN.bin, and `latest` (one line
-// "NNNNN"), each written atomically in that order, so `latest` always names a complete pair.
-[[nodiscard]] std::filesystem::path checkpoint_ply_path(const std::filesystem::path& checkpoint_dir, int epoch);
-[[nodiscard]] std::filesystem::path checkpoint_state_path(const std::filesystem::path& checkpoint_dir, int epoch);
-// Writes the trainer's parameters (with `meta`) and state for epoch trainer.epoch().
-void save_training_checkpoint(const std::filesystem::path& checkpoint_dir, const Trainer& trainer,
-                              const gmf::CheckpointMeta& meta);
-// Restores the pair `latest` names into `trainer`; returns its epoch. Throws io::InputError
-// naming the file when `latest` is missing or malformed or the pair is unusable.
-int resume_training(const std::filesystem::path& checkpoint_dir, Trainer& trainer);
 
 }  // namespace hisnegs::splat

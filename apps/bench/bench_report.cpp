@@ -16,6 +16,7 @@
 #include "apps/cli_support.hpp"
 #include "apps/report_support.hpp"
 #include "gmf/checkpoint.hpp"
+#include "gmf/psnr.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
 #include "io/load_volume.hpp"
@@ -219,8 +220,8 @@ void write_bench_report(const BenchReportRequest& r, bool quiet) {
         max_err = std::max(max_err, d);
       }
       mae /= static_cast<double>(img.pixels.size());
-      const double p_ref = splat::image_psnr(img.pixels, ref.pixels);
-      const double p_hard = splat::image_psnr(img.pixels, max.pixels);
+      const double p_ref = gmf::psnr(img.pixels, ref.pixels);
+      const double p_hard = gmf::psnr(img.pixels, max.pixels);
       const double t = median(timer.splat(*renderer, params, views, s).seconds);
       t11.add({strf("%g", beta), strf("%.2f", p_ref), strf("%.3g", mae), strf("%.3g", max_err), strf("%.2f", p_hard),
                ms(t)});

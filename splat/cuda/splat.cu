@@ -21,7 +21,7 @@
 namespace hisnegs::splat::cuda {
 namespace {
 
-constexpr int kParams = gmf::kNumGaussianParams;
+using gmf::kGaussianParamCount;
 constexpr int kGaussianThreads = 256;     // preprocess / duplicate / range kernels
 constexpr int kProjectionThreads = 128;   // projection backward (double, register heavy)
 
@@ -199,7 +199,7 @@ void CudaSplatter::forward(const float* params, std::size_t count, const ViewPar
   d.tiles = static_cast<std::size_t>(d.tiles_x) * tiles_y;
   d.pixels = static_cast<std::size_t>(view.width) * view.height;
 
-  reserve(d.params, kParams * count);
+  reserve(d.params, kGaussianParamCount * count);
   reserve(d.splats, count);
   reserve(d.rects, count);
   reserve(d.touched, count + 1);
@@ -211,7 +211,7 @@ void CudaSplatter::forward(const float* params, std::size_t count, const ViewPar
   reserve(d.counters, 1);
   if (count > 0) {
     HISNEGS_CUDA_CHECK(
-        cudaMemcpy(d.params.data(), params, kParams * count * sizeof(float), cudaMemcpyHostToDevice));
+        cudaMemcpy(d.params.data(), params, kGaussianParamCount * count * sizeof(float), cudaMemcpyHostToDevice));
   }
 
   // 1. Projection and tile counts, their exclusive scan.
@@ -269,7 +269,7 @@ void CudaSplatter::backward(const float* dL_dimage, float* dL_dparams, float* sc
   const std::size_t count = d.count;
   reserve(d.dL_dI, d.pixels);
   reserve(d.grads2d, 6 * count);
-  reserve(d.dL_dparams, kParams * count);
+  reserve(d.dL_dparams, kGaussianParamCount * count);
   reserve(d.screen_grad, count);
   HISNEGS_CUDA_CHECK(cudaMemcpy(d.dL_dI.data(), dL_dimage, d.pixels * sizeof(float), cudaMemcpyHostToDevice));
 
@@ -296,9 +296,9 @@ void CudaSplatter::backward(const float* dL_dimage, float* dL_dparams, float* sc
   if (count == 0) return;
 
   // The interface adds into the caller's arrays.
-  d.host_scratch.resize(kParams * count);
-  d.dL_dparams.download(d.host_scratch.data(), kParams * count);
-  for (std::size_t i = 0; i < kParams * count; ++i) dL_dparams[i] += d.host_scratch[i];
+  d.host_scratch.resize(kGaussianParamCount * count);
+  d.dL_dparams.download(d.host_scratch.data(), kGaussianParamCount * count);
+  for (std::size_t i = 0; i < kGaussianParamCount * count; ++i) dL_dparams[i] += d.host_scratch[i];
   if (screen_grad != nullptr) {
     d.screen_grad.download(d.host_scratch.data(), count);
     for (std::size_t k = 0; k < count; ++k) screen_grad[k] += d.host_scratch[k];

@@ -54,7 +54,7 @@ __global__ void __launch_bounds__(256)
   const int k = blockIdx.x * blockDim.x + threadIdx.x;
   if (k == 0) touched[count] = 0;
   if (k >= count) return;
-  Splat2D<float> s = project_gaussian(params + static_cast<std::size_t>(gmf::kNumGaussianParams) * k, view, cutoff,
+  Splat2D<float> s = project_gaussian(params + static_cast<std::size_t>(gmf::kGaussianParamCount) * k, view, cutoff,
                                       low_pass);
   std::uint64_t n = 0;
   if (s.visible) {
@@ -326,14 +326,13 @@ __global__ void __launch_bounds__(128)
                                double low_pass, const Splat2D<float>* __restrict__ splats,
                                const float* __restrict__ grads, float* __restrict__ dL_dparams,
                                float* __restrict__ screen_grad) {
-  constexpr int kP = gmf::kNumGaussianParams;
   const int k = blockIdx.x * blockDim.x + threadIdx.x;
   if (k >= count) return;
-  double out[kP] = {};
+  double out[gmf::kGaussianParamCount] = {};
   double screen = 0.0;
   if (splats[k].visible) {
-    double p[kP];
-    for (int i = 0; i < kP; ++i) p[i] = params[static_cast<std::size_t>(kP) * k + i];
+    double p[gmf::kGaussianParamCount];
+    for (int i = 0; i < gmf::kGaussianParamCount; ++i) p[i] = params[static_cast<std::size_t>(gmf::kGaussianParamCount) * k + i];
     ProjectionCache<double> cache;
     const Splat2D<double> s = project_gaussian(p, view, cutoff, low_pass, &cache);
     if (s.visible) {
@@ -343,7 +342,7 @@ __global__ void __launch_bounds__(128)
       screen = hypot(g.u, g.v);
     }
   }
-  for (int i = 0; i < kP; ++i) dL_dparams[static_cast<std::size_t>(kP) * k + i] = static_cast<float>(out[i]);
+  for (int i = 0; i < gmf::kGaussianParamCount; ++i) dL_dparams[static_cast<std::size_t>(gmf::kGaussianParamCount) * k + i] = static_cast<float>(out[i]);
   if (screen_grad != nullptr) screen_grad[k] = static_cast<float>(screen);
 }
 

@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 
 #include "gmf/init.hpp"
+#include "gmf/rasterize.hpp"
 #include "io/error.hpp"
 #include "io/sparse_grid.hpp"
 
@@ -32,7 +33,7 @@ Scene make_scene() {
     g.intensity_logit = 0.5f;
     s.truth.push_back(g);
   }
-  s.volume.voxels = rasterize_mixture(s.truth, s.frame, 1e9);
+  s.volume.voxels = rasterize_mixture(s.truth, s.frame, {.cutoff = 1e9});
   return s;
 }
 

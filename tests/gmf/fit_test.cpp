@@ -11,6 +11,8 @@
 #include "gmf/brick_index.hpp"
 #include "gmf/density.hpp"
 #include "gmf/init.hpp"
+#include "gmf/psnr.hpp"
+#include "gmf/rasterize.hpp"
 #include "gmf/objective.hpp"
 #include "gmf/samples.hpp"
 #include "tests/test_support.hpp"
@@ -55,7 +57,7 @@ Scene make_scene(std::uint64_t seed) {
     g.intensity_logit = static_cast<float>(std::log(a / (1 - a)));
     s.truth.push_back(g);
   }
-  s.volume.voxels = rasterize_mixture(s.truth, s.frame, 1e9);
+  s.volume.voxels = rasterize_mixture(s.truth, s.frame, {.cutoff = 1e9});
   s.volume.normalization.method = io::NormalizationMethod::kMinMax;
   return s;
 }
@@ -178,7 +180,7 @@ TEST(GmfObjective, GradientMatchesItsValue) {
   std::vector<double> x(objective.parameters());
   for (std::size_t k = 0; k < m.size(); ++k) {
     const auto a = to_array(m[k]);
-    for (int i = 0; i < kNumGaussianParams; ++i) x[11 * k + i] = a[i];
+    for (int i = 0; i < kGaussianParamCount; ++i) x[11 * k + i] = a[i];
   }
   std::vector<double> grad(x.size());
   objective.evaluate(x.data(), grad.data());
@@ -263,12 +265,12 @@ TEST(GmfInit, MeetsTheBudgetOnTheForeground) {
 
 TEST(GmfRasterize, MatchesDirectEvaluation) {
   const Scene scene = make_scene(5);
-  const std::vector<float> f = rasterize_mixture(scene.truth, scene.frame, 1e9);
+  const std::vector<float> f = rasterize_mixture(scene.truth, scene.frame, {.cutoff = 1e9});
   for (const auto& [x, y, z] : std::vector<std::array<int, 3>>{{10, 10, 10}, {24, 30, 12}, {40, 5, 3}}) {
     const double direct = evaluate_mixture(scene.truth, scene.frame.world_from_index(Eigen::Vector3d(x, y, z)));
     EXPECT_NEAR(f[scene.volume.index(x, y, z)], direct, 1e-6);
   }
-  EXPECT_GT(psnr_3d(f, scene.volume), 100.0);  // identical up to float rounding
+  EXPECT_GT(psnr(f, scene.volume.voxels), 100.0);  // identical up to float rounding
 }
 
 }  // namespace

@@ -14,7 +14,7 @@
 namespace hisnegs::gmf {
 namespace {
 
-using Params = std::array<double, kNumGaussianParams>;
+using Params = std::array<double, kGaussianParamCount>;
 
 double value_at(const Params& p, const double x[3]) {
   GaussianFrame<double> f;
@@ -29,10 +29,10 @@ double value_at(const Params& p, const double x[3]) {
 double worst_relative_error(const Params& p, const double x[3]) {
   GaussianFrame<double> f;
   prepare_gaussian(&p[kMeanX], &p[kLogScale0], &p[kRotW], p[kLogit], f);
-  double grad[kNumGaussianParams];
+  double grad[kGaussianParamCount];
   evaluate_gaussian(f, x, grad);
   double largest = 0;
-  for (int k = 0; k < kNumGaussianParams; ++k) largest = std::max(largest, std::abs(grad[k]));
+  for (int k = 0; k < kGaussianParamCount; ++k) largest = std::max(largest, std::abs(grad[k]));
   double worst = 0;
   // Initial Ridders steps on the scale each parameter acts on: a tenth of the
   // smallest standard deviation for means; for the quaternion a hundredth of
@@ -40,7 +40,7 @@ double worst_relative_error(const Params& p, const double x[3]) {
   // width s_min); 0.01 for log-scales and the logit.
   const double s_min = std::exp(std::min({p[kLogScale0], p[kLogScale1], p[kLogScale2]}));
   const double s_max = std::exp(std::max({p[kLogScale0], p[kLogScale1], p[kLogScale2]}));
-  for (int k = 0; k < kNumGaussianParams; ++k) {
+  for (int k = 0; k < kGaussianParamCount; ++k) {
     const double h0 = k <= kMeanZ ? 0.1 * s_min : (k >= kRotW && k <= kRotZ ? 0.01 * s_min / s_max : 0.01);
     const double fd = testing::ridders_derivative(
         [&](double v) {

@@ -332,9 +332,9 @@ TEST(LossIntensityKl, RejectsInvalidHistogramOptions) {
 
 // K Gaussians whose 3 scales are `scales[3k .. 3k+2]`, other parameters arbitrary.
 std::vector<double> params_with_scales(const std::vector<double>& scales) {
-  std::vector<double> params((scales.size() / 3) * gmf::kNumGaussianParams, 0.3);
+  std::vector<double> params((scales.size() / 3) * gmf::kGaussianParamCount, 0.3);
   for (std::size_t i = 0; i < scales.size(); ++i)
-    params[(i / 3) * gmf::kNumGaussianParams + gmf::kLogScale0 + i % 3] = std::log(scales[i]);
+    params[(i / 3) * gmf::kGaussianParamCount + gmf::kLogScale0 + i % 3] = std::log(scales[i]);
   return params;
 }
 

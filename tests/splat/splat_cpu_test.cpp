@@ -156,9 +156,9 @@ TEST(SplatCpu, LargeGaussiansOverManyTilesMatchReference) {
     EXPECT_GT(close, static_cast<int>(0.99 * img.size())) << "hard " << (mode == MipMode::kHard);
     // Some Gaussian spans more than 8 tile rows (8 * 16 = 128 pixels).
     double tallest = 0;
-    for (std::size_t k = 0; k < scene.params.size() / gmf::kNumGaussianParams; ++k) {
+    for (std::size_t k = 0; k < scene.params.size() / gmf::kGaussianParamCount; ++k) {
       const Splat2D<double> g =
-          project_gaussian(&scene.params[gmf::kNumGaussianParams * k], view, double(s.cutoff), 0.0);
+          project_gaussian(&scene.params[gmf::kGaussianParamCount * k], view, double(s.cutoff), 0.0);
       if (g.visible) tallest = std::max(tallest, 2 * g.half_h);
     }
     EXPECT_GT(tallest, 9 * 16.0);

@@ -62,9 +62,9 @@ std::vector<double> random_weights(std::size_t n, std::uint64_t seed) {
 // Largest |g| per parameter kind (11): gradients of different kinds differ by orders
 // of magnitude, so each is compared relative to the largest of its own kind.
 std::vector<double> largest_per_kind(const std::vector<double>& g) {
-  std::vector<double> largest(gmf::kNumGaussianParams, 0.0);
+  std::vector<double> largest(gmf::kGaussianParamCount, 0.0);
   for (std::size_t i = 0; i < g.size(); ++i) {
-    largest[i % gmf::kNumGaussianParams] = std::max(largest[i % gmf::kNumGaussianParams], std::abs(g[i]));
+    largest[i % gmf::kGaussianParamCount] = std::max(largest[i % gmf::kGaussianParamCount], std::abs(g[i]));
   }
   return largest;
 }
@@ -340,7 +340,7 @@ TEST_F(SplatCuda, ReportsDeviceTimes) {
   cuda::CudaSplatter splatter;
   const auto scene = large_scene();
   const std::vector<float> p = to_float(scene.params);
-  const std::size_t count = p.size() / gmf::kNumGaussianParams;
+  const std::size_t count = p.size() / gmf::kGaussianParamCount;
   std::vector<float> img(256 * 256), grad(p.size(), 0.0f);
   splatter.forward(p.data(), count, make_splat_view<float>(scene.K, scene.view), SplatSettings{}.kernel(), img.data());
   EXPECT_GT(splatter.last_forward_ms(), 0.0);

@@ -3,6 +3,7 @@
 // Schedules, one step lowering the loss, density control keeping every per-Gaussian
 // array aligned, bit-identical resume, and convergence above 35 dB.
 #include "splat/trainer.hpp"
+#include "splat/training_checkpoint.hpp"
 
 #include <gtest/gtest.h>
 
