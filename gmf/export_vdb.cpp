@@ -28,10 +28,10 @@
 
 #include "gmf/rasterize.hpp"
 #include "io/atomic_file.hpp"
-#include "io/detail/vdb_grids.hpp"
 #include "io/error.hpp"
 #include "io/memory_limit.hpp"
 #include "io/timer.hpp"
+#include "io/vdb_file.hpp"
 
 namespace hisnegs::gmf {
 namespace fs = std::filesystem;
@@ -51,25 +51,6 @@ constexpr const char* kDensityGrid = "density";
 constexpr const char* kPointsGrid = "gaussians";
 constexpr const char* kCheckpointMetaKey = "hisnegs_checkpoint";
 constexpr int kVdbFormatVersion = 1;
-
-// world = origin + voxel_size ⊙ index as an OpenVDB linear transform (row vectors:
-// world = [i j k 1] M, scale on the diagonal, translation in the last row); for
-// VoxelLattice::of(frame) this is io::detail::make_vdb_transform(frame).
-openvdb::math::Transform::Ptr make_transform(const VoxelLattice& l) {
-  const Eigen::Vector3d& s = l.voxel_size_world;
-  const Eigen::Vector3d& o = l.origin_world;
-  const openvdb::math::Mat4d m(s.x(), 0.0, 0.0, 0.0,  //
-                               0.0, s.y(), 0.0, 0.0,  //
-                               0.0, 0.0, s.z(), 0.0,  //
-                               o.x(), o.y(), o.z(), 1.0);
-  try {
-    return openvdb::math::Transform::createLinearTransform(m);
-  } catch (const openvdb::ArithmeticError&) {
-    // OpenVDB refuses maps whose determinant is nearly 0 (voxels of ~1e-5 and below).
-    throw io::InputError("voxel size " + io::number_text(s.minCoeff()) +
-                         " is too small for an OpenVDB transform; use a larger voxel size");
-  }
-}
 
 // The `density` grid: the core rasterizer's blocks are OpenVDB leaves (8³ voxels,
 // the same z-fastest offsets), evaluated in parallel; a leaf is kept where some f
@@ -218,12 +199,12 @@ VdbExportReport export_vdb(const fs::path& path, const Checkpoint& checkpoint, c
                            const ExportProgress& progress) {
   options.validate();
   lattice.validate();
-  io::detail::ensure_openvdb_initialized();
+  io::ensure_openvdb_initialized();
   VdbExportReport report;
   report.gaussians = static_cast<std::int64_t>(checkpoint.mixture.size());
   io::Stopwatch watch;
 
-  const auto transform = make_transform(lattice);
+  const auto transform = io::make_vdb_transform(lattice.voxel_size_world, lattice.origin_world);
   FloatGrid::Ptr density = rasterize_density(checkpoint.mixture, lattice, options, model_source, progress, report);
   density->setTransform(transform->copy());
   density->setName(kDensityGrid);
@@ -242,7 +223,7 @@ VdbExportReport export_vdb(const fs::path& path, const Checkpoint& checkpoint, c
     report.points_seconds = watch.lap();
   }
 
-  io::detail::write_vdb_file(path, grids);
+  io::write_vdb_file(path, grids);
   report.write_seconds = watch.lap();
   report.file_bytes = fs::file_size(path);
   return report;
@@ -272,7 +253,7 @@ const openvdb::points::AttributeArray& attribute(const openvdb::points::PointDat
 Checkpoint import_vdb_points(const fs::path& path) {
   namespace vp = openvdb::points;
   io::require_regular_file(path);
-  io::detail::ensure_openvdb_initialized();
+  io::ensure_openvdb_initialized();
   PointDataGrid::Ptr grid;
   try {
     openvdb::io::File file(path.string());

@@ -1,10 +1,11 @@
-// extract_samples: walk the leaves of the SparseGrid's grids.
+// extract_samples: visit the SparseGrid's active leaves, group each leaf's voxels into blocks.
 #include "gmf/samples.hpp"
 
 #include <cmath>
+#include <span>
 #include <stdexcept>
+#include <vector>
 
-#include "io/detail/vdb_grids.hpp"
 
 namespace hisnegs::gmf {
 
@@ -18,36 +19,39 @@ SampleSet extract_samples(const io::SparseGrid& grid, double background_weight, 
   const double fraction = grid.meta().options.background_fraction;
   const double bg_weight = fraction > 0 ? std::sqrt(background_weight / fraction) : 0.0;
   const int per_leaf = 8 / block;  // blocks per leaf edge
-  auto add_grid = [&](const openvdb::FloatGrid& g, double weight, std::int64_t& counter) {
-    std::vector<std::vector<openvdb::Coord>> groups(static_cast<std::size_t>(per_leaf) * per_leaf * per_leaf);
-    for (auto leaf = g.tree().cbeginLeaf(); leaf; ++leaf) {
-      if (leaf->onVoxelCount() == 0) continue;
-      const openvdb::Coord o = leaf->origin();
-      for (auto& gr : groups) gr.clear();
-      for (auto v = leaf->cbeginValueOn(); v; ++v) {
-        const openvdb::Coord c = v.getCoord() - o;
-        groups[((c.z() / block) * per_leaf + c.y() / block) * per_leaf + c.x() / block].push_back(v.getCoord());
-      }
-      for (const auto& gr : groups) {
-        if (gr.empty()) continue;
-        const openvdb::Coord& c0 = gr.front();
-        out.brick_begin.push_back(static_cast<std::uint32_t>(out.size()));
-        out.brick_origin.push_back({o.x() + (c0.x() - o.x()) / block * block, o.y() + (c0.y() - o.y()) / block * block,
-                                    o.z() + (c0.z() - o.z()) / block * block});
-        for (const openvdb::Coord& c : gr) {
-          const Eigen::Vector3d p = frame.world_from_index(Eigen::Vector3d(c.x(), c.y(), c.z()));
-          out.x.push_back(p.x());
-          out.y.push_back(p.y());
-          out.z.push_back(p.z());
-          out.value.push_back(leaf->getValue(c));
-          out.weight.push_back(weight);
-          ++counter;
-        }
+  std::vector<std::vector<io::ActiveVoxel>> groups(static_cast<std::size_t>(per_leaf) * per_leaf * per_leaf);
+  auto add_leaf = [&](const std::array<int, 3>& o, std::span<const io::ActiveVoxel> voxels, double weight,
+                      std::int64_t& counter) {
+    for (auto& gr : groups) gr.clear();
+    for (const io::ActiveVoxel& v : voxels) {
+      const int cx = v.index[0] - o[0], cy = v.index[1] - o[1], cz = v.index[2] - o[2];
+      groups[((cz / block) * per_leaf + cy / block) * per_leaf + cx / block].push_back(v);
+    }
+    for (const auto& gr : groups) {
+      if (gr.empty()) continue;
+      const std::array<int, 3>& c0 = gr.front().index;
+      out.brick_begin.push_back(static_cast<std::uint32_t>(out.size()));
+      out.brick_origin.push_back({o[0] + (c0[0] - o[0]) / block * block, o[1] + (c0[1] - o[1]) / block * block,
+                                  o[2] + (c0[2] - o[2]) / block * block});
+      for (const io::ActiveVoxel& v : gr) {
+        const Eigen::Vector3d p = frame.world_from_index(Eigen::Vector3d(v.index[0], v.index[1], v.index[2]));
+        out.x.push_back(p.x());
+        out.y.push_back(p.y());
+        out.z.push_back(p.z());
+        out.value.push_back(v.value);
+        out.weight.push_back(weight);
+        ++counter;
       }
     }
   };
-  add_grid(*grid.impl().volume, 1.0, out.foreground);
-  if (bg_weight > 0) add_grid(*grid.impl().background, bg_weight, out.background);
+  grid.visit_active_leaves(io::SparseGridPart::kForeground, [&](const auto& o, auto voxels) {
+    add_leaf(o, voxels, 1.0, out.foreground);
+  });
+  if (bg_weight > 0) {
+    grid.visit_active_leaves(io::SparseGridPart::kBackground, [&](const auto& o, auto voxels) {
+      add_leaf(o, voxels, bg_weight, out.background);
+    });
+  }
   out.brick_begin.push_back(static_cast<std::uint32_t>(out.size()));
   return out;
 }

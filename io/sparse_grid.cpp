@@ -17,6 +17,7 @@
 #include "io/atomic_file.hpp"
 #include "io/config.hpp"
 #include "io/detail/vdb_grids.hpp"
+#include "io/vdb_file.hpp"
 #include "io/error.hpp"
 
 namespace hisnegs::io {
@@ -32,8 +33,6 @@ void SparseGridOptions::validate() const {
   require_in_range("sparse_grid", "band_voxels", band_voxels, 0, 32);
   require_in_range("sparse_grid", "background_fraction", background_fraction, 0.0, 1.0);
 }
-
-namespace detail {
 
 void ensure_openvdb_initialized() {
   static std::once_flag once;
@@ -53,22 +52,46 @@ void write_vdb_file(const std::filesystem::path& path, const openvdb::GridPtrVec
   out.commit();
 }
 
-openvdb::math::Transform::Ptr make_vdb_transform(const WorldFrame& frame) {
+openvdb::math::Transform::Ptr make_vdb_transform(const Eigen::Vector3d& s, const Eigen::Vector3d& o) {
   // OpenVDB maps row vectors: world = [i j k 1] * M, so the scale sits on the
   // diagonal and the translation in the last row. world = scale * index + offset.
-  const Eigen::Vector3d s = frame.voxel_size();
-  const Eigen::Vector3d o = frame.world_from_index(Eigen::Vector3d::Zero());
   const openvdb::math::Mat4d m(s.x(), 0.0, 0.0, 0.0,  //
                                0.0, s.y(), 0.0, 0.0,  //
                                0.0, 0.0, s.z(), 0.0,  //
                                o.x(), o.y(), o.z(), 1.0);
-  return openvdb::math::Transform::createLinearTransform(m);
+  try {
+    return openvdb::math::Transform::createLinearTransform(m);
+  } catch (const openvdb::ArithmeticError&) {
+    // OpenVDB refuses maps whose determinant is nearly 0 (voxels of ~1e-5 and below).
+    throw InputError("voxel size " + number_text(s.minCoeff()) +
+                     " is too small for an OpenVDB transform; use a larger voxel size");
+  }
 }
 
-}  // namespace detail
+namespace {
+openvdb::math::Transform::Ptr frame_transform(const WorldFrame& frame) {
+  return make_vdb_transform(frame.voxel_size(), frame.world_from_index(Eigen::Vector3d::Zero()));
+}
+}  // namespace
+
+void SparseGrid::visit_active_leaves(SparseGridPart part, const LeafVisitor& visit) const {
+  const openvdb::FloatGrid& grid = part == SparseGridPart::kForeground ? *impl_->volume : *impl_->background;
+  std::vector<ActiveVoxel> voxels;
+  voxels.reserve(LeafT::SIZE);
+  for (auto leaf = grid.tree().cbeginLeaf(); leaf; ++leaf) {
+    if (leaf->onVoxelCount() == 0) continue;
+    voxels.clear();
+    for (auto v = leaf->cbeginValueOn(); v; ++v) {
+      const openvdb::Coord c = v.getCoord();
+      voxels.push_back({{c.x(), c.y(), c.z()}, *v});
+    }
+    const openvdb::Coord o = leaf->origin();
+    visit({o.x(), o.y(), o.z()}, voxels);
+  }
+}
 
 SparseGrid::SparseGrid() : impl_(std::make_shared<Impl>()) {
-  detail::ensure_openvdb_initialized();
+  ensure_openvdb_initialized();
   impl_->volume = FloatGrid::create(0.0f);
   impl_->background = FloatGrid::create(0.0f);
 }
@@ -142,10 +165,10 @@ void add_leaves(FloatTree& tree, std::vector<LeafT*>& leaves) {
 
 SparseGrid build_sparse_grid(const Volume& vol, const Eigen::Vector3d& aspect, const SparseGridOptions& options) {
   options.validate();
-  detail::ensure_openvdb_initialized();
+  ensure_openvdb_initialized();
   auto impl = std::make_shared<SparseGrid::Impl>();
   const WorldFrame frame(vol.nx, vol.ny, vol.nz, aspect);
-  const auto transform = detail::make_vdb_transform(frame);
+  const auto transform = frame_transform(frame);
   impl->volume = FloatGrid::create(0.0f);
   impl->background = FloatGrid::create(0.0f);
   for (auto* g : {impl->volume.get(), impl->background.get()}) {
@@ -260,17 +283,17 @@ NormalizationMethod parse_method(const std::filesystem::path& path, const std::s
 }  // namespace
 
 void write_vdb(const std::filesystem::path& path, const SparseGrid& grid) {
-  detail::ensure_openvdb_initialized();
+  ensure_openvdb_initialized();
   const auto& impl = grid.impl();
   put_meta(*impl.volume, impl.meta);
   openvdb::GridPtrVec grids{impl.volume};
   if (impl.background->activeVoxelCount() > 0) grids.push_back(impl.background);
-  detail::write_vdb_file(path, grids);
+  write_vdb_file(path, grids);
 }
 
 SparseGrid read_vdb(const std::filesystem::path& path) {
   require_regular_file(path);
-  detail::ensure_openvdb_initialized();
+  ensure_openvdb_initialized();
   auto impl = std::make_shared<SparseGrid::Impl>();
   try {
     openvdb::io::File file(path.string());
@@ -309,7 +332,7 @@ SparseGrid read_vdb(const std::filesystem::path& path) {
 
 std::vector<VdbGridSummary> inspect_vdb(const std::filesystem::path& path) {
   require_regular_file(path);
-  detail::ensure_openvdb_initialized();
+  ensure_openvdb_initialized();
   std::vector<VdbGridSummary> out;
   try {
     openvdb::io::File file(path.string());

@@ -2,15 +2,17 @@
 // foreground (voxels above a threshold) dilated by a band, an optional
 // `background` grid with a random subsample of the rest, the CONVENTIONS
 // index->world transform, and .vdb read/write with metadata. OpenVDB itself is
-// hidden here (see io/detail/vdb_grids.hpp for code that needs the grids).
+// hidden here: later layers visit the active voxels (visit_active_leaves).
 #pragma once
 
 #include <Eigen/Core>
 #include <array>
 #include <cstdint>
 #include <filesystem>
+#include <functional>
 #include <map>
 #include <memory>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -38,6 +40,15 @@ struct SparseGridOptions {
   }
 };
 
+// One active voxel of a SparseGrid: its integer index (x, y, z) and value.
+struct ActiveVoxel {
+  std::array<int, 3> index;
+  float value;
+};
+
+// The two grids of a SparseGrid.
+enum class SparseGridPart { kForeground, kBackground };
+
 // What a .vdb written by hisnegs records about its source volume.
 struct SparseGridMeta {
   std::array<int, 3> shape_xyz{0, 0, 0};          // X, Y, Z of the source stack
@@ -63,6 +74,13 @@ class SparseGrid {
   // Value stored at integer voxel (x, y, z) of `volume` and whether it is active.
   [[nodiscard]] float value(int x, int y, int z, bool* active = nullptr) const;
 
+  // Calls visit(leaf_origin, voxels) for every 8³ leaf of `part` holding active
+  // voxels: the leaf's first voxel index (multiples of 8) and its active voxels, both
+  // in OpenVDB's order (deterministic for a given grid).
+  using LeafVisitor = std::function<void(const std::array<int, 3>& leaf_origin, std::span<const ActiveVoxel> voxels)>;
+  void visit_active_leaves(SparseGridPart part, const LeafVisitor& visit) const;
+
+  // io's own code and tests only (io/detail/vdb_grids.hpp).
   [[nodiscard]] const Impl& impl() const { return *impl_; }
 
  private:

@@ -15,7 +15,7 @@
 #include <random>
 
 #include "gmf/export_formats.hpp"
-#include "io/detail/vdb_grids.hpp"
+#include "io/vdb_file.hpp"
 #include "io/error.hpp"
 #include "tests/test_support.hpp"
 
@@ -56,7 +56,7 @@ CheckpointMeta stack_meta() {
 const io::WorldFrame kFrame(40, 40, 20, Eigen::Vector3d(1.0, 1.0, 0.5));
 
 openvdb::GridBase::Ptr read_grid(const fs::path& path, const std::string& name) {
-  io::detail::ensure_openvdb_initialized();
+  io::ensure_openvdb_initialized();
   openvdb::io::File file(path.string());
   file.open(false);
   openvdb::GridBase::Ptr grid = file.readGrid(name);
@@ -152,7 +152,8 @@ TEST(ExportVdb, MatchedLatticeUsesTheStackTransform) {
   const auto grid = read_density(dir / "m.vdb");
   ASSERT_TRUE(grid);
   // The same map as the `vdb` command's grids, so the voxels coincide with the stack's.
-  EXPECT_EQ(grid->transform(), *io::detail::make_vdb_transform(kFrame));
+  EXPECT_EQ(grid->transform(),
+            *io::make_vdb_transform(kFrame.voxel_size(), kFrame.world_from_index(Eigen::Vector3d::Zero())));
   for (const openvdb::Coord c : {openvdb::Coord(0, 0, 0), openvdb::Coord(39, 39, 19), openvdb::Coord(-3, 5, 21)}) {
     const Eigen::Vector3d expect = kFrame.world_from_index(Eigen::Vector3d(c.x(), c.y(), c.z()));
     EXPECT_LT((world_of(*grid, c) - expect).norm(), 1e-12);

@@ -1,0 +1,27 @@
+// OpenVDB for the .cpp files of any layer that builds its own grids (gmf's
+// `export vdb`): one-time initialization, the CONVENTIONS index->world map as an
+// OpenVDB transform, and the atomic .vdb writer. Heavy include: include it only
+// from .cpp files, never from another header.
+#pragma once
+
+#include <openvdb/openvdb.h>
+
+#include <Eigen/Core>
+#include <filesystem>
+
+namespace hisnegs::io {
+
+// openvdb::initialize() exactly once per process (thread-safe).
+void ensure_openvdb_initialized();
+
+// world = origin_world + voxel_size_world ⊙ index as an OpenVDB linear transform.
+// Throws InputError("voxel size V is too small for an OpenVDB transform; ...") when
+// OpenVDB refuses the map (voxels of ~1e-5 world units and below).
+openvdb::math::Transform::Ptr make_vdb_transform(const Eigen::Vector3d& voxel_size_world,
+                                                 const Eigen::Vector3d& origin_world);
+
+// Writes `grids` to a .vdb file (Blosc) atomically; an OpenVDB failure becomes a
+// std::runtime_error naming `path`, and leaves no file.
+void write_vdb_file(const std::filesystem::path& path, const openvdb::GridPtrVec& grids);
+
+}  // namespace hisnegs::io
