@@ -96,8 +96,8 @@ void RayMarcher::render(const Intrinsics& K, const CameraView& view, std::span<f
   const kernels::DenseVolume vol = dense();
   const kernels::BrickMax bricks = this->bricks();
   const kernels::MarchParams mp = params_;
-  constexpr int kTile = 16;
-  tbb::parallel_for(tbb::blocked_range2d<int>(0, K.height, kTile, 0, K.width, kTile),
+  constexpr int kGrain = 16;  // pixels per side of a TBB work item: neighbouring rays share bricks in cache
+  tbb::parallel_for(tbb::blocked_range2d<int>(0, K.height, kGrain, 0, K.width, kGrain),
                     [&](const tbb::blocked_range2d<int>& r) {
                       for (int row = r.rows().begin(); row != r.rows().end(); ++row) {
                         float* line = out.data() + static_cast<std::size_t>(row) * K.width;

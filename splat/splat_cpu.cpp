@@ -21,7 +21,7 @@ namespace hisnegs::splat {
 namespace {
 
 using gmf::kGaussianParamCount;
-constexpr int kAmplitudeBuckets = 1024;
+using detail::kAmplitudeBuckets;
 // Binning widens δ by this factor and the ellipse by kBinPad pixels each side, so
 // rounding never drops a tile the kernels' per-pixel test q <= δ would reach.
 constexpr float kBinWiden = 1.0f + 1e-3f;
@@ -282,11 +282,8 @@ detail::TileFrame CpuSplatRenderer::tile_frame(int tile) const {
   f.width = std::min(kTileSize, intrinsics_.width - f.x0);
   f.height = std::min(kTileSize, intrinsics_.height - f.y0);
   f.stride = intrinsics_.width;
-  f.beta = settings_.beta;
-  f.cutoff = settings_.cutoff;
-  f.skip_log_weight = settings_.skip_log_weight;
-  f.soft = settings_.mode == MipMode::kSoft;
-  f.count_skipped = f.soft && settings_.count_skipped;
+  f.k = settings_;
+  f.k.count_skipped = f.k.soft() && settings_.count_skipped;
   return f;
 }
 

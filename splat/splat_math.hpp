@@ -31,13 +31,25 @@ struct ViewParams {
   int width, height;
 };
 
-// Per-frame settings as the kernels take them (SplatSettings in C++17-safe form).
+// Side of the square pixel tiles every rasterizer (CPU and CUDA) bins Gaussians into.
+inline constexpr int kTileSize = 16;
+
+enum class MipMode { kSoft, kHard };
+
+// What one frame is rendered with: the one settings struct that travels from
+// SplatOptions (config) through the renderer to the tile kernels of both back ends
+// (C++17, so nvcc can compile it). β changes during training.
 struct KernelSettings {
-  bool soft = true;             // soft-MIP (Eq. 8) or hard MIP (max)
-  float beta = 50.0f;           // β
-  float cutoff = 16.0f;         // δ
-  float low_pass = 0.0f;        // pixels², added to Σ2D's diagonal
-  float skip_log_weight = 20.0f;  // skip terms with β a_k < m − this; 0 = never
+  MipMode mode = MipMode::kSoft;  // soft-MIP (Eq. 8) or hard MIP (max)
+  float beta = 50.0f;             // β
+  float cutoff = 16.0f;           // δ
+  float low_pass = 0.0f;          // pixels², added to Σ2D's diagonal
+  float skip_log_weight = 20.0f;  // skip terms with β a_k < m − this; 0 = never (see SplatOptions)
+  // Fill SplatFrameStats::skipped_terms. The CPU back end then counts the pixels of
+  // every skipped ellipse (about 1.5x its soft-MIP time), so it is off by default;
+  // the CUDA back end counts always (free there).
+  bool count_skipped = false;
+  HISNEGS_HD bool soft() const { return mode == MipMode::kSoft; }
 };
 
 // One Gaussian as the rasterizer sees it.

@@ -7,6 +7,7 @@
 #include <string>
 
 #include "io/config.hpp"
+#include "splat/splat_math.hpp"
 
 namespace hisnegs::splat {
 
@@ -52,7 +53,6 @@ struct RaymarchOptions {
   }
 };
 
-enum class MipMode { kSoft, kHard };
 
 // Soft/hard-MIP splatting (report Eq. 2-8, §9.3).
 struct SplatOptions {

@@ -13,15 +13,6 @@ namespace hisnegs::splat {
 
 std::unique_ptr<SplatRenderer> make_cpu_splat_renderer();  // splat_cpu.cpp
 
-KernelSettings SplatSettings::kernel() const {
-  KernelSettings k;
-  k.soft = mode == MipMode::kSoft;
-  k.beta = beta;
-  k.cutoff = cutoff;
-  k.low_pass = low_pass;
-  k.skip_log_weight = skip_log_weight;
-  return k;
-}
 
 #if HISNEGS_HAVE_CUDA
 namespace {
@@ -37,8 +28,8 @@ class CudaSplatRenderer final : public SplatRenderer {
     }
     count_ = params.size() / gmf::kGaussianParamCount;
     pixels_ = image.size();
-    soft_ = settings.mode == MipMode::kSoft;
-    splatter_.forward(params.data(), count_, make_splat_view<float>(K, view), settings.kernel(), image.data());
+    soft_ = settings.soft();
+    splatter_.forward(params.data(), count_, make_splat_view<float>(K, view), settings, image.data());
     stats_.visible = splatter_.visible();
     stats_.tile_entries = splatter_.tile_entries();
     stats_.skipped_terms = splatter_.skipped_terms();

@@ -15,21 +15,9 @@
 
 namespace hisnegs::splat {
 
-inline constexpr int kTileSize = 16;  // rasterizer tiles are 16x16 pixels (issue 5)
-
-// What one frame is rendered with (from SplatOptions; β changes during training).
-struct SplatSettings {
-  MipMode mode = MipMode::kSoft;
-  float beta = 50.0f;
-  float cutoff = 16.0f;          // δ
-  float low_pass = 0.0f;         // pixels², added to Σ2D's diagonal
-  float skip_log_weight = 20.0f; // 0 = never skip (see SplatOptions)
-  // Fill SplatFrameStats::skipped_terms. The CPU back end then counts the pixels of
-  // every skipped ellipse (about 1.5x its soft-MIP time), so it is off by default;
-  // the CUDA back end counts always (free there).
-  bool count_skipped = false;
+// The frame settings (splat_math.hpp's KernelSettings) made from the config section.
+struct SplatSettings : KernelSettings {
   static SplatSettings from(const SplatOptions& options);
-  [[nodiscard]] KernelSettings kernel() const;
 };
 
 // Counters of the last forward (for benchmarks, `render` and tests).

@@ -126,7 +126,7 @@ struct CudaSplatter::Impl {
   Event start, scan_done, sort_start, stop;
 
   kernels::TileParams tile_params() const {
-    return {view.width, view.height, tiles_x, settings.beta, settings.cutoff, settings.skip_log_weight};
+    return {view.width, view.height, tiles_x, settings};
   }
   void bin();
 };
@@ -194,8 +194,8 @@ void CudaSplatter::forward(const float* params, std::size_t count, const ViewPar
   d.count = count;
   d.view = view;
   d.settings = settings;
-  d.tiles_x = (view.width + kernels::kTile - 1) / kernels::kTile;
-  const int tiles_y = (view.height + kernels::kTile - 1) / kernels::kTile;
+  d.tiles_x = (view.width + kTileSize - 1) / kTileSize;
+  const int tiles_y = (view.height + kTileSize - 1) / kTileSize;
   d.tiles = static_cast<std::size_t>(d.tiles_x) * tiles_y;
   d.pixels = static_cast<std::size_t>(view.width) * view.height;
 
@@ -236,9 +236,9 @@ void CudaSplatter::forward(const float* params, std::size_t count, const ViewPar
   d.bin();
 
   // 3. Rasterization, one block per tile.
-  const dim3 block(kernels::kTile, kernels::kTile);
+  const dim3 block(kTileSize, kTileSize);
   const unsigned int grid = static_cast<unsigned int>(d.tiles);
-  if (settings.soft) {
+  if (settings.soft()) {
     kernels::forward_kernel<true><<<grid, block>>>(d.ranges.data(), d.sorted_ids, d.splats.data(), d.tile_params(),
                                                    d.m.data(), d.S.data(), d.I.data(), d.counters.data());
   } else {
@@ -260,7 +260,7 @@ void CudaSplatter::forward(const float* params, std::size_t count, const ViewPar
 
 void CudaSplatter::backward(const float* dL_dimage, float* dL_dparams, float* screen_grad) {
   Impl& d = *impl_;
-  if (!d.has_forward || !d.settings.soft) {
+  if (!d.has_forward || !d.settings.soft()) {
     throw std::logic_error("CudaSplatter::backward: needs a successful soft-MIP forward first");
   }
   if (dL_dimage == nullptr || (d.count > 0 && dL_dparams == nullptr)) {
@@ -277,7 +277,7 @@ void CudaSplatter::backward(const float* dL_dimage, float* dL_dparams, float* sc
   if (count > 0) HISNEGS_CUDA_CHECK(cudaMemset(d.grads2d.data(), 0, 6 * count * sizeof(float)));
   // 1. Per-Gaussian sums of the 2D gradients over every pixel it touches.
   if (d.entries > 0) {
-    kernels::backward_kernel<<<static_cast<unsigned int>(d.tiles), dim3(kernels::kTile, kernels::kTile)>>>(
+    kernels::backward_kernel<<<static_cast<unsigned int>(d.tiles), dim3(kTileSize, kTileSize)>>>(
         d.ranges.data(), d.sorted_ids, d.splats.data(), d.tile_params(), d.m.data(), d.S.data(), d.I.data(),
         d.dL_dI.data(), d.grads2d.data());
     HISNEGS_CUDA_CHECK_LAUNCH();

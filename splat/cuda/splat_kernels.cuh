@@ -17,8 +17,7 @@
 
 namespace hisnegs::splat::cuda::kernels {
 
-constexpr int kTile = 16;                   // == splat::kTileSize (splat_renderer.hpp is C++20)
-constexpr int kBlock = kTile * kTile;       // one thread per pixel of a tile
+constexpr int kBlock = kTileSize * kTileSize;       // one thread per pixel of a tile
 constexpr int kWarps = kBlock / 32;
 constexpr int kBatch = kBlock;              // Gaussians loaded into shared memory at once
 constexpr int kGradChunk = 32;              // backward: Gaussians reduced per shared-memory round
@@ -28,8 +27,7 @@ constexpr unsigned kFullMask = 0xffffffffu;
 struct TileParams {
   int width, height;  // image, pixels
   int tiles_x;        // tiles per image row
-  float beta, cutoff;
-  float skip_log_weight;  // 0 = never skip
+  KernelSettings k;
 };
 
 // Counters of one forward, zeroed before it.
@@ -68,7 +66,7 @@ __global__ void __launch_bounds__(256)
     if (c0 > c1 || r0 > r1 || !isfinite(s.u) || !isfinite(s.v)) {
       s.visible = false;
     } else {
-      const TileRect r{c0 / kTile, r0 / kTile, c1 / kTile, r1 / kTile};
+      const TileRect r{c0 / kTileSize, r0 / kTileSize, c1 / kTileSize, r1 / kTileSize};
       rects[k] = r;
       n = static_cast<std::uint64_t>(r.x1 - r.x0 + 1) * static_cast<std::uint64_t>(r.y1 - r.y0 + 1);
       atomicAdd(&counters->visible, 1u);
@@ -122,7 +120,7 @@ struct SharedBatch {
 
   // Called by every thread of the block between two __syncthreads().
   __device__ void load(const std::uint32_t* ids, const Splat2D<float>* splats, std::uint32_t begin, int n) {
-    const int t = threadIdx.y * kTile + threadIdx.x;
+    const int t = threadIdx.y * kTileSize + threadIdx.x;
     if (t < n) {
       const std::uint32_t k = ids[begin + t];
       const Splat2D<float> s = splats[k];
@@ -172,8 +170,8 @@ __global__ void __launch_bounds__(kBlock)
                    float* __restrict__ S_out, float* __restrict__ I_out, FrameCounters* __restrict__ counters) {
   __shared__ SharedBatch batch;
   const int tile = blockIdx.x;
-  const int col = (tile % tp.tiles_x) * kTile + threadIdx.x;
-  const int row = (tile / tp.tiles_x) * kTile + threadIdx.y;
+  const int col = (tile % tp.tiles_x) * kTileSize + threadIdx.x;
+  const int row = (tile / tp.tiles_x) * kTileSize + threadIdx.y;
   const bool inside = col < tp.width && row < tp.height;
   const float px = static_cast<float>(col) + 0.5f, py = static_cast<float>(row) + 0.5f;
   const uint2 range = ranges[tile];
@@ -194,13 +192,13 @@ __global__ void __launch_bounds__(kBlock)
           if (s.amplitude <= st.m) break;  // neither it nor any later one can raise the max
         }
         const float q = splat_distance(s, px, py);
-        if (!(q <= tp.cutoff)) continue;
+        if (!(q <= tp.k.cutoff)) continue;
         if constexpr (kSoft) {
-          if (tp.skip_log_weight > 0.0f && tp.beta * s.amplitude + tp.skip_log_weight < st.m) {
+          if (tp.k.skip_log_weight > 0.0f && tp.k.beta * s.amplitude + tp.k.skip_log_weight < st.m) {
             ++skipped;
             continue;
           }
-          softmax_add(st, s.amplitude * expf(-0.5f * q), tp.beta);
+          softmax_add(st, s.amplitude * expf(-0.5f * q), tp.k.beta);
         } else {
           st.m = fmaxf(st.m, s.amplitude * expf(-0.5f * q));
         }
@@ -229,7 +227,7 @@ __global__ void __launch_bounds__(kBlock)
   if constexpr (kSoft) {
     // Block reduction of the skipped terms, one atomic per block.
     __shared__ unsigned long long warp_skipped[kWarps];
-    const int t = threadIdx.y * kTile + threadIdx.x;
+    const int t = threadIdx.y * kTileSize + threadIdx.x;
     skipped = warp_sum(skipped);
     if (t % 32 == 0) warp_skipped[t / 32] = skipped;
     __syncthreads();
@@ -255,10 +253,10 @@ __global__ void __launch_bounds__(kBlock)
   __shared__ SharedBatch batch;
   __shared__ float partial[kWarps][kGradChunk][6];
   const int tile = blockIdx.x;
-  const int t = threadIdx.y * kTile + threadIdx.x;
+  const int t = threadIdx.y * kTileSize + threadIdx.x;
   const int lane = t % 32, warp = t / 32;
-  const int col = (tile % tp.tiles_x) * kTile + threadIdx.x;
-  const int row = (tile / tp.tiles_x) * kTile + threadIdx.y;
+  const int col = (tile % tp.tiles_x) * kTileSize + threadIdx.x;
+  const int row = (tile / tp.tiles_x) * kTileSize + threadIdx.y;
   const float px = static_cast<float>(col) + 0.5f, py = static_cast<float>(row) + 0.5f;
   // Pixels no Gaussian touched (S = 0) and those with dL/dI = 0 contribute nothing.
   float m = 0.0f, S = 1.0f, I = 0.0f, dL_dI = 0.0f;
@@ -290,11 +288,11 @@ __global__ void __launch_bounds__(kBlock)
           const float q = splat_distance(s, px, py);
           // The forward's skip rule, on the final m (>= the running m the forward saw):
           // the terms dropped here have weight below e^-skip as well.
-          term = q <= tp.cutoff &&
-                 !(tp.skip_log_weight > 0.0f && tp.beta * s.amplitude + tp.skip_log_weight < m);
+          term = q <= tp.k.cutoff &&
+                 !(tp.k.skip_log_weight > 0.0f && tp.k.beta * s.amplitude + tp.k.skip_log_weight < m);
           if (term) {
             const float gk = s.amplitude * expf(-0.5f * q);
-            accumulate_pixel_grad(s, px, py, dL_dI * softmax_dI_dg(gk, tp.beta, m, S, I), g);
+            accumulate_pixel_grad(s, px, py, dL_dI * softmax_dI_dg(gk, tp.k.beta, m, S, I), g);
           }
         }
         float sums[6] = {g.u, g.v, g.con_a, g.con_b, g.con_c, g.amplitude};

@@ -21,7 +21,6 @@ namespace hisnegs::splat::detail {
 namespace HWY_NAMESPACE {
 namespace hn = hwy::HWY_NAMESPACE;
 
-constexpr int kTile = 16;
 
 // ln x for x > 0 to ~1e-6 absolute, without libm (it dominated the culling's cost):
 // x = 2^e · r with r in [√½, √2), ln r = 2 atanh(z), z = (r − 1)/(r + 1), |z| < 0.172.
@@ -81,7 +80,7 @@ HWY_INLINE V ExpNonPositive(D d, V x) {
 // out = in · log2 e for a tile's pixels (per-pixel maxima into base 2).
 inline void times_log2e(const float* in, float* out) {
   const hn::ScalableTag<float> d;
-  for (int at = 0; at < kTile * kTile; at += static_cast<int>(hn::Lanes(d))) {
+  for (int at = 0; at < kTileSize * kTileSize; at += static_cast<int>(hn::Lanes(d))) {
     hn::Store(hn::Mul(hn::Load(d, in + at), hn::Set(d, kLog2e)), d, out + at);
   }
 }
@@ -94,16 +93,16 @@ inline void times_log2e(const float* in, float* out) {
 // smallest ln m (hard, running) or ln(M_row − skip) (soft, final), −∞ when nothing
 // can be skipped yet; +∞ for rows off the image.
 struct RowFloors {
-  HWY_ALIGN float ln_floor[kTile];
+  HWY_ALIGN float ln_floor[kTileSize];
   float tile_floor = 0.0f;  // the smallest ln_floor of the tile's rows
 
   // Hard: from the running ln max of every pixel (padding columns hold +∞).
   void from_log_max(const TileFrame& f, const float* lm) {
     const hn::ScalableTag<float> d;
     const int N = static_cast<int>(hn::Lanes(d));
-    for (int r = 0; r < kTile; ++r) {
-      auto lowest = hn::Load(d, lm + r * kTile);
-      for (int c = N; c < kTile; c += N) lowest = hn::Min(lowest, hn::Load(d, lm + r * kTile + c));
+    for (int r = 0; r < kTileSize; ++r) {
+      auto lowest = hn::Load(d, lm + r * kTileSize);
+      for (int c = N; c < kTileSize; c += N) lowest = hn::Min(lowest, hn::Load(d, lm + r * kTileSize + c));
       ln_floor[r] = r < f.height ? hn::GetLane(hn::MinOfLanes(d, lowest)) : std::numeric_limits<float>::infinity();
     }
     tile_floor = min_of_rows(f);
@@ -111,11 +110,11 @@ struct RowFloors {
   // Soft: from the final β-scaled maxima M (+∞ where no Gaussian reaches the pixel:
   // no term is evaluated there). `exact` (skip 0): nothing is skipped.
   void from_soft_max(const TileFrame& f, const float* M, bool exact) {
-    std::fill(ln_floor + f.height, ln_floor + kTile, std::numeric_limits<float>::infinity());
+    std::fill(ln_floor + f.height, ln_floor + kTileSize, std::numeric_limits<float>::infinity());
     for (int r = 0; r < f.height; ++r) {
       float lowest = std::numeric_limits<float>::infinity();
-      for (int c = 0; c < f.width; ++c) lowest = std::min(lowest, M[r * kTile + c]);
-      const float floor = lowest - f.skip_log_weight;
+      for (int c = 0; c < f.width; ++c) lowest = std::min(lowest, M[r * kTileSize + c]);
+      const float floor = lowest - f.k.skip_log_weight;
       ln_floor[r] = (exact || !(floor > 0.0f)) ? -std::numeric_limits<float>::infinity()
                     : floor == std::numeric_limits<float>::infinity() ? floor : fast_log(floor);
     }
@@ -132,11 +131,11 @@ struct RowFloors {
     return std::min(delta, 2.0f * (ln_peak - tile_floor) + kCutoffMargin);
   }
   // True once no Gaussian of amplitude below a_bound (the list is amplitude
-  // descending in 1024 buckets, so every later one is below this one's + 1/1024)
+  // descending in kAmplitudeBuckets buckets, so every later one is below this one's + 1/1024)
   // reaches any pixel within its cutoff.
   [[nodiscard]] bool none_after(const TileFrame& f, float amp, float ln_beta) const {
-    const float ln_bound = fast_log(amp + 1.0f / 1024.0f) + (f.soft ? ln_beta : 0.0f);
-    return !(cutoff_of_tile(ln_bound, f.cutoff) > 0.0f);
+    const float ln_bound = fast_log(amp + 1.0f / kAmplitudeBuckets) + (f.k.soft() ? ln_beta : 0.0f);
+    return !(cutoff_of_tile(ln_bound, f.k.cutoff) > 0.0f);
   }
 };
 constexpr int kRefreshEvery = 8;  // entries per batch: the running row floors are refreshed and the
@@ -148,10 +147,10 @@ constexpr int kRefreshEvery = 8;  // entries per batch: the running row floors a
 // centres can lie inside q <= cut (the ellipse's chord, one column of margin each
 // side against rounding: the per-lane test decides exactly).
 struct RowSpans {
-  HWY_ALIGN float cut[kTile];
-  HWY_ALIGN float dy[kTile];
-  HWY_ALIGN std::int32_t lo[kTile];
-  HWY_ALIGN std::int32_t hi[kTile];
+  HWY_ALIGN float cut[kTileSize];
+  HWY_ALIGN float dy[kTileSize];
+  HWY_ALIGN std::int32_t lo[kTileSize];
+  HWY_ALIGN std::int32_t hi[kTileSize];
 };
 
 // Fills `spans` for the Gaussian (u, v, conic A, B, C) whose row cutoffs are
@@ -164,7 +163,7 @@ inline std::int64_t row_spans(const TileFrame& f, const RowFloors& floors, const
   const int N = static_cast<int>(hn::Lanes(d));
   const float u = g.u, v = g.v, A = g.A, B = g.B;
   const auto vA = hn::Set(d, A), vdet = hn::Set(d, g.det), vinv_A = hn::Set(d, g.inv_A);
-  const auto delta = hn::Set(d, f.cutoff), zero = hn::Zero(d), one = hn::Set(d, 1.0f);
+  const auto delta = hn::Set(d, f.k.cutoff), zero = hn::Zero(d), one = hn::Set(d, 1.0f);
   const auto last_col = hn::Set(d, static_cast<float>(f.width - 1)), height = hn::Set(d, static_cast<float>(f.height));
   const auto dy0 = hn::Set(d, static_cast<float>(f.y0) + 0.5f - v);
   const auto mid0 = hn::Set(d, u - static_cast<float>(f.x0) - 0.5f), B_over_A = hn::Set(d, B * g.inv_A);
@@ -180,7 +179,7 @@ inline std::int64_t row_spans(const TileFrame& f, const RowFloors& floors, const
     return hn::IfThenElseZero(ok, hn::Max(hn::Add(hn::Sub(c1, c0), one), zero));
   };
   auto skipped = zero;
-  for (int r0 = 0; r0 < kTile; r0 += N) {
+  for (int r0 = 0; r0 < kTileSize; r0 += N) {
     const auto row = hn::Iota(d, static_cast<float>(r0));
     const auto row_ok = hn::Lt(row, height);
     const auto dy = hn::Add(dy0, row);
@@ -231,7 +230,7 @@ HWY_INLINE std::uint32_t batch_hits(const TileFrame& f, const RowFloors& floors,
   const auto zero = hn::Zero(d), two = hn::Set(d, 2.0f);
   const auto px = hn::Set(d, static_cast<float>(f.x0) + 0.5f), py = hn::Set(d, static_cast<float>(f.y0) + 0.5f);
   const auto w1 = hn::Set(d, static_cast<float>(f.width - 1)), h1 = hn::Set(d, static_cast<float>(f.height - 1));
-  const auto delta = hn::Set(d, f.cutoff), floor2 = hn::Set(d, 2.0f * (ln_add - floors.tile_floor));
+  const auto delta = hn::Set(d, f.k.cutoff), floor2 = hn::Set(d, 2.0f * (ln_add - floors.tile_floor));
   std::uint32_t bits = 0;
   for (int j0 = 0; j0 < kRefreshEvery; j0 += N) {
     const auto vA = hn::Load(d, A + j0), vB = hn::Load(d, B + j0), vC = hn::Load(d, C + j0);
@@ -269,7 +268,7 @@ template <class Body>
 HWY_INLINE void for_each_chunk(const TileFrame& f, const RowSpans& spans, const PackedSplat& g, Body&& body) {
   const float u = g.u, A = g.A, B = g.B, C = g.C;
   const hn::ScalableTag<float> d;
-  const int lanes = std::min(static_cast<int>(hn::Lanes(d)), kTile);  // chunks never cross the tile's 16 columns
+  const int lanes = std::min(static_cast<int>(hn::Lanes(d)), kTileSize);  // chunks never cross the tile's 16 columns
   const auto iota = hn::Iota(d, 0.5f);
   const auto vA = hn::Set(d, A), v2B = hn::Set(d, 2.0f * B), vC = hn::Set(d, C);
   const auto x_minus_u = hn::Set(d, static_cast<float>(f.x0) - u);
@@ -286,7 +285,7 @@ HWY_INLINE void for_each_chunk(const TileFrame& f, const RowSpans& spans, const 
       auto mask = hn::Le(q, vcut);
       if (c + lanes > f.width) mask = hn::And(mask, hn::Lt(hn::Iota(d, static_cast<float>(c)), hn::Set(d, static_cast<float>(f.width))));
       if (hn::AllFalse(d, mask)) continue;
-      body(r * kTile + c, vdy, dx, q, mask);
+      body(r * kTileSize + c, vdy, dx, q, mask);
     }
   }
 }
@@ -325,13 +324,13 @@ std::int64_t SoftPass(const TileFrame& f, const TileGaussians& gs, const float* 
   const hn::ScalableTag<float> d;
   // In base 2: g = a 2^{−q log2e / 2}, e = 2^{β' g − M'} with β' = β log2e, M' = M log2e.
   const auto minus_half_log2e = hn::Set(d, -0.5f * kLog2e);
-  const auto beta2 = hn::Set(d, f.beta * kLog2e);
-  const float ln_beta = fast_log(f.beta);
-  const bool exact = !(f.skip_log_weight > 0.0f);
-  const bool count_skipped = f.count_skipped && !exact;
+  const auto beta2 = hn::Set(d, f.k.beta * kLog2e);
+  const float ln_beta = fast_log(f.k.beta);
+  const bool exact = !(f.k.skip_log_weight > 0.0f);
+  const bool count_skipped = f.k.count_skipped && !exact;
   RowFloors floors;
   floors.from_soft_max(f, M, exact);
-  HWY_ALIGN float M2[kTile * kTile];
+  HWY_ALIGN float M2[kTileSize * kTileSize];
   times_log2e(M, M2);
   RowSpans spans;
   std::int64_t skipped = 0;
@@ -372,31 +371,31 @@ void ForwardTile(const TileFrame& f, const TileGaussians& gs, float* m_out, floa
   constexpr float kInf = std::numeric_limits<float>::infinity();
   // Tile-local rows of 16; the padding columns past the image hold +∞ in lm and M
   // (they never lower a row's floor) and are never written by the passes.
-  HWY_ALIGN float lm[kTile * kTile], M[kTile * kTile], S[kTile * kTile], W[kTile * kTile];
-  for (int r = 0; r < kTile; ++r) {
-    for (int c = 0; c < kTile; ++c) lm[r * kTile + c] = c < f.width ? -kInf : kInf;
+  HWY_ALIGN float lm[kTileSize * kTileSize], M[kTileSize * kTileSize], S[kTileSize * kTileSize], W[kTileSize * kTileSize];
+  for (int r = 0; r < kTileSize; ++r) {
+    for (int c = 0; c < kTileSize; ++c) lm[r * kTileSize + c] = c < f.width ? -kInf : kInf;
   }
   LogMaxPass(f, gs, lm);
   // M = β e^{lm} (soft) or e^{lm} (hard): the largest (β) g; +∞ where nothing reaches
   // the pixel (lm = −∞), so such pixels never lower a soft row floor.
-  const auto scale = hn::Set(d, f.soft ? f.beta : 1.0f);
-  for (int at = 0; at < kTile * kTile; at += N) {
+  const auto scale = hn::Set(d, f.k.soft() ? f.k.beta : 1.0f);
+  for (int at = 0; at < kTileSize * kTileSize; at += N) {
     const auto x = hn::Load(d, lm + at);
     const auto touched = hn::Gt(x, hn::Set(d, -kInf));
     hn::Store(hn::IfThenElse(touched, hn::Mul(scale, ExpNonPositive(d, x)), hn::Set(d, kInf)), d, M + at);
   }
-  if (f.soft) {
-    std::fill(S, S + kTile * kTile, 0.0f);
-    std::fill(W, W + kTile * kTile, 0.0f);
+  if (f.k.soft()) {
+    std::fill(S, S + kTileSize * kTileSize, 0.0f);
+    std::fill(W, W + kTileSize * kTileSize, 0.0f);
     *skipped_out += SoftPass(f, gs, M, S, W);
   }
   for (int r = 0; r < f.height; ++r) {
     const std::size_t row = static_cast<std::size_t>(f.y0 + r) * f.stride + f.x0;
     for (int c = 0; c < f.width; ++c) {
-      const int at = r * kTile + c;
+      const int at = r * kTileSize + c;
       const bool touched = lm[at] > -kInf;
       m_out[row + c] = touched ? M[at] : -kInf;
-      if (f.soft) {
+      if (f.k.soft()) {
         S_out[row + c] = S[at];
         I_out[row + c] = S[at] > 0.0f ? W[at] / S[at] : 0.0f;
       } else {
@@ -411,15 +410,15 @@ void BackwardTile(const TileFrame& f, const TileGaussians& gs, const float* m_in
                   const float* I_in, const float* dL_dI_in, float* grads) {
   const hn::ScalableTag<float> d;
   // Tile-local copies: m, 1/S, I and dL/dI (0 where nothing touched the pixel).
-  HWY_ALIGN float m[kTile * kTile], inv_S[kTile * kTile], I[kTile * kTile], G[kTile * kTile];
-  std::fill(m, m + kTile * kTile, 0.0f);
-  std::fill(inv_S, inv_S + kTile * kTile, 0.0f);
-  std::fill(I, I + kTile * kTile, 0.0f);
-  std::fill(G, G + kTile * kTile, 0.0f);
+  HWY_ALIGN float m[kTileSize * kTileSize], inv_S[kTileSize * kTileSize], I[kTileSize * kTileSize], G[kTileSize * kTileSize];
+  std::fill(m, m + kTileSize * kTileSize, 0.0f);
+  std::fill(inv_S, inv_S + kTileSize * kTileSize, 0.0f);
+  std::fill(I, I + kTileSize * kTileSize, 0.0f);
+  std::fill(G, G + kTileSize * kTileSize, 0.0f);
   for (int r = 0; r < f.height; ++r) {
     const std::size_t row = static_cast<std::size_t>(f.y0 + r) * f.stride + f.x0;
     for (int c = 0; c < f.width; ++c) {
-      const int at = r * kTile + c;
+      const int at = r * kTileSize + c;
       if (S_in[row + c] > 0.0f) {
         m[at] = m_in[row + c];
         inv_S[at] = 1.0f / S_in[row + c];
@@ -428,24 +427,24 @@ void BackwardTile(const TileFrame& f, const TileGaussians& gs, const float* m_in
       }
     }
   }
-  const auto beta = hn::Set(d, f.beta);
+  const auto beta = hn::Set(d, f.k.beta);
   const auto minus_half = hn::Set(d, -0.5f);
   const auto one = hn::Set(d, 1.0f);
   const auto two = hn::Set(d, 2.0f);
-  const float ln_beta = fast_log(f.beta);
+  const float ln_beta = fast_log(f.k.beta);
   // The forward's skip rule on the same final m, so exactly the terms the forward
   // summed are differentiated. Untouched pixels (no gradient flows through them)
   // do not lower a row's floor.
   RowFloors floors;
   {
-    HWY_ALIGN float m_floor[kTile * kTile];
-    for (int at = 0; at < kTile * kTile; ++at) m_floor[at] = inv_S[at] > 0.0f ? m[at] : std::numeric_limits<float>::infinity();
-    floors.from_soft_max(f, m_floor, !(f.skip_log_weight > 0.0f));
+    HWY_ALIGN float m_floor[kTileSize * kTileSize];
+    for (int at = 0; at < kTileSize * kTileSize; ++at) m_floor[at] = inv_S[at] > 0.0f ? m[at] : std::numeric_limits<float>::infinity();
+    floors.from_soft_max(f, m_floor, !(f.k.skip_log_weight > 0.0f));
   }
   // In base 2, as the forward: G = 2^{−q log2e / 2}, e^{βg − m} = 2^{β' g − m'}.
   const auto minus_half_log2e = hn::Set(d, -0.5f * kLog2e);
-  const auto beta2 = hn::Set(d, f.beta * kLog2e);
-  HWY_ALIGN float m2[kTile * kTile];
+  const auto beta2 = hn::Set(d, f.k.beta * kLog2e);
+  HWY_ALIGN float m2[kTileSize * kTileSize];
   times_log2e(m, m2);
   RowSpans spans;
   std::uint32_t hits = 0;
@@ -503,7 +502,7 @@ HWY_INLINE void OneTileBands(const EllipseBands& e, int ty0, int rows, int x0, i
   const int N = static_cast<int>(hn::Lanes(d));
   const auto u = hn::Set(d, e.u), slope = hn::Set(d, e.slope), k1 = hn::Set(d, e.k1), k2 = hn::Set(d, e.k2);
   const auto dy_right = hn::Set(d, e.dy_right), dy_left = hn::Set(d, -e.dy_right), zero = hn::Zero(d);
-  const auto tile = hn::Set(d, static_cast<float>(kTile)), inv_tile = hn::Set(d, 1.0f / kTile);
+  const auto tile = hn::Set(d, static_cast<float>(kTileSize)), inv_tile = hn::Set(d, 1.0f / kTileSize);
   const auto lowest = hn::Set(d, -2.0f), highest = hn::Set(d, static_cast<float>(1 << 30));
   const auto x0f = hn::Set(d, static_cast<float>(x0)), x1f = hn::Set(d, static_cast<float>(x1));
   for (int b0 = 0; b0 < rows; b0 += N) {

@@ -6,6 +6,8 @@
 #include <cstddef>
 #include <cstdint>
 
+#include "splat/splat_math.hpp"
+
 namespace hisnegs::splat::detail {
 
 // One Gaussian's 2D parameters as the tile kernels read them, with the per-Gaussian
@@ -27,14 +29,16 @@ struct TileGaussians {
   [[nodiscard]] const PackedSplat& operator[](int i) const { return packed[ids[i]]; }
 };
 
+// Tile lists are amplitude descending in this many buckets of a ∈ [0, 1] (the
+// binning sorts into them; the kernels' early stop bounds a later entry's a by
+// its bucket's upper edge).
+inline constexpr int kAmplitudeBuckets = 1024;
+
 struct TileFrame {
   int x0, y0;         // the tile's first pixel
-  int width, height;  // pixels of the tile inside the image (<= 16)
+  int width, height;  // pixels of the tile inside the image (<= kTileSize)
   int stride;         // floats per image row
-  float beta, cutoff;
-  float skip_log_weight;  // 0 = never skip
-  bool soft;
-  bool count_skipped;     // soft: count the terms skip_log_weight drops
+  KernelSettings k;   // the frame's settings (count_skipped only counts in soft mode)
 };
 
 // Binning, for the tile rows ty0 .. ty0 + rows − 1 (rows <= kBandsAtOnce) of a
