@@ -13,8 +13,8 @@
 #include <cmath>
 #include <cstdio>
 
-#include "apps/cli_support.hpp"
-#include "apps/report_support.hpp"
+#include "apps/cli/cli_support.hpp"
+#include "apps/pipeline/report_tables.hpp"
 #include "gmf/checkpoint.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"

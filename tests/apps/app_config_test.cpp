@@ -1,6 +1,6 @@
 // Every shipped config loads and validates; configs/default.yaml holds every
 // field with exactly the in-class defaults; config errors name file and key.
-#include "apps/app_config.hpp"
+#include "apps/pipeline/app_config.hpp"
 
 #include <gtest/gtest.h>
 
@@ -8,7 +8,7 @@
 #include <fstream>
 #include <sstream>
 
-#include "apps/run_pipeline.hpp"
+#include "apps/pipeline/run_pipeline.hpp"
 #include "io/error.hpp"
 #include "tests/test_support.hpp"
 

@@ -1,5 +1,5 @@
 // run_cli and the shared option helpers of the hisnegs command line.
-#include "apps/cli_support.hpp"
+#include "apps/cli/cli_support.hpp"
 
 #include <algorithm>
 #include <cstdio>

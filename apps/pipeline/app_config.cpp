@@ -1,5 +1,5 @@
 // AppConfig loading/dumping through io::ConfigFile and each section's visit().
-#include "apps/app_config.hpp"
+#include "apps/pipeline/app_config.hpp"
 
 #include "io/error.hpp"
 

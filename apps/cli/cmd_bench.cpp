@@ -8,8 +8,8 @@
 
 #include "apps/bench/bench_report.hpp"
 #include "apps/bench/benchmarks.hpp"
-#include "apps/cli_support.hpp"
-#include "apps/commands_detail.hpp"
+#include "apps/cli/cli_support.hpp"
+#include "apps/cli/commands_detail.hpp"
 #include "io/error.hpp"
 #include "splat/camera.hpp"
 

@@ -5,8 +5,8 @@
 #include <ctime>
 #include <fstream>
 
-#include "apps/cli_support.hpp"
-#include "apps/run_pipeline.hpp"
+#include "apps/cli/cli_support.hpp"
+#include "apps/pipeline/run_pipeline.hpp"
 #include "gmf/checkpoint.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"

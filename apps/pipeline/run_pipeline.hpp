@@ -7,8 +7,8 @@
 #include <string>
 #include <vector>
 
-#include "apps/app_config.hpp"
-#include "apps/report_support.hpp"
+#include "apps/pipeline/app_config.hpp"
+#include "apps/pipeline/report_tables.hpp"
 #include "splat/backend.hpp"
 
 namespace hisnegs::apps {

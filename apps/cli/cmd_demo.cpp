@@ -3,9 +3,9 @@
 // GMF fit, training, evaluation, orbit GIF and DIR/report.md in a few minutes.
 #include <cstdio>
 
-#include "apps/cli_support.hpp"
-#include "apps/commands_detail.hpp"
-#include "apps/run_pipeline.hpp"
+#include "apps/cli/cli_support.hpp"
+#include "apps/cli/commands_detail.hpp"
+#include "apps/pipeline/run_pipeline.hpp"
 #include "io/atomic_file.hpp"
 #include "io/timer.hpp"
 

@@ -4,7 +4,7 @@
 
 #include <filesystem>
 
-#include "apps/app_config.hpp"
+#include "apps/pipeline/app_config.hpp"
 #include "gmf/checkpoint.hpp"
 #include "gmf/gaussian_mixture.hpp"
 #include "io/load_volume.hpp"

@@ -9,7 +9,7 @@
 #include <string>
 #include <vector>
 
-#include "apps/app_config.hpp"
+#include "apps/pipeline/app_config.hpp"
 
 namespace hisnegs::apps {
 

@@ -6,9 +6,9 @@
 #include <cstdio>
 #include <nlohmann/json.hpp>
 
-#include "apps/cli_support.hpp"
-#include "apps/commands_detail.hpp"
-#include "apps/report_support.hpp"
+#include "apps/cli/cli_support.hpp"
+#include "apps/cli/commands_detail.hpp"
+#include "apps/pipeline/report_tables.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
 #include "io/load_volume.hpp"

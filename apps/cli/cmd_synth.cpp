@@ -1,8 +1,8 @@
 // `hisnegs synth -o vol.tif`: the bundled synthetic neuron stack (config section `synth`).
 #include <cstdio>
 
-#include "apps/cli_support.hpp"
-#include "apps/commands_detail.hpp"
+#include "apps/cli/cli_support.hpp"
+#include "apps/cli/commands_detail.hpp"
 #include "io/error.hpp"
 #include "io/tiff_stack.hpp"
 #include "io/timer.hpp"

@@ -3,8 +3,8 @@
 #include <cstdio>
 #include <sstream>
 
-#include "apps/cli_support.hpp"
-#include "apps/commands_detail.hpp"
+#include "apps/cli/cli_support.hpp"
+#include "apps/cli/commands_detail.hpp"
 #include "gmf/checkpoint.hpp"
 #include "gmf/fit.hpp"
 #include "gmf/init.hpp"

@@ -1,7 +1,7 @@
 // `hisnegs config [--check FILE]`: print the effective configuration as YAML.
 #include <cstdio>
 
-#include "apps/cli_support.hpp"
+#include "apps/cli/cli_support.hpp"
 
 namespace hisnegs::apps {
 

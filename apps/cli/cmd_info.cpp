@@ -4,7 +4,7 @@
 #include <fstream>
 #include <iostream>
 
-#include "apps/cli_support.hpp"
+#include "apps/cli/cli_support.hpp"
 #include "gmf/checkpoint.hpp"
 #include "io/error.hpp"
 #include "io/load_volume.hpp"

@@ -5,8 +5,8 @@
 #include <cstdio>
 #include <sstream>
 
-#include "apps/cli_support.hpp"
-#include "apps/commands_detail.hpp"
+#include "apps/cli/cli_support.hpp"
+#include "apps/cli/commands_detail.hpp"
 #include "gmf/compare.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"

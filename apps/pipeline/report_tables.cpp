@@ -1,5 +1,5 @@
 // Markdown/CSV tables and the machine description of the report commands.
-#include "apps/report_support.hpp"
+#include "apps/pipeline/report_tables.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -10,7 +10,7 @@
 #include <stdexcept>
 #include <thread>
 
-#include "apps/cli_support.hpp"
+#include "apps/cli/cli_support.hpp"
 #include "splat/backend.hpp"
 
 namespace hisnegs::apps {

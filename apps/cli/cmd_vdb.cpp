@@ -2,8 +2,8 @@
 // sections `volume` and `sparse_grid`).
 #include <cstdio>
 
-#include "apps/cli_support.hpp"
-#include "apps/commands_detail.hpp"
+#include "apps/cli/cli_support.hpp"
+#include "apps/cli/commands_detail.hpp"
 #include "io/timer.hpp"
 
 namespace hisnegs::apps {

@@ -7,8 +7,8 @@
 #include <fstream>
 #include <sstream>
 
-#include "apps/cli_support.hpp"
-#include "apps/commands_detail.hpp"
+#include "apps/cli/cli_support.hpp"
+#include "apps/cli/commands_detail.hpp"
 #include "gmf/checkpoint.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"

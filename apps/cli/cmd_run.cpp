@@ -10,9 +10,9 @@
 #include <functional>
 #include <nlohmann/json.hpp>
 
-#include "apps/cli_support.hpp"
-#include "apps/commands_detail.hpp"
-#include "apps/run_pipeline.hpp"
+#include "apps/cli/cli_support.hpp"
+#include "apps/cli/commands_detail.hpp"
+#include "apps/pipeline/run_pipeline.hpp"
 #include "gmf/checkpoint.hpp"
 #include "io/atomic_file.hpp"
 #include "io/config.hpp"
