@@ -6,6 +6,7 @@
 #include <iostream>
 #include <sstream>
 
+#include "apps/cli/console_progress.hpp"
 #include "io/error.hpp"
 
 namespace hisnegs::apps {
@@ -17,6 +18,8 @@ AppConfig& GlobalOptions::config() {
   }
   return *config_;
 }
+
+Progress GlobalOptions::progress() const { return console_progress(quiet); }
 
 void VolumeOverrides::add_to(CLI::App* command) {
   command->add_option("--spacing", spacing_um, "voxel size x,y,z in um (overrides the file)")->delimiter(',');
@@ -34,30 +37,6 @@ void VolumeOverrides::apply(io::VolumeOptions& options) const {
     throw io::InputError("--spacing: expected 3 values x,y,z, got " + std::to_string(spacing_um.size()));
   }
   options.validate();
-}
-
-std::string format_seconds(double seconds) {
-  char buf[64];
-  if (seconds < 1.0) {
-    std::snprintf(buf, sizeof buf, "%.1f ms", seconds * 1e3);
-  } else if (seconds < 120.0) {
-    std::snprintf(buf, sizeof buf, "%.2f s", seconds);
-  } else {
-    std::snprintf(buf, sizeof buf, "%.1f min", seconds / 60.0);
-  }
-  return buf;
-}
-
-std::string format_bytes(double bytes) {
-  char buf[64];
-  if (bytes < 1024.0 * 1024.0) {
-    std::snprintf(buf, sizeof buf, "%.1f KiB", bytes / 1024.0);
-  } else if (bytes < 1024.0 * 1024.0 * 1024.0) {
-    std::snprintf(buf, sizeof buf, "%.1f MiB", bytes / (1024.0 * 1024.0));
-  } else {
-    std::snprintf(buf, sizeof buf, "%.2f GiB", bytes / (1024.0 * 1024.0 * 1024.0));
-  }
-  return buf;
 }
 
 int run_cli(int argc, char** argv) {

@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "apps/pipeline/app_config.hpp"
+#include "apps/pipeline/progress.hpp"
 
 namespace hisnegs::apps {
 
@@ -19,6 +20,8 @@ struct GlobalOptions {
   bool quiet = false;       // --quiet: no progress lines
   // The effective configuration (loaded on first use).
   AppConfig& config();
+  // Where commands send progress: the console, or nowhere with --quiet.
+  [[nodiscard]] Progress progress() const;
 
  private:
   std::optional<AppConfig> config_;
@@ -55,10 +58,5 @@ void add_bench_command(CLI::App& app, GlobalOptions& global);
 // Entry point of the executable: parses, runs, maps errors to exit statuses and
 // prints them as one line "hisnegs: error: ...".
 int run_cli(int argc, char** argv);
-
-// "1.23 s" / "456 ms" for progress lines.
-std::string format_seconds(double seconds);
-// "12.3 MiB".
-std::string format_bytes(double bytes);
 
 }  // namespace hisnegs::apps

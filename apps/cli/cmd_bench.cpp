@@ -9,7 +9,7 @@
 #include "apps/bench/bench_report.hpp"
 #include "apps/bench/benchmarks.hpp"
 #include "apps/cli/cli_support.hpp"
-#include "apps/cli/commands_detail.hpp"
+#include "apps/pipeline/synthetic_stack.hpp"
 #include "io/error.hpp"
 #include "splat/camera.hpp"
 
@@ -77,7 +77,7 @@ void add_bench_command(CLI::App& app, GlobalOptions& global) {
     } else if (volume.empty()) {
       temp = std::filesystem::temp_directory_path() / ("hisnegs-bench-" + std::to_string(::getpid()));
       volume = temp / "synthetic.tif";
-      write_synthetic_stack(volume, global.config().synth, true);
+      write_synthetic_stack(volume, SyntheticConfig(global.config()), Progress{});
     } else {
       io::require_regular_file(volume);
     }
@@ -92,7 +92,7 @@ void add_bench_command(CLI::App& app, GlobalOptions& global) {
       r.sizes = args->sizes;
       r.gaussians = args->gaussians;
       r.betas = args->betas;
-      bench::write_bench_report(r, global.quiet);
+      bench::write_bench_report(r, global.progress());
       if (!temp.empty()) std::filesystem::remove_all(temp);
       return;
     }

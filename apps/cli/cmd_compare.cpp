@@ -6,7 +6,8 @@
 #include <sstream>
 
 #include "apps/cli/cli_support.hpp"
-#include "apps/cli/commands_detail.hpp"
+#include "apps/pipeline/fit_stage.hpp"
+#include "apps/pipeline/format.hpp"
 #include "gmf/compare.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
@@ -168,7 +169,7 @@ void add_compare_command(CLI::App& app, GlobalOptions& global) {
     const std::filesystem::path dir = args->out;
     std::filesystem::create_directories(dir);
     io::Stopwatch watch;
-    const FitSetup setup = prepare_fit(args->volume, config, "compare", global.quiet);
+    const FitSetup setup = prepare_fit(args->volume, FitConfig(config), "compare", global.progress());
     const std::int64_t samples = setup.grid.active_voxels() + setup.grid.background_voxels();
     // Rewritten after every optimizer, so a long comparison that is stopped keeps what it measured.
     auto save = [&](const gmf::Comparison& c) {

@@ -6,6 +6,7 @@
 #include <cstdio>
 
 #include "apps/cli/cli_support.hpp"
+#include "apps/pipeline/format.hpp"
 #include "gmf/checkpoint.hpp"
 #include "gmf/export_formats.hpp"
 #include "gmf/export_vdb.hpp"

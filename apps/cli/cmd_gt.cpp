@@ -1,22 +1,9 @@
-// `hisnegs gt VOLUME -o DIR`: ground-truth MIPs of the training/evaluation orbits
-// (or a cameras file / custom orbit): cameras.json, mips.tif, previews/, meta.json.
-#include <unistd.h>
-
-#include <algorithm>
-#include <cstdio>
-#include <nlohmann/json.hpp>
-
+// `hisnegs gt VOLUME -o DIR`: options of the ground-truth stage
+// (pipeline/ground_truth_stage.hpp): which orbits or cameras file, image size, mode.
 #include "apps/cli/cli_support.hpp"
-#include "apps/cli/commands_detail.hpp"
-#include "apps/pipeline/report_tables.hpp"
-#include "io/atomic_file.hpp"
+#include "apps/pipeline/ground_truth_stage.hpp"
+#include "io/config.hpp"
 #include "io/error.hpp"
-#include "io/load_volume.hpp"
-#include "io/png.hpp"
-#include "io/tiff_stack.hpp"
-#include "io/timer.hpp"
-#include "splat/ground_truth.hpp"
-#include "splat/raymarch.hpp"
 
 namespace hisnegs::apps {
 namespace {
@@ -31,71 +18,6 @@ struct GtArgs {
 };
 
 }  // namespace
-
-void write_image_stack(const std::filesystem::path& dir, const std::string& name, const splat::MipStack& stack) {
-  io::TiffWriteOptions tiff;
-  tiff.type = io::SampleType::kFloat32;
-  io::write_tiff_stack(dir / name, stack.pixels, stack.width, stack.height, stack.views, tiff);
-  for (int i = 0; i < stack.views; ++i) {
-    char file[32];
-    std::snprintf(file, sizeof file, "%03d.png", i);
-    io::write_png(dir / "previews" / file, io::to_gray8(stack.view(i), stack.width, stack.height));
-  }
-}
-
-void write_ground_truth_set(const std::filesystem::path& dir, const std::string& label,
-                            const splat::CameraSet& cameras, const io::LoadedVolume& loaded,
-                            const std::string& volume_path, const splat::RaymarchOptions& rm, splat::Backend backend,
-                            bool quiet) {
-  const bool tty = ::isatty(STDERR_FILENO);
-  io::Stopwatch watch;
-  const splat::MipStack stack = splat::render_ground_truth(
-      loaded.volume, loaded.frame, cameras, rm, backend, [&](int done, int total) {
-        if (quiet) return;
-        const double per_view = watch.elapsed() / done;
-        if (tty || done == total) {
-          std::fprintf(stderr, "%sgt %s: %d/%d views, %.1f ms/view, ETA %s%s", tty ? "\r" : "", label.c_str(), done,
-                       total, per_view * 1e3, format_seconds(per_view * (total - done)).c_str(), done == total ? "\n" : "");
-        }
-      });
-  const double render_s = watch.lap();
-  splat::write_cameras_json(dir / "cameras.json", cameras);
-  write_image_stack(dir, "mips.tif", stack);
-  nlohmann::ordered_json meta;
-  const io::Volume& v = loaded.volume;
-  meta["volume"] = volume_path;
-  meta["volume_shape_zyx"] = {v.nz, v.ny, v.nx};
-  meta["spacing_um"] = {v.spacing.um[0], v.spacing.um[1], v.spacing.um[2]};
-  meta["spacing_source"] = v.spacing.describe();
-  meta["normalization"] = {{"method", std::string(io::to_string(v.normalization.method))},
-                           {"raw_lo", v.normalization.raw_lo},
-                           {"raw_hi", v.normalization.raw_hi}};
-  const Eigen::Vector3d& a = loaded.frame.aspect();
-  meta["aspect"] = {a.x(), a.y(), a.z()};
-  meta["mode"] = rm.mode == splat::RaymarchMode::kExact ? "exact" : "report";
-  if (rm.mode == splat::RaymarchMode::kExact) {
-    meta["step_world"] = splat::exact_step(loaded.frame, rm);
-  } else {
-    meta["samples"] = rm.samples;
-    meta["t_near"] = rm.t_near;
-    meta["t_far"] = rm.t_far;
-  }
-  meta["views"] = stack.views;
-  meta["width"] = stack.width;
-  meta["height"] = stack.height;
-  meta["backend"] = std::string(splat::to_string(stack.backend));
-  meta["timing"] = {{"render_s", render_s},
-                    {"median_ms_per_view", 1e3 * median(stack.seconds_per_view)},
-                    {"mean_ms_per_view", 1e3 * render_s / std::max(stack.views, 1)}};
-  const std::string text = meta.dump(2) + "\n";
-  io::write_file_atomic(dir / "meta.json", text.data(), text.size());
-  if (!quiet) {
-    std::printf("gt: %s: %d views of %dx%d (%s mode, %s) in %s, median %.1f ms/view -> %s\n", label.c_str(),
-                stack.views, stack.width, stack.height, meta["mode"].get<std::string>().c_str(),
-                std::string(splat::to_string(stack.backend)).c_str(), format_seconds(render_s).c_str(),
-                1e3 * median(stack.seconds_per_view), dir.c_str());
-  }
-}
 
 void add_gt_command(CLI::App& app, GlobalOptions& global) {
   auto* cmd = app.add_subcommand("gt", "ray-march ground-truth MIPs (cameras.json, mips.tif, previews, meta.json)");
@@ -124,16 +46,16 @@ void add_gt_command(CLI::App& app, GlobalOptions& global) {
     config.raymarch.validate();
     const bool custom = !args->elevations.empty() || !args->azimuths.empty() || args->ring_views;
     if (custom && args->orbit == "both") args->orbit = "custom";
-    std::vector<std::pair<std::string, splat::CameraSet>> sets;
+    std::vector<GroundTruthSet> sets;
     if (!args->cameras.empty()) {
-      sets.emplace_back("cameras", splat::read_cameras_json(args->cameras));
+      sets.push_back(GroundTruthSet{"cameras", splat::read_cameras_json(args->cameras)});
     } else if (args->orbit == "train") {
-      sets.emplace_back("train", splat::training_orbit(config.camera));
+      sets.push_back(GroundTruthSet{"train", splat::training_orbit(config.camera)});
     } else if (args->orbit == "eval") {
-      sets.emplace_back("eval", splat::evaluation_orbit(config.camera));
+      sets.push_back(GroundTruthSet{"eval", splat::evaluation_orbit(config.camera)});
     } else if (args->orbit == "both") {
-      sets.emplace_back("train", splat::training_orbit(config.camera));
-      sets.emplace_back("eval", splat::evaluation_orbit(config.camera));
+      sets.push_back(GroundTruthSet{"train", splat::training_orbit(config.camera)});
+      sets.push_back(GroundTruthSet{"eval", splat::evaluation_orbit(config.camera)});
     } else if (args->orbit == "custom") {
       if (args->elevations.empty()) throw io::InputError("--orbit custom: give --elevations");
       std::vector<double> azimuths = args->azimuths;
@@ -142,23 +64,12 @@ void add_gt_command(CLI::App& app, GlobalOptions& global) {
         azimuths = splat::even_azimuths(*args->ring_views);
       }
       if (azimuths.empty()) throw io::InputError("--orbit custom: give --azimuths or --ring-views");
-      sets.emplace_back("custom", splat::custom_orbit(config.camera, args->elevations, azimuths));
+      sets.push_back(GroundTruthSet{"custom", splat::custom_orbit(config.camera, args->elevations, azimuths)});
     } else {
       throw io::InputError("--orbit = '" + args->orbit + "': expected train|eval|both|custom");
     }
     const splat::Backend backend = splat::resolve_backend(splat::parse_backend_request(args->backend));
-    io::Stopwatch watch;
-    const io::LoadedVolume loaded = io::load_volume(args->volume, config.volume);
-    if (!global.quiet) {
-      std::printf("gt: loaded %s (X=%d Y=%d Z=%d, aspect %.4g %.4g %.4g) in %s\n", args->volume.c_str(),
-                  loaded.volume.nx, loaded.volume.ny, loaded.volume.nz, loaded.frame.aspect().x(),
-                  loaded.frame.aspect().y(), loaded.frame.aspect().z(), format_seconds(watch.lap()).c_str());
-    }
-    const std::filesystem::path out = args->out;
-    for (const auto& [label, cameras] : sets) {
-      const auto dir = sets.size() > 1 ? out / label : out;
-      write_ground_truth_set(dir, label, cameras, loaded, args->volume, config.raymarch, backend, global.quiet);
-    }
+    write_ground_truth_sets(args->out, args->volume, sets, GroundTruthSetsConfig(config), backend, global.progress());
   });
 }
 

@@ -5,6 +5,7 @@
 #include <iostream>
 
 #include "apps/cli/cli_support.hpp"
+#include "apps/pipeline/format.hpp"
 #include "gmf/checkpoint.hpp"
 #include "io/error.hpp"
 #include "io/load_volume.hpp"

@@ -6,7 +6,8 @@
 #include <nlohmann/json.hpp>
 
 #include "apps/cli/cli_support.hpp"
-#include "apps/cli/commands_detail.hpp"
+#include "apps/pipeline/ground_truth_stage.hpp"
+#include "apps/pipeline/orbit_stage.hpp"
 #include "gmf/checkpoint.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
@@ -34,18 +35,6 @@ double median_ms(std::vector<double> seconds) {
 }
 
 }  // namespace
-
-std::vector<double> write_orbit_gif(const std::filesystem::path& gif, splat::SplatRenderer& renderer,
-                                    std::span<const float> params, const splat::CameraOptions& camera,
-                                    const splat::SplatSettings& settings, int frames, double elevation_deg,
-                                    int delay_ms) {
-  const splat::CameraSet orbit = splat::turntable(camera, frames, elevation_deg);
-  const splat::RenderedViews r = splat::render_views(renderer, params, orbit, settings);
-  std::vector<io::Image8> images;
-  for (int i = 0; i < r.stack.views; ++i) images.push_back(io::to_gray8(r.stack.view(i), r.stack.width, r.stack.height));
-  io::write_gif(gif, images, delay_ms);
-  return r.stack.seconds_per_view;
-}
 
 void add_render_command(CLI::App& app, GlobalOptions& global) {
   auto* cmd = app.add_subcommand("render", "render a checkpoint as soft/hard MIP splats (render.tif, previews, orbit GIF)");
@@ -100,8 +89,8 @@ void add_render_command(CLI::App& app, GlobalOptions& global) {
       }
     }
     if (args->orbit) {
-      const std::vector<double> seconds = write_orbit_gif(dir / "orbit.gif", *renderer, params, config.camera, settings,
-                                                          *args->orbit, args->elevation, args->delay_ms);
+      const std::vector<double> seconds = write_orbit_gif(dir / "orbit.gif", *renderer, params, OrbitConfig(config),
+                                                          {*args->orbit, args->elevation, args->delay_ms});
       meta["orbit"] = {{"frames", *args->orbit},
                        {"elevation_deg", args->elevation},
                        {"median_ms_per_frame", median_ms(seconds)}};

@@ -1,35 +1,9 @@
-// `hisnegs vdb VOLUME -o out.vdb`: the sparse OpenVDB form of a stack (config
-// sections `volume` and `sparse_grid`).
-#include <cstdio>
-
+// `hisnegs vdb VOLUME -o out.vdb`: options of the volume stage (config sections
+// `volume` and `sparse_grid`, pipeline/volume_stage.hpp).
 #include "apps/cli/cli_support.hpp"
-#include "apps/cli/commands_detail.hpp"
-#include "io/timer.hpp"
+#include "apps/pipeline/volume_stage.hpp"
 
 namespace hisnegs::apps {
-
-io::SparseGrid write_sparse_grid(const std::filesystem::path& volume_path, const io::VolumeOptions& volume,
-                                 const io::SparseGridOptions& sparse, const std::filesystem::path& out, bool quiet) {
-  sparse.validate();
-  io::Stopwatch watch;
-  const io::LoadedVolume loaded = io::load_volume(volume_path, volume);
-  const double t_load = watch.lap();
-  io::SparseGrid grid = io::build_sparse_grid(loaded.volume, loaded.frame.aspect(), sparse);
-  const double t_build = watch.lap();
-  io::write_vdb(out, grid);
-  const double t_write = watch.lap();
-  if (!quiet) {
-    const double total = static_cast<double>(loaded.volume.size());
-    std::printf("vdb: wrote %s: %lld active voxels (%.3f %% of %.2f M), %lld background samples, %lld leaves, %s "
-                "in memory (dense float32: %s); load %s, build %s, write %s\n",
-                out.c_str(), static_cast<long long>(grid.active_voxels()), 100.0 * grid.active_voxels() / total,
-                total / 1e6, static_cast<long long>(grid.background_voxels()),
-                static_cast<long long>(grid.leaf_count()), format_bytes(static_cast<double>(grid.memory_bytes())).c_str(),
-                format_bytes(total * 4.0).c_str(), format_seconds(t_load).c_str(), format_seconds(t_build).c_str(),
-                format_seconds(t_write).c_str());
-  }
-  return grid;
-}
 
 void add_vdb_command(CLI::App& app, GlobalOptions& global) {
   auto* cmd = app.add_subcommand("vdb", "convert a TIFF stack to a sparse OpenVDB grid (foreground + band)");
@@ -50,14 +24,14 @@ void add_vdb_command(CLI::App& app, GlobalOptions& global) {
   cmd->add_option("--seed", args->seed, "background sampling seed");
   args->overrides.add_to(cmd);
   cmd->callback([args, &global] {
-    io::VolumeOptions volume = global.config().volume;
-    args->overrides.apply(volume);
-    io::SparseGridOptions sparse = global.config().sparse_grid;
+    AppConfig config = global.config();
+    args->overrides.apply(config.volume);
+    io::SparseGridOptions& sparse = config.sparse_grid;
     if (args->threshold) sparse.threshold = *args->threshold;
     if (args->band) sparse.band_voxels = *args->band;
     if (args->background_fraction) sparse.background_fraction = *args->background_fraction;
     if (args->seed) sparse.seed = *args->seed;
-    write_sparse_grid(args->volume, volume, sparse, args->out, global.quiet);
+    write_sparse_grid(args->volume, VolumeConfig(config), args->out, global.progress());
   });
 }
 

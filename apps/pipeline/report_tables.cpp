@@ -3,14 +3,12 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstdarg>
-#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <stdexcept>
 #include <thread>
 
-#include "apps/cli/cli_support.hpp"
+#include "apps/pipeline/format.hpp"
 #include "splat/backend.hpp"
 
 namespace hisnegs::apps {
@@ -48,15 +46,6 @@ std::string Table::csv() const {
   std::string s = line(header);
   for (const auto& r : rows) s += line(r);
   return s;
-}
-
-std::string strf(const char* format, ...) {
-  va_list args;
-  va_start(args, format);
-  char buffer[512];
-  const int n = std::vsnprintf(buffer, sizeof buffer, format, args);
-  va_end(args);
-  return n < 0 ? std::string() : std::string(buffer, std::min<std::size_t>(static_cast<std::size_t>(n), sizeof buffer - 1));
 }
 
 namespace {

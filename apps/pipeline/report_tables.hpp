@@ -1,5 +1,5 @@
-// What the report-writing commands (`run`, `bench report`) share: tables that
-// print as Markdown and CSV, number formatting, and a description of the machine.
+// What the reports (`run`'s report.md, `bench report`) share: tables that print
+// as Markdown and CSV, the report's standard tables, and a description of the machine.
 #pragma once
 
 #include <array>
@@ -20,9 +20,6 @@ struct Table {
   [[nodiscard]] std::string markdown() const;
   [[nodiscard]] std::string csv() const;  // cells with , or " quoted
 };
-
-// printf-style formatting into a std::string ("%.2f" etc.).
-[[nodiscard]] std::string strf(const char* format, ...) __attribute__((format(printf, 1, 2)));
 
 // The median of `values` (mean of the middle two for an even count), 0 if empty.
 [[nodiscard]] double median(std::vector<double> values);

@@ -1,12 +1,13 @@
-// DIR/report.md of `hisnegs run`: read back from the run folder's own files, so a
-// run whose stages were all reused gets the same report as the one that made them.
+// write_run_report: DIR/report.md of `hisnegs run` from the run folder's files.
+#include "apps/pipeline/run_report.hpp"
+
 #include <chrono>
 #include <cstdio>
 #include <ctime>
 #include <fstream>
 
-#include "apps/cli/cli_support.hpp"
-#include "apps/pipeline/run_pipeline.hpp"
+#include "apps/pipeline/format.hpp"
+#include "apps/pipeline/report_tables.hpp"
 #include "gmf/checkpoint.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
@@ -61,26 +62,32 @@ const char* stage_title(const std::string& name) {
   return "?";
 }
 
-}  // namespace
+// What the report reads back from the run folder.
+struct RunFiles {
+  Json volume, metrics, orbit;  // volume.json, eval/metrics.json, orbit.json
+  gmf::Checkpoint fit, trained;  // gmf.ply, train/final.ply
+};
 
-void write_run_report(const fs::path& dir, const Json& run_state, const RunSummary& summary, splat::Backend backend) {
-  const Json volume = read_json(dir / "volume.json");
-  const Json metrics = read_json(dir / "eval" / "metrics.json");
-  const Json orbit = read_json(dir / "orbit.json");
-  const gmf::Checkpoint fit = gmf::load_checkpoint((dir / "gmf.ply").string());
-  const gmf::Checkpoint trained = gmf::load_checkpoint((dir / "train" / "final.ply").string());
-  const auto shape = volume.at("shape_xyz").get<std::array<int, 3>>();
-  const auto spacing = volume.at("spacing_um").get<std::array<double, 3>>();
-  const auto aspect = volume.at("aspect").get<std::array<double, 3>>();
-  const Json& psnr = metrics.at("psnr");
+RunFiles read_run_files(const fs::path& dir) {
+  return {read_json(dir / "volume.json"), read_json(dir / "eval" / "metrics.json"), read_json(dir / "orbit.json"),
+          gmf::load_checkpoint((dir / "gmf.ply").string()),
+          gmf::load_checkpoint((dir / "train" / "final.ply").string())};
+}
 
+std::string header_section(const RunFiles& f, splat::Backend backend) {
   std::string md;
-  md += "# hisnegs run: " + fs::path(volume.at("source").get<std::string>()).filename().string() + "\n\n";
+  md += "# hisnegs run: " + fs::path(f.volume.at("source").get<std::string>()).filename().string() + "\n\n";
   md += strf("Written by hisnegs %s on %s.  \n", HISNEGS_VERSION, now_utc().c_str());
   md += "Machine: " + machine_description() + "; back end: " + std::string(splat::to_string(backend)) + ".  \n";
   md += "Configuration: [config.yaml](config.yaml) (the effective settings); stage record: [run.json](run.json).\n\n";
+  return md;
+}
 
-  md += "## Summary\n\n";
+std::string summary_section(const RunFiles& f, const Json& run_state, const RunSummary& summary) {
+  const Json &volume = f.volume, &metrics = f.metrics, &psnr = f.metrics.at("psnr");
+  const auto shape = volume.at("shape_xyz").get<std::array<int, 3>>();
+  const auto spacing = volume.at("spacing_um").get<std::array<double, 3>>();
+  const auto aspect = volume.at("aspect").get<std::array<double, 3>>();
   Table s{{"", ""}, {}};
   s.add({"Volume", volume.at("source").get<std::string>()});
   s.add({"Shape X x Y x Z", strf("%d x %d x %d", shape[0], shape[1], shape[2])});
@@ -95,24 +102,28 @@ void write_run_report(const fs::path& dir, const Json& run_state, const RunSumma
   s.add({"Rendering", strf("%s MIP, beta %.4g", metrics.at("mode").get<std::string>().c_str(),
                            metrics.at("beta").get<double>())});
   if (run_state.contains("fit")) {
-    s.add({"GMF fit", strf("K %zu, 3D PSNR %.2f dB (%s)", fit.mixture.size(),
+    s.add({"GMF fit", strf("K %zu, 3D PSNR %.2f dB (%s)", f.fit.mixture.size(),
                            run_state["fit"].value("psnr_3d", 0.0), run_state["fit"].value("stop", "").c_str())});
   }
-  s.add({"Trained model", strf("K %zu ([train/final.ply](train/final.ply))", trained.mixture.size())});
+  s.add({"Trained model", strf("K %zu ([train/final.ply](train/final.ply))", f.trained.mixture.size())});
   double all_stages = 0;
   for (const StageTiming& t : summary.stages) all_stages += t.seconds;
   s.add({"Wall time", strf("%s for all stages; this invocation %s", format_seconds(all_stages).c_str(),
                            format_seconds(summary.seconds).c_str())});
-  md += s.markdown() + "\n";
+  return "## Summary\n\n" + s.markdown() + "\n";
+}
 
-  md += "## Stages\n\n";
+std::string stages_section(const RunSummary& summary) {
   Table st{{"stage", "wall time", "this invocation"}, {}};
   for (const StageTiming& t : summary.stages) {
     st.add({stage_title(t.name), format_seconds(t.seconds), t.reused ? "reused" : "ran"});
   }
-  md += st.markdown() + "\n";
+  return "## Stages\n\n" + st.markdown() + "\n";
+}
 
-  md += "## Evaluation views (report Table 8)\n\n";
+std::string evaluation_section(const Json& metrics) {
+  const Json& psnr = metrics.at("psnr");
+  std::string md = "## Evaluation views (report Table 8)\n\n";
   md += strf("Soft-MIP splats of the trained model against ray-marched ground truth at the %d held-out evaluation "
              "views (CONVENTIONS \"Metrics\"); per view also in [eval/metrics.csv](eval/metrics.csv).\n\n",
              metrics.at("views").get<int>());
@@ -133,41 +144,56 @@ void write_run_report(const fs::path& dir, const Json& run_state, const RunSumma
   for (int i : {0, 10, 20}) {
     if (i < metrics.at("views").get<int>()) md += strf("![view %d](eval/compare/%03d.png)\n", i, i);
   }
-  md += "\n";
+  return md + "\n";
+}
 
-  md += "## Training\n\n";
+std::string training_section(const fs::path& dir) {
+  std::string md = "## Training\n\n";
   const std::vector<std::string> last = last_log_row(dir / "train" / "log.csv");
   if (last.size() >= 5) {
     md += "Last epoch " + last[0] + ": loss " + last[2] + ", training-view PSNR " +
           strf("%.2f", std::stod(last[3])) + " dB, K " + last[4] + ", " + format_seconds(std::stod(last[1])) +
           " of training. Log: [train/log.csv](train/log.csv).\n\n";
   }
-  md += "![training curve](train/training_curve.png)\n\n";
+  return md + "![training curve](train/training_curve.png)\n\n";
+}
 
-  md += "## Gaussian statistics (report Table 3)\n\n";
-  md += gaussian_table({{"GMF fit (gmf.ply)", gmf::compute_stats(fit.mixture)},
-                        {"trained (train/final.ply)", gmf::compute_stats(trained.mixture)}})
-            .markdown() +
-        "\n";
+std::string gaussian_section(const RunFiles& f) {
+  return "## Gaussian statistics (report Table 3)\n\n" +
+         gaussian_table({{"GMF fit (gmf.ply)", gmf::compute_stats(f.fit.mixture)},
+                         {"trained (train/final.ply)", gmf::compute_stats(f.trained.mixture)}})
+             .markdown() +
+         "\n";
+}
 
-  md += "## Memory and compression (report Table 12)\n\n";
+std::string memory_section(const fs::path& dir, const RunFiles& f) {
   MemoryInputs mem;
-  mem.shape_xyz = shape;
-  mem.gaussians = trained.mixture.size();
+  mem.shape_xyz = f.volume.at("shape_xyz").get<std::array<int, 3>>();
+  mem.gaussians = f.trained.mixture.size();
   mem.sparse_file = std::pair{std::string("volume.vdb"), file_bytes((dir / "volume.vdb").string())};
   mem.checkpoint_file = std::pair{std::string("train/final.ply"), file_bytes((dir / "train" / "final.ply").string())};
-  md += memory_table(mem).markdown() + "\n";
-  md += strf("The source TIFF file is %s on disk.\n\n", format_bytes(volume.at("file_bytes").get<double>()).c_str());
+  return "## Memory and compression (report Table 12)\n\n" + memory_table(mem).markdown() + "\n" +
+         strf("The source TIFF file is %s on disk.\n\n", format_bytes(f.volume.at("file_bytes").get<double>()).c_str());
+}
 
-  md += "## Orbit (report Table 10)\n\n";
+std::string orbit_section(const Json& orbit) {
+  std::string md = "## Orbit (report Table 10)\n\n";
   md += strf("%d frames of a 360 degree orbit at %.3g degrees elevation, %dx%d, K %zu, %s back end "
              "(render time per frame, the GIF encoding excluded):\n\n",
              orbit.at("frames").get<int>(), orbit.at("elevation_deg").get<double>(), orbit.at("width").get<int>(),
              orbit.at("height").get<int>(), orbit.at("gaussians").get<std::size_t>(),
              orbit.at("backend").get<std::string>().c_str());
   md += frame_time_table(orbit.at("seconds_per_frame").get<std::vector<double>>()).markdown() + "\n";
-  md += "![orbit](orbit.gif)\n";
+  return md + "![orbit](orbit.gif)\n";
+}
 
+}  // namespace
+
+void write_run_report(const fs::path& dir, const Json& run_state, const RunSummary& summary, splat::Backend backend) {
+  const RunFiles files = read_run_files(dir);
+  const std::string md = header_section(files, backend) + summary_section(files, run_state, summary) +
+                         stages_section(summary) + evaluation_section(files.metrics) + training_section(dir) +
+                         gaussian_section(files) + memory_section(dir, files) + orbit_section(files.orbit);
   io::write_file_atomic(dir / "report.md", md.data(), md.size());
 }
 

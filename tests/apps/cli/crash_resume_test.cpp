@@ -76,7 +76,9 @@ class CrashSafeTraining : public ::testing::Test {
     for (const auto& e : fs::directory_iterator(checkpoints)) {
       const std::string name = e.path().filename().string();
       if (name.starts_with(".")) continue;  // an interrupted write's temporary, never a checkpoint name
-      if (e.path().extension() == ".ply") EXPECT_NO_THROW((void)gmf::load_checkpoint(e.path().string())) << name;
+      if (e.path().extension() == ".ply") {
+        EXPECT_NO_THROW((void)gmf::load_checkpoint(e.path().string())) << name;
+      }
     }
     ASSERT_TRUE(fs::exists(checkpoints / "latest")) << fault;
     const int epoch = std::stoi(bytes_of(checkpoints / "latest"));

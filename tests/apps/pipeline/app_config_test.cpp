@@ -8,7 +8,7 @@
 #include <fstream>
 #include <sstream>
 
-#include "apps/pipeline/run_pipeline.hpp"
+#include "apps/pipeline/demo.hpp"
 #include "io/error.hpp"
 #include "tests/test_support.hpp"
 
