@@ -5,6 +5,7 @@
 
 #include <array>
 #include <cstddef>
+#include <stdexcept>
 #include <string>
 #include <tuple>
 #include <type_traits>
@@ -36,6 +37,12 @@ constexpr bool same_section() {
   }
 }
 
+// How often section pointer `Member` occurs in `Members`.
+template <auto Member, auto... Members>
+constexpr int count_section() {
+  return (0 + ... + static_cast<int>(same_section<Member, Members>()));
+}
+
 }  // namespace detail
 
 // Holds copies of the sections `Members` (pointers to members of AppConfig, e.g.
@@ -46,6 +53,7 @@ constexpr bool same_section() {
 template <auto... Members>
 class ConfigSlice {
   static_assert(sizeof...(Members) > 0, "a slice holds at least one section");
+  static_assert(((detail::count_section<Members, Members...>() == 1) && ...), "a slice names each section once");
 
  public:
   // Whether the slice holds section `Member`.
@@ -78,11 +86,18 @@ class ConfigSlice {
     return names;
   }
 
-  // "volume:\n  channel: 0\n...": the held sections as YAML, in file order.
+  // "volume:\n  channel: 0\n...": the held sections as YAML, in file order. Throws
+  // std::logic_error if a member is not a section AppConfig::for_each_section visits.
   [[nodiscard]] std::string text() const {
     io::ConfigWriter writer;
     AppConfig probe;
-    probe.for_each_section([&](const char* name, auto& options) { (write_if<Members>(writer, probe, name, options), ...); });
+    int written = 0;
+    probe.for_each_section([&](const char* name, auto& options) {
+      written += (static_cast<int>(write_if<Members>(writer, probe, name, options)) + ...);
+    });
+    if (written != static_cast<int>(sizeof...(Members))) {
+      throw std::logic_error("ConfigSlice: a member is not a section of AppConfig::for_each_section");
+    }
     return writer.str();
   }
 
@@ -105,14 +120,16 @@ class ConfigSlice {
     }
   }
 
+  // Writes section `Member` if `options` is it; returns whether it was.
   template <auto Member, class Options>
-  void write_if(io::ConfigWriter& writer, AppConfig& probe, const char* name, Options& options) const {
-    if (!is_section<Member>(probe, options)) return;
+  bool write_if(io::ConfigWriter& writer, AppConfig& probe, const char* name, Options& options) const {
+    if (!is_section<Member>(probe, options)) return false;
     if constexpr (std::is_same_v<typename detail::SectionType<Member>::type, Options>) {
       writer.begin_section(name);
       Options copy = get<Member>();  // visit() is not const
       copy.visit(writer);
     }
+    return true;
   }
 
   std::tuple<typename detail::SectionType<Members>::type...> sections_;
