@@ -6,7 +6,7 @@
 #include <cstdint>
 #include <string>
 
-#include "apps/app_config.hpp"
+#include "apps/pipeline/app_config.hpp"
 #include "fuzz/fuzz_support.hpp"
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {

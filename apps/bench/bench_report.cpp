@@ -12,9 +12,10 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <memory>
 
-#include "apps/cli_support.hpp"
-#include "apps/report_support.hpp"
+#include "apps/pipeline/format.hpp"
+#include "apps/pipeline/report_tables.hpp"
 #include "gmf/checkpoint.hpp"
 #include "gmf/psnr.hpp"
 #include "io/atomic_file.hpp"
@@ -94,15 +95,7 @@ void write_table(const fs::path& dir, const std::string& name, const Table& t) {
   io::write_file_atomic(dir / (name + ".csv"), csv.data(), csv.size());
 }
 
-void progress(bool quiet, const std::string& line) {
-  if (quiet) return;
-  std::printf("bench report: %s\n", line.c_str());
-  std::fflush(stdout);
-}
-
-}  // namespace
-
-void write_bench_report(const BenchReportRequest& r, bool quiet) {
+void check_request(const BenchReportRequest& r) {
   if (r.sizes.empty() || r.gaussians.empty() || r.betas.empty()) {
     throw io::InputError("bench report: --sizes, --gaussians and --betas need at least one value each");
   }
@@ -110,142 +103,173 @@ void write_bench_report(const BenchReportRequest& r, bool quiet) {
     throw io::InputError("bench report: need 1 <= --min-frames <= --max-frames");
   }
   if (r.orbit_frames < 1) throw io::InputError("bench report: --orbit-frames must be at least 1");
-  io::Stopwatch total;
-  const fs::path dir = r.dir;
-  const Timer timer(r);
-  const io::LoadedVolume volume = io::load_volume(r.volume, io::VolumeOptions{});
-  auto renderer = splat::make_splat_renderer(r.backend);
-  const std::string backend = std::string(splat::to_string(r.backend));
+}
 
+// What every table measures: the model, the volume, the renderer and the two MIP settings.
+struct Bench {
+  const BenchReportRequest& r;
+  const Progress& progress;
+  Timer timer;
+  io::LoadedVolume volume;
+  std::unique_ptr<splat::SplatRenderer> renderer;
   gmf::GaussianMixture model;
   std::string model_name;
-  if (r.model.empty()) {
-    splat::SyntheticMixtureOptions o;
-    o.gaussians = r.model_gaussians;
-    model = splat::make_synthetic_mixture(o);
-    model_name = strf("synthetic Table 3-shaped mixture, K = %zu", model.size());
-  } else {
-    model = gmf::load_checkpoint(r.model.string()).mixture;
-    model_name = io::printable(r.model.string(), 200) + strf(", K = %zu", model.size());
-  }
-  const std::span<const float> params = splat::flat_params(model);
   splat::SplatSettings soft, hard;
-  soft.mode = splat::MipMode::kSoft;
-  soft.beta = 50.0f;
-  hard.mode = splat::MipMode::kHard;
+  [[nodiscard]] std::span<const float> params() const { return splat::flat_params(model); }
+  void say(const std::string& line) const { progress.say("bench report: %s", line.c_str()); }
+};
 
+// The checkpoint of the request, or a synthetic Table 3-shaped mixture.
+void load_model(Bench& b) {
+  if (b.r.model.empty()) {
+    splat::SyntheticMixtureOptions o;
+    o.gaussians = b.r.model_gaussians;
+    b.model = splat::make_synthetic_mixture(o);
+    b.model_name = strf("synthetic Table 3-shaped mixture, K = %zu", b.model.size());
+  } else {
+    b.model = gmf::load_checkpoint(b.r.model.string()).mixture;
+    b.model_name = io::printable(b.r.model.string(), 200) + strf(", K = %zu", b.model.size());
+  }
+}
+
+std::string header_section(const Bench& b) {
+  const BenchReportRequest& r = b.r;
   std::string md = "# hisnegs bench report\n\n";
   md += "Machine: " + machine_description() + ".  \n";
-  md += "Back end: " + backend + " (splatting and ray marching).  \n";
-  md += "Model: " + model_name + ".  \n";
+  md += "Back end: " + std::string(splat::to_string(r.backend)) + " (splatting and ray marching).  \n";
+  md += "Model: " + b.model_name + ".  \n";
   md += strf("Volume (ray marcher, Table 12): %s, %dx%dx%d.  \n",
              io::printable(r.volume_label.empty() ? r.volume.string() : r.volume_label, 200).c_str(),
-             volume.volume.nx, volume.volume.ny, volume.volume.nz);
+             b.volume.volume.nx, b.volume.volume.ny, b.volume.volume.nz);
   md += strf("Timing: median wall time per frame over up to %d frames (at least %d, about %.3g s per case) after 3 "
              "warm-up frames, cycling through the 30 evaluation views; soft-MIP beta 50 unless stated.\n\n",
              r.max_frames, r.min_frames, r.seconds_per_case);
+  return md;
+}
 
-  // Table 7: against resolution, with the ray marcher (exact mode, CONVENTIONS).
+// Table 7: against resolution, with the ray marcher (exact mode, CONVENTIONS).
+std::string table7_resolution(const Bench& b) {
   Table t7{{"resolution", "soft-MIP ms", "soft FPS", "hard MIP ms", "hard FPS", "ray-march ms", "ray-march FPS",
             "speedup (soft)", "speedup (hard)"},
            {}};
-  for (int size : r.sizes) {
+  for (int size : b.r.sizes) {
     const splat::CameraSet views = eval_views(size);
-    const double s = median(timer.splat(*renderer, params, views, soft).seconds);
-    const double h = median(timer.splat(*renderer, params, views, hard).seconds);
-    const double rm = median(timer.raymarch(volume, views, r.backend).seconds);
+    const double s = median(b.timer.splat(*b.renderer, b.params(), views, b.soft).seconds);
+    const double h = median(b.timer.splat(*b.renderer, b.params(), views, b.hard).seconds);
+    const double rm = median(b.timer.raymarch(b.volume, views, b.r.backend).seconds);
     t7.add({strf("%d^2", size), ms(s), fps(s), ms(h), fps(h), ms(rm), fps(rm), strf("%.1fx", rm / s),
             strf("%.1fx", rm / h)});
-    progress(quiet, strf("Table 7: %d^2: soft %.2f ms, hard %.2f ms, ray march %.1f ms", size, 1e3 * s, 1e3 * h, 1e3 * rm));
+    b.say(strf("Table 7: %d^2: soft %.2f ms, hard %.2f ms, ray march %.1f ms", size, 1e3 * s, 1e3 * h, 1e3 * rm));
   }
-  md += "## Table 7: rendering speed against resolution\n\n" + t7.markdown() + "\n";
-  write_table(dir, "table7", t7);
+  write_table(b.r.dir, "table7", t7);
+  return "## Table 7: rendering speed against resolution\n\n" + t7.markdown() + "\n";
+}
 
-  // Table 9: against K at 256^2 (synthetic mixtures: a run has no checkpoints of other sizes).
+// Table 9: against K at 256^2 (synthetic mixtures: a run has no checkpoints of other sizes).
+std::string table9_gaussians(const Bench& b) {
   Table t9{{"K", "soft-MIP ms", "soft FPS", "hard MIP ms", "hard FPS", "visible K (mean)", "real time (soft >= 30 FPS)?"},
            {}};
   const splat::CameraSet views256 = eval_views(256);
-  for (int K : r.gaussians) {
+  for (int K : b.r.gaussians) {
     splat::SyntheticMixtureOptions o;
     o.gaussians = K;
     const gmf::GaussianMixture mixture = splat::make_synthetic_mixture(o);
     const std::span<const float> p = splat::flat_params(mixture);
-    const Timed s = timer.splat(*renderer, p, views256, soft);
-    const double h = median(timer.splat(*renderer, p, views256, hard).seconds);
+    const Timed s = b.timer.splat(*b.renderer, p, views256, b.soft);
+    const double h = median(b.timer.splat(*b.renderer, p, views256, b.hard).seconds);
     const double sm = median(s.seconds);
     t9.add({std::to_string(K), ms(sm), fps(sm), ms(h), fps(h), strf("%.0f", s.visible), sm < 1.0 / 30 ? "yes" : "no"});
-    progress(quiet, strf("Table 9: K %d: soft %.2f ms, hard %.2f ms", K, 1e3 * sm, 1e3 * h));
+    b.say(strf("Table 9: K %d: soft %.2f ms, hard %.2f ms", K, 1e3 * sm, 1e3 * h));
   }
-  md += "## Table 9: rendering speed against K (256^2, synthetic Table 3-shaped mixtures)\n\n" + t9.markdown() + "\n";
-  write_table(dir, "table9", t9);
+  write_table(b.r.dir, "table9", t9);
+  return "## Table 9: rendering speed against K (256^2, synthetic Table 3-shaped mixtures)\n\n" + t9.markdown() + "\n";
+}
 
-  // Table 10: a 360 degree orbit at elevation 0, every frame timed.
-  {
-    splat::CameraOptions co;
-    const splat::CameraSet orbit = splat::turntable(co, r.orbit_frames, 0.0);
-    std::vector<float> image(static_cast<std::size_t>(co.width) * co.height);
-    for (int i = 0; i < 3; ++i) renderer->forward(params, orbit.intrinsics, orbit.views[0], soft, image);
-    std::vector<double> seconds;
-    for (const splat::CameraView& view : orbit.views) {
-      io::Stopwatch watch;
-      renderer->forward(params, orbit.intrinsics, view, soft, image);
-      seconds.push_back(watch.elapsed());
+// Table 10: a 360 degree orbit at elevation 0, every frame timed.
+std::string table10_orbit(const Bench& b) {
+  splat::CameraOptions co;
+  const splat::CameraSet orbit = splat::turntable(co, b.r.orbit_frames, 0.0);
+  std::vector<float> image(static_cast<std::size_t>(co.width) * co.height);
+  for (int i = 0; i < 3; ++i) b.renderer->forward(b.params(), orbit.intrinsics, orbit.views[0], b.soft, image);
+  std::vector<double> seconds;
+  for (const splat::CameraView& view : orbit.views) {
+    io::Stopwatch watch;
+    b.renderer->forward(b.params(), orbit.intrinsics, view, b.soft, image);
+    seconds.push_back(watch.elapsed());
+  }
+  const Table t10 = frame_time_table(seconds);
+  write_table(b.r.dir, "table10", t10);
+  b.say(strf("Table 10: %d orbit frames, median %.2f ms", b.r.orbit_frames, 1e3 * median(seconds)));
+  return strf("## Table 10: 360 degree orbit (%d frames, elevation 0, 256^2, soft-MIP, the model)\n\n",
+              b.r.orbit_frames) +
+         t10.markdown() + "\n";
+}
+
+// Table 11: soft-MIP against beta, images against beta = 1000 and against hard MIP.
+std::string table11_beta(const Bench& b) {
+  const splat::CameraSet views = eval_views(256);
+  const int n = std::min<int>(b.r.quality_views, static_cast<int>(views.views.size()));
+  const splat::CameraSet subset{views.intrinsics, {views.views.begin(), views.views.begin() + n}};
+  splat::SplatSettings reference = b.soft;
+  reference.beta = 1000.0f;
+  const splat::MipStack ref = splat::render_views(*b.renderer, b.params(), subset, reference).stack;
+  const splat::MipStack max = splat::render_views(*b.renderer, b.params(), subset, b.hard).stack;
+  Table t11{{"beta", "PSNR vs beta 1000 (dB)", "MAE", "max error", "PSNR vs hard MIP (dB)", "soft-MIP ms"}, {}};
+  for (float beta : b.r.betas) {
+    splat::SplatSettings s = b.soft;
+    s.beta = beta;
+    const splat::MipStack img = splat::render_views(*b.renderer, b.params(), subset, s).stack;
+    double mae = 0, max_err = 0;
+    for (std::size_t i = 0; i < img.pixels.size(); ++i) {
+      const double d = std::abs(static_cast<double>(img.pixels[i]) - ref.pixels[i]);
+      mae += d;
+      max_err = std::max(max_err, d);
     }
-    const Table t10 = frame_time_table(seconds);
-    md += strf("## Table 10: 360 degree orbit (%d frames, elevation 0, 256^2, soft-MIP, the model)\n\n",
-               r.orbit_frames) +
-          t10.markdown() + "\n";
-    write_table(dir, "table10", t10);
-    progress(quiet, strf("Table 10: %d orbit frames, median %.2f ms", r.orbit_frames, 1e3 * median(seconds)));
+    mae /= static_cast<double>(img.pixels.size());
+    const double p_ref = gmf::psnr(img.pixels, ref.pixels);
+    const double p_hard = gmf::psnr(img.pixels, max.pixels);
+    const double t = median(b.timer.splat(*b.renderer, b.params(), views, s).seconds);
+    t11.add({strf("%g", beta), strf("%.2f", p_ref), strf("%.3g", mae), strf("%.3g", max_err), strf("%.2f", p_hard),
+             ms(t)});
+    b.say(strf("Table 11: beta %g: %.2f dB against beta 1000", beta, p_ref));
   }
+  write_table(b.r.dir, "table11", t11);
+  return strf("## Table 11: soft-MIP against beta (256^2, %d evaluation views, the model)\n\n", n) + t11.markdown() +
+         "\nPSNR and errors pool all pixels of the views; the time column is the soft-MIP frame time at that beta.\n\n";
+}
 
-  // Table 11: soft-MIP against beta, images against beta = 1000 and against hard MIP.
-  {
-    const splat::CameraSet views = eval_views(256);
-    const int n = std::min<int>(r.quality_views, static_cast<int>(views.views.size()));
-    const splat::CameraSet subset{views.intrinsics, {views.views.begin(), views.views.begin() + n}};
-    splat::SplatSettings reference = soft;
-    reference.beta = 1000.0f;
-    const splat::MipStack ref = splat::render_views(*renderer, params, subset, reference).stack;
-    const splat::MipStack max = splat::render_views(*renderer, params, subset, hard).stack;
-    Table t11{{"beta", "PSNR vs beta 1000 (dB)", "MAE", "max error", "PSNR vs hard MIP (dB)", "soft-MIP ms"}, {}};
-    for (float beta : r.betas) {
-      splat::SplatSettings s = soft;
-      s.beta = beta;
-      const splat::MipStack img = splat::render_views(*renderer, params, subset, s).stack;
-      double mae = 0, max_err = 0;
-      for (std::size_t i = 0; i < img.pixels.size(); ++i) {
-        const double d = std::abs(static_cast<double>(img.pixels[i]) - ref.pixels[i]);
-        mae += d;
-        max_err = std::max(max_err, d);
-      }
-      mae /= static_cast<double>(img.pixels.size());
-      const double p_ref = gmf::psnr(img.pixels, ref.pixels);
-      const double p_hard = gmf::psnr(img.pixels, max.pixels);
-      const double t = median(timer.splat(*renderer, params, views, s).seconds);
-      t11.add({strf("%g", beta), strf("%.2f", p_ref), strf("%.3g", mae), strf("%.3g", max_err), strf("%.2f", p_hard),
-               ms(t)});
-      progress(quiet, strf("Table 11: beta %g: %.2f dB against beta 1000", beta, p_ref));
-    }
-    md += strf("## Table 11: soft-MIP against beta (256^2, %d evaluation views, the model)\n\n", n) + t11.markdown() +
-          "\nPSNR and errors pool all pixels of the views; the time column is the soft-MIP frame time at that beta.\n\n";
-    write_table(dir, "table11", t11);
-  }
+// Table 12: memory of the volume against the model.
+std::string table12_memory(const Bench& b) {
+  MemoryInputs mem;
+  mem.shape_xyz = {b.volume.volume.nx, b.volume.volume.ny, b.volume.volume.nz};
+  mem.gaussians = b.model.size();
+  if (!b.r.model.empty()) mem.checkpoint_file = std::pair{b.r.model.filename().string(), file_bytes(b.r.model.string())};
+  const Table t12 = memory_table(mem);
+  write_table(b.r.dir, "table12", t12);
+  return "## Table 12: memory (the volume against the model)\n\n" + t12.markdown() + "\n";
+}
 
-  // Table 12: memory of the volume against the model.
-  {
-    MemoryInputs mem;
-    mem.shape_xyz = {volume.volume.nx, volume.volume.ny, volume.volume.nz};
-    mem.gaussians = model.size();
-    if (!r.model.empty()) mem.checkpoint_file = std::pair{r.model.filename().string(), file_bytes(r.model.string())};
-    const Table t12 = memory_table(mem);
-    md += "## Table 12: memory (the volume against the model)\n\n" + t12.markdown() + "\n";
-    write_table(dir, "table12", t12);
-  }
+}  // namespace
+
+void write_bench_report(const BenchReportRequest& r, const Progress& progress) {
+  check_request(r);
+  io::Stopwatch total;
+  Bench b{r, progress, Timer(r), io::load_volume(r.volume, io::VolumeOptions{}), splat::make_splat_renderer(r.backend),
+          {}, {}, {}, {}};
+  load_model(b);
+  b.soft.mode = splat::MipMode::kSoft;
+  b.soft.beta = 50.0f;
+  b.hard.mode = splat::MipMode::kHard;
+  std::string md = header_section(b);
+  md += table7_resolution(b);
+  md += table9_gaussians(b);
+  md += table10_orbit(b);
+  md += table11_beta(b);
+  md += table12_memory(b);
   md += strf("Measured in %s.\n", format_seconds(total.elapsed()).c_str());
-  io::write_file_atomic(dir / "report.md", md.data(), md.size());
-  progress(quiet, "wrote " + (dir / "report.md").string() + " and table7/9/10/11/12.csv (" +
-                      format_seconds(total.elapsed()) + ")");
+  io::write_file_atomic(r.dir / "report.md", md.data(), md.size());
+  b.say("wrote " + (r.dir / "report.md").string() + " and table7/9/10/11/12.csv (" + format_seconds(total.elapsed()) +
+        ")");
 }
 
 }  // namespace hisnegs::apps::bench

@@ -6,6 +6,7 @@
 #include <string>
 #include <vector>
 
+#include "apps/pipeline/progress.hpp"
 #include "splat/backend.hpp"
 
 namespace hisnegs::apps::bench {
@@ -26,7 +27,8 @@ struct BenchReportRequest {
   double seconds_per_case = 3.0;
 };
 
-// Writes DIR/report.md and DIR/table{7,9,10,11,12}.csv; progress lines unless quiet.
-void write_bench_report(const BenchReportRequest& request, bool quiet);
+// Writes DIR/report.md and DIR/table{7,9,10,11,12}.csv; a "bench report: ..." line per
+// measured row. Throws io::InputError for empty lists or a bad frame range.
+void write_bench_report(const BenchReportRequest& request, const Progress& progress);
 
 }  // namespace hisnegs::apps::bench

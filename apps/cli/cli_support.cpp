@@ -1,0 +1,101 @@
+// run_cli and the shared option helpers of the hisnegs command line.
+#include "apps/cli/cli_support.hpp"
+
+#include <algorithm>
+#include <cstdio>
+#include <iostream>
+#include <sstream>
+
+#include "apps/cli/console_progress.hpp"
+#include "io/error.hpp"
+
+namespace hisnegs::apps {
+
+AppConfig& GlobalOptions::config() {
+  if (!config_) {
+    config_ = load_app_config(config_path.empty() ? std::nullopt
+                                                  : std::optional<std::filesystem::path>(config_path));
+  }
+  return *config_;
+}
+
+Progress GlobalOptions::progress() const { return console_progress(quiet); }
+
+void VolumeOverrides::add_to(CLI::App* command) {
+  command->add_option("--spacing", spacing_um, "voxel size x,y,z in um (overrides the file)")->delimiter(',');
+  command->add_option("--channel", channel, "channel of a multi-channel stack (0-based)");
+  command->add_option("--normalization", normalization, "minmax | percentile (default from config)");
+  command->add_option("--aspect", aspect, "physical | shape (report Eq. 9)");
+}
+
+void VolumeOverrides::apply(io::VolumeOptions& options) const {
+  if (!spacing_um.empty()) options.spacing_um = spacing_um;
+  if (channel) options.channel = *channel;
+  if (!normalization.empty()) io::set_enum_field(options, "normalization", normalization, "--normalization");
+  if (!aspect.empty()) io::set_enum_field(options, "aspect", aspect, "--aspect");
+  if (!spacing_um.empty() && spacing_um.size() != 3) {
+    throw io::InputError("--spacing: expected 3 values x,y,z, got " + std::to_string(spacing_um.size()));
+  }
+  options.validate();
+}
+
+int run_cli(int argc, char** argv) {
+  CLI::App app{"hisnegs: Gaussian Mixture Field fitting and soft-MIP Gaussian splatting of microscopy volumes",
+               "hisnegs"};
+  app.set_version_flag("--version", std::string("hisnegs ") + HISNEGS_VERSION);
+  app.require_subcommand(1);
+  GlobalOptions global;
+  app.add_option("--config", global.config_path, "YAML config (default: built-in = configs/default.yaml)");
+  app.add_flag("-q,--quiet", global.quiet, "no progress output");
+  add_demo_command(app, global);
+  add_synth_command(app, global);
+  add_info_command(app, global);
+  add_vdb_command(app, global);
+  add_gt_command(app, global);
+  add_fit_command(app, global);
+  add_compare_command(app, global);
+  add_render_command(app, global);
+  add_eval_command(app, global);
+  add_train_command(app, global);
+  add_run_command(app, global);
+  add_export_command(app, global);
+  add_import_command(app, global);
+  add_config_command(app, global);
+  add_bench_command(app, global);
+  // CLI11 would only say "a subcommand is required" for a misspelt command: name it.
+  for (int i = 1; i < argc; ++i) {
+    const std::string arg = argv[i];
+    if (arg == "--config") {
+      ++i;
+      continue;
+    }
+    if (arg.empty() || arg[0] == '-') continue;
+    const auto subs = app.get_subcommands([](const CLI::App*) { return true; });
+    if (std::none_of(subs.begin(), subs.end(), [&](const CLI::App* sub) { return sub->check_name(arg); })) {
+      std::string names;
+      for (const auto* sub : subs) names += (names.empty() ? "" : ", ") + sub->get_name();
+      std::cerr << "hisnegs: error: unknown command '" << arg << "'; expected one of " << names << "\n";
+      return 2;
+    }
+    break;
+  }
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    if (e.get_exit_code() == 0) return app.exit(e);  // --help, --version
+    std::cerr << "hisnegs: error: " << io::printable(e.what()) << " (see hisnegs --help)\n";
+    return 2;
+  } catch (const io::InputError& e) {
+    std::cerr << "hisnegs: error: " << io::printable(e.what()) << "\n";
+    return 2;
+  } catch (const std::bad_alloc&) {
+    std::cerr << "hisnegs: error: out of memory\n";
+    return 1;
+  } catch (const std::exception& e) {
+    std::cerr << "hisnegs: internal error: " << io::printable(e.what()) << "\n";
+    return 1;
+  }
+  return 0;
+}
+
+}  // namespace hisnegs::apps

@@ -1,0 +1,62 @@
+// The hisnegs command line: subcommand registration, the shared options
+// (--config, volume overrides), and error -> exit status mapping
+// (bad input 2, internal failure 1). No computation here.
+#pragma once
+
+#include <CLI/CLI.hpp>
+#include <filesystem>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "apps/pipeline/app_config.hpp"
+#include "apps/pipeline/progress.hpp"
+
+namespace hisnegs::apps {
+
+// Options every command may use; filled by CLI11 before a command's callback runs.
+struct GlobalOptions {
+  std::string config_path;  // --config FILE (empty: built-in defaults = configs/default.yaml)
+  bool quiet = false;       // --quiet: no progress lines
+  // The effective configuration (loaded on first use).
+  AppConfig& config();
+  // Where commands send progress: the console, or nowhere with --quiet.
+  [[nodiscard]] Progress progress() const;
+
+ private:
+  std::optional<AppConfig> config_;
+};
+
+// Command-line overrides of the `volume` section, shared by commands that read a stack.
+struct VolumeOverrides {
+  std::vector<double> spacing_um;  // --spacing X,Y,Z
+  std::optional<int> channel;      // --channel C
+  std::string normalization;       // --normalization minmax|percentile
+  std::string aspect;              // --aspect physical|shape
+  void add_to(CLI::App* command);
+  // Applies the overrides to `options` and validates them.
+  void apply(io::VolumeOptions& options) const;
+};
+
+// Each registers one subcommand whose callback does the work.
+void add_info_command(CLI::App& app, GlobalOptions& global);
+void add_synth_command(CLI::App& app, GlobalOptions& global);
+void add_vdb_command(CLI::App& app, GlobalOptions& global);
+void add_gt_command(CLI::App& app, GlobalOptions& global);
+void add_fit_command(CLI::App& app, GlobalOptions& global);
+void add_compare_command(CLI::App& app, GlobalOptions& global);
+void add_render_command(CLI::App& app, GlobalOptions& global);
+void add_eval_command(CLI::App& app, GlobalOptions& global);
+void add_train_command(CLI::App& app, GlobalOptions& global);
+void add_export_command(CLI::App& app, GlobalOptions& global);
+void add_import_command(CLI::App& app, GlobalOptions& global);
+void add_run_command(CLI::App& app, GlobalOptions& global);
+void add_demo_command(CLI::App& app, GlobalOptions& global);
+void add_config_command(CLI::App& app, GlobalOptions& global);
+void add_bench_command(CLI::App& app, GlobalOptions& global);
+
+// Entry point of the executable: parses, runs, maps errors to exit statuses and
+// prints them as one line "hisnegs: error: ...".
+int run_cli(int argc, char** argv);
+
+}  // namespace hisnegs::apps

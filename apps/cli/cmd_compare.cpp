@@ -1,0 +1,51 @@
+// `hisnegs compare-optimizers VOLUME -o DIR`: options of the optimizer comparison
+// (pipeline/optimizer_comparison.hpp; the comparison itself lives in gmf).
+#include <sstream>
+
+#include "apps/cli/cli_support.hpp"
+#include "apps/pipeline/optimizer_comparison.hpp"
+#include "io/config.hpp"
+
+namespace hisnegs::apps {
+
+void add_compare_command(CLI::App& app, GlobalOptions& global) {
+  auto* cmd = app.add_subcommand("compare-optimizers",
+                                 "fit with every optimizer from the same init and budget; table, CSV and plot in DIR");
+  struct Args {
+    std::string volume, out, optimizers;
+    std::optional<int> gaussians;
+    gmf::CompareOptions compare;
+    VolumeOverrides overrides;
+  };
+  auto args = std::make_shared<Args>();
+  args->compare.time_budget_s = -1;  // default: gmf.time_budget_s
+  cmd->add_option("VOLUME", args->volume, "TIFF stack")->required();
+  cmd->add_option("-o,--output", args->out, "output folder")->required();
+  cmd->add_option("--optimizers", args->optimizers, "comma-separated subset of lm,lm-cgnr,dogleg,lbfgs,adam (default all)");
+  cmd->add_option("--gaussians", args->gaussians, "Gaussian budget (gmf.gaussians)");
+  cmd->add_option("--time-budget", args->compare.time_budget_s, "seconds per optimizer (default gmf.time_budget_s)");
+  cmd->add_option("--adam-steps", args->compare.adam_steps, "Adam steps that define the target loss")
+      ->capture_default_str();
+  cmd->add_flag("--stop-at-target", args->compare.stop_at_target, "end each run once it reaches the target loss");
+  args->overrides.add_to(cmd);
+  cmd->callback([args, &global] {
+    AppConfig config = global.config();
+    args->overrides.apply(config.volume);
+    if (args->gaussians) config.gmf.gaussians = *args->gaussians;
+    config.gmf.validate();
+    gmf::CompareOptions compare = args->compare;
+    if (compare.time_budget_s < 0) compare.time_budget_s = config.gmf.time_budget_s;
+    if (!args->optimizers.empty()) {
+      compare.optimizers.clear();
+      std::stringstream list(args->optimizers);
+      for (std::string name; std::getline(list, name, ',');) {
+        gmf::GmfOptions parsed;
+        io::set_enum_field(parsed, "optimizer", name, "--optimizers");
+        compare.optimizers.push_back(parsed.optimizer);
+      }
+    }
+    write_optimizer_comparison(args->out, args->volume, FitConfig(config), compare, global.progress());
+  });
+}
+
+}  // namespace hisnegs::apps

@@ -1,0 +1,156 @@
+// `hisnegs info FILE`: what a TIFF stack, .vdb or .ply checkpoint holds.
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <iostream>
+
+#include "apps/cli/cli_support.hpp"
+#include "apps/pipeline/format.hpp"
+#include "gmf/checkpoint.hpp"
+#include "io/error.hpp"
+#include "io/load_volume.hpp"
+#include "io/sparse_grid.hpp"
+#include "io/tiff_stack.hpp"
+#include "io/timer.hpp"
+
+namespace hisnegs::apps {
+namespace {
+
+enum class FileKind { kTiff, kVdb, kPly };
+
+FileKind detect_kind(const std::filesystem::path& path) {
+  io::require_regular_file(path);
+  std::ifstream in(path, std::ios::binary);
+  unsigned char magic[4] = {0, 0, 0, 0};
+  in.read(reinterpret_cast<char*>(magic), 4);
+  if ((magic[0] == 'I' && magic[1] == 'I' && (magic[2] == 42 || magic[2] == 43) && magic[3] == 0) ||
+      (magic[0] == 'M' && magic[1] == 'M' && magic[2] == 0 && (magic[3] == 42 || magic[3] == 43))) {
+    return FileKind::kTiff;
+  }
+  if (magic[0] == 'p' && magic[1] == 'l' && magic[2] == 'y') return FileKind::kPly;
+  // OpenVDB files start with the int32 magic 0x56444220 (" BDV" little-endian).
+  if (magic[0] == 0x20 && magic[1] == 0x42 && magic[2] == 0x44 && magic[3] == 0x56) return FileKind::kVdb;
+  io::fail_input(path, "unrecognized file type (expected a TIFF stack, an OpenVDB .vdb or a .ply checkpoint)");
+}
+
+void print_row(const char* key, const std::string& value) { std::printf("%-12s %s\n", key, value.c_str()); }
+
+std::string fmt(const char* f, double a) {
+  char buf[128];
+  std::snprintf(buf, sizeof buf, f, a);
+  return buf;
+}
+std::string vec3(const Eigen::Vector3d& v) {
+  char buf[128];
+  std::snprintf(buf, sizeof buf, "(%.4g, %.4g, %.4g)", v.x(), v.y(), v.z());
+  return buf;
+}
+
+void info_tiff(const std::filesystem::path& path, GlobalOptions& global, const VolumeOverrides& overrides) {
+  io::VolumeOptions options = global.config().volume;
+  overrides.apply(options);
+  const io::TiffReadOptions read = io::tiff_read_options(options);
+  const io::TiffStackInfo header = io::inspect_tiff_stack(path, read);
+  io::Stopwatch watch;
+  io::Volume raw = io::read_tiff_stack(path, read);
+  const double t_read = watch.lap();
+  const io::VolumeStats raw_stats = io::compute_stats(raw, options.foreground_threshold);
+  watch.lap();
+  io::normalize(raw, options.normalization);  // in place: the raw statistics are taken
+  const double t_norm = watch.lap();
+  const io::Volume& volume = raw;
+
+  print_row("file", path.string());
+  print_row("format", std::string("TIFF") + (header.bigtiff ? " (BigTIFF)" : "") + ", " + std::to_string(header.pages) +
+                          " pages, " + std::string(io::to_string(header.type)) + ", " + header.compression + ", " +
+                          (header.tiled ? "tiled" : "striped") +
+                          (header.channels > 1 ? ", " + std::to_string(header.channels) + " channels" : ""));
+  print_row("shape", "Z=" + std::to_string(raw.nz) + " Y=" + std::to_string(raw.ny) + " X=" + std::to_string(raw.nx) +
+                         " (" + fmt("%.2f", raw.size() / 1e6) + " M voxels, " +
+                         format_bytes(static_cast<double>(raw.size()) * 4.0) + " as float32)");
+  print_row("spacing", raw.spacing.describe());
+  const auto& s = raw.spacing.um;
+  print_row("extent", fmt("%.4g", raw.nx * s[0]) + " x " + fmt("%.4g", raw.ny * s[1]) + " x " +
+                          fmt("%.4g", raw.nz * s[2]) + " um");
+  print_row("aspect", "physical " + vec3(io::aspect_scales(raw.nx, raw.ny, raw.nz, raw.spacing, io::AspectMode::kPhysical)) +
+                          ", shape (Eq. 9) " + vec3(io::aspect_scales(raw.nx, raw.ny, raw.nz, raw.spacing, io::AspectMode::kShape)) +
+                          "; using " + std::string(io::to_string(options.aspect)));
+  print_row("intensity", "min " + fmt("%.6g", raw_stats.min) + ", max " + fmt("%.6g", raw_stats.max) + ", mean " +
+                             fmt("%.4g", raw_stats.mean) + ", std " + fmt("%.4g", raw_stats.stddev));
+  print_row("percentiles", "p1 " + fmt("%.6g", raw_stats.p01) + ", p50 " + fmt("%.6g", raw_stats.p50) + ", p99 " +
+                               fmt("%.6g", raw_stats.p99) + ", p99.9 " + fmt("%.6g", raw_stats.p999));
+  print_row("nonzero", fmt("%.3f %%", 100.0 * raw_stats.nonzero_fraction) + " of voxels differ from the minimum");
+  print_row("foreground", fmt("%.3f %%", 100.0 * raw_stats.foreground_fraction) + " of voxels > min + " +
+                              fmt("%.3g", options.foreground_threshold) + " (max - min)");
+  print_row("normalized", volume.normalization.describe() + " -> [0, 1]" +
+                              (volume.normalization.clipped_voxels
+                                   ? " (" + std::to_string(volume.normalization.clipped_voxels) + " voxels clipped)"
+                                   : ""));
+  print_row("timing", "read " + format_seconds(t_read) + ", normalize " + format_seconds(t_norm));
+}
+
+void info_vdb(const std::filesystem::path& path) {
+  const auto grids = io::inspect_vdb(path);
+  print_row("file", path.string());
+  print_row("format", "OpenVDB, " + std::to_string(grids.size()) + " grid(s)");
+  for (const auto& g : grids) {
+    std::printf("grid '%s': %s %s, %lld active voxels, %lld leaves, %s, voxel size (%.4g, %.4g, %.4g)\n",
+                g.name.c_str(), g.value_type.c_str(), g.grid_class.c_str(), static_cast<long long>(g.active_voxels),
+                static_cast<long long>(g.leaf_count), format_bytes(static_cast<double>(g.memory_bytes)).c_str(),
+                g.voxel_size[0], g.voxel_size[1], g.voxel_size[2]);
+    std::printf("  active index bbox [%d %d %d] .. [%d %d %d]\n", g.bbox_min[0], g.bbox_min[1], g.bbox_min[2],
+                g.bbox_max[0], g.bbox_max[1], g.bbox_max[2]);
+    for (const auto& [key, value] : g.metadata) std::printf("  %-22s %s\n", key.c_str(), value.c_str());
+  }
+}
+
+void info_ply(const std::filesystem::path& path) {
+  const gmf::Checkpoint ckpt = gmf::load_checkpoint(path);
+  const gmf::MixtureStats st = gmf::compute_stats(ckpt.mixture);
+  print_row("file", path.string());
+  print_row("format", "hisnegs checkpoint (PLY), format version " + std::to_string(ckpt.meta.format_version));
+  print_row("gaussians", std::to_string(st.count) + " (" +
+                             format_bytes(static_cast<double>(st.count) * gmf::kGaussianParamCount * 4.0) + " of parameters)");
+  if (ckpt.meta.volume_shape_zyx) {
+    const auto& v = *ckpt.meta.volume_shape_zyx;
+    print_row("volume", "Z=" + std::to_string(v[0]) + " Y=" + std::to_string(v[1]) + " X=" + std::to_string(v[2]));
+  }
+  if (ckpt.meta.spacing_um) {
+    const auto& s = *ckpt.meta.spacing_um;
+    print_row("spacing", vec3(Eigen::Vector3d(s[0], s[1], s[2])) + " um");
+  }
+  if (ckpt.meta.aspect) {
+    const auto& a = *ckpt.meta.aspect;
+    print_row("aspect", vec3(Eigen::Vector3d(a[0], a[1], a[2])));
+  }
+  if (!ckpt.meta.normalization.empty()) print_row("normalized", ckpt.meta.normalization);
+  for (const auto& [k, v] : ckpt.meta.extra) print_row(k.c_str(), v);
+  if (st.count == 0) return;
+  print_row("mean scale", vec3(Eigen::Vector3d(st.mean_scale[0], st.mean_scale[1], st.mean_scale[2])) + " world units");
+  print_row("intensity", "a in [" + fmt("%.4g", st.intensity_min) + ", " + fmt("%.4g", st.intensity_max) + "], mean " +
+                             fmt("%.4g", st.intensity_mean));
+  std::printf("%-16s %12s %12s %12s\n", "parameter", "min", "max", "mean");
+  for (std::size_t i = 0; i < gmf::kGaussianParamCount; ++i) {
+    const auto& r = st.params[i];
+    std::printf("%-16s %12.5g %12.5g %12.5g\n", std::string(gmf::kGaussianParamNames[i]).c_str(), r.min, r.max, r.mean);
+  }
+}
+
+}  // namespace
+
+void add_info_command(CLI::App& app, GlobalOptions& global) {
+  auto* cmd = app.add_subcommand("info", "describe a TIFF stack, an OpenVDB file or a .ply checkpoint");
+  auto path = std::make_shared<std::string>();
+  auto overrides = std::make_shared<VolumeOverrides>();
+  cmd->add_option("FILE", *path, "TIFF stack, .vdb or .ply")->required();
+  overrides->add_to(cmd);
+  cmd->callback([path, overrides, &global] {
+    switch (detect_kind(*path)) {
+      case FileKind::kTiff: info_tiff(*path, global, *overrides); break;
+      case FileKind::kVdb: info_vdb(*path); break;
+      case FileKind::kPly: info_ply(*path); break;
+    }
+  });
+}
+
+}  // namespace hisnegs::apps

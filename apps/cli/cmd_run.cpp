@@ -1,0 +1,37 @@
+// `hisnegs run VOLUME -o DIR`: options of the whole pipeline in one folder
+// (pipeline/run_pipeline.hpp): reused stages are skipped; --force redoes everything.
+#include "apps/cli/cli_support.hpp"
+#include "apps/pipeline/run_pipeline.hpp"
+#include "io/error.hpp"
+
+namespace hisnegs::apps {
+
+void add_run_command(CLI::App& app, GlobalOptions& global) {
+  auto* cmd = app.add_subcommand(
+      "run", "the whole pipeline: ground truth, GMF fit, training, evaluation, orbit GIF and report.md in one folder");
+  struct Args {
+    std::string volume, out, backend = "auto";
+    bool force = false;
+    int orbit_frames = 72;
+    double orbit_elevation = 30.0;
+    VolumeOverrides overrides;
+  };
+  auto args = std::make_shared<Args>();
+  cmd->add_option("VOLUME", args->volume, "TIFF stack")->required();
+  cmd->add_option("-o,--output", args->out, "run folder (reused stages are skipped)")->required();
+  cmd->add_option("--backend", args->backend, "auto | cpu | cuda");
+  cmd->add_flag("--force", args->force, "redo every stage, even those finished earlier");
+  cmd->add_option("--orbit-frames", args->orbit_frames, "frames of the 360 degree orbit GIF")->capture_default_str();
+  cmd->add_option("--orbit-elevation", args->orbit_elevation, "orbit elevation in degrees")->capture_default_str();
+  args->overrides.add_to(cmd);
+  cmd->callback([args, &global] {
+    AppConfig config = global.config();
+    args->overrides.apply(config.volume);
+    io::require_regular_file(args->volume);  // before the back-end notice: a bad path is the one line
+    const splat::Backend backend = splat::resolve_backend(splat::parse_backend_request(args->backend));
+    run_pipeline({args->volume, args->out, backend, args->force, args->orbit_frames, args->orbit_elevation}, config,
+                 global.progress());
+  });
+}
+
+}  // namespace hisnegs::apps

@@ -1,0 +1,32 @@
+// `hisnegs train --init gmf.ply --data GTDIR -o RUNDIR`: options of the training
+// stage (pipeline/train_stage.hpp) on GTDIR/train; --resume continues.
+#include "apps/cli/cli_support.hpp"
+#include "apps/pipeline/train_stage.hpp"
+
+namespace hisnegs::apps {
+
+void add_train_command(CLI::App& app, GlobalOptions& global) {
+  auto* cmd = app.add_subcommand("train", "train Gaussians on ground-truth MIPs by soft-MIP splatting (report §6)");
+  struct Args {
+    std::string init, data, out, backend = "auto";
+    bool resume = false;
+    std::optional<int> epochs;
+  };
+  auto args = std::make_shared<Args>();
+  cmd->add_option("--init", args->init, "initial model (.ply, e.g. from `hisnegs fit`)")->required();
+  cmd->add_option("--data", args->data, "ground-truth folder of `hisnegs gt` (uses GTDIR/train)")->required();
+  cmd->add_option("-o,--output", args->out, "run folder (log.csv, checkpoints/, final.ply, training_curve.png)")
+      ->required();
+  cmd->add_option("--backend", args->backend, "auto | cpu | cuda");
+  cmd->add_flag("--resume", args->resume, "continue from RUNDIR/checkpoints/latest");
+  cmd->add_option("--epochs", args->epochs, "number of epochs (train.epochs)");
+  cmd->callback([args, &global] {
+    AppConfig config = global.config();
+    if (args->epochs) config.train.epochs = *args->epochs;
+    train_model({args->init, std::filesystem::path(args->data) / "train", args->out,
+                 splat::resolve_backend(splat::parse_backend_request(args->backend)), args->resume},
+                TrainConfig(config), global.progress());
+  });
+}
+
+}  // namespace hisnegs::apps

@@ -1,0 +1,26 @@
+// console_progress: Progress lines to stdout, the meter to stderr.
+#include "apps/cli/console_progress.hpp"
+
+#include <unistd.h>
+
+#include <cstdio>
+
+namespace hisnegs::apps {
+
+Progress console_progress(bool quiet) {
+  if (quiet) return {};
+  Progress progress;
+  progress.line = [](std::string_view line) {
+    std::fwrite(line.data(), 1, line.size(), stdout);
+    std::fputc('\n', stdout);
+    std::fflush(stdout);
+  };
+  const bool tty = ::isatty(STDERR_FILENO);
+  progress.meter = [tty](std::string_view text, bool last) {
+    if (!tty && !last) return;  // a log file gets the final count only
+    std::fprintf(stderr, "%s%.*s%s", tty ? "\r" : "", static_cast<int>(text.size()), text.data(), last ? "\n" : "");
+  };
+  return progress;
+}
+
+}  // namespace hisnegs::apps

@@ -1,4 +1,0 @@
-// The hisnegs executable.
-#include "apps/cli_support.hpp"
-
-int main(int argc, char** argv) { return hisnegs::apps::run_cli(argc, argv); }

@@ -1,0 +1,101 @@
+// evaluate_model and the run folder's evaluation stage.
+#include "apps/pipeline/eval_stage.hpp"
+
+#include <cstdio>
+#include <nlohmann/json.hpp>
+#include <sstream>
+
+#include "gmf/checkpoint.hpp"
+#include "io/atomic_file.hpp"
+#include "io/error.hpp"
+#include "io/png.hpp"
+#include "splat/render_views.hpp"
+#include "splat/trainer.hpp"
+
+namespace hisnegs::apps {
+namespace {
+
+using Json = nlohmann::ordered_json;
+
+Json summary_json(const splat::MetricSummary& s) {
+  return Json{{"mean", s.mean}, {"std", s.std}, {"min", s.min}, {"max", s.max}};
+}
+
+// Per view: metrics, a CSV row, a JSON record and DIR/compare/NNN.png.
+struct ViewMeasurements {
+  std::vector<double> psnr, mae, ssim, visible;
+  std::ostringstream csv;
+  Json views = Json::array();
+};
+
+void measure_views(const splat::TrainingData& truth, const splat::RenderedViews& r, const std::filesystem::path& dir,
+                   ViewMeasurements& m) {
+  const int W = truth.intrinsics.width, H = truth.intrinsics.height;
+  m.csv.precision(10);
+  m.csv << "view,name,psnr,mae,ssim,visible\n";
+  for (int i = 0; i < truth.count(); ++i) {
+    const splat::ViewMetrics v = splat::image_metrics(r.stack.view(i), truth.image(i), W, H);
+    const int visible = r.stats[static_cast<std::size_t>(i)].visible;
+    m.psnr.push_back(v.psnr);
+    m.mae.push_back(v.mae);
+    m.ssim.push_back(v.ssim);
+    m.visible.push_back(visible);
+    const std::string& name = truth.views[static_cast<std::size_t>(i)].name;
+    m.csv << i << "," << name << "," << v.psnr << "," << v.mae << "," << v.ssim << "," << m.visible.back() << "\n";
+    m.views.push_back(
+        {{"view", i}, {"name", name}, {"psnr", v.psnr}, {"mae", v.mae}, {"ssim", v.ssim}, {"visible", visible}});
+    char file[32];
+    std::snprintf(file, sizeof file, "%03d.png", i);
+    io::write_png(dir / "compare" / file, splat::comparison_image(truth.image(i), r.stack.view(i), W, H));
+  }
+}
+
+}  // namespace
+
+EvalOutcome evaluate_model(const std::filesystem::path& model, const std::filesystem::path& set,
+                           const std::filesystem::path& dir, const EvalConfig& config, splat::Backend backend,
+                           const Progress& progress) {
+  config.get<&AppConfig::splat>().validate();
+  const splat::TrainingData truth = splat::load_training_data(set);
+  const gmf::Checkpoint checkpoint = gmf::load_checkpoint(model.string());
+  const splat::SplatSettings settings = splat::SplatSettings::from(config.get<&AppConfig::splat>());
+  auto renderer = splat::make_splat_renderer(backend);
+  const splat::CameraSet cameras{truth.intrinsics, truth.views};
+  const splat::RenderedViews r = splat::render_views(*renderer, splat::flat_params(checkpoint.mixture), cameras, settings);
+  ViewMeasurements m;
+  measure_views(truth, r, dir, m);
+  const EvalOutcome outcome{truth.count(), splat::summarize(m.psnr), splat::summarize(m.mae), splat::summarize(m.ssim)};
+  Json meta;
+  meta["model"] = io::printable(model.string(), 500);
+  meta["data"] = io::printable(set.string(), 500);
+  meta["gaussians"] = checkpoint.mixture.size();
+  meta["mode"] = settings.mode == splat::MipMode::kSoft ? "soft" : "hard";
+  meta["beta"] = settings.beta;
+  meta["backend"] = std::string(splat::to_string(backend));
+  meta["views"] = truth.count();
+  meta["psnr"] = summary_json(outcome.psnr);
+  meta["mae"] = summary_json(outcome.mae);
+  meta["ssim"] = summary_json(outcome.ssim);
+  meta["visible"] = summary_json(splat::summarize(m.visible));
+  meta["per_view"] = m.views;
+  const std::string json = meta.dump(2) + "\n", table = m.csv.str();
+  io::write_file_atomic(dir / "metrics.csv", table.data(), table.size());
+  io::write_file_atomic(dir / "metrics.json", json.data(), json.size());
+  const splat::MetricSummary &p = outcome.psnr, &a = outcome.mae, &s = outcome.ssim;
+  progress.say("eval: %d views of %dx%d, K %zu, %s MIP: PSNR %.2f ± %.2f dB (min %.2f), MAE %.5f, SSIM %.4f -> %s",
+               truth.count(), truth.intrinsics.width, truth.intrinsics.height, checkpoint.mixture.size(),
+               meta["mode"].get<std::string>().c_str(), p.mean, p.std, p.min, a.mean, s.mean,
+               (dir / "metrics.json").c_str());
+  return outcome;
+}
+
+nlohmann::ordered_json EvalStage::run(const RunRequest& request, const Config& config, bool,
+                                      const Progress& progress) {
+  const std::filesystem::path dir = request.dir / "eval";
+  std::filesystem::remove_all(dir);
+  evaluate_model(request.dir / "train" / "final.ply", request.dir / "gt" / "eval", dir, config, request.backend,
+                 progress);
+  return nullptr;
+}
+
+}  // namespace hisnegs::apps

@@ -1,0 +1,40 @@
+// The evaluation stage (config section splat): a model rendered at the views of a
+// ground-truth set and measured per view (CONVENTIONS "Metrics").
+#pragma once
+
+#include <filesystem>
+
+#include "apps/pipeline/config_slice.hpp"
+#include "apps/pipeline/progress.hpp"
+#include "apps/pipeline/run_stage.hpp"
+#include "splat/backend.hpp"
+#include "splat/metrics.hpp"
+
+namespace hisnegs::apps {
+
+using EvalConfig = ConfigSlice<&AppConfig::splat>;
+
+// Renders `model` at the views of the ground-truth set `set` (cameras.json + mips.tif)
+// and writes DIR/metrics.json, DIR/metrics.csv, DIR/compare/NNN.png; one "eval: ..." line.
+struct EvalOutcome {
+  int views = 0;
+  splat::MetricSummary psnr, mae, ssim;
+};
+EvalOutcome evaluate_model(const std::filesystem::path& model, const std::filesystem::path& set,
+                           const std::filesystem::path& dir, const EvalConfig& config, splat::Backend backend,
+                           const Progress& progress);
+
+// In a run folder: DIR/eval from DIR/train/final.ply on DIR/gt/eval (DIR/eval cleared first).
+struct EvalStage {
+  using Config = EvalConfig;
+  static constexpr const char* kName = "eval";
+  static constexpr const char* kTitle = "evaluation on the held-out views";
+  static constexpr std::array<const char*, 2> kUpstream{"train", "ground_truth"};
+  static constexpr std::array<const char*, 1> kOutputs{"eval/metrics.json"};
+  static constexpr const char* kResumeMarker = "";
+  static std::string request_inputs(const RunRequest&) { return {}; }
+  static nlohmann::ordered_json run(const RunRequest& request, const Config& config, bool resume,
+                                    const Progress& progress);
+};
+
+}  // namespace hisnegs::apps

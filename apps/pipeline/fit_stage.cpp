@@ -1,0 +1,104 @@
+// prepare_fit, fit_to_checkpoint, checkpoint_meta and the run folder's fit stage.
+#include "apps/pipeline/fit_stage.hpp"
+
+#include <sstream>
+
+#include "apps/pipeline/format.hpp"
+#include "gmf/fit.hpp"
+#include "gmf/init.hpp"
+#include "io/atomic_file.hpp"
+#include "io/error.hpp"
+#include "io/timer.hpp"
+
+namespace hisnegs::apps {
+namespace {
+
+std::string csv_of(const std::vector<gmf::FitIteration>& log) {
+  std::ostringstream s;
+  s.precision(10);
+  s << "iteration,seconds,loss,psnr_3d,gaussians,round\n";
+  for (const auto& it : log) {
+    s << it.iteration << "," << it.seconds << "," << it.loss << ",";
+    if (it.psnr_3d >= 0) s << it.psnr_3d;
+    s << "," << it.gaussians << "," << it.round << "\n";
+  }
+  return s.str();
+}
+
+void report_iteration(const gmf::FitIteration& it, const Progress& progress) {
+  if (it.psnr_3d >= 0) {
+    progress.say("fit: round %d done: loss %.6g, 3D PSNR %.2f dB, K %d, %s", it.round, it.loss, it.psnr_3d,
+                 it.gaussians, format_seconds(it.seconds).c_str());
+  } else {
+    progress.say("fit: round %d iteration %d: loss %.6g, K %d, %s", it.round, it.iteration, it.loss, it.gaussians,
+                 format_seconds(it.seconds).c_str());
+  }
+}
+
+}  // namespace
+
+FitSetup prepare_fit(const std::string& volume_path, const FitConfig& config, const char* label,
+                     const Progress& progress) {
+  const gmf::GmfOptions& gmf = config.get<&AppConfig::gmf>();
+  const io::SparseGridOptions& sparse_grid = config.get<&AppConfig::sparse_grid>();
+  io::Stopwatch watch;
+  FitSetup setup;
+  setup.loaded = io::load_volume(volume_path, config.get<&AppConfig::volume>());
+  io::SparseGridOptions sparse = sparse_grid;
+  sparse.background_fraction = gmf.background_fraction;  // the fit's own need (see GmfOptions)
+  setup.grid = io::build_sparse_grid(setup.loaded.volume, setup.loaded.frame.aspect(), sparse);
+  gmf::InitReport init_report;
+  setup.mixture = gmf::initialize_on_grid(setup.loaded.volume, setup.loaded.frame, sparse_grid.threshold,
+                                          gmf.gaussians, &init_report);
+  progress.say("%s: %s: %lld samples (%lld active voxels), %zu Gaussians on a %.4g grid (budget %d), %s", label,
+               volume_path.c_str(), static_cast<long long>(setup.grid.active_voxels() + setup.grid.background_voxels()),
+               static_cast<long long>(setup.grid.active_voxels()), setup.mixture.size(), init_report.cell_world,
+               gmf.gaussians, format_seconds(watch.elapsed()).c_str());
+  return setup;
+}
+
+gmf::CheckpointMeta checkpoint_meta(const io::LoadedVolume& loaded, const std::string& source) {
+  gmf::CheckpointMeta meta;
+  const io::Volume& v = loaded.volume;
+  meta.volume_shape_zyx = std::array<int, 3>{v.nz, v.ny, v.nx};
+  meta.spacing_um = v.spacing.um;
+  const Eigen::Vector3d& a = loaded.frame.aspect();
+  meta.aspect = std::array<double, 3>{a.x(), a.y(), a.z()};
+  meta.normalization = v.normalization.describe();
+  meta.extra.emplace_back("source", io::printable(source, 200));
+  return meta;
+}
+
+FitOutcome fit_to_checkpoint(const std::string& volume, const FitConfig& config, const std::filesystem::path& out,
+                             const std::filesystem::path& log_csv, const Progress& progress) {
+  config.get<&AppConfig::gmf>().validate();
+  io::Stopwatch watch;
+  FitSetup setup = prepare_fit(volume, config, "fit", progress);
+  gmf::GaussianMixture& mixture = setup.mixture;
+  const gmf::FitResult result =
+      gmf::fit_mixture(setup.loaded.volume, setup.grid, mixture, config.get<&AppConfig::gmf>(),
+                       [&](const gmf::FitIteration& it) { report_iteration(it, progress); });
+  for (const gmf::FitRound& r : result.rounds) {
+    progress.say("fit: round %d density control: %d pruned, %d split, %d cloned -> K %d", r.round, r.pruned, r.split,
+                 r.cloned, r.gaussians);
+  }
+  gmf::save_checkpoint(out, mixture, checkpoint_meta(setup.loaded, volume));
+  if (!log_csv.empty()) {
+    const std::string csv = csv_of(result.log);
+    io::write_file_atomic(log_csv, csv.data(), csv.size());
+  }
+  const FitOutcome outcome{mixture.size(), result.final_psnr_3d, watch.elapsed(), result.stop_reason};
+  progress.say("fit: wrote %s: K %zu (%d pruned), 3D PSNR %.2f dB, %s (%s)", out.c_str(), mixture.size(),
+               result.pruned, result.final_psnr_3d, format_seconds(outcome.seconds).c_str(),
+               result.stop_reason.c_str());
+  return outcome;
+}
+
+nlohmann::ordered_json FitStage::run(const RunRequest& request, const Config& config, bool,
+                                     const Progress& progress) {
+  const FitOutcome fit =
+      fit_to_checkpoint(request.volume.string(), config, request.dir / "gmf.ply", request.dir / "fit_log.csv", progress);
+  return {{"gaussians", fit.gaussians}, {"psnr_3d", fit.psnr_3d}, {"stop", fit.stop_reason}};
+}
+
+}  // namespace hisnegs::apps

@@ -1,0 +1,60 @@
+// The GMF stage (config sections volume, sparse_grid, gmf): initialization on the
+// foreground grid, the Ceres/Adam fit, the checkpoint and its iteration log.
+#pragma once
+
+#include <filesystem>
+#include <string>
+
+#include "apps/pipeline/config_slice.hpp"
+#include "apps/pipeline/progress.hpp"
+#include "apps/pipeline/run_stage.hpp"
+#include "gmf/checkpoint.hpp"
+#include "gmf/gaussian_mixture.hpp"
+#include "io/load_volume.hpp"
+#include "io/sparse_grid.hpp"
+
+namespace hisnegs::apps {
+
+using FitConfig = ConfigSlice<&AppConfig::volume, &AppConfig::sparse_grid, &AppConfig::gmf>;
+
+// What the GMF fit starts from: the normalized volume, its samples (with the fit's
+// background share, gmf.background_fraction) and the mixture initialized on the
+// foreground grid (sparse_grid.threshold, gmf.gaussians).
+struct FitSetup {
+  io::LoadedVolume loaded;
+  io::SparseGrid grid;
+  gmf::GaussianMixture mixture;
+};
+// Loads `volume_path` and prepares the fit; one line "LABEL: ...".
+FitSetup prepare_fit(const std::string& volume_path, const FitConfig& config, const char* label,
+                     const Progress& progress);
+
+// Checkpoint metadata of a model fitted to `loaded` (shape, spacing, aspect, normalization, source).
+gmf::CheckpointMeta checkpoint_meta(const io::LoadedVolume& loaded, const std::string& source);
+
+// prepare_fit(), the fit, the checkpoint `out` and, unless empty, the iteration log
+// `log_csv`; a line per iteration report and density-control round, one at the end.
+struct FitOutcome {
+  std::size_t gaussians = 0;
+  double psnr_3d = 0;  // of the final mixture against the normalized volume
+  double seconds = 0;  // wall time including loading
+  std::string stop_reason;
+};
+FitOutcome fit_to_checkpoint(const std::string& volume, const FitConfig& config, const std::filesystem::path& out,
+                             const std::filesystem::path& log_csv, const Progress& progress);
+
+// In a run folder: DIR/gmf.ply and DIR/fit_log.csv; reports {gaussians, psnr_3d,
+// stop} as run.json's "fit".
+struct FitStage {
+  using Config = FitConfig;
+  static constexpr const char* kName = "fit";
+  static constexpr const char* kTitle = "GMF fit (stage 1)";
+  static constexpr std::array<const char*, 1> kUpstream{"volume"};  // the volume file's identity
+  static constexpr std::array<const char*, 2> kOutputs{"gmf.ply", "fit_log.csv"};
+  static constexpr const char* kResumeMarker = "";
+  static std::string request_inputs(const RunRequest&) { return {}; }
+  static nlohmann::ordered_json run(const RunRequest& request, const Config& config, bool resume,
+                                    const Progress& progress);
+};
+
+}  // namespace hisnegs::apps

@@ -1,0 +1,116 @@
+// write_image_stack, the ground-truth sets and the run folder's ground-truth stage.
+#include "apps/pipeline/ground_truth_stage.hpp"
+
+#include <algorithm>
+#include <cstdio>
+#include <nlohmann/json.hpp>
+
+#include "apps/pipeline/format.hpp"
+#include "apps/pipeline/report_tables.hpp"
+#include "io/atomic_file.hpp"
+#include "io/png.hpp"
+#include "io/tiff_stack.hpp"
+#include "io/timer.hpp"
+#include "splat/raymarch.hpp"
+
+namespace hisnegs::apps {
+namespace {
+
+// DIR/meta.json of a ground-truth set: the volume, its frame, the ray marcher and timing.
+nlohmann::ordered_json ground_truth_meta(const io::LoadedVolume& loaded, const std::string& volume_path,
+                                         const splat::RaymarchOptions& rm, const splat::MipStack& stack,
+                                         double render_s) {
+  nlohmann::ordered_json meta;
+  const io::Volume& v = loaded.volume;
+  meta["volume"] = volume_path;
+  meta["volume_shape_zyx"] = {v.nz, v.ny, v.nx};
+  meta["spacing_um"] = {v.spacing.um[0], v.spacing.um[1], v.spacing.um[2]};
+  meta["spacing_source"] = v.spacing.describe();
+  meta["normalization"] = {{"method", std::string(io::to_string(v.normalization.method))},
+                           {"raw_lo", v.normalization.raw_lo},
+                           {"raw_hi", v.normalization.raw_hi}};
+  const Eigen::Vector3d& a = loaded.frame.aspect();
+  meta["aspect"] = {a.x(), a.y(), a.z()};
+  meta["mode"] = rm.mode == splat::RaymarchMode::kExact ? "exact" : "report";
+  if (rm.mode == splat::RaymarchMode::kExact) {
+    meta["step_world"] = splat::exact_step(loaded.frame, rm);
+  } else {
+    meta["samples"] = rm.samples;
+    meta["t_near"] = rm.t_near;
+    meta["t_far"] = rm.t_far;
+  }
+  meta["views"] = stack.views;
+  meta["width"] = stack.width;
+  meta["height"] = stack.height;
+  meta["backend"] = std::string(splat::to_string(stack.backend));
+  meta["timing"] = {{"render_s", render_s},
+                    {"median_ms_per_view", 1e3 * median(stack.seconds_per_view)},
+                    {"mean_ms_per_view", 1e3 * render_s / std::max(stack.views, 1)}};
+  return meta;
+}
+
+}  // namespace
+
+void write_image_stack(const std::filesystem::path& dir, const std::string& name, const splat::MipStack& stack) {
+  io::TiffWriteOptions tiff;
+  tiff.type = io::SampleType::kFloat32;
+  io::write_tiff_stack(dir / name, stack.pixels, stack.width, stack.height, stack.views, tiff);
+  for (int i = 0; i < stack.views; ++i) {
+    char file[32];
+    std::snprintf(file, sizeof file, "%03d.png", i);
+    io::write_png(dir / "previews" / file, io::to_gray8(stack.view(i), stack.width, stack.height));
+  }
+}
+
+void write_ground_truth_set(const std::filesystem::path& dir, const std::string& label,
+                            const splat::CameraSet& cameras, const io::LoadedVolume& loaded,
+                            const std::string& volume_path, const RaymarchConfig& config, splat::Backend backend,
+                            const Progress& progress) {
+  const splat::RaymarchOptions& rm = config.get<&AppConfig::raymarch>();
+  rm.validate();
+  io::Stopwatch watch;
+  const splat::MipStack stack = splat::render_ground_truth(
+      loaded.volume, loaded.frame, cameras, rm, backend, [&](int done, int total) {
+        if (!progress.meter) return;
+        const double per_view = watch.elapsed() / done;
+        progress.meter(strf("gt %s: %d/%d views, %.1f ms/view, ETA %s", label.c_str(), done, total, per_view * 1e3,
+                            format_seconds(per_view * (total - done)).c_str()),
+                       done == total);
+      });
+  const double render_s = watch.lap();
+  splat::write_cameras_json(dir / "cameras.json", cameras);
+  write_image_stack(dir, "mips.tif", stack);
+  const nlohmann::ordered_json meta = ground_truth_meta(loaded, volume_path, rm, stack, render_s);
+  const std::string text = meta.dump(2) + "\n";
+  io::write_file_atomic(dir / "meta.json", text.data(), text.size());
+  progress.say("gt: %s: %d views of %dx%d (%s mode, %s) in %s, median %.1f ms/view -> %s", label.c_str(), stack.views,
+               stack.width, stack.height, meta["mode"].get<std::string>().c_str(),
+               std::string(splat::to_string(stack.backend)).c_str(), format_seconds(render_s).c_str(),
+               1e3 * median(stack.seconds_per_view), dir.c_str());
+}
+
+void write_ground_truth_sets(const std::filesystem::path& dir, const std::filesystem::path& volume_path,
+                             const std::vector<GroundTruthSet>& sets, const GroundTruthSetsConfig& config,
+                             splat::Backend backend, const Progress& progress) {
+  io::Stopwatch watch;
+  const io::LoadedVolume loaded = io::load_volume(volume_path, config.get<&AppConfig::volume>());
+  progress.say("gt: loaded %s (X=%d Y=%d Z=%d, aspect %.4g %.4g %.4g) in %s", volume_path.c_str(), loaded.volume.nx,
+               loaded.volume.ny, loaded.volume.nz, loaded.frame.aspect().x(), loaded.frame.aspect().y(),
+               loaded.frame.aspect().z(), format_seconds(watch.lap()).c_str());
+  for (const GroundTruthSet& set : sets) {
+    write_ground_truth_set(sets.size() > 1 ? dir / set.label : dir, set.label, set.cameras, loaded,
+                           volume_path.string(), config.slice<&AppConfig::raymarch>(), backend, progress);
+  }
+}
+
+nlohmann::ordered_json GroundTruthStage::run(const RunRequest& request, const Config& config, bool,
+                                             const Progress& progress) {
+  const splat::CameraOptions& camera = config.get<&AppConfig::camera>();
+  const std::vector<GroundTruthSet> sets{{"train", splat::training_orbit(camera)},
+                                         {"eval", splat::evaluation_orbit(camera)}};
+  write_ground_truth_sets(request.dir / "gt", request.volume, sets,
+                          config.slice<&AppConfig::volume, &AppConfig::raymarch>(), request.backend, progress);
+  return nullptr;
+}
+
+}  // namespace hisnegs::apps

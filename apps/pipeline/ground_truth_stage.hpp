@@ -1,0 +1,59 @@
+// The ground-truth stage: ray-marched MIPs of camera sets (config sections volume,
+// raymarch; camera for the run's orbits) as cameras.json, mips.tif, previews/, meta.json.
+#pragma once
+
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include "apps/pipeline/config_slice.hpp"
+#include "apps/pipeline/progress.hpp"
+#include "apps/pipeline/run_stage.hpp"
+#include "io/load_volume.hpp"
+#include "splat/backend.hpp"
+#include "splat/camera.hpp"
+#include "splat/ground_truth.hpp"
+
+namespace hisnegs::apps {
+
+// Writes `stack` as DIR/NAME (float32 TIFF, one page per view) and DIR/previews/NNN.png.
+void write_image_stack(const std::filesystem::path& dir, const std::string& name, const splat::MipStack& stack);
+
+using RaymarchConfig = ConfigSlice<&AppConfig::raymarch>;
+
+// Ray-marches `cameras` through `loaded` and writes DIR/{cameras.json, mips.tif,
+// previews/NNN.png, meta.json}; `label` names the set in progress (a meter of views,
+// then one "gt: LABEL: ..." line). `volume_path` is recorded in meta.json.
+void write_ground_truth_set(const std::filesystem::path& dir, const std::string& label,
+                            const splat::CameraSet& cameras, const io::LoadedVolume& loaded,
+                            const std::string& volume_path, const RaymarchConfig& config, splat::Backend backend,
+                            const Progress& progress);
+
+struct GroundTruthSet {
+  std::string label;  // "train", "eval", "custom", ...
+  splat::CameraSet cameras;
+};
+
+using GroundTruthSetsConfig = ConfigSlice<&AppConfig::volume, &AppConfig::raymarch>;
+
+// Loads `volume_path` (one "gt: loaded ..." line) and writes each set with
+// write_ground_truth_set into DIR/LABEL, or into DIR itself when there is one set.
+void write_ground_truth_sets(const std::filesystem::path& dir, const std::filesystem::path& volume_path,
+                             const std::vector<GroundTruthSet>& sets, const GroundTruthSetsConfig& config,
+                             splat::Backend backend, const Progress& progress);
+
+// In a run folder: the training orbit in DIR/gt/train and the evaluation orbit in
+// DIR/gt/eval, from the volume file with the volume stage's settings.
+struct GroundTruthStage {
+  using Config = ConfigSlice<&AppConfig::volume, &AppConfig::camera, &AppConfig::raymarch>;
+  static constexpr const char* kName = "ground_truth";
+  static constexpr const char* kTitle = "ground truth: ray-marched MIPs of the training and evaluation orbits";
+  static constexpr std::array<const char*, 1> kUpstream{"volume"};  // the volume file's identity
+  static constexpr std::array<const char*, 2> kOutputs{"gt/train/mips.tif", "gt/eval/mips.tif"};
+  static constexpr const char* kResumeMarker = "";
+  static std::string request_inputs(const RunRequest&) { return {}; }
+  static nlohmann::ordered_json run(const RunRequest& request, const Config& config, bool resume,
+                                    const Progress& progress);
+};
+
+}  // namespace hisnegs::apps

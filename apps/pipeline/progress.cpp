@@ -1,0 +1,19 @@
+// Progress::say.
+#include "apps/pipeline/progress.hpp"
+
+#include <cstdarg>
+
+#include "apps/pipeline/format.hpp"
+
+namespace hisnegs::apps {
+
+void Progress::say(const char* format, ...) const {
+  if (!line) return;
+  va_list args;
+  va_start(args, format);
+  const std::string text = vstrf(format, args);
+  va_end(args);
+  line(text);
+}
+
+}  // namespace hisnegs::apps

@@ -1,0 +1,67 @@
+// render_model: the views of a cameras file and/or an orbit GIF, and render.json.
+#include "apps/pipeline/render_model.hpp"
+
+#include <algorithm>
+#include <nlohmann/json.hpp>
+
+#include "apps/pipeline/ground_truth_stage.hpp"
+#include "gmf/checkpoint.hpp"
+#include "io/atomic_file.hpp"
+#include "io/error.hpp"
+#include "splat/render_views.hpp"
+
+namespace hisnegs::apps {
+namespace {
+
+// The upper median in ms (render.json's convention).
+double median_ms(std::vector<double> seconds) {
+  if (seconds.empty()) return 0;
+  std::sort(seconds.begin(), seconds.end());
+  return 1e3 * seconds[seconds.size() / 2];
+}
+
+}  // namespace
+
+void render_model(const RenderRequest& request, const RenderConfig& config, const Progress& progress) {
+  config.get<&AppConfig::splat>().validate();
+  config.get<&AppConfig::camera>().validate();
+  if (request.cameras.empty() && !request.orbit) throw io::InputError("render: give --cameras FILE and/or --orbit N");
+  const gmf::Checkpoint checkpoint = gmf::load_checkpoint(request.model.string());
+  const auto params = splat::flat_params(checkpoint.mixture);
+  const splat::SplatSettings settings = splat::SplatSettings::from(config.get<&AppConfig::splat>());
+  auto renderer = splat::make_splat_renderer(request.backend);
+  const std::filesystem::path& dir = request.dir;
+  const char* mode = settings.mode == splat::MipMode::kSoft ? "soft" : "hard";
+  const std::string backend(splat::to_string(request.backend));
+  nlohmann::ordered_json meta;
+  meta["model"] = io::printable(request.model.string(), 500);
+  meta["gaussians"] = checkpoint.mixture.size();
+  meta["mode"] = mode;
+  meta["beta"] = settings.beta;
+  meta["backend"] = backend;
+  if (!request.cameras.empty()) {
+    const splat::CameraSet cameras = splat::read_cameras_json(request.cameras);
+    const splat::RenderedViews r = splat::render_views(*renderer, params, cameras, settings);
+    const splat::MipStack& s = r.stack;
+    write_image_stack(dir, "render.tif", s);
+    meta["cameras"] = io::printable(request.cameras.string(), 500);
+    meta["views"] = s.views;
+    meta["width"] = s.width;
+    meta["height"] = s.height;
+    meta["median_ms_per_view"] = median_ms(s.seconds_per_view);
+    progress.say("render: %d views of %dx%d, K %zu (%d visible in view 0), %s MIP, %s, median %.2f ms/view -> %s",
+                 s.views, s.width, s.height, checkpoint.mixture.size(), r.stats.empty() ? 0 : r.stats[0].visible, mode,
+                 backend.c_str(), median_ms(s.seconds_per_view), (dir / "render.tif").c_str());
+  }
+  if (request.orbit) {
+    const OrbitOptions& o = *request.orbit;
+    const std::vector<double> seconds = write_orbit_gif(dir / "orbit.gif", *renderer, params, config, o);
+    meta["orbit"] = {{"frames", o.frames}, {"elevation_deg", o.elevation_deg}, {"median_ms_per_frame", median_ms(seconds)}};
+    progress.say("render: orbit of %d frames at %.3g deg elevation, median %.2f ms/frame -> %s", o.frames,
+                 o.elevation_deg, median_ms(seconds), (dir / "orbit.gif").c_str());
+  }
+  const std::string text = meta.dump(2) + "\n";
+  io::write_file_atomic(dir / "render.json", text.data(), text.size());
+}
+
+}  // namespace hisnegs::apps

@@ -1,0 +1,132 @@
+// run_pipeline: open the run folder, run or reuse each stage (the reuse and resume
+// rules), write the report. What a stage reads and writes is declared by the stage.
+#include "apps/pipeline/run_pipeline.hpp"
+
+#include <filesystem>
+
+#include "apps/pipeline/format.hpp"
+#include "apps/pipeline/run_report.hpp"
+#include "io/atomic_file.hpp"
+#include "io/error.hpp"
+#include "io/timer.hpp"
+
+namespace hisnegs::apps {
+namespace {
+
+namespace fs = std::filesystem;
+using Json = nlohmann::ordered_json;
+
+// Everything is checked before the run folder is touched.
+void check_request(const RunRequest& request, const AppConfig& config) {
+  config.validate();
+  io::require_regular_file(request.volume);
+  if (request.orbit_frames < 1 || request.orbit_frames > 3600) {
+    throw io::InputError("--orbit-frames: " + std::to_string(request.orbit_frames) + " is outside [1, 3600]");
+  }
+}
+
+// Creates DIR, reads DIR/run.json, writes DIR/config.yaml and records the volume.
+RunState open_run_folder(const RunRequest& request, const AppConfig& config) {
+  fs::create_directories(request.dir);
+  RunState state(request.dir);
+  const std::string effective = dump_app_config(config);
+  io::write_file_atomic(request.dir / "config.yaml", effective.data(), effective.size());
+  state.set_field("volume", io::printable(request.volume.string(), 500));
+  return state;
+}
+
+// Runs each stage unless it can be reused, numbering them "[i/n]" in progress.
+class StageRunner {
+ public:
+  StageRunner(const RunRequest& request, RunState& state, const Progress& progress, int stages)
+      : request_(request), state_(state), progress_(progress), stages_(stages) {}
+
+  template <RunStage S>
+  void run(const AppConfig& config) {
+    ++number_;
+    const typename S::Config slice(config);  // all the stage is given of the configuration
+    const std::string fingerprint = stage_fingerprint<S>(slice, request_, state_);
+    if (reuse(S::kName, S::kTitle, fingerprint, outputs_of<S>())) return;
+    const bool resume = resumable(S::kName, fingerprint, S::kResumeMarker);
+    const double before = start(S::kName, S::kTitle, fingerprint, resume);
+    io::Stopwatch watch;
+    Json facts = S::run(request_, slice, resume, progress_);
+    if (!facts.is_null()) state_.set_field(S::kName, std::move(facts));
+    finish(S::kName, fingerprint, before + watch.elapsed());
+  }
+
+  [[nodiscard]] const std::vector<StageTiming>& timings() const { return timings_; }
+
+ private:
+  template <RunStage S>
+  std::vector<fs::path> outputs_of() const {
+    std::vector<fs::path> paths;
+    for (const char* output : S::kOutputs) paths.push_back(request_.dir / output);
+    return paths;
+  }
+
+  // A stage that finished with this fingerprint and left its outputs is reused.
+  bool reuse(const std::string& name, const std::string& title, const std::string& fingerprint,
+             const std::vector<fs::path>& outputs) {
+    const Json previous = state_.stage(name);
+    bool outputs_exist = true;
+    for (const fs::path& p : outputs) outputs_exist = outputs_exist && fs::exists(p);
+    if (request_.force || previous.value("fingerprint", "") != fingerprint || previous.value("state", "") != "done" ||
+        !outputs_exist) {
+      return false;
+    }
+    const double seconds = previous.value("seconds", 0.0);
+    timings_.push_back({name, seconds, true});
+    progress_.say("run: [%d/%d] %s: reused (done earlier in %s)", number_, stages_, title.c_str(),
+                  format_seconds(seconds).c_str());
+    return true;
+  }
+
+  // A stage started with this fingerprint that left its resume marker continues.
+  bool resumable(const std::string& name, const std::string& fingerprint, std::string_view marker) const {
+    const Json previous = state_.stage(name);
+    return !request_.force && !marker.empty() && previous.value("fingerprint", "") == fingerprint &&
+           previous.value("state", "") == "started" && fs::exists(request_.dir / marker);
+  }
+
+  // Records the stage as started; returns the wall time of earlier sessions it continues.
+  double start(const std::string& name, const std::string& title, const std::string& fingerprint, bool resume) {
+    progress_.say("run: [%d/%d] %s%s", number_, stages_, title.c_str(), resume ? " (resuming)" : "");
+    const double before = resume ? state_.stage(name).value("seconds_before", 0.0) : 0.0;
+    state_.set(name, Json{{"fingerprint", fingerprint}, {"state", "started"}, {"seconds_before", before}});
+    return before;
+  }
+
+  void finish(const std::string& name, const std::string& fingerprint, double seconds) {
+    state_.set(name, Json{{"fingerprint", fingerprint}, {"state", "done"}, {"seconds", seconds}});
+    timings_.push_back({name, seconds, false});
+  }
+
+  const RunRequest& request_;
+  RunState& state_;
+  const Progress& progress_;
+  const int stages_;
+  int number_ = 0;
+  std::vector<StageTiming> timings_;
+};
+
+template <RunStage... Stages>
+void run_stages(StageList<Stages...>, StageRunner& runner, const AppConfig& config) {
+  (runner.run<Stages>(config), ...);
+}
+
+}  // namespace
+
+RunSummary run_pipeline(const RunRequest& request, AppConfig config, const Progress& progress) {
+  check_request(request, config);
+  io::Stopwatch total;
+  RunState state = open_run_folder(request, config);
+  StageRunner runner(request, state, progress, PipelineStages::kCount);
+  run_stages(PipelineStages{}, runner, config);
+  RunSummary summary{runner.timings(), total.elapsed()};
+  write_run_report(request.dir, state.json(), summary, request.backend);
+  progress.say("run: report %s (%s)", (request.dir / "report.md").c_str(), format_seconds(summary.seconds).c_str());
+  return summary;
+}
+
+}  // namespace hisnegs::apps

@@ -1,0 +1,138 @@
+// train_model (set up, run the epochs, finish) and the run folder's training stage.
+#include "apps/pipeline/train_stage.hpp"
+
+#include <algorithm>
+#include <optional>
+
+#include "apps/pipeline/format.hpp"
+#include "apps/pipeline/training_log.hpp"
+#include "gmf/checkpoint.hpp"
+#include "io/atomic_file.hpp"
+#include "io/error.hpp"
+#include "io/timer.hpp"
+#include "splat/trainer.hpp"
+#include "splat/training_checkpoint.hpp"
+
+namespace hisnegs::apps {
+namespace {
+
+namespace fs = std::filesystem;
+
+gmf::GaussianMixture mixture_of(std::span<const float> params) {
+  gmf::GaussianMixture mixture;
+  for (std::size_t k = 0; k * gmf::kGaussianParamCount < params.size(); ++k) {
+    std::array<float, gmf::kGaussianParamCount> values;
+    std::copy_n(params.begin() + static_cast<std::ptrdiff_t>(k * gmf::kGaussianParamCount), values.size(),
+                values.begin());
+    mixture.push_back(gmf::from_array(values));
+  }
+  return mixture;
+}
+
+// A training run in progress: the trainer, the checkpoint metadata and the log so far.
+struct TrainingSession {
+  std::optional<splat::Trainer> trainer;
+  gmf::CheckpointMeta meta;  // of the initial model, with "init" naming it
+  std::vector<TrainingLogRow> rows;
+  int views = 0, width = 0, height = 0;
+};
+
+void check_training(const TrainRequest& request, const TrainConfig& config) {
+  config.get<&AppConfig::train>().validate();
+  config.get<&AppConfig::splat>().validate();
+  if (config.get<&AppConfig::splat>().mode != splat::MipMode::kSoft) {
+    throw io::InputError("train: splat.mode must be soft (training differentiates the soft MIP)");
+  }
+  if (!request.resume && fs::exists(request.run / "checkpoints" / "latest")) {
+    io::fail_input(request.run, "already holds a training run (checkpoints/latest); use --resume or another -o");
+  }
+}
+
+// The trainer on the initial model and the ground truth, moved on to the latest
+// checkpoint when resuming.
+TrainingSession start_training(const TrainRequest& request, const TrainConfig& config) {
+  TrainingSession s;
+  splat::TrainingData data = splat::load_training_data(request.data);
+  const gmf::Checkpoint init = gmf::load_checkpoint(request.init.string());
+  const auto flat = splat::flat_params(init.mixture);
+  // hisnegs worlds are [-a, a] with max a = 1; a model from elsewhere without aspect: 1.
+  const double scene_scale =
+      init.meta.aspect ? *std::max_element(init.meta.aspect->begin(), init.meta.aspect->end()) : 1.0;
+  s.views = data.count();
+  s.width = data.intrinsics.width;
+  s.height = data.intrinsics.height;
+  s.trainer.emplace(config.get<&AppConfig::train>(), splat::SplatSettings::from(config.get<&AppConfig::splat>()),
+                    std::move(data), std::vector<float>(flat.begin(), flat.end()),
+                    splat::make_splat_renderer(request.backend), scene_scale);
+  s.meta = init.meta;
+  std::erase_if(s.meta.extra, [](const auto& kv) { return kv.first == "init"; });
+  s.meta.extra.emplace_back("init", io::printable(request.init.string(), 200));
+  if (request.resume) {
+    io::remove_stale_temporaries(request.run);  // e.g. a log.csv write the crash interrupted
+    const int epoch = splat::resume_training(request.run / "checkpoints", *s.trainer);
+    s.rows = read_training_log(request.run / "log.csv", epoch);
+  }
+  return s;
+}
+
+// Epochs until the schedule ends; after each: log.csv, a checkpoint when due, a line.
+void run_epochs(TrainingSession& s, const fs::path& run, int epochs, const Progress& progress) {
+  splat::Trainer& trainer = *s.trainer;
+  const double seconds_before = s.rows.empty() ? 0.0 : s.rows.back().seconds;
+  io::Stopwatch watch;
+  const int first_epoch = trainer.epoch();
+  while (!trainer.finished()) {
+    const splat::EpochReport r = trainer.run_epoch();
+    s.rows.push_back({r.epoch, seconds_before + watch.elapsed(), r.loss, r.psnr, r.gaussians, r.beta, r.lr});
+    const std::string csv = training_log_csv(s.rows);
+    io::write_file_atomic(run / "log.csv", csv.data(), csv.size());
+    if (trainer.checkpoint_due()) splat::save_training_checkpoint(run / "checkpoints", trainer, s.meta);
+    if (progress.quiet()) continue;
+    const double per_epoch = watch.elapsed() / (trainer.epoch() - first_epoch);
+    std::string line = strf("train: epoch %d/%d: loss %.6g, PSNR %.2f dB, K %d, beta %.4g, lr %.3g, %s/epoch, ETA %s",
+                            r.epoch, epochs, r.loss, r.psnr, r.gaussians, r.beta, r.lr,
+                            format_seconds(r.seconds).c_str(),
+                            format_seconds(per_epoch * (epochs - trainer.epoch())).c_str());
+    if (r.split + r.cloned + r.pruned > 0) line += strf(" (%d split, %d cloned, %d pruned)", r.split, r.cloned, r.pruned);
+    progress.line(line);
+  }
+}
+
+// RUN/final.ply (tagged with its epoch) and RUN/training_curve.png.
+void finish_training(const TrainingSession& s, const fs::path& run) {
+  gmf::CheckpointMeta final_meta = s.meta;
+  std::erase_if(final_meta.extra, [](const auto& kv) { return kv.first == "train_epoch"; });
+  final_meta.extra.emplace_back("train_epoch", std::to_string(s.trainer->epoch()));
+  gmf::save_checkpoint(run / "final.ply", mixture_of(s.trainer->params()), final_meta);
+  io::write_png(run / "training_curve.png", training_curve(s.rows));
+}
+
+}  // namespace
+
+TrainOutcome train_model(const TrainRequest& request, const TrainConfig& config, const Progress& progress) {
+  check_training(request, config);
+  TrainingSession s = start_training(request, config);
+  const int epochs = config.get<&AppConfig::train>().epochs;
+  progress.say("train: %d views of %dx%d, K %d, %d epochs%s, %s back end", s.views, s.width, s.height,
+               s.trainer->gaussians(), epochs,
+               request.resume ? (" (resuming after epoch " + std::to_string(s.trainer->epoch()) + ")").c_str() : "",
+               std::string(splat::to_string(request.backend)).c_str());
+  io::Stopwatch watch;
+  run_epochs(s, request.run, epochs, progress);
+  finish_training(s, request.run);
+  const double psnr = s.rows.empty() ? 0.0 : s.rows.back().psnr;
+  progress.say("train: wrote %s: K %d, PSNR %.2f dB, %s", (request.run / "final.ply").c_str(), s.trainer->gaussians(),
+               psnr, format_seconds(watch.elapsed()).c_str());
+  return {s.trainer->epoch(), s.trainer->gaussians(), psnr, s.rows.empty() ? 0.0 : s.rows.back().seconds};
+}
+
+nlohmann::ordered_json TrainStage::run(const RunRequest& request, const Config& config, bool resume,
+                                       const Progress& progress) {
+  const fs::path train = request.dir / "train";
+  if (!resume) fs::remove_all(train);  // a stale or different run: start over
+  train_model({request.dir / "gmf.ply", request.dir / "gt" / "train", train, request.backend, resume}, config,
+              progress);
+  return nullptr;
+}
+
+}  // namespace hisnegs::apps

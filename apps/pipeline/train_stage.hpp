@@ -1,0 +1,49 @@
+// The training stage (config sections train, splat): soft-MIP splatting of a GMF
+// checkpoint on ground-truth MIPs, resumable from its latest checkpoint.
+#pragma once
+
+#include <filesystem>
+
+#include "apps/pipeline/config_slice.hpp"
+#include "apps/pipeline/progress.hpp"
+#include "apps/pipeline/run_stage.hpp"
+#include "splat/backend.hpp"
+
+namespace hisnegs::apps {
+
+using TrainConfig = ConfigSlice<&AppConfig::train, &AppConfig::splat>;
+
+struct TrainRequest {
+  std::filesystem::path init;  // initial checkpoint (.ply)
+  std::filesystem::path data;  // a ground-truth set (cameras.json + mips.tif), e.g. GTDIR/train
+  std::filesystem::path run;
+  splat::Backend backend = splat::Backend::kCpu;
+  bool resume = false;
+};
+struct TrainOutcome {
+  int epochs = 0;
+  int gaussians = 0;
+  double psnr = 0;     // mean training-view PSNR of the last epoch
+  double seconds = 0;  // training wall time, earlier sessions of a resumed run included
+};
+// Writes RUN/log.csv, RUN/checkpoints/, RUN/final.ply, RUN/training_curve.png; a line
+// at the start, per epoch and at the end. Throws io::InputError for a RUN holding a
+// run unless `resume`, and for splat.mode other than soft.
+TrainOutcome train_model(const TrainRequest& request, const TrainConfig& config, const Progress& progress);
+
+// In a run folder: DIR/train from DIR/gmf.ply on DIR/gt/train. A training that was
+// started with the same inputs and left a checkpoint resumes; otherwise DIR/train
+// is cleared first.
+struct TrainStage {
+  using Config = TrainConfig;
+  static constexpr const char* kName = "train";
+  static constexpr const char* kTitle = "soft-MIP splatting training (stage 2)";
+  static constexpr std::array<const char*, 2> kUpstream{"fit", "ground_truth"};
+  static constexpr std::array<const char*, 1> kOutputs{"train/final.ply"};
+  static constexpr const char* kResumeMarker = "train/checkpoints/latest";
+  static std::string request_inputs(const RunRequest&) { return {}; }
+  static nlohmann::ordered_json run(const RunRequest& request, const Config& config, bool resume,
+                                    const Progress& progress);
+};
+
+}  // namespace hisnegs::apps

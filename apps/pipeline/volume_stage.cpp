@@ -1,0 +1,54 @@
+// write_sparse_grid and the run folder's volume stage.
+#include "apps/pipeline/volume_stage.hpp"
+
+#include "apps/pipeline/format.hpp"
+#include "apps/pipeline/report_tables.hpp"
+#include "io/atomic_file.hpp"
+#include "io/error.hpp"
+#include "io/load_volume.hpp"
+#include "io/timer.hpp"
+
+namespace hisnegs::apps {
+
+io::SparseGrid write_sparse_grid(const std::filesystem::path& volume_path, const VolumeConfig& config,
+                                 const std::filesystem::path& out, const Progress& progress) {
+  const io::SparseGridOptions& sparse = config.get<&AppConfig::sparse_grid>();
+  sparse.validate();
+  io::Stopwatch watch;
+  const io::LoadedVolume loaded = io::load_volume(volume_path, config.get<&AppConfig::volume>());
+  const double t_load = watch.lap();
+  io::SparseGrid grid = io::build_sparse_grid(loaded.volume, loaded.frame.aspect(), sparse);
+  const double t_build = watch.lap();
+  io::write_vdb(out, grid);
+  const double t_write = watch.lap();
+  const double total = static_cast<double>(loaded.volume.size());
+  progress.say("vdb: wrote %s: %lld active voxels (%.3f %% of %.2f M), %lld background samples, %lld leaves, %s "
+               "in memory (dense float32: %s); load %s, build %s, write %s",
+               out.c_str(), static_cast<long long>(grid.active_voxels()), 100.0 * grid.active_voxels() / total,
+               total / 1e6, static_cast<long long>(grid.background_voxels()),
+               static_cast<long long>(grid.leaf_count()), format_bytes(static_cast<double>(grid.memory_bytes())).c_str(),
+               format_bytes(total * 4.0).c_str(), format_seconds(t_load).c_str(), format_seconds(t_build).c_str(),
+               format_seconds(t_write).c_str());
+  return grid;
+}
+
+std::string VolumeStage::request_inputs(const RunRequest& request) { return file_identity(request.volume) + "\n"; }
+
+nlohmann::ordered_json VolumeStage::run(const RunRequest& request, const Config& config, bool,
+                                        const Progress& progress) {
+  const std::filesystem::path& dir = request.dir;
+  const io::SparseGrid grid = write_sparse_grid(request.volume, config, dir / "volume.vdb", progress);
+  const io::SparseGridMeta& m = grid.meta();
+  const nlohmann::ordered_json info{{"source", io::printable(request.volume.string(), 500)},
+                                    {"shape_xyz", m.shape_xyz},
+                                    {"spacing_um", m.spacing_um},
+                                    {"aspect", {m.aspect.x(), m.aspect.y(), m.aspect.z()}},
+                                    {"normalization", m.normalization.describe()},
+                                    {"active_voxels", grid.active_voxels()},
+                                    {"file_bytes", file_bytes(request.volume.string())}};
+  const std::string text = info.dump(2) + "\n";
+  io::write_file_atomic(dir / "volume.json", text.data(), text.size());
+  return nullptr;
+}
+
+}  // namespace hisnegs::apps
