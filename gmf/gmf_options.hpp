@@ -38,8 +38,8 @@ struct GmfOptions {
   // Edge in voxels of the sample blocks that form one Ceres residual block: 8 = one
   // OpenVDB leaf, or 4, 2, 1. Ceres forms JᵀJ densely over a residual block's
   // parameter blocks, so its cost grows with samples × (Gaussians reaching the
-  // block)². Measured on the synthetic default with 3000 Gaussians and exact LM
-  // (SPARSE_NORMAL_CHOLESKY): 8 -> 41 s per iteration, 2 -> 10-21 s, 1 -> 10-69 s.
+  // block)²; 2 was the fastest per exact-LM iteration on the synthetic default
+  // with 3000 Gaussians (figures in docs/benchmarks.md).
   int residual_block_voxels = 2;
   double adam_learning_rate = 0.01;               // Adam baseline step size, > 0
   std::uint64_t seed = 0;                         // init jitter and sampling seed

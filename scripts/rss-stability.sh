@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Memory stability of a long training (issue 9): trains a tiny scene (40x40x16
+# Memory stability of a long training: trains a tiny scene (40x40x16
 # synthetic stack, 24² ground truth, ~100 Gaussians) for EPOCHS epochs (default
 # 2000) with `hisnegs train` and samples its resident memory (VmRSS) every
 # INTERVAL seconds (default 0.25). Density control runs over the first 10% of the

@@ -309,8 +309,9 @@ void CpuSplatRenderer::backward(std::span<const float> dL_dimage, std::span<floa
                             entry_grads_.data() + 6 * static_cast<std::size_t>(tile_offset_[t]));
     }
   });
-  // 2. Combined per Gaussian in entry order (deterministic), in double. (Split by
-  // Gaussian id ranges over the two hardware threads, it was slower: 3.6 -> 5.2 ms.)
+  // 2. Combined per Gaussian in entry order (deterministic), in double, on one
+  // thread: splitting by Gaussian id ranges over threads measured slower
+  // (docs/benchmarks.md).
   const std::size_t K = splats_.size();
   gaussian_grads_.assign(6 * K, 0.0);
   for (std::size_t e = 0; e < entries_.size(); ++e) {

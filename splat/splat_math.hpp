@@ -356,7 +356,7 @@ HISNEGS_HD T softmax_value(const SoftMaxState<T>& st) {
   return st.S > T(0) ? st.W / st.S : T(0);
 }
 
-// dI/dg_k = w_k (1 + β (g_k − I)), w_k = e^{β g_k − m} / S (issue 5): the soft-MIP's
+// dI/dg_k = w_k (1 + β (g_k − I)), w_k = e^{β g_k − m} / S: the soft-MIP's
 // derivative with respect to one term, from the pixel's final m, S and I.
 template <class T>
 HISNEGS_HD T softmax_dI_dg(T g, T beta, T m, T S, T I) {

@@ -2,11 +2,13 @@
 // Gaussian of a tile, only the rows its δ ellipse crosses and, in each row, only
 // the SIMD chunks of its column span are evaluated; lanes are masked by q <= δ.
 // Compiled once per instruction set by Highway (foreach_target) and dispatched.
+// clang-format off: Highway's foreach_target.h must come before its per-target headers.
 #undef HWY_TARGET_INCLUDE
 #define HWY_TARGET_INCLUDE "splat/detail/splat_cpu_tiles.cpp"
 #include <hwy/foreach_target.h>  // IWYU pragma: keep
 #include <hwy/highway.h>
 #include <hwy/contrib/math/math-inl.h>
+// clang-format on
 
 #include <algorithm>
 #include <cmath>

@@ -171,7 +171,7 @@ TEST(Camera, JsonIntegerOutOfRangeIsAnError) {
   }
 }
 
-// Hostile sizes (issue 9): a side over 16384, or views whose images would not fit
+// Hostile sizes: a side over 16384, or views whose images would not fit
 // in the allocation limit, get an error naming the file before anything is allocated.
 TEST(Camera, JsonHostileSizesAreRefusedBeforeAllocating) {
   testing::ScratchDir dir;

@@ -132,7 +132,7 @@ TEST(Trainer, OneFullBatchStepLowersTheLoss) {
   EXPECT_EQ(trainer.step_count(), 1);
 }
 
-// Numerical guards (issue 9): a non-finite initial value is refused naming the
+// Numerical guards: a non-finite initial value is refused naming the
 // Gaussian and group; a diverging training stops with the epoch and step named.
 TEST(Trainer, NonFiniteValuesStopNamingWhereTheyAre) {
   std::vector<float> init = perturbed(true_params());

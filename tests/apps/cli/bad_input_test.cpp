@@ -1,4 +1,4 @@
-// The bad-input corpus of issue 2, generated here and run through the real
+// The bad-input corpus (docs/reliability.md), generated here and run through the real
 // `hisnegs` executable: each case exits 2 with one line naming the file and the
 // problem, never crashes, and leaves no output file behind.
 #include <gtest/gtest.h>

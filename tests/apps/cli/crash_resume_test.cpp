@@ -1,4 +1,4 @@
-// Crash safety of `hisnegs train` (issue 9): the process is killed with SIGKILL at
+// Crash safety of `hisnegs train`: the process is killed with SIGKILL at
 // chosen moments (HISNEGS_FAULT, io/fault_injection.hpp), what it leaves behind is
 // checked (every visible checkpoint complete, `latest` naming a complete pair), and
 // `--resume` must then finish with exactly the parameters of an uninterrupted run.
