@@ -244,6 +244,94 @@ RoundOutcome solve_adam(const FitObjective& objective, double* x, const std::vec
 
 }  // namespace
 
+namespace {
+
+// One round's problem: the parameters in double, the brick index padded to the
+// round's trust region, and the box bounds of every parameter.
+struct RoundProblem {
+  std::vector<Params> params;
+  BrickIndex index;
+  std::vector<double> lower, upper;
+  [[nodiscard]] double* x() { return params.empty() ? nullptr : params[0].data(); }
+};
+static_assert(sizeof(Params) == kGaussianParamCount * sizeof(double), "Params must be a plain array of doubles");
+
+// Per-round trust region on each Gaussian's geometry: its mean stays within one
+// (largest) voxel of the round's start and its scales grow by at most kScaleGrowth,
+// and the index is padded to match, so a Gaussian cannot reach samples outside its
+// residual blocks during the round. Without it, Gaussians drifted into unwatched
+// space and the next round's loss jumped by four orders of magnitude on op1. Scales
+// stay within [0.2 smallest voxel, 32 largest voxel]; everything else is free.
+RoundProblem prepare_round(const GaussianMixture& mixture, const SampleSet& samples, const io::WorldFrame& frame,
+                           const GmfOptions& options) {
+  constexpr double kScaleGrowth = 1.25;
+  const double min_voxel = frame.voxel_size().minCoeff(), max_voxel = frame.voxel_size().maxCoeff();
+  const double move = max_voxel;
+  RoundProblem r;
+  r.params.resize(mixture.size());
+  for (std::size_t k = 0; k < mixture.size(); ++k) r.params[k] = to_double(mixture[k]);
+  r.index = build_brick_index(mixture, samples, frame, options.mahalanobis_cutoff, kScaleGrowth, move);
+  const std::size_t n = r.params.size() * kGaussianParamCount;
+  r.lower.assign(n, -std::numeric_limits<double>::infinity());
+  r.upper.assign(n, std::numeric_limits<double>::infinity());
+  const double scale_lo = std::log(0.2 * min_voxel), scale_hi = std::log(std::min(0.5, 32.0 * max_voxel));
+  for (std::size_t k = 0; k < r.params.size(); ++k) {
+    Params& p = r.params[k];
+    double* lo = r.lower.data() + kGaussianParamCount * k;
+    double* hi = r.upper.data() + kGaussianParamCount * k;
+    for (int i = 0; i < 3; ++i) {
+      p[kLogScale0 + i] = std::clamp(p[kLogScale0 + i], scale_lo, scale_hi);
+      lo[kLogScale0 + i] = scale_lo;
+      hi[kLogScale0 + i] = std::max(scale_lo, std::min(scale_hi, p[kLogScale0 + i] + std::log(kScaleGrowth)));
+      lo[kMeanX + i] = p[kMeanX + i] - move;
+      hi[kMeanX + i] = p[kMeanX + i] + move;
+    }
+  }
+  return r;
+}
+
+// The configured optimizer on one round's problem.
+RoundOutcome solve_round(RoundProblem& r, const SampleSet& samples, const GmfOptions& options,
+                         ceres::Manifold& quaternion_manifold, double min_voxel, int max_iterations,
+                         double seconds_left, FitLog& log, int round, int iteration0) {
+  const int K = static_cast<int>(r.params.size());
+  if (options.optimizer == Optimizer::kLbfgs || options.optimizer == Optimizer::kAdam) {
+    const FitObjective objective(samples, r.index, r.params.size(), options.mahalanobis_cutoff);
+    return options.optimizer == Optimizer::kLbfgs
+               ? solve_lbfgs(objective, r.x(), r.lower, r.upper, max_iterations, seconds_left, log, round, iteration0, K)
+               : solve_adam(objective, r.x(), r.lower, r.upper, options, max_iterations, seconds_left, min_voxel, log,
+                            round, iteration0, K);
+  }
+  return solve_least_squares(samples, r.index, r.params, r.lower, r.upper, quaternion_manifold, options,
+                             max_iterations, seconds_left, log, round, iteration0, K);
+}
+
+// Back to float, pruning a < prune_intensity; returns how many were pruned.
+int take_round_result(const RoundProblem& r, const GmfOptions& options, GaussianMixture& mixture) {
+  for (std::size_t k = 0; k < r.params.size(); ++k) mixture[k] = to_float(r.params[k]);
+  const std::vector<std::uint32_t> kept = bright_gaussians(flat_params(mixture), options.prune_intensity);
+  const int pruned = static_cast<int>(mixture.size() - kept.size());
+  keep_gaussians(mixture, kept);
+  return pruned;
+}
+
+// The log line that ends a round, with the 3D PSNR (its time is not charged to the fit).
+FitIteration end_of_round(const GaussianMixture& mixture, const io::Volume& volume, const io::WorldFrame& frame,
+                          const GmfOptions& options, FitClock& clock, int round, int iterations, double loss) {
+  FitIteration end;
+  end.round = round;
+  end.iteration = iterations;
+  end.seconds = clock.now();
+  end.loss = loss;
+  io::Stopwatch measuring;
+  end.psnr_3d = psnr(rasterize_mixture(mixture, frame, {.cutoff = options.mahalanobis_cutoff}), volume.voxels);
+  clock.excluded += measuring.elapsed();
+  end.gaussians = static_cast<int>(mixture.size());
+  return end;
+}
+
+}  // namespace
+
 FitResult fit_mixture(const io::Volume& volume, const io::SparseGrid& grid, GaussianMixture& mixture,
                       const GmfOptions& options, const std::function<void(const FitIteration&)>& on_progress) {
   options.validate();
@@ -252,8 +340,6 @@ FitResult fit_mixture(const io::Volume& volume, const io::SparseGrid& grid, Gaus
   FitLog log{result, clock, on_progress, options.stop_loss};
   const io::WorldFrame frame = grid.frame();
   const SampleSet samples = extract_samples(grid, options.background_weight, options.residual_block_voxels);
-  const double min_voxel = frame.voxel_size().minCoeff();
-  const double max_voxel = frame.voxel_size().maxCoeff();
   ceres::QuaternionManifold quaternion_manifold;
   int iterations = 0;
   for (int round = 0; round < options.rounds; ++round) {
@@ -264,91 +350,32 @@ FitResult fit_mixture(const io::Volume& volume, const io::SparseGrid& grid, Gaus
     }
     int round_iterations = options.iterations_per_round;
     if (options.max_iterations > 0) round_iterations = std::min(round_iterations, options.max_iterations - iterations);
-    std::vector<Params> params(mixture.size());
-    for (std::size_t k = 0; k < mixture.size(); ++k) params[k] = to_double(mixture[k]);
-    // Per-round trust region on each Gaussian's geometry (bounds below): its mean
-    // stays within one (largest) voxel of the round's start and its scales grow by
-    // at most kScaleGrowth, and the index is padded to match, so a Gaussian cannot
-    // reach samples outside its residual blocks during the round. Without it,
-    // Gaussians drifted into unwatched space and the next round's loss jumped
-    // from 3 to 3e4 on op1.
-    constexpr double kScaleGrowth = 1.25;
-    const double move = max_voxel;
-    const BrickIndex index = build_brick_index(mixture, samples, frame, options.mahalanobis_cutoff, kScaleGrowth, move);
-
-    // Bounds of this round: scales within [0.2 smallest voxel, 32 largest voxel] and
-    // the trust region above; everything else free.
-    const std::size_t n = params.size() * kGaussianParamCount;
-    std::vector<double> lower(n, -std::numeric_limits<double>::infinity()), upper(n, std::numeric_limits<double>::infinity());
-    const double scale_lo = std::log(0.2 * min_voxel), scale_hi = std::log(std::min(0.5, 32.0 * max_voxel));
-    for (std::size_t k = 0; k < params.size(); ++k) {
-      Params& p = params[k];
-      for (int i = 0; i < 3; ++i) {
-        p[kLogScale0 + i] = std::clamp(p[kLogScale0 + i], scale_lo, scale_hi);
-        lower[kGaussianParamCount * k + kLogScale0 + i] = scale_lo;
-        upper[kGaussianParamCount * k + kLogScale0 + i] = std::max(scale_lo, std::min(scale_hi, p[kLogScale0 + i] + std::log(kScaleGrowth)));
-        lower[kGaussianParamCount * k + kMeanX + i] = p[kMeanX + i] - move;
-        upper[kGaussianParamCount * k + kMeanX + i] = p[kMeanX + i] + move;
-      }
-    }
-    static_assert(sizeof(Params) == kGaussianParamCount * sizeof(double), "Params must be a plain array of doubles");
-    double* x = params.empty() ? nullptr : params[0].data();
-    RoundOutcome outcome;
-    if (options.optimizer == Optimizer::kLbfgs || options.optimizer == Optimizer::kAdam) {
-      const FitObjective objective(samples, index, params.size(), options.mahalanobis_cutoff);
-      outcome = options.optimizer == Optimizer::kLbfgs
-                    ? solve_lbfgs(objective, x, lower, upper, round_iterations, left, log, round, iterations,
-                                  static_cast<int>(mixture.size()))
-                    : solve_adam(objective, x, lower, upper, options, round_iterations, left, min_voxel, log, round,
-                                 iterations, static_cast<int>(mixture.size()));
-    } else {
-      outcome = solve_least_squares(samples, index, params, lower, upper, quaternion_manifold, options,
-                                    round_iterations, left, log, round, iterations, static_cast<int>(mixture.size()));
-    }
+    RoundProblem problem = prepare_round(mixture, samples, frame, options);
+    const RoundOutcome outcome = solve_round(problem, samples, options, quaternion_manifold,
+                                             frame.voxel_size().minCoeff(), round_iterations, left, log, round,
+                                             iterations);
     iterations += outcome.iterations;
     result.stop_reason = outcome.message;
-
-    // Back to float, pruning a < prune_intensity.
-    for (std::size_t k = 0; k < params.size(); ++k) mixture[k] = to_float(params[k]);
-    const std::vector<std::uint32_t> kept = bright_gaussians(flat_params(mixture), options.prune_intensity);
     FitRound stats;
     stats.round = round;
-    stats.pruned = static_cast<int>(mixture.size() - kept.size());
-    keep_gaussians(mixture, kept);
+    stats.pruned = take_round_result(problem, options, mixture);
     result.pruned += stats.pruned;
-
-    FitIteration end;
-    end.round = round;
-    end.iteration = iterations;
-    end.seconds = clock.now();
-    end.loss = outcome.final_loss;
-    {
-      io::Stopwatch measuring;
-      end.psnr_3d = psnr(rasterize_mixture(mixture, frame, {.cutoff = options.mahalanobis_cutoff}), volume.voxels);
-      clock.excluded += measuring.elapsed();
-    }
-    end.gaussians = static_cast<int>(mixture.size());
+    const FitIteration end = end_of_round(mixture, volume, frame, options, clock, round, iterations, outcome.final_loss);
     log.add(end);
     result.final_psnr_3d = end.psnr_3d;
-    if (log.reached_stop_loss) {
-      result.stop_reason = "reached gmf.stop_loss";
-      result.rounds.push_back(stats);
-      break;
-    }
-    if (options.max_iterations > 0 && iterations >= options.max_iterations) {
-      result.stop_reason = "gmf.max_iterations";
-      result.rounds.push_back(stats);
-      break;
-    }
+    const bool last = log.reached_stop_loss || (options.max_iterations > 0 && iterations >= options.max_iterations);
+    if (log.reached_stop_loss) result.stop_reason = "reached gmf.stop_loss";
+    else if (last) result.stop_reason = "gmf.max_iterations";
     // Density control for the next round (not after the last one, nor when out of time).
-    if (options.densify && round + 1 < options.rounds && clock.now() < options.time_budget_s) {
+    if (!last && options.densify && round + 1 < options.rounds && clock.now() < options.time_budget_s) {
       const BrickIndex current = build_brick_index(mixture, samples, frame, options.mahalanobis_cutoff);
       const DensityChange change = adapt_density(mixture, samples, current, frame, options);
       stats.split = change.split;
       stats.cloned = change.cloned;
     }
-    stats.gaussians = static_cast<int>(mixture.size());
+    if (!last) stats.gaussians = static_cast<int>(mixture.size());
     result.rounds.push_back(stats);
+    if (last) break;
     if (outcome.converged && round > 0 && stats.split == 0 && stats.cloned == 0) {
       result.stop_reason = "converged: " + outcome.message;
       break;

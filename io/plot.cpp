@@ -264,27 +264,32 @@ std::array<std::uint8_t, 3> plot_color(int i) {
   return kPalette[static_cast<std::size_t>(((i % n) + n) % n)];
 }
 
-Image8 plot_lines(std::span<const PlotSeries> series, const PlotOptions& options) {
-  require_size("width", options.width);
-  require_size("height", options.height);
+namespace {
+
+// The scale of the text and the plot's geometry, shared by the drawing steps.
+struct PlotLayout {
+  int s = 1;  // text scale: 7 px tall glyphs at 1x
+  int pad = 6, gap = 4, tick_len = 5, line_h = kLineH;
+  Axis ax, ay;
+  Rect area;
+
+  [[nodiscard]] double px(double t) const { return area.x0 + (t - ax.lo) / (ax.hi - ax.lo) * (area.x1 - area.x0); }
+  [[nodiscard]] double py(double t) const { return area.y1 - (t - ay.lo) / (ay.hi - ay.lo) * (area.y1 - area.y0); }
+  // For ticks: finite t only.
+  [[nodiscard]] int ix(double t) const { return static_cast<int>(std::floor(px(t))); }
+  [[nodiscard]] int iy(double t) const { return static_cast<int>(std::floor(py(t))); }
+};
+
+void check_series(std::span<const PlotSeries> series) {
   for (std::size_t i = 0; i < series.size(); ++i)
     if (series[i].x.size() != series[i].y.size())
       fail_option("plot", "series[" + std::to_string(i) + "] '" + printable(series[i].label, 40) + "'",
                   "x size " + std::to_string(series[i].x.size()) + ", y size " + std::to_string(series[i].y.size()),
                   "x and y must have the same length");
+}
 
-  Image8 image;
-  image.width = options.width, image.height = options.height, image.channels = 3;
-  image.pixels.assign(static_cast<std::size_t>(image.width) * image.height * 3, 255);
-  const Canvas full{image, {0, 0, image.width, image.height}};
-
-  // Text is 7 px tall at 1x; 2x from 800 x 500 (the default) keeps it readable
-  // at the size a report shows the image.
-  const int s = std::clamp(std::min(options.width / 400, options.height / 250), 1, 4);
-  const int pad = 6 * s, gap = 4 * s, tick_len = 5 * s, line_h = kLineH * s;
-
-  Axis ax, ay;
-  ax.log = options.log_x, ay.log = options.log_y;
+// Axis ranges over the drawable points (NaN on a log axis is skipped).
+void fit_ranges(std::span<const PlotSeries> series, Axis& ax, Axis& ay) {
   constexpr double kInf = std::numeric_limits<double>::infinity();
   double lo_x = kInf, hi_x = -kInf, lo_y = kInf, hi_y = -kInf;
   for (const PlotSeries& line : series)
@@ -295,40 +300,47 @@ Image8 plot_lines(std::span<const PlotSeries> series, const PlotOptions& options
     }
   set_range(ax, lo_x, hi_x);
   set_range(ay, lo_y, hi_y);
+}
 
-  // Layout: the vertical margins are fixed, so y ticks come first; their labels
-  // set the left margin, which sets the room for the x ticks.
-  const int top = pad + (options.title.empty() ? 0 : line_h + pad);
-  const int bottom = s + gap + kCapH * s + pad + (options.x_label.empty() ? 0 : 2 * gap + kCapH * s);
-  Rect area{0, top, 0, std::max(top + 8, options.height - bottom)};
-  set_ticks(ay, std::max(1, (area.y1 - area.y0) / (30 * s)), area.y1 - area.y0, 12.0 * s);
-  area.x0 = pad + (options.y_label.empty() ? 0 : line_h + gap) + max_label_width(ay, s) + gap + s;
-  area.x1 = std::max(area.x0 + 8, options.width - pad - 3 * kAdvance * s);
-  const int area_w = area.x1 - area.x0, area_h = area.y1 - area.y0;
-  const auto px = [&](double t) { return area.x0 + (t - ax.lo) / (ax.hi - ax.lo) * area_w; };
-  const auto py = [&](double t) { return area.y1 - (t - ay.lo) / (ay.hi - ay.lo) * area_h; };
-  const auto ix = [&](double t) { return static_cast<int>(std::floor(px(t))); };  // for ticks: finite t only
-  const auto iy = [&](double t) { return static_cast<int>(std::floor(py(t))); };
+// The vertical margins are fixed, so y ticks come first; their labels set the left
+// margin, which sets the room for the x ticks.
+PlotLayout lay_out(std::span<const PlotSeries> series, const PlotOptions& options) {
+  PlotLayout L;
+  // Text is 7 px tall at 1x; 2x from 800 x 500 (the default) keeps it readable
+  // at the size a report shows the image.
+  L.s = std::clamp(std::min(options.width / 400, options.height / 250), 1, 4);
+  const int s = L.s;
+  L.pad = 6 * s, L.gap = 4 * s, L.tick_len = 5 * s, L.line_h = kLineH * s;
+  L.ax.log = options.log_x, L.ay.log = options.log_y;
+  fit_ranges(series, L.ax, L.ay);
+  const int top = L.pad + (options.title.empty() ? 0 : L.line_h + L.pad);
+  const int bottom = s + L.gap + kCapH * s + L.pad + (options.x_label.empty() ? 0 : 2 * L.gap + kCapH * s);
+  L.area = Rect{0, top, 0, std::max(top + 8, options.height - bottom)};
+  set_ticks(L.ay, std::max(1, (L.area.y1 - L.area.y0) / (30 * s)), L.area.y1 - L.area.y0, 12.0 * s);
+  L.area.x0 = L.pad + (options.y_label.empty() ? 0 : L.line_h + L.gap) + max_label_width(L.ay, s) + L.gap + s;
+  L.area.x1 = std::max(L.area.x0 + 8, options.width - L.pad - 3 * kAdvance * s);
+  const int area_w = L.area.x1 - L.area.x0;
   // Fewer x ticks until neighbouring labels keep two glyphs of space between them.
   for (int n = std::max(1, area_w / (50 * s)); n >= 1; --n) {
-    set_ticks(ax, n, area_w, 40.0 * s);
+    set_ticks(L.ax, n, area_w, 40.0 * s);
     bool fits = true;
-    for (std::size_t i = 1; i < ax.major.size() && fits; ++i) {
-      const int half_labels = (text_width(ax.major[i].label, s) + text_width(ax.major[i - 1].label, s)) / 2;
-      fits = px(ax.major[i].t) - px(ax.major[i - 1].t) >= half_labels + 2 * kAdvance * s;
+    for (std::size_t i = 1; i < L.ax.major.size() && fits; ++i) {
+      const int half_labels = (text_width(L.ax.major[i].label, s) + text_width(L.ax.major[i - 1].label, s)) / 2;
+      fits = L.px(L.ax.major[i].t) - L.px(L.ax.major[i - 1].t) >= half_labels + 2 * kAdvance * s;
     }
     if (fits) break;
   }
+  return L;
+}
 
-  const Canvas plot{image, area};
-  for (const Tick& t : ax.major) plot.fill({ix(t.t), area.y0, ix(t.t) + 1, area.y1}, kGridGrey);
-  for (const Tick& t : ay.major) plot.fill({area.x0, iy(t.t), area.x1, iy(t.t) + 1}, kGridGrey);
+double line_radius(const PlotLayout& L) { return 0.75 * L.s + 0.25; }  // lines about 2 px wide at 1x
 
-  const double radius = 0.75 * s + 0.25;  // lines about 2 px wide at 1x
+void draw_series(const Canvas& plot, const PlotLayout& L, std::span<const PlotSeries> series) {
+  const double radius = line_radius(L);
   for (const PlotSeries& line : series) {
     const auto point = [&](std::size_t i) {
-      const double tx = to_axis(line.x[i], ax.log), ty = to_axis(line.y[i], ay.log);
-      return std::array<double, 2>{px(tx), py(ty)};  // NaN when not drawable
+      const double tx = to_axis(line.x[i], L.ax.log), ty = to_axis(line.y[i], L.ay.log);
+      return std::array<double, 2>{L.px(tx), L.py(ty)};  // NaN when not drawable
     };
     const auto ok = [](const std::array<double, 2>& p) { return std::isfinite(p[0]) && std::isfinite(p[1]); };
     for (std::size_t i = 0; i < line.x.size(); ++i) {
@@ -344,52 +356,83 @@ Image8 plot_lines(std::span<const PlotSeries> series, const PlotOptions& options
       }
     }
   }
+}
 
-  // Box just outside the plot area so data never hides it; ticks point inwards.
+// The box just outside the plot area (so data never hides it), ticks pointing
+// inwards, and the tick labels.
+void draw_frame(const Canvas& full, const Canvas& plot, const PlotLayout& L) {
+  const Rect& area = L.area;
+  const int s = L.s;
   full.fill({area.x0 - s, area.y0 - s, area.x1 + s, area.y0}, kBlack);
   full.fill({area.x0 - s, area.y1, area.x1 + s, area.y1 + s}, kBlack);
   full.fill({area.x0 - s, area.y0, area.x0, area.y1}, kBlack);
   full.fill({area.x1, area.y0, area.x1 + s, area.y1}, kBlack);
-  const auto x_tick = [&](double t, int len) { plot.fill({ix(t), area.y1 - len, ix(t) + s, area.y1}, kBlack); };
-  const auto y_tick = [&](double t, int len) { plot.fill({area.x0, iy(t), area.x0 + len, iy(t) + s}, kBlack); };
-  for (const double t : ax.minor) x_tick(t, tick_len / 2);
-  for (const double t : ay.minor) y_tick(t, tick_len / 2);
-  for (const Tick& t : ax.major) {
-    x_tick(t.t, tick_len);
-    draw_text(full, ix(t.t) - text_width(t.label, s) / 2, area.y1 + s + gap, t.label, s);
+  const auto x_tick = [&](double t, int len) { plot.fill({L.ix(t), area.y1 - len, L.ix(t) + s, area.y1}, kBlack); };
+  const auto y_tick = [&](double t, int len) { plot.fill({area.x0, L.iy(t), area.x0 + len, L.iy(t) + s}, kBlack); };
+  for (const double t : L.ax.minor) x_tick(t, L.tick_len / 2);
+  for (const double t : L.ay.minor) y_tick(t, L.tick_len / 2);
+  for (const Tick& t : L.ax.major) {
+    x_tick(t.t, L.tick_len);
+    draw_text(full, L.ix(t.t) - text_width(t.label, s) / 2, area.y1 + s + L.gap, t.label, s);
   }
-  for (const Tick& t : ay.major) {
-    y_tick(t.t, tick_len);
-    draw_text(full, area.x0 - s - gap - text_width(t.label, s), iy(t.t) - kCapH * s / 2, t.label, s);
+  for (const Tick& t : L.ay.major) {
+    y_tick(t.t, L.tick_len);
+    draw_text(full, area.x0 - s - L.gap - text_width(t.label, s), L.iy(t.t) - kCapH * s / 2, t.label, s);
   }
+}
 
-  const int centre_x = (area.x0 + area.x1) / 2;
-  if (!options.title.empty()) draw_text(full, centre_x - text_width(options.title, s) / 2, pad, options.title, s);
+void draw_titles(const Canvas& full, const PlotLayout& L, const PlotOptions& options) {
+  const int s = L.s;
+  const int centre_x = (L.area.x0 + L.area.x1) / 2;
+  if (!options.title.empty()) draw_text(full, centre_x - text_width(options.title, s) / 2, L.pad, options.title, s);
   if (!options.x_label.empty())
-    draw_text(full, centre_x - text_width(options.x_label, s) / 2, options.height - pad - kCapH * s,
+    draw_text(full, centre_x - text_width(options.x_label, s) / 2, options.height - L.pad - kCapH * s,
               options.x_label, s);
   if (!options.y_label.empty())
-    draw_text(full, pad, (area.y0 + area.y1) / 2 + text_width(options.y_label, s) / 2, options.y_label, s, true);
+    draw_text(full, L.pad, (L.area.y0 + L.area.y1) / 2 + text_width(options.y_label, s) / 2, options.y_label, s,
+              true);
+}
 
-  // Legend, top right inside the plot area, on top of the data.
+// Legend, top right inside the plot area, on top of the data.
+void draw_legend(const Canvas& plot, const PlotLayout& L, std::span<const PlotSeries> series) {
+  const int s = L.s, gap = L.gap;
   int rows = 0, label_w = 0;
   for (const PlotSeries& line : series)
     if (!line.label.empty()) ++rows, label_w = std::max(label_w, text_width(line.label, s));
-  if (rows > 0) {
-    const int sample = 20 * s;
-    const Rect box{area.x1 - gap - (3 * gap + sample + label_w), area.y0 + gap, area.x1 - gap,
-                   area.y0 + gap + 2 * gap + rows * line_h - 2 * s};
-    plot.fill(box, kBlack);
-    plot.fill({box.x0 + s, box.y0 + s, box.x1 - s, box.y1 - s}, kWhite);
-    int y = box.y0 + gap;
-    for (const PlotSeries& line : series) {
-      if (line.label.empty()) continue;
-      const double mid = y + kCapH * s / 2.0;
-      draw_segment(plot, box.x0 + gap, mid, box.x0 + gap + sample, mid, radius, line.rgb);
-      draw_text(plot, box.x0 + 2 * gap + sample, y, line.label, s);
-      y += line_h;
-    }
+  if (rows == 0) return;
+  const int sample = 20 * s;
+  const Rect box{L.area.x1 - gap - (3 * gap + sample + label_w), L.area.y0 + gap, L.area.x1 - gap,
+                 L.area.y0 + gap + 2 * gap + rows * L.line_h - 2 * s};
+  plot.fill(box, kBlack);
+  plot.fill({box.x0 + s, box.y0 + s, box.x1 - s, box.y1 - s}, kWhite);
+  int y = box.y0 + gap;
+  for (const PlotSeries& line : series) {
+    if (line.label.empty()) continue;
+    const double mid = y + kCapH * s / 2.0;
+    draw_segment(plot, box.x0 + gap, mid, box.x0 + gap + sample, mid, line_radius(L), line.rgb);
+    draw_text(plot, box.x0 + 2 * gap + sample, y, line.label, s);
+    y += L.line_h;
   }
+}
+
+}  // namespace
+
+Image8 plot_lines(std::span<const PlotSeries> series, const PlotOptions& options) {
+  require_size("width", options.width);
+  require_size("height", options.height);
+  check_series(series);
+  Image8 image;
+  image.width = options.width, image.height = options.height, image.channels = 3;
+  image.pixels.assign(static_cast<std::size_t>(image.width) * image.height * 3, 255);
+  const Canvas full{image, {0, 0, image.width, image.height}};
+  const PlotLayout L = lay_out(series, options);
+  const Canvas plot{image, L.area};
+  for (const Tick& t : L.ax.major) plot.fill({L.ix(t.t), L.area.y0, L.ix(t.t) + 1, L.area.y1}, kGridGrey);
+  for (const Tick& t : L.ay.major) plot.fill({L.area.x0, L.iy(t.t), L.area.x1, L.iy(t.t) + 1}, kGridGrey);
+  draw_series(plot, L, series);
+  draw_frame(full, plot, L);
+  draw_titles(full, L, options);
+  draw_legend(plot, L, series);
   return image;
 }
 

@@ -340,82 +340,30 @@ class PlyReader {
   }
 
   void read_header() {
-    // The magic first: a binary non-PLY file must not be scanned for newlines.
-    char magic[5] = {};
-    const std::size_t got = std::fread(magic, 1, 4, file_.get());
-    const std::string_view m(magic, got);
-    if (!(m == "ply\n" || m == "ply\r" || (got == 3 && m == "ply"))) {
-      fail("not a PLY file (the first line is not 'ply')");
-    }
-    if (m == "ply\r" && std::getc(file_.get()) != '\n') {
-      fail("not a PLY file (the first line is not 'ply')");
-    }
+    read_magic();
     line_no_ = 1;
     bool have_format = false;
     bool ended = false;
-    while (next_line()) {
+    while (!ended && next_line()) {
       const std::vector<std::string_view> tok = split_ws(line_);
       if (tok.empty()) fail_line("empty header line");
-      // After this, names and comments quoted in messages are printable.
-      if (std::any_of(line_.begin(), line_.end(), [](char c) {
-            const auto u = static_cast<unsigned char>(c);
-            return (u < 0x20 && c != '\t') || u == 0x7f;
-          })) {
-        fail_line("control character");
-      }
+      require_printable_line();  // after this, names and comments quoted in messages are printable
       const std::string_view key = tok[0];
       if (key == "format") {
         if (have_format) fail_line("second format line");
-        if (tok.size() != 3) fail_line("malformed format line (expected 'format TYPE 1.0')");
-        if (tok[1] == "ascii") {
-          format_ = Format::kAscii;
-        } else if (tok[1] == "binary_little_endian") {
-          format_ = Format::kBinaryLittleEndian;
-        } else if (tok[1] == "binary_big_endian") {
-          format_ = Format::kBinaryBigEndian;
-        } else {
-          fail_line("unknown format '" + std::string(tok[1]) +
-                    "' (expected ascii, binary_little_endian or binary_big_endian)");
-        }
-        if (tok[2] != "1.0") fail_line("unsupported PLY version '" + std::string(tok[2]) + "' (expected 1.0)");
+        parse_format_line(tok);
         have_format = true;
       } else if (starts_with_keyword(line_, "comment")) {
         table_.comments.push_back(rest_after_keyword(line_, "comment"));
       } else if (starts_with_keyword(line_, "obj_info")) {
         table_.obj_info.push_back(rest_after_keyword(line_, "obj_info"));
       } else if (key == "element") {
-        if (tok.size() != 3) fail_line("malformed element line (expected 'element NAME COUNT')");
-        PendingElement e;
-        e.name = std::string(tok[1]);
-        for (const PendingElement& other : pending_) {
-          if (other.name == e.name) fail_line("duplicate element '" + e.name + "'");
-        }
-        const char* end = tok[2].data() + tok[2].size();
-        const auto res = std::from_chars(tok[2].data(), end, e.count);
-        if (res.ec != std::errc{} || res.ptr != end || e.count < 0) {
-          fail_line("element count '" + std::string(tok[2]) + "' is not a number in [0, 2^63)");
-        }
-        pending_.push_back(std::move(e));
+        parse_element_line(tok);
       } else if (key == "property") {
-        if (pending_.empty()) fail_line("property before any element");
-        PendingElement& e = pending_.back();
-        if (tok.size() >= 2 && tok[1] == "list") {
-          const std::string name = tok.size() >= 5 ? std::string(tok.back()) : std::string("?");
-          fail("list properties are not supported: element " + e.name + " property " + name +
-               " (header line " + std::to_string(line_no_) + ")");
-        }
-        if (tok.size() != 3) fail_line("malformed property line (expected 'property TYPE NAME')");
-        const std::optional<PlyType> type = parse_ply_type(tok[1]);
-        if (!type) fail_line("unknown property type '" + std::string(tok[1]) + "'");
-        for (const PlyProperty& p : e.properties) {
-          if (p.name == tok[2]) fail_line("duplicate property '" + p.name + "' in element " + e.name);
-        }
-        e.properties.push_back({std::string(tok[2]), *type});
-        e.row_size += size_of(*type);
+        parse_property_line(tok);
       } else if (key == "end_header") {
         if (tok.size() != 1) fail_line("malformed end_header line");
         ended = true;
-        break;
       } else {
         fail_line("malformed header line (unknown keyword '" + std::string(key) + "')");
       }
@@ -425,6 +373,79 @@ class PlyReader {
     const long pos = std::ftell(file_.get());
     if (pos < 0) fail(std::string("cannot tell the header size: ") + std::strerror(errno));
     data_offset_ = static_cast<std::uint64_t>(pos);
+  }
+
+  // The magic first: a binary non-PLY file must not be scanned for newlines.
+  void read_magic() {
+    char magic[5] = {};
+    const std::size_t got = std::fread(magic, 1, 4, file_.get());
+    const std::string_view m(magic, got);
+    if (!(m == "ply\n" || m == "ply\r" || (got == 3 && m == "ply"))) {
+      fail("not a PLY file (the first line is not 'ply')");
+    }
+    if (m == "ply\r" && std::getc(file_.get()) != '\n') {
+      fail("not a PLY file (the first line is not 'ply')");
+    }
+  }
+
+  void require_printable_line() const {
+    if (std::any_of(line_.begin(), line_.end(), [](char c) {
+          const auto u = static_cast<unsigned char>(c);
+          return (u < 0x20 && c != '\t') || u == 0x7f;
+        })) {
+      fail_line("control character");
+    }
+  }
+
+  // "format TYPE 1.0"
+  void parse_format_line(const std::vector<std::string_view>& tok) {
+    if (tok.size() != 3) fail_line("malformed format line (expected 'format TYPE 1.0')");
+    if (tok[1] == "ascii") {
+      format_ = Format::kAscii;
+    } else if (tok[1] == "binary_little_endian") {
+      format_ = Format::kBinaryLittleEndian;
+    } else if (tok[1] == "binary_big_endian") {
+      format_ = Format::kBinaryBigEndian;
+    } else {
+      fail_line("unknown format '" + std::string(tok[1]) +
+                "' (expected ascii, binary_little_endian or binary_big_endian)");
+    }
+    if (tok[2] != "1.0") fail_line("unsupported PLY version '" + std::string(tok[2]) + "' (expected 1.0)");
+  }
+
+  // "element NAME COUNT"
+  void parse_element_line(const std::vector<std::string_view>& tok) {
+    if (tok.size() != 3) fail_line("malformed element line (expected 'element NAME COUNT')");
+    PendingElement e;
+    e.name = std::string(tok[1]);
+    for (const PendingElement& other : pending_) {
+      if (other.name == e.name) fail_line("duplicate element '" + e.name + "'");
+    }
+    const char* end = tok[2].data() + tok[2].size();
+    const auto res = std::from_chars(tok[2].data(), end, e.count);
+    if (res.ec != std::errc{} || res.ptr != end || e.count < 0) {
+      fail_line("element count '" + std::string(tok[2]) + "' is not a number in [0, 2^63)");
+    }
+    pending_.push_back(std::move(e));
+  }
+
+  // "property TYPE NAME" of the last element (lists are refused).
+  void parse_property_line(const std::vector<std::string_view>& tok) {
+    if (pending_.empty()) fail_line("property before any element");
+    PendingElement& e = pending_.back();
+    if (tok.size() >= 2 && tok[1] == "list") {
+      const std::string name = tok.size() >= 5 ? std::string(tok.back()) : std::string("?");
+      fail("list properties are not supported: element " + e.name + " property " + name + " (header line " +
+           std::to_string(line_no_) + ")");
+    }
+    if (tok.size() != 3) fail_line("malformed property line (expected 'property TYPE NAME')");
+    const std::optional<PlyType> type = parse_ply_type(tok[1]);
+    if (!type) fail_line("unknown property type '" + std::string(tok[1]) + "'");
+    for (const PlyProperty& p : e.properties) {
+      if (p.name == tok[2]) fail_line("duplicate property '" + p.name + "' in element " + e.name);
+    }
+    e.properties.push_back({std::string(tok[2]), *type});
+    e.row_size += size_of(*type);
   }
 
   void read_binary_body() {

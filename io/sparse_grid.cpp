@@ -163,11 +163,11 @@ void add_leaves(FloatTree& tree, std::vector<LeafT*>& leaves) {
 
 }  // namespace
 
-SparseGrid build_sparse_grid(const Volume& vol, const Eigen::Vector3d& aspect, const SparseGridOptions& options) {
-  options.validate();
-  ensure_openvdb_initialized();
+namespace {
+
+// Both grids, empty, with the stack's transform.
+std::shared_ptr<SparseGrid::Impl> empty_grids(const WorldFrame& frame) {
   auto impl = std::make_shared<SparseGrid::Impl>();
-  const WorldFrame frame(vol.nx, vol.ny, vol.nz, aspect);
   const auto transform = frame_transform(frame);
   impl->volume = FloatGrid::create(0.0f);
   impl->background = FloatGrid::create(0.0f);
@@ -177,65 +177,81 @@ SparseGrid build_sparse_grid(const Volume& vol, const Eigen::Vector3d& aspect, c
   }
   impl->volume->setName("volume");
   impl->background->setName("background");
+  return impl;
+}
 
-  // 1. Foreground leaves, one brick per task, added to the tree in brick order.
-  const BrickGrid bricks(vol);
-  std::vector<LeafT*> leaves(bricks.count(), nullptr);
-  const float threshold = static_cast<float>(options.threshold);
+// Foreground leaves (v > threshold), one brick per task, added in brick order.
+// `leaves` is scratch of one slot per brick.
+void add_foreground(const Volume& vol, const BrickGrid& bricks, float threshold, std::vector<LeafT*>& leaves,
+                    FloatTree& tree) {
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, bricks.count(), 16), [&](const auto& r) {
     for (std::size_t b = r.begin(); b != r.end(); ++b) {
       leaves[b] = make_leaf(vol, bricks.origin(b), [&](int, int, int, float v) { return v > threshold; });
     }
   });
-  FloatTree& tree = impl->volume->tree();
   add_leaves(tree, leaves);
+}
 
-  // 2. Band: OpenVDB's own morphology, then real values for newly active voxels and
-  //    nothing outside the stack's index range.
-  if (options.band_voxels > 0) {
-    openvdb::tools::dilateActiveValues(tree, options.band_voxels, openvdb::tools::NN_FACE_EDGE_VERTEX,
-                                       openvdb::tools::IGNORE_TILES);
-    openvdb::tree::LeafManager<FloatTree> manager(tree);
-    manager.foreach([&](LeafT& leaf, std::size_t) {
-      for (auto it = leaf.beginValueOn(); it; ++it) {
-        const Coord c = it.getCoord();
-        if (c.x() < 0 || c.y() < 0 || c.z() < 0 || c.x() >= vol.nx || c.y() >= vol.ny || c.z() >= vol.nz) {
-          it.setValue(0.0f);  // outside the stack: dilation went past its edge
-          it.setValueOff();
-        } else {
-          it.setValue(vol.at(c.x(), c.y(), c.z()));
-        }
+// Band: OpenVDB's own morphology, then real values for newly active voxels and
+// nothing outside the stack's index range.
+void dilate_band(const Volume& vol, int band_voxels, FloatTree& tree) {
+  openvdb::tools::dilateActiveValues(tree, band_voxels, openvdb::tools::NN_FACE_EDGE_VERTEX,
+                                     openvdb::tools::IGNORE_TILES);
+  openvdb::tree::LeafManager<FloatTree> manager(tree);
+  manager.foreach([&](LeafT& leaf, std::size_t) {
+    for (auto it = leaf.beginValueOn(); it; ++it) {
+      const Coord c = it.getCoord();
+      if (c.x() < 0 || c.y() < 0 || c.z() < 0 || c.x() >= vol.nx || c.y() >= vol.ny || c.z() >= vol.nz) {
+        it.setValue(0.0f);  // outside the stack: dilation went past its edge
+        it.setValueOff();
+      } else {
+        it.setValue(vol.at(c.x(), c.y(), c.z()));
       }
-    });
-    openvdb::tools::pruneInactive(tree);
-  }
+    }
+  });
+  openvdb::tools::pruneInactive(tree);
+}
 
-  // 3. Background subsample: Bernoulli(p) per inactive voxel, drawn by geometric
-  //    skipping with a per-brick generator so the result does not depend on threading.
-  if (options.background_fraction > 0.0) {
-    const double p = options.background_fraction;
-    const double log_q = std::log1p(-std::min(p, 1.0 - 1e-12));
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, bricks.count(), 16), [&](const auto& r) {
-      openvdb::tree::ValueAccessor<const FloatTree> fg(tree);
-      for (std::size_t b = r.begin(); b != r.end(); ++b) {
-        std::mt19937_64 rng(options.seed * 0x9E3779B97F4A7C15ull + b);
-        std::uniform_real_distribution<double> uni(0.0, 1.0);
-        auto next_gap = [&]() -> long {
-          if (p >= 1.0) return 0;
-          return static_cast<long>(std::floor(std::log(1.0 - uni(rng)) / log_q));
-        };
-        long skip = next_gap();
-        leaves[b] = make_leaf(vol, bricks.origin(b), [&](int x, int y, int z, float) {
-          if (fg.isValueOn(Coord(x, y, z))) return false;
-          if (skip-- > 0) return false;
-          skip = next_gap();
-          return true;
-        });
-      }
-    });
-    add_leaves(impl->background->tree(), leaves);
-  }
+// Background subsample: Bernoulli(p) per voxel outside `foreground`, drawn by
+// geometric skipping with a per-brick generator so the result does not depend on
+// threading.
+void add_background(const Volume& vol, const BrickGrid& bricks, const SparseGridOptions& options,
+                    const FloatTree& foreground, std::vector<LeafT*>& leaves, FloatTree& tree) {
+  const double p = options.background_fraction;
+  const double log_q = std::log1p(-std::min(p, 1.0 - 1e-12));
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, bricks.count(), 16), [&](const auto& r) {
+    openvdb::tree::ValueAccessor<const FloatTree> fg(foreground);
+    for (std::size_t b = r.begin(); b != r.end(); ++b) {
+      std::mt19937_64 rng(options.seed * 0x9E3779B97F4A7C15ull + b);
+      std::uniform_real_distribution<double> uni(0.0, 1.0);
+      auto next_gap = [&]() -> long {
+        if (p >= 1.0) return 0;
+        return static_cast<long>(std::floor(std::log(1.0 - uni(rng)) / log_q));
+      };
+      long skip = next_gap();
+      leaves[b] = make_leaf(vol, bricks.origin(b), [&](int x, int y, int z, float) {
+        if (fg.isValueOn(Coord(x, y, z))) return false;
+        if (skip-- > 0) return false;
+        skip = next_gap();
+        return true;
+      });
+    }
+  });
+  add_leaves(tree, leaves);
+}
 
+}  // namespace
+
+SparseGrid build_sparse_grid(const Volume& vol, const Eigen::Vector3d& aspect, const SparseGridOptions& options) {
+  options.validate();
+  ensure_openvdb_initialized();
+  auto impl = empty_grids(WorldFrame(vol.nx, vol.ny, vol.nz, aspect));
+  const BrickGrid bricks(vol);
+  std::vector<LeafT*> leaves(bricks.count(), nullptr);
+  FloatTree& tree = impl->volume->tree();
+  add_foreground(vol, bricks, static_cast<float>(options.threshold), leaves, tree);
+  if (options.band_voxels > 0) dilate_band(vol, options.band_voxels, tree);
+  if (options.background_fraction > 0.0) add_background(vol, bricks, options, tree, leaves, impl->background->tree());
   auto& meta = impl->meta;
   meta.shape_xyz = {vol.nx, vol.ny, vol.nz};
   meta.spacing_um = vol.spacing.um;

@@ -479,20 +479,13 @@ void SyntheticNeuronOptions::validate() const {
   }
 }
 
-Volume make_synthetic_neuron(const SyntheticNeuronOptions& options,
-                             std::vector<NeuriteNode>* skeleton, SyntheticNeuronCounts* counts) {
-  options.validate();
-  const SyntheticNeuronOptions& o = options;
-  const Grid g{{o.nx, o.ny, o.nz}, {o.spacing_um[0], o.spacing_um[1], o.spacing_um[2]}};
+namespace {
 
-  // 1. Morphology.
-  SkeletonGrower grower(o);
-  std::vector<NeuriteNode> nodes = grower.grow();
-
-  // 2. Blur budget per axis: PSF plus the voxel's own box integration (s^2 / 12).
-  // Rasterization carries up to half a voxel of it (enough to sample sub-voxel
-  // neurites without aliasing), the separable convolution the rest.
-  double sigma_aa[3], sigma_blur_vox[3];
+// Blur budget per axis: PSF plus the voxel's own box integration (s^2 / 12).
+// Rasterization carries up to half a voxel of it (enough to sample sub-voxel
+// neurites without aliasing, sigma_aa in µm), the separable convolution the rest
+// (sigma_blur_vox, in voxels).
+void split_blur(const SyntheticNeuronOptions& o, const Grid& g, double sigma_aa[3], double sigma_blur_vox[3]) {
   for (int a = 0; a < 3; ++a) {
     const double psf = a == 2 ? o.psf_sigma_z_um : o.psf_sigma_xy_um;
     const double total2 = psf * psf + g.s[a] * g.s[a] / 12;
@@ -500,13 +493,16 @@ Volume make_synthetic_neuron(const SyntheticNeuronOptions& options,
     sigma_blur_vox[a] = std::sqrt(std::max(0.0, total2 - sigma_aa[a] * sigma_aa[a])) / g.s[a];
     if (sigma_blur_vox[a] < 0.05) sigma_blur_vox[a] = 0;  // kernel would be a delta
   }
+}
 
-  // 3. Primitives: soma (sphere + lobes) and one tapered capsule per skeleton edge.
+// Soma (sphere + lobes) and one tapered capsule per skeleton edge.
+std::vector<Primitive> make_primitives(const std::vector<NeuriteNode>& nodes, const std::vector<Vector3d>& lobes,
+                                       const Grid& g, const double sigma_aa[3]) {
   std::vector<Primitive> prims;
   const NeuriteNode& soma = nodes[0];
-  prims.push_back(make_primitive(soma.position_um, soma.radius_um, 1.0, soma.position_um,
-                                 soma.radius_um, 1.0, g, sigma_aa));
-  for (const Vector3d& c : grower.soma_lobes()) {
+  prims.push_back(make_primitive(soma.position_um, soma.radius_um, 1.0, soma.position_um, soma.radius_um, 1.0, g,
+                                 sigma_aa));
+  for (const Vector3d& c : lobes) {
     const double r = kSomaLobeRadius * soma.radius_um;
     prims.push_back(make_primitive(c, r, 1.0, c, r, 1.0, g, sigma_aa));
   }
@@ -517,28 +513,35 @@ Volume make_synthetic_neuron(const SyntheticNeuronOptions& options,
     // (a soma-radius cone would bulge out of the soma).
     const double ra = nodes[i].parent == 0 ? b.radius_um : a.radius_um;
     const double ba = nodes[i].parent == 0 ? 1.0 : a.brightness;
-    prims.push_back(make_primitive(a.position_um, ra, ba, b.position_um, b.radius_um,
-                                   b.brightness, g, sigma_aa));
+    prims.push_back(make_primitive(a.position_um, ra, ba, b.position_um, b.radius_um, b.brightness, g, sigma_aa));
   }
-  std::vector<std::vector<int>> by_slice(o.nz);
+  return prims;
+}
+
+// Rasterize (slices are independent) and blur: intensity in [0, 1], soma = 1.
+std::vector<float> render_intensity(const std::vector<Primitive>& prims, const Grid& g, const double sigma_aa[3],
+                                    const double sigma_blur_vox[3]) {
+  const int nz = g.n[2];
+  std::vector<std::vector<int>> by_slice(nz);
   for (int id = 0; id < static_cast<int>(prims.size()); ++id) {
     for (int k = prims[id].lo[2]; k <= prims[id].hi[2]; ++k) by_slice[k].push_back(id);
   }
-
-  // 4. Rasterize (slices are independent) and blur: intensity in [0, 1], soma = 1.
-  const std::size_t slice_size = static_cast<std::size_t>(o.nx) * o.ny;
-  std::vector<float> intensity(slice_size * o.nz, 0.0f);
-  tbb::parallel_for(0, o.nz, [&](int k) {
+  const std::size_t slice_size = static_cast<std::size_t>(g.n[0]) * g.n[1];
+  std::vector<float> intensity(slice_size * nz, 0.0f);
+  tbb::parallel_for(0, nz, [&](int k) {
     rasterize_slice(prims, by_slice[k], k, g, sigma_aa, intensity.data() + k * slice_size);
   });
   blur(intensity, g, sigma_blur_vox);
+  return intensity;
+}
 
-  // 5. Camera: counts = gain Poisson(peak I + background) + Normal(0, read) + offset,
-  // rounded, clipped to [0, 65535]; then the background subtraction. One random
-  // stream per z-slice, so the result is independent of the thread schedule.
+// Camera: counts = gain Poisson(peak I + background) + Normal(0, read) + offset,
+// rounded, clipped to [0, 65535]; then the background subtraction. One random
+// stream per z-slice, so the result is independent of the thread schedule.
+SyntheticNeuronCounts apply_camera(const SyntheticNeuronOptions& o, std::vector<float>& intensity) {
+  const std::size_t slice_size = static_cast<std::size_t>(o.nx) * o.ny;
   const double threshold =
-      o.background_subtract ? std::round(o.camera_offset + o.background_subtract_sigmas * o.read_noise)
-                            : 0.0;
+      o.background_subtract ? std::round(o.camera_offset + o.background_subtract_sigmas * o.read_noise) : 0.0;
   std::vector<std::int64_t> clipped_zero(o.nz, 0), saturated(o.nz, 0);
   tbb::parallel_for(0, o.nz, [&](int k) {
     std::mt19937_64 engine(stream_seed(o.seed, kNoiseStream, static_cast<std::uint64_t>(k)));
@@ -554,8 +557,8 @@ Volume make_synthetic_neuron(const SyntheticNeuronOptions& options,
         std::poisson_distribution<std::int64_t> shot(signal + o.background_photons);
         photons = shot(engine);
       }
-      double raw = std::round(o.gain_counts_per_photon * static_cast<double>(photons) +
-                              o.read_noise * read(engine) + o.camera_offset);
+      double raw = std::round(o.gain_counts_per_photon * static_cast<double>(photons) + o.read_noise * read(engine) +
+                              o.camera_offset);
       if (raw < 0 || raw > 65535) {
         ++saturated[k];
         raw = std::clamp(raw, 0.0, 65535.0);
@@ -567,6 +570,28 @@ Volume make_synthetic_neuron(const SyntheticNeuronOptions& options,
       slice[v] = static_cast<float>(raw);
     }
   });
+  SyntheticNeuronCounts counts;
+  for (int k = 0; k < o.nz; ++k) {
+    counts.clipped_to_zero += clipped_zero[k];
+    counts.saturated += saturated[k];
+  }
+  return counts;
+}
+
+}  // namespace
+
+Volume make_synthetic_neuron(const SyntheticNeuronOptions& options, std::vector<NeuriteNode>* skeleton,
+                             SyntheticNeuronCounts* counts) {
+  options.validate();
+  const SyntheticNeuronOptions& o = options;
+  const Grid g{{o.nx, o.ny, o.nz}, {o.spacing_um[0], o.spacing_um[1], o.spacing_um[2]}};
+  SkeletonGrower grower(o);
+  std::vector<NeuriteNode> nodes = grower.grow();
+  double sigma_aa[3], sigma_blur_vox[3];
+  split_blur(o, g, sigma_aa, sigma_blur_vox);
+  std::vector<float> intensity =
+      render_intensity(make_primitives(nodes, grower.soma_lobes(), g, sigma_aa), g, sigma_aa, sigma_blur_vox);
+  const SyntheticNeuronCounts camera = apply_camera(o, intensity);
 
   Volume volume;
   volume.nx = o.nx;
@@ -578,13 +603,7 @@ Volume make_synthetic_neuron(const SyntheticNeuronOptions& options,
   volume.spacing.source = {SpacingSource::kUser, SpacingSource::kUser, SpacingSource::kUser};
   volume.normalization = Normalization{};
   volume.source = "synthetic (seed " + to_text(o.seed) + ")";
-  if (counts != nullptr) {
-    *counts = SyntheticNeuronCounts{};
-    for (int k = 0; k < o.nz; ++k) {
-      counts->clipped_to_zero += clipped_zero[k];
-      counts->saturated += saturated[k];
-    }
-  }
+  if (counts != nullptr) *counts = camera;
   if (skeleton != nullptr) *skeleton = std::move(nodes);
   return volume;
 }

@@ -143,11 +143,8 @@ struct StackLayout {
   [[nodiscard]] int channels() const { return format.samples * page_channels; }
 };
 
-// Reads the header of the current (first) directory. Checks everything that
-// inspect and read share; `options.channel` is only range-checked here.
-StackLayout analyse_stack(TIFF* tif, const TiffHandle& handle, const fs::path& path,
-                          const TiffReadOptions& options) {
-  StackLayout s;
+// The page count and the first page's format, size, sample type and codec.
+void read_first_page(TIFF* tif, const TiffHandle& handle, const fs::path& path, StackLayout& s) {
   const tdir_t pages = TIFFNumberOfDirectories(tif);
   // A broken IFD chain (a truncated file) ends the count early with an error:
   // never read a prefix of the stack as if it were all of it.
@@ -177,101 +174,133 @@ StackLayout analyse_stack(TIFF* tif, const TiffHandle& handle, const fs::path& p
   s.compression = compression_name(compression);
   s.tiled = TIFFIsTiled(tif) != 0;
   s.bigtiff = TIFFIsBigTIFF(tif) != 0;
+}
 
-  // Metadata text: OME-XML or ImageJ in the first page's ImageDescription.
+// The metadata text of the first page's ImageDescription: OME-XML or ImageJ.
+struct StackDescription {
   std::optional<detail::OmePixels> ome;
   std::optional<detail::ImageJDescription> imagej;
+};
+StackDescription read_description(TIFF* tif, const fs::path& path) {
+  StackDescription d;
   const char* description = nullptr;
   if (TIFFGetField(tif, TIFFTAG_IMAGEDESCRIPTION, &description) && description) {
     const std::string_view text(description);
     try {
       if (detail::is_ome_xml(text)) {
-        ome = detail::parse_ome_pixels(text);
+        d.ome = detail::parse_ome_pixels(text);
       } else if (detail::is_imagej_description(text)) {
-        imagej = detail::parse_imagej_description(text);
+        d.imagej = detail::parse_imagej_description(text);
       }
     } catch (const InputError& e) {
       fail_input(path, e.what());
     }
   }
+  return d;
+}
 
-  // Page order. Counts are long long and their products are formed in double
-  // (exact below 2^53, and larger ones cannot match a page count): hostile
-  // descriptions must not overflow.
+// Channel pages, Z and T counts of a stack. Counts are long long and their products
+// are formed in double (exact below 2^53, and larger ones cannot match a page
+// count): hostile descriptions must not overflow.
+struct PageCounts {
+  long long c_pages = 1, nz = 0, nt = 1;
+};
+
+// OME-XML: sizes must match the page, the planes must fit in the pages; strides
+// from DimensionOrder (the letters after "XY" are ordered fastest first).
+PageCounts ome_page_order(const detail::OmePixels& ome, const fs::path& path, StackLayout& s) {
   const long long samples = s.format.samples;
-  long long c_pages = 1, nz = s.pages, nt = 1;
-  if (ome) {
-    if (static_cast<std::uint32_t>(ome->size_x) != s.format.width ||
-        static_cast<std::uint32_t>(ome->size_y) != s.format.height) {
-      fail_input(path, "OME-XML SizeX x SizeY = " + std::to_string(ome->size_x) + "x" +
-                           std::to_string(ome->size_y) + " does not match the first page (" +
-                           std::to_string(s.format.width) + "x" + std::to_string(s.format.height) + ")");
-    }
-    // OME counts RGB samples in SizeC; such channels share a page.
-    c_pages = (samples > 1 && ome->size_c % samples == 0) ? ome->size_c / samples : ome->size_c;
-    nz = ome->size_z;
-    nt = ome->size_time;
-    const double planes = static_cast<double>(c_pages) * static_cast<double>(nz) * static_cast<double>(nt);
-    if (planes > s.pages) {
-      fail_input(path, "OME-XML describes " + count_text(planes) +
-                           " planes (SizeZ=" + std::to_string(nz) +
-                           ", SizeC=" + std::to_string(ome->size_c) + ", SizeT=" + std::to_string(nt) +
-                           ") but the file has " + std::to_string(s.pages) + " pages");
-    }
-    // Strides: the letters after "XY" are ordered fastest first.
-    long long stride = 1, stride_z = 1, stride_c = 1;
-    for (char axis : ome->dimension_order.substr(2)) {
-      if (axis == 'Z') stride_z = stride, stride *= nz;
-      if (axis == 'C') stride_c = stride, stride *= c_pages;
-      if (axis == 'T') stride *= nt;
-    }
-    s.stride_z = static_cast<int>(stride_z);
-    s.stride_c = static_cast<int>(stride_c);
-  } else if (imagej) {
-    c_pages = imagej->channels.value_or(1);
-    nt = imagej->frames.value_or(1);
-    const long long images = imagej->images.value_or(s.pages);
-    if (imagej->slices) {
-      nz = *imagej->slices;
-    } else if (images % (c_pages * nt) == 0) {
-      nz = images / (c_pages * nt);
-    } else {
-      nz = 0;  // reported as a mismatch below
-    }
-    if (static_cast<double>(c_pages) * static_cast<double>(nz) * static_cast<double>(nt) !=
-        static_cast<double>(images)) {
-      fail_input(path, "ImageJ description: channels=" + std::to_string(c_pages) + " x slices=" +
-                           std::to_string(nz) + " x frames=" + std::to_string(nt) +
-                           " does not equal images=" + std::to_string(images));
-    }
-    if (images != s.pages) {
-      fail_input(path, "ImageJ description says images=" + std::to_string(images) + " but the file has " +
-                           std::to_string(s.pages) + " pages" +
-                           (s.pages == 1 ? " (ImageJ's contiguous layout for files over 4 GiB is not "
-                                           "supported; save as BigTIFF or OME-TIFF)"
-                                         : ""));
-    }
-    // Hyperstack order XYCZT: page = (t * Z + z) * C + c.
-    s.stride_c = 1;
-    s.stride_z = static_cast<int>(c_pages);
+  if (static_cast<std::uint32_t>(ome.size_x) != s.format.width ||
+      static_cast<std::uint32_t>(ome.size_y) != s.format.height) {
+    fail_input(path, "OME-XML SizeX x SizeY = " + std::to_string(ome.size_x) + "x" + std::to_string(ome.size_y) +
+                         " does not match the first page (" + std::to_string(s.format.width) + "x" +
+                         std::to_string(s.format.height) + ")");
   }
-  if (nt > 1) {
-    fail_input(path, "has " + std::to_string(nt) + " time points (" + (ome ? "OME SizeT" : "ImageJ frames") +
-                         "=" + std::to_string(nt) + "); expected a single 3D stack");
+  PageCounts n;
+  // OME counts RGB samples in SizeC; such channels share a page.
+  n.c_pages = (samples > 1 && ome.size_c % samples == 0) ? ome.size_c / samples : ome.size_c;
+  n.nz = ome.size_z;
+  n.nt = ome.size_time;
+  const double planes = static_cast<double>(n.c_pages) * static_cast<double>(n.nz) * static_cast<double>(n.nt);
+  if (planes > s.pages) {
+    fail_input(path, "OME-XML describes " + count_text(planes) + " planes (SizeZ=" + std::to_string(n.nz) +
+                         ", SizeC=" + std::to_string(ome.size_c) + ", SizeT=" + std::to_string(n.nt) +
+                         ") but the file has " + std::to_string(s.pages) + " pages");
   }
-  if (c_pages * samples > std::numeric_limits<int>::max()) fail_input(path, "has too many channels");
-  s.page_channels = static_cast<int>(c_pages);
-  s.nz = static_cast<int>(nz);
+  long long stride = 1, stride_z = 1, stride_c = 1;
+  for (char axis : ome.dimension_order.substr(2)) {
+    if (axis == 'Z') stride_z = stride, stride *= n.nz;
+    if (axis == 'C') stride_c = stride, stride *= n.c_pages;
+    if (axis == 'T') stride *= n.nt;
+  }
+  s.stride_z = static_cast<int>(stride_z);
+  s.stride_c = static_cast<int>(stride_c);
+  return n;
+}
+
+// ImageJ: channels x slices x frames must equal images, which must equal the pages;
+// hyperstack order XYCZT: page = (t * Z + z) * C + c.
+PageCounts imagej_page_order(const detail::ImageJDescription& imagej, const fs::path& path, StackLayout& s) {
+  PageCounts n;
+  n.c_pages = imagej.channels.value_or(1);
+  n.nt = imagej.frames.value_or(1);
+  const long long images = imagej.images.value_or(s.pages);
+  if (imagej.slices) {
+    n.nz = *imagej.slices;
+  } else if (images % (n.c_pages * n.nt) == 0) {
+    n.nz = images / (n.c_pages * n.nt);
+  } else {
+    n.nz = 0;  // reported as a mismatch below
+  }
+  if (static_cast<double>(n.c_pages) * static_cast<double>(n.nz) * static_cast<double>(n.nt) !=
+      static_cast<double>(images)) {
+    fail_input(path, "ImageJ description: channels=" + std::to_string(n.c_pages) + " x slices=" +
+                         std::to_string(n.nz) + " x frames=" + std::to_string(n.nt) +
+                         " does not equal images=" + std::to_string(images));
+  }
+  if (images != s.pages) {
+    fail_input(path, "ImageJ description says images=" + std::to_string(images) + " but the file has " +
+                         std::to_string(s.pages) + " pages" +
+                         (s.pages == 1 ? " (ImageJ's contiguous layout for files over 4 GiB is not "
+                                         "supported; save as BigTIFF or OME-TIFF)"
+                                       : ""));
+  }
+  s.stride_c = 1;
+  s.stride_z = static_cast<int>(n.c_pages);
+  return n;
+}
+
+// Which page holds (z, channel); refuses time series and out-of-range channels.
+void resolve_page_order(const StackDescription& d, const fs::path& path, const TiffReadOptions& options,
+                        StackLayout& s) {
+  PageCounts n;
+  n.nz = s.pages;
+  if (d.ome) {
+    n = ome_page_order(*d.ome, path, s);
+  } else if (d.imagej) {
+    n = imagej_page_order(*d.imagej, path, s);
+  }
+  if (n.nt > 1) {
+    fail_input(path, "has " + std::to_string(n.nt) + " time points (" + (d.ome ? "OME SizeT" : "ImageJ frames") +
+                         "=" + std::to_string(n.nt) + "); expected a single 3D stack");
+  }
+  if (n.c_pages * s.format.samples > std::numeric_limits<int>::max()) fail_input(path, "has too many channels");
+  s.page_channels = static_cast<int>(n.c_pages);
+  s.nz = static_cast<int>(n.nz);
   if (options.channel && *options.channel >= s.channels()) {
     fail_input(path, "channel " + std::to_string(*options.channel) + " is out of range: the file has " +
-                         std::to_string(s.channels()) + " channel" + (s.channels() > 1 ? "s" : "") +
-                         " (0.." + std::to_string(s.channels() - 1) + ")");
+                         std::to_string(s.channels()) + " channel" + (s.channels() > 1 ? "s" : "") + " (0.." +
+                         std::to_string(s.channels() - 1) + ")");
   }
+}
 
+// The voxel spacing by the CONVENTIONS precedence (option, OME, ImageJ, resolution tags).
+void resolve_stack_spacing(TIFF* tif, const StackDescription& d, const fs::path& path,
+                           const TiffReadOptions& options, StackLayout& s) {
   detail::SpacingEvidence evidence;
   evidence.user_um = options.spacing_um;
-  evidence.ome = ome ? &*ome : nullptr;
-  evidence.imagej = imagej ? &*imagej : nullptr;
+  evidence.ome = d.ome ? &*d.ome : nullptr;
+  evidence.imagej = d.imagej ? &*d.imagej : nullptr;
   float x_res = 0, y_res = 0;
   std::uint16_t res_unit = RESUNIT_INCH;
   if (TIFFGetField(tif, TIFFTAG_XRESOLUTION, &x_res)) evidence.x_resolution = x_res;
@@ -282,6 +311,17 @@ StackLayout analyse_stack(TIFF* tif, const TiffHandle& handle, const fs::path& p
   } catch (const InputError& e) {
     fail_input(path, std::string(e.what()) + "; pass the spacing explicitly (--spacing) to override");
   }
+}
+
+// Reads the header of the current (first) directory. Checks everything that
+// inspect and read share; `options.channel` is only range-checked here.
+StackLayout analyse_stack(TIFF* tif, const TiffHandle& handle, const fs::path& path,
+                          const TiffReadOptions& options) {
+  StackLayout s;
+  read_first_page(tif, handle, path, s);
+  const StackDescription description = read_description(tif, path);
+  resolve_page_order(description, path, options, s);
+  resolve_stack_spacing(tif, description, path, options, s);
   return s;
 }
 

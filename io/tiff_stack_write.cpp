@@ -63,7 +63,7 @@ std::pair<float, float> check_writable(const fs::path& path, std::span<const flo
 
 // Shortest text that parses back to exactly `v` ("0.9988", not "0.99880000000000002").
 template <class T>
-std::string number_text(T v) {
+std::string shortest_text(T v) {
   char text[64];
   const auto result = std::to_chars(text, text + sizeof text, v);
   return std::string(text, result.ptr);
@@ -77,22 +77,82 @@ void pack_samples(const float* src, std::size_t count, unsigned char* dst) {
   }
 }
 
+void check_shape(std::span<const float> voxels, int nx, int ny, int nz) {
+  if (nx < 1 || ny < 1 || nz < 1) {
+    throw std::invalid_argument("write_tiff_stack: shape " + std::to_string(nx) + "x" + std::to_string(ny) + "x" +
+                                std::to_string(nz) + " must be at least 1x1x1");
+  }
+  if (voxels.size() != static_cast<std::size_t>(nx) * ny * nz) {
+    throw std::invalid_argument("write_tiff_stack: " + std::to_string(voxels.size()) + " voxels for shape " +
+                                std::to_string(nx) + "x" + std::to_string(ny) + "x" + std::to_string(nz));
+  }
+}
+
+// The ImageJ description of the first page: slice count, z spacing, display range.
+std::string imagej_description(int nz, const TiffWriteOptions& options, double lo, double hi) {
+  std::string description = "ImageJ=1.11a\nimages=" + std::to_string(nz) + "\nslices=" + std::to_string(nz) + "\n";
+  if (options.spacing_um) description += "unit=um\nspacing=" + shortest_text((*options.spacing_um)[2]) + "\n";
+  description += "min=" + shortest_text(lo) + "\nmax=" + shortest_text(hi) + "\n";
+  return description;
+}
+
+// The tags of one page (the description only on the first).
+void set_page_tags(TIFF* tif, int nx, int ny, std::size_t rows_per_strip, const TiffWriteOptions& options,
+                   const std::string* description) {
+  TIFFSetField(tif, TIFFTAG_SUBFILETYPE, 0);
+  TIFFSetField(tif, TIFFTAG_IMAGEWIDTH, static_cast<std::uint32_t>(nx));
+  TIFFSetField(tif, TIFFTAG_IMAGELENGTH, static_cast<std::uint32_t>(ny));
+  TIFFSetField(tif, TIFFTAG_BITSPERSAMPLE, static_cast<std::uint16_t>(8 * bytes_of(options.type)));
+  TIFFSetField(tif, TIFFTAG_SAMPLESPERPIXEL, static_cast<std::uint16_t>(1));
+  TIFFSetField(tif, TIFFTAG_SAMPLEFORMAT, options.type == SampleType::kFloat32 ? SAMPLEFORMAT_IEEEFP : SAMPLEFORMAT_UINT);
+  TIFFSetField(tif, TIFFTAG_PHOTOMETRIC, PHOTOMETRIC_MINISBLACK);
+  TIFFSetField(tif, TIFFTAG_PLANARCONFIG, PLANARCONFIG_CONTIG);
+  TIFFSetField(tif, TIFFTAG_ROWSPERSTRIP, static_cast<std::uint32_t>(rows_per_strip));
+  if (options.deflate) {
+    TIFFSetField(tif, TIFFTAG_COMPRESSION, COMPRESSION_ADOBE_DEFLATE);
+    // Horizontal differencing helps integer images a lot and every reader has
+    // it; the floating-point predictor is left out because ImageJ lacks it.
+    if (options.type != SampleType::kFloat32) TIFFSetField(tif, TIFFTAG_PREDICTOR, PREDICTOR_HORIZONTAL);
+  } else {
+    TIFFSetField(tif, TIFFTAG_COMPRESSION, COMPRESSION_NONE);
+  }
+  if (options.spacing_um) {
+    // ImageJ calibration: pixels per `unit`, ResolutionUnit none.
+    TIFFSetField(tif, TIFFTAG_XRESOLUTION, 1.0 / (*options.spacing_um)[0]);
+    TIFFSetField(tif, TIFFTAG_YRESOLUTION, 1.0 / (*options.spacing_um)[1]);
+    TIFFSetField(tif, TIFFTAG_RESOLUTIONUNIT, RESUNIT_NONE);
+  }
+  if (description) TIFFSetField(tif, TIFFTAG_IMAGEDESCRIPTION, description->c_str());
+  TIFFSetField(tif, TIFFTAG_SOFTWARE, "hisnegs");
+}
+
+// Packs and writes one page strip by strip; false when libtiff refuses a strip.
+bool write_page_strips(TIFF* tif, const float* page, int nx, int ny, std::size_t rows_per_strip, SampleType type,
+                       std::vector<unsigned char>& strip) {
+  const std::size_t bytes = bytes_of(type);
+  for (std::size_t row = 0, s = 0; row < static_cast<std::size_t>(ny); row += rows_per_strip, ++s) {
+    const std::size_t rows = std::min(rows_per_strip, static_cast<std::size_t>(ny) - row);
+    const std::size_t count = rows * static_cast<std::size_t>(nx);
+    const float* src = page + row * static_cast<std::size_t>(nx);
+    switch (type) {
+      case SampleType::kUint8: pack_samples<std::uint8_t>(src, count, strip.data()); break;
+      case SampleType::kUint16: pack_samples<std::uint16_t>(src, count, strip.data()); break;
+      case SampleType::kFloat32: pack_samples<float>(src, count, strip.data()); break;
+    }
+    const auto size = static_cast<tmsize_t>(count * bytes);
+    if (TIFFWriteEncodedStrip(tif, static_cast<std::uint32_t>(s), strip.data(), size) != size) return false;
+  }
+  return true;
+}
+
 }  // namespace
 
 void write_tiff_stack(const fs::path& path, std::span<const float> voxels, int nx, int ny, int nz,
                       const TiffWriteOptions& options) {
   options.validate();
-  if (nx < 1 || ny < 1 || nz < 1) {
-    throw std::invalid_argument("write_tiff_stack: shape " + std::to_string(nx) + "x" + std::to_string(ny) + "x" +
-                                std::to_string(nz) + " must be at least 1x1x1");
-  }
-  const std::size_t page_voxels = static_cast<std::size_t>(nx) * ny;
-  if (voxels.size() != page_voxels * nz) {
-    throw std::invalid_argument("write_tiff_stack: " + std::to_string(voxels.size()) + " voxels for shape " +
-                                std::to_string(nx) + "x" + std::to_string(ny) + "x" + std::to_string(nz));
-  }
+  check_shape(voxels, nx, ny, nz);
   const auto [lo, hi] = check_writable(path, voxels, nx, ny, options.type);
-
+  const std::size_t page_voxels = static_cast<std::size_t>(nx) * ny;
   const std::size_t bytes = bytes_of(options.type);
   const std::size_t row_bytes = static_cast<std::size_t>(nx) * bytes;
   // Classic TIFF offsets are 32-bit; leave room for IFDs and the description.
@@ -101,12 +161,7 @@ void write_tiff_stack(const fs::path& path, std::span<const float> voxels, int n
   // ImageJ/tifffile read multi-strip pages just as well.
   const std::size_t rows_per_strip =
       std::clamp<std::size_t>((std::size_t{8} << 20) / row_bytes, 1, static_cast<std::size_t>(ny));
-
-  std::string description = "ImageJ=1.11a\nimages=" + std::to_string(nz) + "\nslices=" + std::to_string(nz) + "\n";
-  if (options.spacing_um) {
-    description += "unit=um\nspacing=" + number_text((*options.spacing_um)[2]) + "\n";
-  }
-  description += "min=" + number_text(lo) + "\nmax=" + number_text(hi) + "\n";
+  const std::string description = imagej_description(nz, options, lo, hi);
 
   AtomicFile file(path);
   const int fd = ::open(file.temp_path().c_str(), O_RDWR | O_CREAT | O_TRUNC | O_CLOEXEC, 0666);
@@ -117,50 +172,12 @@ void write_tiff_stack(const fs::path& path, std::span<const float> voxels, int n
   auto fail_write = [&](const std::string& what) {
     throw std::runtime_error(describe(path, "cannot write " + what + handle.detail()));
   };
-
   std::vector<unsigned char> strip(rows_per_strip * row_bytes);
   for (int z = 0; z < nz; ++z) {
-    TIFFSetField(tif, TIFFTAG_SUBFILETYPE, 0);
-    TIFFSetField(tif, TIFFTAG_IMAGEWIDTH, static_cast<std::uint32_t>(nx));
-    TIFFSetField(tif, TIFFTAG_IMAGELENGTH, static_cast<std::uint32_t>(ny));
-    TIFFSetField(tif, TIFFTAG_BITSPERSAMPLE, static_cast<std::uint16_t>(8 * bytes));
-    TIFFSetField(tif, TIFFTAG_SAMPLESPERPIXEL, static_cast<std::uint16_t>(1));
-    TIFFSetField(tif, TIFFTAG_SAMPLEFORMAT,
-                 options.type == SampleType::kFloat32 ? SAMPLEFORMAT_IEEEFP : SAMPLEFORMAT_UINT);
-    TIFFSetField(tif, TIFFTAG_PHOTOMETRIC, PHOTOMETRIC_MINISBLACK);
-    TIFFSetField(tif, TIFFTAG_PLANARCONFIG, PLANARCONFIG_CONTIG);
-    TIFFSetField(tif, TIFFTAG_ROWSPERSTRIP, static_cast<std::uint32_t>(rows_per_strip));
-    if (options.deflate) {
-      TIFFSetField(tif, TIFFTAG_COMPRESSION, COMPRESSION_ADOBE_DEFLATE);
-      // Horizontal differencing helps integer images a lot and every reader has
-      // it; the floating-point predictor is left out because ImageJ lacks it.
-      if (options.type != SampleType::kFloat32) TIFFSetField(tif, TIFFTAG_PREDICTOR, PREDICTOR_HORIZONTAL);
-    } else {
-      TIFFSetField(tif, TIFFTAG_COMPRESSION, COMPRESSION_NONE);
-    }
-    if (options.spacing_um) {
-      // ImageJ calibration: pixels per `unit`, ResolutionUnit none.
-      TIFFSetField(tif, TIFFTAG_XRESOLUTION, 1.0 / (*options.spacing_um)[0]);
-      TIFFSetField(tif, TIFFTAG_YRESOLUTION, 1.0 / (*options.spacing_um)[1]);
-      TIFFSetField(tif, TIFFTAG_RESOLUTIONUNIT, RESUNIT_NONE);
-    }
-    if (z == 0) TIFFSetField(tif, TIFFTAG_IMAGEDESCRIPTION, description.c_str());
-    TIFFSetField(tif, TIFFTAG_SOFTWARE, "hisnegs");
-
+    set_page_tags(tif, nx, ny, rows_per_strip, options, z == 0 ? &description : nullptr);
     const float* page = voxels.data() + static_cast<std::size_t>(z) * page_voxels;
-    for (std::size_t row = 0, s = 0; row < static_cast<std::size_t>(ny); row += rows_per_strip, ++s) {
-      const std::size_t rows = std::min(rows_per_strip, static_cast<std::size_t>(ny) - row);
-      const std::size_t count = rows * static_cast<std::size_t>(nx);
-      const float* src = page + row * static_cast<std::size_t>(nx);
-      switch (options.type) {
-        case SampleType::kUint8: pack_samples<std::uint8_t>(src, count, strip.data()); break;
-        case SampleType::kUint16: pack_samples<std::uint16_t>(src, count, strip.data()); break;
-        case SampleType::kFloat32: pack_samples<float>(src, count, strip.data()); break;
-      }
-      const auto size = static_cast<tmsize_t>(count * bytes);
-      if (TIFFWriteEncodedStrip(tif, static_cast<std::uint32_t>(s), strip.data(), size) != size) {
-        fail_write("page " + std::to_string(z));
-      }
+    if (!write_page_strips(tif, page, nx, ny, rows_per_strip, options.type, strip)) {
+      fail_write("page " + std::to_string(z));
     }
     if (!TIFFWriteDirectory(tif)) fail_write("the directory of page " + std::to_string(z));
   }

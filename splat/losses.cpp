@@ -122,35 +122,42 @@ const std::array<double, kSsimTaps>& ssim_taps() {
 //   ∂mean S/∂x_q = (1/M) [(wᵀ⋆a)_q + 2 x_q (wᵀ⋆b)_q + y_q (wᵀ⋆c)_q]
 // with a, b, c the three partial maps over the M valid pixels and wᵀ⋆ the adjoint of
 // the valid-region filter: the same separable window, gathered back over the full image.
-template <class T>
-double ssim_impl(std::span<const T> xs, std::span<const T> ys, int width, int height, double weight,
-                 std::span<T> grad, LossWorkspace& workspace) {
-  check_images("ssim_loss", xs.size(), ys.size(), grad.size(), width, height, kSsimTaps, weight);
-  const auto& w = ssim_taps();
-  const std::size_t W = static_cast<std::size_t>(width), H = static_cast<std::size_t>(height);
-  const std::size_t Wv = W - 2 * kSsimRadius, Hv = H - 2 * kSsimRadius;  // the valid region
-  const std::size_t M = Wv * Hv;
-  const std::size_t blocks = block_count(H, kRowsPerBlock);
-
-  // Workspace: 5 row-filtered maps (H × Wv), 3 partial maps (Hv × Wv), 5 rows of
-  // scratch (W) per row block, one partial sum per row block.
-  const std::span<double> ws = workspace.doubles(5 * H * Wv + 3 * M + blocks * (5 * W + 1));
+// The SSIM workspace of one image pair: 5 row-filtered maps (H × Wv), 3 partial
+// maps (Hv × Wv), 5 rows of scratch (W) per row block, one partial sum per row block.
+struct SsimBuffers {
+  std::size_t W, H, Wv, Hv, M, blocks;
   double* hmap[5];
   double* part[3];
-  double* at = ws.data();
-  for (auto& h : hmap) h = at, at += H * Wv;
-  for (auto& q : part) q = at, at += M;
-  double* const scratch = at;
-  double* const block_sums = scratch + blocks * 5 * W;
+  double* scratch;
+  double* block_sums;
 
-  // Row pass over x, y, x², y², xy, valid columns only.
-  for_row_blocks(H, [&](std::size_t block, std::size_t r0, std::size_t r1) {
+  SsimBuffers(int width, int height, LossWorkspace& workspace)
+      : W(static_cast<std::size_t>(width)),
+        H(static_cast<std::size_t>(height)),
+        Wv(W - 2 * kSsimRadius),
+        Hv(H - 2 * kSsimRadius),
+        M(Wv * Hv),
+        blocks(block_count(H, kRowsPerBlock)) {
+    const std::span<double> ws = workspace.doubles(5 * H * Wv + 3 * M + blocks * (5 * W + 1));
+    double* at = ws.data();
+    for (auto& h : hmap) h = at, at += H * Wv;
+    for (auto& q : part) q = at, at += M;
+    scratch = at;
+    block_sums = scratch + blocks * 5 * W;
+  }
+};
+
+// Row pass over x, y, x², y², xy, valid columns only, into hmap.
+template <class T>
+void ssim_row_pass(std::span<const T> xs, std::span<const T> ys, SsimBuffers& b) {
+  const auto& w = ssim_taps();
+  for_row_blocks(b.H, [&](std::size_t block, std::size_t r0, std::size_t r1) {
     double* rows[5];
-    for (int ch = 0; ch < 5; ++ch) rows[ch] = scratch + block * 5 * W + ch * W;
+    for (int ch = 0; ch < 5; ++ch) rows[ch] = b.scratch + block * 5 * b.W + ch * b.W;
     for (std::size_t r = r0; r < r1; ++r) {
-      const T* xr = xs.data() + r * W;
-      const T* yr = ys.data() + r * W;
-      for (std::size_t c = 0; c < W; ++c) {
+      const T* xr = xs.data() + r * b.W;
+      const T* yr = ys.data() + r * b.W;
+      for (std::size_t c = 0; c < b.W; ++c) {
         const double x = xr[c], y = yr[c];
         rows[0][c] = x;
         rows[1][c] = y;
@@ -160,8 +167,8 @@ double ssim_impl(std::span<const T> xs, std::span<const T> ys, int width, int he
       }
       for (int ch = 0; ch < 5; ++ch) {
         const double* in = rows[ch];
-        double* out = hmap[ch] + r * Wv;
-        for (std::size_t c = 0; c < Wv; ++c) {
+        double* out = b.hmap[ch] + r * b.Wv;
+        for (std::size_t c = 0; c < b.Wv; ++c) {
           double acc = 0;
           for (int k = 0; k < kSsimTaps; ++k) acc += w[k] * in[c + k];
           out[c] = acc;
@@ -169,25 +176,27 @@ double ssim_impl(std::span<const T> xs, std::span<const T> ys, int width, int he
       }
     }
   });
+}
 
-  // Column pass, valid rows only, then the SSIM map and its partials.
-  const bool want_grad = !grad.empty();
-  const double scale = -weight / static_cast<double>(M);  // ∂(1 − mean S)/∂S_p × weight
-  for_row_blocks(Hv, [&](std::size_t block, std::size_t r0, std::size_t r1) {
+// Column pass over the valid rows, the SSIM map, and (want_grad) its three partial
+// maps scaled by `scale`. Returns mean S over the M valid pixels.
+double ssim_map(SsimBuffers& b, bool want_grad, double scale) {
+  const auto& w = ssim_taps();
+  for_row_blocks(b.Hv, [&](std::size_t block, std::size_t r0, std::size_t r1) {
     double* stat[5];
-    for (int ch = 0; ch < 5; ++ch) stat[ch] = scratch + block * 5 * W + ch * Wv;
+    for (int ch = 0; ch < 5; ++ch) stat[ch] = b.scratch + block * 5 * b.W + ch * b.Wv;
     double sum = 0;
     for (std::size_t r = r0; r < r1; ++r) {
       for (int ch = 0; ch < 5; ++ch) {
         double* out = stat[ch];
-        std::fill(out, out + Wv, 0.0);
+        std::fill(out, out + b.Wv, 0.0);
         for (int k = 0; k < kSsimTaps; ++k) {
-          const double* in = hmap[ch] + (r + k) * Wv;
+          const double* in = b.hmap[ch] + (r + k) * b.Wv;
           const double wk = w[k];
-          for (std::size_t c = 0; c < Wv; ++c) out[c] += wk * in[c];
+          for (std::size_t c = 0; c < b.Wv; ++c) out[c] += wk * in[c];
         }
       }
-      for (std::size_t c = 0; c < Wv; ++c) {
+      for (std::size_t c = 0; c < b.Wv; ++c) {
         const double mx = stat[0][c], my = stat[1][c];
         const double vx = stat[2][c] - mx * mx, vy = stat[3][c] - my * my, vxy = stat[4][c] - mx * my;
         const double A1 = 2 * mx * my + kSsimC1, A2 = 2 * vxy + kSsimC2;
@@ -196,58 +205,194 @@ double ssim_impl(std::span<const T> xs, std::span<const T> ys, int width, int he
         const double S = A1 * A2 * inv_D;
         sum += S;
         if (want_grad) {
-          const std::size_t i = r * Wv + c;
-          part[0][i] = scale * (2 * my * (A2 - A1) * inv_D - 2 * mx * S * (B2 - B1) * inv_D);
-          part[1][i] = scale * (-S / B2);
-          part[2][i] = scale * (2 * A1 * inv_D);
+          const std::size_t i = r * b.Wv + c;
+          b.part[0][i] = scale * (2 * my * (A2 - A1) * inv_D - 2 * mx * S * (B2 - B1) * inv_D);
+          b.part[1][i] = scale * (-S / B2);
+          b.part[2][i] = scale * (2 * A1 * inv_D);
         }
       }
     }
-    block_sums[block] = sum;
+    b.block_sums[block] = sum;
   });
-  const double loss = 1.0 - ordered_sum(block_sums, block_count(Hv, kRowsPerBlock)) / static_cast<double>(M);
-  if (!want_grad) return loss;
+  return ordered_sum(b.block_sums, block_count(b.Hv, kRowsPerBlock)) / static_cast<double>(b.M);
+}
 
-  // Adjoint of the column pass, gathered: image row j collects the valid rows j − k,
-  // k = 0..10, that its window reached (into the now free row-filtered maps, H × Wv).
-  for_row_blocks(H, [&](std::size_t, std::size_t j0, std::size_t j1) {
+// Adjoint of the column pass, gathered: image row j collects the valid rows j − k,
+// k = 0..10, that its window reached (into the now free row-filtered maps, H × Wv).
+void ssim_column_adjoint(SsimBuffers& b) {
+  const auto& w = ssim_taps();
+  for_row_blocks(b.H, [&](std::size_t, std::size_t j0, std::size_t j1) {
     for (std::size_t j = j0; j < j1; ++j)
       for (int m = 0; m < 3; ++m) {
-        double* out = hmap[m] + j * Wv;
-        std::fill(out, out + Wv, 0.0);
-        const std::size_t k_lo = j + 1 > Hv ? j + 1 - Hv : 0, k_hi = std::min<std::size_t>(kSsimTaps - 1, j);
+        double* out = b.hmap[m] + j * b.Wv;
+        std::fill(out, out + b.Wv, 0.0);
+        const std::size_t k_lo = j + 1 > b.Hv ? j + 1 - b.Hv : 0, k_hi = std::min<std::size_t>(kSsimTaps - 1, j);
         for (std::size_t k = k_lo; k <= k_hi; ++k) {
-          const double* in = part[m] + (j - k) * Wv;
+          const double* in = b.part[m] + (j - k) * b.Wv;
           const double wk = w[k];
-          for (std::size_t c = 0; c < Wv; ++c) out[c] += wk * in[c];
+          for (std::size_t c = 0; c < b.Wv; ++c) out[c] += wk * in[c];
         }
       }
   });
-  // Adjoint of the row pass (scattered within the row), then the chain rule into x.
-  for_row_blocks(H, [&](std::size_t block, std::size_t r0, std::size_t r1) {
+}
+
+// Adjoint of the row pass (scattered within the row), then the chain rule into x.
+template <class T>
+void ssim_row_adjoint(std::span<const T> xs, std::span<const T> ys, SsimBuffers& b, std::span<T> grad) {
+  const auto& w = ssim_taps();
+  for_row_blocks(b.H, [&](std::size_t block, std::size_t r0, std::size_t r1) {
     double* rows[3];
-    for (int m = 0; m < 3; ++m) rows[m] = scratch + block * 5 * W + m * W;
+    for (int m = 0; m < 3; ++m) rows[m] = b.scratch + block * 5 * b.W + m * b.W;
     for (std::size_t r = r0; r < r1; ++r) {
       for (int m = 0; m < 3; ++m) {
         double* out = rows[m];
-        std::fill(out, out + W, 0.0);
-        const double* in = hmap[m] + r * Wv;
+        std::fill(out, out + b.W, 0.0);
+        const double* in = b.hmap[m] + r * b.Wv;
         for (int k = 0; k < kSsimTaps; ++k) {
           const double wk = w[k];
-          for (std::size_t c = 0; c < Wv; ++c) out[c + k] += wk * in[c];
+          for (std::size_t c = 0; c < b.Wv; ++c) out[c + k] += wk * in[c];
         }
       }
-      const T* xr = xs.data() + r * W;
-      const T* yr = ys.data() + r * W;
-      T* gr = grad.data() + r * W;
-      for (std::size_t c = 0; c < W; ++c)
+      const T* xr = xs.data() + r * b.W;
+      const T* yr = ys.data() + r * b.W;
+      T* gr = grad.data() + r * b.W;
+      for (std::size_t c = 0; c < b.W; ++c)
         gr[c] += static_cast<T>(rows[0][c] + 2.0 * double(xr[c]) * rows[1][c] + double(yr[c]) * rows[2][c]);
     }
   });
+}
+
+template <class T>
+double ssim_impl(std::span<const T> xs, std::span<const T> ys, int width, int height, double weight,
+                 std::span<T> grad, LossWorkspace& workspace) {
+  check_images("ssim_loss", xs.size(), ys.size(), grad.size(), width, height, kSsimTaps, weight);
+  SsimBuffers b(width, height, workspace);
+  ssim_row_pass(xs, ys, b);
+  const bool want_grad = !grad.empty();
+  const double scale = -weight / static_cast<double>(b.M);  // ∂(1 − mean S)/∂S_p × weight
+  const double loss = 1.0 - ssim_map(b, want_grad, scale);
+  if (!want_grad) return loss;
+  ssim_column_adjoint(b);
+  ssim_row_adjoint(xs, ys, b, grad);
   return loss;
 }
 
 // ---------------------------------------------------------------- Eq. 13
+
+// The edge-loss workspace: d = P − G (later ∂L/∂d), s = d smoothed down the
+// columns (later ∂L/∂s), t = d smoothed along the rows (later ∂L/∂t), gx = S_x * d,
+// gy = S_y * d, and one partial sum per row block. Replicated borders.
+struct EdgeBuffers {
+  std::size_t W, H, N, blocks;
+  double *d, *s, *t, *gx, *gy, *block_sums;
+
+  EdgeBuffers(int width, int height, LossWorkspace& workspace)
+      : W(static_cast<std::size_t>(width)),
+        H(static_cast<std::size_t>(height)),
+        N(W * H),
+        blocks(block_count(H, kRowsPerBlock)) {
+    const std::span<double> ws = workspace.doubles(5 * N + blocks);
+    d = ws.data();
+    s = d + N;
+    t = s + N;
+    gx = t + N;
+    gy = gx + N;
+    block_sums = gy + N;
+  }
+  [[nodiscard]] std::size_t row_minus(std::size_t r) const { return r > 0 ? r - 1 : 0; }
+  [[nodiscard]] std::size_t row_plus(std::size_t r) const { return r + 1 < H ? r + 1 : r; }
+  [[nodiscard]] std::size_t col_minus(std::size_t c) const { return c > 0 ? c - 1 : 0; }
+  [[nodiscard]] std::size_t col_plus(std::size_t c) const { return c + 1 < W ? c + 1 : c; }
+};
+
+// d = P − G, then its [1 2 1] smoothing down the columns (s) and along the rows (t).
+template <class T>
+void edge_smooth(std::span<const T> p, std::span<const T> g, EdgeBuffers& b) {
+  for_row_blocks(b.H, [&](std::size_t, std::size_t r0, std::size_t r1) {
+    for (std::size_t i = r0 * b.W; i < r1 * b.W; ++i) b.d[i] = double(p[i]) - double(g[i]);
+  });
+  for_row_blocks(b.H, [&](std::size_t, std::size_t r0, std::size_t r1) {
+    for (std::size_t r = r0; r < r1; ++r) {
+      const double* up = b.d + b.row_minus(r) * b.W;
+      const double* mid = b.d + r * b.W;
+      const double* down = b.d + b.row_plus(r) * b.W;
+      double* sr = b.s + r * b.W;
+      for (std::size_t c = 0; c < b.W; ++c) sr[c] = up[c] + 2.0 * mid[c] + down[c];
+      double* tr = b.t + r * b.W;
+      for (std::size_t c = 0; c < b.W; ++c) tr[c] = mid[b.col_minus(c)] + 2.0 * mid[c] + mid[b.col_plus(c)];
+    }
+  });
+}
+
+// gx, gy (the differences across the smoothing) and mean(gx² + gy²).
+double edge_gradients(EdgeBuffers& b) {
+  for_row_blocks(b.H, [&](std::size_t block, std::size_t r0, std::size_t r1) {
+    double sum = 0;
+    for (std::size_t r = r0; r < r1; ++r) {
+      const double* sr = b.s + r * b.W;
+      const double* t_up = b.t + b.row_minus(r) * b.W;
+      const double* t_down = b.t + b.row_plus(r) * b.W;
+      for (std::size_t c = 0; c < b.W; ++c) {
+        const double x = sr[b.col_plus(c)] - sr[b.col_minus(c)], y = t_down[c] - t_up[c];
+        b.gx[r * b.W + c] = x;
+        b.gy[r * b.W + c] = y;
+        sum += x * x + y * y;
+      }
+    }
+    b.block_sums[block] = sum;
+  });
+  return ordered_sum(b.block_sums, b.blocks) / static_cast<double>(b.N);
+}
+
+// ∂/∂s of gx = s[cp] − s[cm] (within the row); ∂/∂t of gy = t[rp] − t[rm]: row j gets
+// +gy[r] from each r with rp(r) = j and −gy[r] from each r with rm(r) = j. `a` is
+// ∂(weight L)/∂gx per unit gx.
+void edge_difference_adjoint(EdgeBuffers& b, double a) {
+  for_row_blocks(b.H, [&](std::size_t, std::size_t j0, std::size_t j1) {
+    for (std::size_t j = j0; j < j1; ++j) {
+      double* sr = b.s + j * b.W;
+      std::fill(sr, sr + b.W, 0.0);
+      const double* gxr = b.gx + j * b.W;
+      for (std::size_t c = 0; c < b.W; ++c) {
+        sr[b.col_plus(c)] += a * gxr[c];
+        sr[b.col_minus(c)] -= a * gxr[c];
+      }
+      double* tr = b.t + j * b.W;
+      std::fill(tr, tr + b.W, 0.0);
+      for (std::size_t r = b.row_minus(j); r <= b.row_plus(j); ++r) {
+        const double coef = double(b.row_plus(r) == j) - double(b.row_minus(r) == j);
+        if (coef == 0) continue;
+        const double* gyr = b.gy + r * b.W;
+        for (std::size_t c = 0; c < b.W; ++c) tr[c] += a * coef * gyr[c];
+      }
+    }
+  });
+}
+
+// ∂/∂d of s = d[rm] + 2 d[r] + d[rp] (gathered over rows) and of t = d[cm] + 2 d[c] +
+// d[cp] (scattered within the row), added into grad.
+template <class T>
+void edge_smoothing_adjoint(EdgeBuffers& b, std::span<T> grad) {
+  for_row_blocks(b.H, [&](std::size_t, std::size_t j0, std::size_t j1) {
+    for (std::size_t j = j0; j < j1; ++j) {
+      double* dd = b.d + j * b.W;
+      std::fill(dd, dd + b.W, 0.0);
+      for (std::size_t r = b.row_minus(j); r <= b.row_plus(j); ++r) {
+        const double coef = double(b.row_minus(r) == j) + 2.0 * double(r == j) + double(b.row_plus(r) == j);
+        const double* sr = b.s + r * b.W;
+        for (std::size_t c = 0; c < b.W; ++c) dd[c] += coef * sr[c];
+      }
+      const double* tr = b.t + j * b.W;
+      for (std::size_t c = 0; c < b.W; ++c) {
+        dd[b.col_minus(c)] += tr[c];
+        dd[c] += 2.0 * tr[c];
+        dd[b.col_plus(c)] += tr[c];
+      }
+      T* gr = grad.data() + j * b.W;
+      for (std::size_t c = 0; c < b.W; ++c) gr[c] += static_cast<T>(dd[c]);
+    }
+  });
+}
 
 // Sobel S_x = [1 2 1]ᵀ ⊗ [−1 0 1] is separable: smooth down the columns, difference
 // along the rows; S_y the other way round. Replicated borders: row/column i ± 1 is
@@ -258,99 +403,12 @@ template <class T>
 double edge_impl(std::span<const T> p, std::span<const T> g, int width, int height, double weight, std::span<T> grad,
                  LossWorkspace& workspace) {
   check_images("edge_loss", p.size(), g.size(), grad.size(), width, height, 1, weight);
-  const std::size_t W = static_cast<std::size_t>(width), H = static_cast<std::size_t>(height), N = W * H;
-  const std::size_t blocks = block_count(H, kRowsPerBlock);
-  const std::span<double> ws = workspace.doubles(5 * N + blocks);
-  double* d = ws.data();  // P − G; later ∂L/∂d
-  double* s = d + N;      // d smoothed down the columns; later ∂L/∂s
-  double* t = s + N;      // d smoothed along the rows; later ∂L/∂t
-  double* gx = t + N;     // S_x * d
-  double* gy = gx + N;    // S_y * d
-  double* block_sums = gy + N;
-  const auto row_minus = [](std::size_t r) { return r > 0 ? r - 1 : 0; };
-  const auto row_plus = [H](std::size_t r) { return r + 1 < H ? r + 1 : r; };
-
-  for_row_blocks(H, [&](std::size_t, std::size_t r0, std::size_t r1) {
-    for (std::size_t i = r0 * W; i < r1 * W; ++i) d[i] = double(p[i]) - double(g[i]);
-  });
-  for_row_blocks(H, [&](std::size_t, std::size_t r0, std::size_t r1) {
-    for (std::size_t r = r0; r < r1; ++r) {
-      const double* up = d + row_minus(r) * W;
-      const double* mid = d + r * W;
-      const double* down = d + row_plus(r) * W;
-      double* sr = s + r * W;
-      for (std::size_t c = 0; c < W; ++c) sr[c] = up[c] + 2.0 * mid[c] + down[c];
-      double* tr = t + r * W;
-      for (std::size_t c = 0; c < W; ++c) {
-        const std::size_t cm = c > 0 ? c - 1 : 0, cp = c + 1 < W ? c + 1 : c;
-        tr[c] = mid[cm] + 2.0 * mid[c] + mid[cp];
-      }
-    }
-  });
-  for_row_blocks(H, [&](std::size_t block, std::size_t r0, std::size_t r1) {
-    double sum = 0;
-    for (std::size_t r = r0; r < r1; ++r) {
-      const double* sr = s + r * W;
-      const double* t_up = t + row_minus(r) * W;
-      const double* t_down = t + row_plus(r) * W;
-      for (std::size_t c = 0; c < W; ++c) {
-        const std::size_t cm = c > 0 ? c - 1 : 0, cp = c + 1 < W ? c + 1 : c;
-        const double x = sr[cp] - sr[cm], y = t_down[c] - t_up[c];
-        gx[r * W + c] = x;
-        gy[r * W + c] = y;
-        sum += x * x + y * y;
-      }
-    }
-    block_sums[block] = sum;
-  });
-  const double loss = ordered_sum(block_sums, blocks) / static_cast<double>(N);
+  EdgeBuffers b(width, height, workspace);
+  edge_smooth(p, g, b);
+  const double loss = edge_gradients(b);
   if (grad.empty()) return loss;
-
-  const double a = 2.0 * weight / static_cast<double>(N);  // ∂(weight L)/∂gx = a gx
-  // ∂/∂s of gx = s[cp] − s[cm] (within the row); ∂/∂t of gy = t[rp] − t[rm]: row j gets
-  // +gy[r] from each r with rp(r) = j and −gy[r] from each r with rm(r) = j.
-  for_row_blocks(H, [&](std::size_t, std::size_t j0, std::size_t j1) {
-    for (std::size_t j = j0; j < j1; ++j) {
-      double* sr = s + j * W;
-      std::fill(sr, sr + W, 0.0);
-      const double* gxr = gx + j * W;
-      for (std::size_t c = 0; c < W; ++c) {
-        const std::size_t cm = c > 0 ? c - 1 : 0, cp = c + 1 < W ? c + 1 : c;
-        sr[cp] += a * gxr[c];
-        sr[cm] -= a * gxr[c];
-      }
-      double* tr = t + j * W;
-      std::fill(tr, tr + W, 0.0);
-      for (std::size_t r = row_minus(j); r <= row_plus(j); ++r) {
-        const double coef = double(row_plus(r) == j) - double(row_minus(r) == j);
-        if (coef == 0) continue;
-        const double* gyr = gy + r * W;
-        for (std::size_t c = 0; c < W; ++c) tr[c] += a * coef * gyr[c];
-      }
-    }
-  });
-  // ∂/∂d of s = d[rm] + 2 d[r] + d[rp] (gathered over rows) and of t = d[cm] + 2 d[c] + d[cp]
-  // (scattered within the row).
-  for_row_blocks(H, [&](std::size_t, std::size_t j0, std::size_t j1) {
-    for (std::size_t j = j0; j < j1; ++j) {
-      double* dd = d + j * W;
-      std::fill(dd, dd + W, 0.0);
-      for (std::size_t r = row_minus(j); r <= row_plus(j); ++r) {
-        const double coef = double(row_minus(r) == j) + 2.0 * double(r == j) + double(row_plus(r) == j);
-        const double* sr = s + r * W;
-        for (std::size_t c = 0; c < W; ++c) dd[c] += coef * sr[c];
-      }
-      const double* tr = t + j * W;
-      for (std::size_t c = 0; c < W; ++c) {
-        const std::size_t cm = c > 0 ? c - 1 : 0, cp = c + 1 < W ? c + 1 : c;
-        dd[cm] += tr[c];
-        dd[c] += 2.0 * tr[c];
-        dd[cp] += tr[c];
-      }
-      T* gr = grad.data() + j * W;
-      for (std::size_t c = 0; c < W; ++c) gr[c] += static_cast<T>(dd[c]);
-    }
-  });
+  edge_difference_adjoint(b, 2.0 * weight / static_cast<double>(b.N));  // ∂(weight L)/∂gx = a gx
+  edge_smoothing_adjoint(b, grad);
   return loss;
 }
 

@@ -40,13 +40,6 @@ io::WorldFrame native_frame(const gmf::Checkpoint& checkpoint, const std::string
   return *frame;
 }
 
-// "0.002", "1e-06": a number as the user would type it.
-std::string number_text(double v) {
-  char buf[64];
-  std::snprintf(buf, sizeof buf, "%g", v);
-  return buf;
-}
-
 std::string shape_text(const io::WorldFrame& frame) {
   const Eigen::Vector3i& n = frame.shape();
   return std::to_string(n.x()) + "x" + std::to_string(n.y()) + "x" + std::to_string(n.z());
@@ -69,10 +62,10 @@ void run_export_vdb(const VdbArgs& args, GlobalOptions& global) {
   if (args.voxel_size) {
     const double v = *args.voxel_size;
     if (!std::isfinite(v) || !(v > 0.0)) {
-      throw io::InputError("--voxel-size = " + number_text(v) + ": must be a finite number > 0 (world units)");
+      throw io::InputError("--voxel-size = " + io::number_text(v) + ": must be a finite number > 0 (world units)");
     }
     lattice = gmf::VoxelLattice::aligned(v);
-    lattice_text = "voxel size " + number_text(v) + " aligned to the world origin";
+    lattice_text = "voxel size " + io::number_text(v) + " aligned to the world origin";
     if (const auto& a = checkpoint.meta.aspect) {
       lattice = lattice.clipped_to_box(Eigen::Vector3d((*a)[0], (*a)[1], (*a)[2]));
       lattice_text += ", within the model's stack box";
@@ -123,7 +116,7 @@ struct VolumeArgs {
 
 void run_export_volume(const VolumeArgs& args, GlobalOptions& global) {
   if (!(args.tail > 0.0 && args.tail < 1.0)) {
-    throw io::InputError("--tail = " + number_text(args.tail) + ": must be in (0, 1)");
+    throw io::InputError("--tail = " + io::number_text(args.tail) + ": must be in (0, 1)");
   }
   io::Stopwatch watch;
   const gmf::Checkpoint checkpoint = gmf::load_checkpoint(args.model);

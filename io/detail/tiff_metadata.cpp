@@ -227,9 +227,12 @@ bool is_ome_xml(std::string_view text) {
   return false;
 }
 
-OmePixels parse_ome_pixels(std::string_view xml) {
-  // Find the first start tag whose local name is "Pixels".
-  std::size_t attrs_begin = std::string_view::npos;
+namespace {
+
+using XmlAttributes = std::vector<std::pair<std::string, std::string>>;
+
+// Where the attributes of the first start tag whose local name is "Pixels" begin.
+std::size_t find_pixels_tag(std::string_view xml) {
   for (std::size_t i = xml.find('<'); i != std::string_view::npos; i = xml.find('<', i + 1)) {
     if (xml.substr(i, 4) == "<!--") {
       const std::size_t close = xml.find("-->", i + 4);
@@ -243,15 +246,14 @@ OmePixels parse_ome_pixels(std::string_view xml) {
     if (const std::size_t colon = name.rfind(':'); colon != std::string_view::npos) {
       name.remove_prefix(colon + 1);
     }
-    if (name == "Pixels") {
-      attrs_begin = j;
-      break;
-    }
+    if (name == "Pixels") return j;
   }
-  if (attrs_begin == std::string_view::npos) fail("OME-XML: no <Pixels> element");
+  fail("OME-XML: no <Pixels> element");
+}
 
-  std::vector<std::pair<std::string, std::string>> attrs;
-  std::size_t k = attrs_begin;
+// The attributes of the tag whose attribute list starts at `k` (entities decoded).
+XmlAttributes parse_tag_attributes(std::string_view xml, std::size_t k) {
+  XmlAttributes attrs;
   for (;;) {
     while (k < xml.size() && is_space(xml[k])) ++k;
     if (k >= xml.size()) fail("OME-XML: unterminated <Pixels> element");
@@ -272,16 +274,20 @@ OmePixels parse_ome_pixels(std::string_view xml) {
     attrs.emplace_back(name, decode_xml_entities(xml.substr(k, close - k)));
     k = close + 1;
   }
-  auto find = [&](std::string_view name) -> const std::string* {
-    for (const auto& [n, v] : attrs) {
-      if (n == name) return &v;
-    }
-    return nullptr;
-  };
+  return attrs;
+}
 
-  OmePixels px;
+const std::string* find_attribute(const XmlAttributes& attrs, std::string_view name) {
+  for (const auto& [n, v] : attrs) {
+    if (n == name) return &v;
+  }
+  return nullptr;
+}
+
+// SizeX..SizeT (X and Y required) and DimensionOrder.
+void read_pixel_sizes(const XmlAttributes& attrs, OmePixels& px) {
   auto size = [&](std::string_view name, int& field, bool required) {
-    const std::string* v = find(name);
+    const std::string* v = find_attribute(attrs, name);
     if (!v) {
       if (required) fail("OME-XML: <Pixels> has no " + std::string(name) + " attribute");
       return;
@@ -300,22 +306,25 @@ OmePixels parse_ome_pixels(std::string_view xml) {
 
   // The schema requires DimensionOrder; without it XYZCT (the common order) is assumed.
   px.dimension_order = "XYZCT";
-  if (const std::string* order = find("DimensionOrder")) {
+  if (const std::string* order = find_attribute(attrs, "DimensionOrder")) {
     std::string sorted = *order;
     if (sorted.size() == 5) std::sort(sorted.begin() + 2, sorted.end());
     if (sorted != "XYCTZ" || !order->starts_with("XY")) {
-      fail("OME-XML: DimensionOrder=\"" + printable(*order) +
-           "\" is not XY followed by Z, C, T in some order");
+      fail("OME-XML: DimensionOrder=\"" + printable(*order) + "\" is not XY followed by Z, C, T in some order");
     }
     px.dimension_order = *order;
   }
+}
 
+// PhysicalSize{X,Y,Z} in µm; a bad value or unit is kept as px.spacing_error (thrown
+// only if the spacing is used), a pixel unit means "not calibrated".
+void read_physical_sizes(const XmlAttributes& attrs, OmePixels& px) {
   static const char* const kAxis[3] = {"X", "Y", "Z"};
   for (int a = 0; a < 3; ++a) {
     const std::string attr = std::string("PhysicalSize") + kAxis[a];
-    const std::string* value = find(attr);
+    const std::string* value = find_attribute(attrs, attr);
     if (!value) continue;
-    const std::string* unit_attr = find(attr + "Unit");
+    const std::string* unit_attr = find_attribute(attrs, attr + "Unit");
     const std::string unit = unit_attr ? *unit_attr : std::string("\xC2\xB5m");
     std::string problem;
     const std::optional<double> v = parse_double(*value);
@@ -336,6 +345,15 @@ OmePixels parse_ome_pixels(std::string_view xml) {
     }
     px.physical_size_um[a] = *v * *um_per_unit;
   }
+}
+
+}  // namespace
+
+OmePixels parse_ome_pixels(std::string_view xml) {
+  const XmlAttributes attrs = parse_tag_attributes(xml, find_pixels_tag(xml));
+  OmePixels px;
+  read_pixel_sizes(attrs, px);
+  read_physical_sizes(attrs, px);
   return px;
 }
 

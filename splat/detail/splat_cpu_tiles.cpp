@@ -408,55 +408,104 @@ void ForwardTile(const TileFrame& f, const TileGaussians& gs, float* m_out, floa
   }
 }
 
-void BackwardTile(const TileFrame& f, const TileGaussians& gs, const float* m_in, const float* S_in,
-                  const float* I_in, const float* dL_dI_in, float* grads) {
-  const hn::ScalableTag<float> d;
-  // Tile-local copies: m, 1/S, I and dL/dI (0 where nothing touched the pixel).
-  HWY_ALIGN float m[kTileSize * kTileSize], inv_S[kTileSize * kTileSize], I[kTileSize * kTileSize], G[kTileSize * kTileSize];
-  std::fill(m, m + kTileSize * kTileSize, 0.0f);
-  std::fill(inv_S, inv_S + kTileSize * kTileSize, 0.0f);
-  std::fill(I, I + kTileSize * kTileSize, 0.0f);
-  std::fill(G, G + kTileSize * kTileSize, 0.0f);
+// A tile's copy of the forward's per-pixel state the backward reads: m, 1/S, I
+// and dL/dI (all 0 where nothing touched the pixel), and m in base 2.
+struct BackwardPixels {
+  HWY_ALIGN float m[kTileSize * kTileSize];
+  HWY_ALIGN float inv_S[kTileSize * kTileSize];
+  HWY_ALIGN float I[kTileSize * kTileSize];
+  HWY_ALIGN float G[kTileSize * kTileSize];
+  HWY_ALIGN float m2[kTileSize * kTileSize];
+};
+
+HWY_INLINE void LoadBackwardPixels(const TileFrame& f, const float* m_in, const float* S_in, const float* I_in,
+                                   const float* dL_dI_in, BackwardPixels& p) {
+  std::fill(p.m, p.m + kTileSize * kTileSize, 0.0f);
+  std::fill(p.inv_S, p.inv_S + kTileSize * kTileSize, 0.0f);
+  std::fill(p.I, p.I + kTileSize * kTileSize, 0.0f);
+  std::fill(p.G, p.G + kTileSize * kTileSize, 0.0f);
   for (int r = 0; r < f.height; ++r) {
     const std::size_t row = static_cast<std::size_t>(f.y0 + r) * f.stride + f.x0;
     for (int c = 0; c < f.width; ++c) {
       const int at = r * kTileSize + c;
       if (S_in[row + c] > 0.0f) {
-        m[at] = m_in[row + c];
-        inv_S[at] = 1.0f / S_in[row + c];
-        I[at] = I_in[row + c];
-        G[at] = dL_dI_in[row + c];
+        p.m[at] = m_in[row + c];
+        p.inv_S[at] = 1.0f / S_in[row + c];
+        p.I[at] = I_in[row + c];
+        p.G[at] = dL_dI_in[row + c];
       }
     }
   }
+  times_log2e(p.m, p.m2);
+}
+
+// The forward's skip rule on the same final m, so exactly the terms the forward
+// summed are differentiated. Untouched pixels (no gradient flows through them) do
+// not lower a row's floor.
+HWY_INLINE RowFloors BackwardFloors(const TileFrame& f, const BackwardPixels& p) {
+  RowFloors floors;
+  HWY_ALIGN float m_floor[kTileSize * kTileSize];
+  for (int at = 0; at < kTileSize * kTileSize; ++at) {
+    m_floor[at] = p.inv_S[at] > 0.0f ? p.m[at] : std::numeric_limits<float>::infinity();
+  }
+  floors.from_soft_max(f, m_floor, !(f.k.skip_log_weight > 0.0f));
+  return floors;
+}
+
+// One Gaussian's six gradient sums (dL/du, dL/dv, dL/dA, dL/dB, dL/dC, dL/da) over the
+// pixels of its row spans, in base 2 as the forward: G = 2^{−q log2e / 2},
+// e^{βg − m} = 2^{β' g − m'}.
+HWY_INLINE void GaussianGrads(const TileFrame& f, const BackwardPixels& p, const PackedSplat& g, const RowSpans& spans,
+                              float* out) {
+  const hn::ScalableTag<float> d;
   const auto beta = hn::Set(d, f.k.beta);
   const auto minus_half = hn::Set(d, -0.5f);
   const auto one = hn::Set(d, 1.0f);
   const auto two = hn::Set(d, 2.0f);
-  const float ln_beta = fast_log(f.k.beta);
-  // The forward's skip rule on the same final m, so exactly the terms the forward
-  // summed are differentiated. Untouched pixels (no gradient flows through them)
-  // do not lower a row's floor.
-  RowFloors floors;
-  {
-    HWY_ALIGN float m_floor[kTileSize * kTileSize];
-    for (int at = 0; at < kTileSize * kTileSize; ++at) m_floor[at] = inv_S[at] > 0.0f ? m[at] : std::numeric_limits<float>::infinity();
-    floors.from_soft_max(f, m_floor, !(f.k.skip_log_weight > 0.0f));
-  }
-  // In base 2, as the forward: G = 2^{−q log2e / 2}, e^{βg − m} = 2^{β' g − m'}.
   const auto minus_half_log2e = hn::Set(d, -0.5f * kLog2e);
   const auto beta2 = hn::Set(d, f.k.beta * kLog2e);
-  HWY_ALIGN float m2[kTileSize * kTileSize];
-  times_log2e(m, m2);
+  const auto vA = hn::Set(d, g.A), vB = hn::Set(d, g.B), vC = hn::Set(d, g.C), vamp = hn::Set(d, g.amp);
+  auto su = hn::Zero(d), sv = hn::Zero(d), sA = hn::Zero(d), sB = hn::Zero(d), sC = hn::Zero(d), samp = hn::Zero(d);
+  for_each_chunk(f, spans, g, [&](int at, auto vdy, auto dx, auto q, auto mask) {
+    const auto dL_dI = hn::Load(d, p.G + at);
+    mask = hn::And(mask, hn::Ne(dL_dI, hn::Zero(d)));
+    if (hn::AllFalse(d, mask)) return;
+    const auto Gk = Exp2NonPositive(d, hn::Mul(minus_half_log2e, q));
+    const auto gk = hn::Mul(vamp, Gk);
+    // dI/dg = w (1 + β (g − I)), w = e^{βg − m} / S
+    const auto w = hn::Mul(Exp2NonPositive(d, hn::MulSub(beta2, gk, hn::Load(d, p.m2 + at))), hn::Load(d, p.inv_S + at));
+    const auto dI_dg = hn::Mul(w, hn::MulAdd(beta, hn::Sub(gk, hn::Load(d, p.I + at)), one));
+    const auto dL_dg = hn::IfThenElseZero(mask, hn::Mul(dL_dI, dI_dg));
+    samp = hn::MulAdd(dL_dg, Gk, samp);
+    const auto dL_dq = hn::Mul(hn::Mul(minus_half, dL_dg), gk);  // d(a e^{-q/2})/dq = −½ g
+    sA = hn::MulAdd(dL_dq, hn::Mul(dx, dx), sA);
+    sB = hn::MulAdd(dL_dq, hn::Mul(two, hn::Mul(dx, vdy)), sB);
+    sC = hn::MulAdd(dL_dq, hn::Mul(vdy, vdy), sC);
+    // dq/du = −2 (A dx + B dy), dq/dv = −2 (B dx + C dy)
+    su = hn::MulAdd(dL_dq, hn::MulAdd(vA, dx, hn::Mul(vB, vdy)), su);
+    sv = hn::MulAdd(dL_dq, hn::MulAdd(vB, dx, hn::Mul(vC, vdy)), sv);
+  });
+  out[0] = -2.0f * hn::GetLane(hn::SumOfLanes(d, su));
+  out[1] = -2.0f * hn::GetLane(hn::SumOfLanes(d, sv));
+  out[2] = hn::GetLane(hn::SumOfLanes(d, sA));
+  out[3] = hn::GetLane(hn::SumOfLanes(d, sB));
+  out[4] = hn::GetLane(hn::SumOfLanes(d, sC));
+  out[5] = hn::GetLane(hn::SumOfLanes(d, samp));
+}
+
+void BackwardTile(const TileFrame& f, const TileGaussians& gs, const float* m_in, const float* S_in,
+                  const float* I_in, const float* dL_dI_in, float* grads) {
+  BackwardPixels pixels;
+  LoadBackwardPixels(f, m_in, S_in, I_in, dL_dI_in, pixels);
+  const RowFloors floors = BackwardFloors(f, pixels);
+  const float ln_beta = fast_log(f.k.beta);
   RowSpans spans;
   std::uint32_t hits = 0;
   for (int i = 0; i < gs.count; ++i) {
     const PackedSplat& g = gs[i];
-    const float A = g.A, B = g.B, C = g.C, amp = g.amp;
-    const float ln_peak = ln_beta + g.ln_amp;
     float* out = grads + 6 * static_cast<std::size_t>(i);
     if (i % kRefreshEvery == 0) {
-      if (floors.none_after(f, amp, ln_beta)) {  // as the forward's early stop
+      if (floors.none_after(f, g.amp, ln_beta)) {  // as the forward's early stop
         std::fill(out, grads + 6 * static_cast<std::size_t>(gs.count), 0.0f);
         break;
       }
@@ -466,34 +515,8 @@ void BackwardTile(const TileFrame& f, const TileGaussians& gs, const float* m_in
       std::fill(out, out + 6, 0.0f);
       continue;
     }
-    row_spans(f, floors, g, ln_peak, false, spans);
-    const auto vA = hn::Set(d, A), vB = hn::Set(d, B), vC = hn::Set(d, C), vamp = hn::Set(d, amp);
-    auto su = hn::Zero(d), sv = hn::Zero(d), sA = hn::Zero(d), sB = hn::Zero(d), sC = hn::Zero(d), samp = hn::Zero(d);
-    for_each_chunk(f, spans, g, [&](int at, auto vdy, auto dx, auto q, auto mask) {
-      const auto dL_dI = hn::Load(d, G + at);
-      mask = hn::And(mask, hn::Ne(dL_dI, hn::Zero(d)));
-      if (hn::AllFalse(d, mask)) return;
-      const auto Gk = Exp2NonPositive(d, hn::Mul(minus_half_log2e, q));
-      const auto gk = hn::Mul(vamp, Gk);
-      // dI/dg = w (1 + β (g − I)), w = e^{βg − m} / S
-      const auto w = hn::Mul(Exp2NonPositive(d, hn::MulSub(beta2, gk, hn::Load(d, m2 + at))), hn::Load(d, inv_S + at));
-      const auto dI_dg = hn::Mul(w, hn::MulAdd(beta, hn::Sub(gk, hn::Load(d, I + at)), one));
-      const auto dL_dg = hn::IfThenElseZero(mask, hn::Mul(dL_dI, dI_dg));
-      samp = hn::MulAdd(dL_dg, Gk, samp);
-      const auto dL_dq = hn::Mul(hn::Mul(minus_half, dL_dg), gk);  // d(a e^{-q/2})/dq = −½ g
-      sA = hn::MulAdd(dL_dq, hn::Mul(dx, dx), sA);
-      sB = hn::MulAdd(dL_dq, hn::Mul(two, hn::Mul(dx, vdy)), sB);
-      sC = hn::MulAdd(dL_dq, hn::Mul(vdy, vdy), sC);
-      // dq/du = −2 (A dx + B dy), dq/dv = −2 (B dx + C dy)
-      su = hn::MulAdd(dL_dq, hn::MulAdd(vA, dx, hn::Mul(vB, vdy)), su);
-      sv = hn::MulAdd(dL_dq, hn::MulAdd(vB, dx, hn::Mul(vC, vdy)), sv);
-    });
-    out[0] = -2.0f * hn::GetLane(hn::SumOfLanes(d, su));
-    out[1] = -2.0f * hn::GetLane(hn::SumOfLanes(d, sv));
-    out[2] = hn::GetLane(hn::SumOfLanes(d, sA));
-    out[3] = hn::GetLane(hn::SumOfLanes(d, sB));
-    out[4] = hn::GetLane(hn::SumOfLanes(d, sC));
-    out[5] = hn::GetLane(hn::SumOfLanes(d, samp));
+    row_spans(f, floors, g, ln_beta + g.ln_amp, false, spans);
+    GaussianGrads(f, pixels, g, spans, out);
   }
 }
 
