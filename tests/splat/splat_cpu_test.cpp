@@ -18,20 +18,9 @@ namespace hisnegs::splat {
 namespace {
 
 using testing::make_splat_scene;
+using testing::max_abs_diff;
+using testing::render;
 using testing::to_float;
-
-std::vector<float> render_cpu(SplatRenderer& r, const testing::SplatScene& s, const SplatSettings& settings) {
-  std::vector<float> img(static_cast<std::size_t>(s.K.width) * s.K.height);
-  const std::vector<float> p = to_float(s.params);
-  r.forward(p, s.K, s.view, settings, img);
-  return img;
-}
-
-double max_abs_diff(const std::vector<float>& a, const std::vector<double>& b) {
-  double e = 0;
-  for (std::size_t i = 0; i < a.size(); ++i) e = std::max(e, std::abs(double(a[i]) - b[i]));
-  return e;
-}
 
 // Binning: every pixel centre inside the δ ellipse lies in the columns reported
 // for its band of 16 rows (no term is ever lost), on random ellipses of every
@@ -112,7 +101,7 @@ TEST(SplatCpu, ForwardMatchesReference) {
         s.cutoff = 1e6f;
         s.skip_log_weight = 0.0f;
         const std::vector<double> ref = render_reference(scene.params, view, s);
-        const std::vector<float> img = render_cpu(*renderer, scene, s);
+        const std::vector<float> img = render(*renderer, scene, s);
         EXPECT_LT(max_abs_diff(img, ref), 1e-4) << "seed " << seed << " beta " << beta << " hard " << (mode == MipMode::kHard);
       }
     }
@@ -128,7 +117,7 @@ TEST(SplatCpu, ForwardMatchesReferenceAtDefaultCutoff) {
   SplatSettings s;
   s.skip_log_weight = 0.0f;
   const std::vector<double> ref = render_reference(scene.params, view, s);
-  const std::vector<float> img = render_cpu(*renderer, scene, s);
+  const std::vector<float> img = render(*renderer, scene, s);
   EXPECT_LT(max_abs_diff(img, ref), testing::boundary_flip_bound(s) + 1e-4);
   int close = 0;
   for (std::size_t i = 0; i < img.size(); ++i) close += std::abs(img[i] - ref[i]) < 1e-4 ? 1 : 0;
@@ -148,7 +137,7 @@ TEST(SplatCpu, LargeGaussiansOverManyTilesMatchReference) {
     SplatSettings s;
     s.mode = mode;
     const std::vector<double> ref = render_reference(scene.params, view, s);
-    const std::vector<float> img = render_cpu(*renderer, scene, s);
+    const std::vector<float> img = render(*renderer, scene, s);
     // Skipped terms move a pixel by at most (terms) e^-20; boundary pixels as above.
     EXPECT_LT(max_abs_diff(img, ref), testing::boundary_flip_bound(s) + 1e-4);
     int close = 0;
@@ -176,11 +165,11 @@ TEST(SplatCpu, SkippedTermsAreCountedAndNegligible) {
   exact.skip_log_weight = 0.0f;
   exact.beta = 50.0f;
   exact.count_skipped = true;
-  const std::vector<float> a = render_cpu(*renderer, scene, exact);
+  const std::vector<float> a = render(*renderer, scene, exact);
   EXPECT_EQ(renderer->stats().skipped_terms, 0);
   SplatSettings skip = exact;
   skip.skip_log_weight = 8.0f;
-  const std::vector<float> b = render_cpu(*renderer, scene, skip);
+  const std::vector<float> b = render(*renderer, scene, skip);
   const std::int64_t skipped = renderer->stats().skipped_terms;
   EXPECT_GT(skipped, 0);
   double diff = 0;
@@ -189,7 +178,7 @@ TEST(SplatCpu, SkippedTermsAreCountedAndNegligible) {
   // Without counting (the default, and its faster culling) the image is the same
   // up to the same bound, and the count stays 0.
   skip.count_skipped = false;
-  const std::vector<float> c = render_cpu(*renderer, scene, skip);
+  const std::vector<float> c = render(*renderer, scene, skip);
   EXPECT_EQ(renderer->stats().skipped_terms, 0);
   double diff_uncounted = 0;
   for (std::size_t i = 0; i < a.size(); ++i) diff_uncounted = std::max(diff_uncounted, double(std::abs(a[i] - c[i])));
@@ -214,7 +203,7 @@ TEST(SplatCpu, BackwardMatchesReference) {
     for (double& x : w) x = u(rng);
     std::vector<double> screen_ref;
     const std::vector<double> ref = render_reference_backward(scene.params, view, s, w, &screen_ref);
-    render_cpu(*renderer, scene, s);
+    render(*renderer, scene, s);
     std::vector<float> grad(scene.params.size(), 0.0f), screen(scene.params.size() / 11, 0.0f);
     renderer->backward(to_float(w), grad, screen);
     double largest[11] = {};
@@ -249,9 +238,9 @@ TEST(SplatCpu, BackwardWithSkippingMatchesReference) {
   const std::vector<double> ref = render_reference_backward(scene.params, view, exact, w, nullptr);
   SplatSettings counted = s;
   counted.count_skipped = true;
-  render_cpu(*renderer, scene, counted);
+  render(*renderer, scene, counted);
   EXPECT_GT(renderer->stats().skipped_terms, 1000);
-  render_cpu(*renderer, scene, s);
+  render(*renderer, scene, s);
   std::vector<float> grad(scene.params.size(), 0.0f);
   renderer->backward(to_float(w), grad, {});
   double largest[11] = {};
@@ -265,7 +254,7 @@ TEST(SplatCpu, BackwardAccumulates) {
   auto renderer = make_splat_renderer(Backend::kCpu);
   const auto scene = make_splat_scene(10, 41, 48, 32);
   SplatSettings s;
-  render_cpu(*renderer, scene, s);
+  render(*renderer, scene, s);
   const std::vector<float> ones(static_cast<std::size_t>(48 * 32), 1.0f);
   std::vector<float> once(scene.params.size(), 0.0f);
   renderer->backward(ones, once);

@@ -6,7 +6,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <random>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -22,63 +21,24 @@
 namespace hisnegs::splat {
 namespace {
 
-using testing::make_splat_scene;
-using testing::SplatScene;
-using testing::to_float;
 using testing::boundary_flip_bound;
+using testing::count_far;
+using testing::large_scene;
+using testing::largest_per_kind;
+using testing::make_splat_scene;
+using testing::max_abs_diff;
+using testing::random_weights;
+using testing::render;
+using testing::to_float;
 
 // GPU tests skip (not fail) on machines without a usable device (STYLE "Differentiable code").
 class SplatCuda : public ::testing::Test {
  protected:
   void SetUp() override {
-    const CudaDeviceInfo& info = cuda_device_info();
-    if (!info.compiled) GTEST_SKIP() << "this build has no CUDA back end: CUDA splatting not tested";
-    if (!info.available) GTEST_SKIP() << "no usable CUDA device (" << info.reason << "): CUDA splatting not tested";
+    const std::string why = testing::why_backend_untestable(Backend::kCuda);
+    if (!why.empty()) GTEST_SKIP() << why;
   }
 };
-
-std::vector<float> render(SplatRenderer& r, const SplatScene& s, const SplatSettings& settings) {
-  std::vector<float> img(static_cast<std::size_t>(s.K.width) * s.K.height);
-  const std::vector<float> p = to_float(s.params);
-  r.forward(p, s.K, s.view, settings, img);
-  return img;
-}
-
-template <class A, class B>
-double max_abs_diff(const std::vector<A>& a, const std::vector<B>& b) {
-  double e = 0;
-  for (std::size_t i = 0; i < a.size(); ++i) e = std::max(e, std::abs(double(a[i]) - double(b[i])));
-  return e;
-}
-
-std::vector<double> random_weights(std::size_t n, std::uint64_t seed) {
-  std::mt19937_64 rng(seed);
-  std::uniform_real_distribution<double> u(-1, 1);
-  std::vector<double> w(n);
-  for (double& x : w) x = u(rng);
-  return w;
-}
-
-// Largest |g| per parameter kind (11): gradients of different kinds differ by orders
-// of magnitude, so each is compared relative to the largest of its own kind.
-std::vector<double> largest_per_kind(const std::vector<double>& g) {
-  std::vector<double> largest(gmf::kGaussianParamCount, 0.0);
-  for (std::size_t i = 0; i < g.size(); ++i) {
-    largest[i % gmf::kGaussianParamCount] = std::max(largest[i % gmf::kGaussianParamCount], std::abs(g[i]));
-  }
-  return largest;
-}
-
-// Pixels of `a` farther than `tolerance` from `b`.
-template <class A, class B>
-int count_far(const std::vector<A>& a, const std::vector<B>& b, double tolerance) {
-  int far = 0;
-  for (std::size_t i = 0; i < a.size(); ++i) far += std::abs(double(a[i]) - double(b[i])) > tolerance ? 1 : 0;
-  return far;
-}
-
-// A scene like training sees: many small Gaussians (σ 2-11 pixels) over many tiles.
-SplatScene large_scene() { return make_splat_scene(2000, 71, 256, 256, 0.01, 0.05); }
 
 // Float math against double: values lie in [0, 1] and each pixel is a softmax-weighted
 // mean of at most a few dozen terms whose float rounding (projection, q, exp, the
