@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <ostream>
 #include <random>
 #include <string>
 #include <vector>
@@ -12,6 +13,13 @@
 #include "splat/backend.hpp"
 #include "splat/camera.hpp"
 #include "splat/splat_renderer.hpp"
+
+namespace hisnegs::splat {
+
+// GoogleTest prints a Backend parameter as "cpu" / "cuda" (found by ADL).
+inline void PrintTo(Backend backend, std::ostream* os) { *os << to_string(backend); }
+
+}  // namespace hisnegs::splat
 
 namespace hisnegs::splat::testing {
 
