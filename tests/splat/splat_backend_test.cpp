@@ -110,9 +110,10 @@ TEST_P(SplatBackend, HardForwardMatchesReference) {
 // With the default δ = 16 the tile rectangles matter (a Gaussian cut short by a wrong
 // rectangle would be off by O(a)). Only pixels where a term sits on the δ boundary may
 // differ by more than rounding, by at most boundary_flip_bound, and such pixels are
-// rare (a float q lands within its rounding of δ on ~1e-6 of the boundary pairs): at
-// most 1% of the pixels beyond 1e-4 (the CPU's "99% close" and CUDA's "1% far" are
-// the same bound).
+// rare (a float q lands within its rounding of δ on ~1e-6 of the boundary pairs):
+// fewer than 1% of the pixels beyond 1e-4. (The CPU asked for more than 99% within
+// 1e-4, i.e. far < n − ⌊0.99 n⌋, CUDA for far <= ⌊0.01 n⌋; far < 0.01 n is at least
+// as strict as both for every n.)
 TEST_P(SplatBackend, ForwardMatchesReferenceAtDefaultCutoff) {
   for (std::uint64_t seed : {23u, 55u}) {
     const auto scene = make_splat_scene(40, seed, 64, 48);
@@ -125,7 +126,7 @@ TEST_P(SplatBackend, ForwardMatchesReferenceAtDefaultCutoff) {
       const std::vector<double> ref = render_reference(scene.params, view, s);
       const std::vector<float> img = render(*renderer_, scene, s);
       EXPECT_LT(max_abs_diff(img, ref), boundary_flip_bound(s) + 1e-4) << what;
-      EXPECT_LE(count_far(img, ref, 1e-4), static_cast<int>(0.01 * img.size())) << what;
+      EXPECT_LT(count_far(img, ref, 1e-4), 0.01 * double(img.size())) << what;
       EXPECT_GT(renderer_->stats().visible, 0) << what;
       EXPECT_GE(renderer_->stats().tile_entries, renderer_->stats().visible) << what;
     }
@@ -136,7 +137,8 @@ TEST_P(SplatBackend, ForwardMatchesReferenceAtDefaultCutoff) {
 // skip rule on: every tile they reach is rendered as the reference renders it. (On the
 // CPU such Gaussians are binned by the scalar band rule instead of the stored SIMD
 // bands; on CUDA they make long per-Gaussian tile lists.) Skipped terms move a pixel
-// by at most (terms) e^-20; boundary pixels as in ForwardMatchesReferenceAtDefaultCutoff.
+// by at most (terms) e^-20; boundary pixels as in ForwardMatchesReferenceAtDefaultCutoff
+// (here n = 30400: at most 303 far pixels, as the CPU test allowed).
 TEST_P(SplatBackend, LargeGaussiansOverManyTilesMatchReference) {
   const auto scene = make_splat_scene(12, 31, 190, 160, 0.15, 0.35);
   const ViewParams<double> view = make_splat_view<double>(scene.K, scene.view);
@@ -147,7 +149,7 @@ TEST_P(SplatBackend, LargeGaussiansOverManyTilesMatchReference) {
     const std::vector<double> ref = render_reference(scene.params, view, s);
     const std::vector<float> img = render(*renderer_, scene, s);
     EXPECT_LT(max_abs_diff(img, ref), boundary_flip_bound(s) + 1e-4) << what;
-    EXPECT_LE(count_far(img, ref, 1e-4), static_cast<int>(0.01 * img.size())) << what;
+    EXPECT_LT(count_far(img, ref, 1e-4), 0.01 * double(img.size())) << what;
     // Some Gaussian spans more than 8 tile rows (8 * 16 = 128 pixels).
     double tallest = 0;
     for (std::size_t k = 0; k < scene.params.size() / gmf::kGaussianParamCount; ++k) {
