@@ -1,13 +1,25 @@
-// Small random splatting scenes shared by the splat renderer tests: a few
-// anisotropic, rotated Gaussians near the origin seen by an orbit camera.
+// Small random splatting scenes and the comparison helpers shared by the splat
+// renderer tests (reference, back-end suite, CPU and CUDA specifics). No checks here.
 #pragma once
 
+#include <algorithm>
 #include <cmath>
+#include <cstdint>
+#include <ostream>
 #include <random>
+#include <string>
 #include <vector>
 
+#include "splat/backend.hpp"
 #include "splat/camera.hpp"
 #include "splat/splat_renderer.hpp"
+
+namespace hisnegs::splat {
+
+// GoogleTest prints a Backend parameter as "cpu" / "cuda" (found by ADL).
+inline void PrintTo(Backend backend, std::ostream* os) { *os << to_string(backend); }
+
+}  // namespace hisnegs::splat
 
 namespace hisnegs::splat::testing {
 
@@ -56,5 +68,73 @@ inline double boundary_flip_bound(const SplatSettings& s) {
 }
 
 inline std::vector<float> to_float(const std::vector<double>& v) { return {v.begin(), v.end()}; }
+
+// A few bright Gaussians over many dim ones (σ 6-18 pixels, 64 x 48) so that the
+// soft-MIP skip rule drops terms: 6 of 60 with a = sigmoid(3), the rest sigmoid(-2.5).
+inline SplatScene bright_over_dim_scene(std::uint64_t seed) {
+  SplatScene s = make_splat_scene(60, seed, 64, 48, 0.08, 0.2);
+  for (int k = 0; k < 60; ++k) s.params[11 * k + 10] = k < 6 ? 3.0 : -2.5;
+  return s;
+}
+
+// A scene like training sees: many small Gaussians (σ 2-11 pixels) over 16 x 16 tiles.
+inline SplatScene large_scene() { return make_splat_scene(2000, 71, 256, 256, 0.01, 0.05); }
+
+// Why `backend` cannot be tested in this process (this build lacks it, or no device is
+// usable), or empty when it can. GPU tests skip, not fail, on such machines (STYLE
+// "Differentiable code").
+inline std::string why_backend_untestable(Backend backend) {
+  if (backend != Backend::kCuda) return {};
+  const CudaDeviceInfo& info = cuda_device_info();
+  if (!info.compiled) return "this build has no CUDA back end (HISNEGS_HAVE_CUDA == 0): CUDA splatting not tested";
+  if (!info.available) return "no usable CUDA device (" + info.reason + "): CUDA splatting not tested";
+  return {};
+}
+
+// The scene's image (K.height x K.width) from `r`'s forward.
+inline std::vector<float> render(SplatRenderer& r, const SplatScene& s, const SplatSettings& settings) {
+  std::vector<float> img(static_cast<std::size_t>(s.K.width) * s.K.height);
+  const std::vector<float> p = to_float(s.params);
+  r.forward(p, s.K, s.view, settings, img);
+  return img;
+}
+
+// max |a_i − b_i|; a NaN anywhere makes it NaN (so any bound `< tol` fails).
+template <class A, class B>
+double max_abs_diff(const std::vector<A>& a, const std::vector<B>& b) {
+  double e = 0;
+  for (std::size_t i = 0; i < a.size(); ++i) {
+    const double d = std::abs(double(a[i]) - double(b[i]));
+    if (!(d <= e)) e = d;
+  }
+  return e;
+}
+
+// Pixels of `a` not within `tolerance` of `b` (|a − b| >= tolerance, or NaN).
+template <class A, class B>
+int count_far(const std::vector<A>& a, const std::vector<B>& b, double tolerance) {
+  int far = 0;
+  for (std::size_t i = 0; i < a.size(); ++i) far += std::abs(double(a[i]) - double(b[i])) < tolerance ? 0 : 1;
+  return far;
+}
+
+// `n` weights uniform in [-1, 1] (a random dL/dimage), fixed by `seed`.
+inline std::vector<double> random_weights(std::size_t n, std::uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> u(-1, 1);
+  std::vector<double> w(n);
+  for (double& x : w) x = u(rng);
+  return w;
+}
+
+// Largest |g| per parameter kind (11): gradients of different kinds differ by orders
+// of magnitude, so each is compared relative to the largest of its own kind.
+inline std::vector<double> largest_per_kind(const std::vector<double>& g) {
+  std::vector<double> largest(gmf::kGaussianParamCount, 0.0);
+  for (std::size_t i = 0; i < g.size(); ++i) {
+    largest[i % gmf::kGaussianParamCount] = std::max(largest[i % gmf::kGaussianParamCount], std::abs(g[i]));
+  }
+  return largest;
+}
 
 }  // namespace hisnegs::splat::testing
