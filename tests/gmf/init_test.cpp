@@ -80,8 +80,9 @@ TEST(GmfInit, PlacesTheGaussianAtTheIntensityWeightedCentroid) {
 }
 
 // On the scene, every Gaussian sits at the intensity-weighted centroid of the
-// foreground voxels of its cell (world grid of step report.cell_world) and
-// carries their mean value; one Gaussian per occupied cell, in cell order.
+// foreground voxels of its cell (world grid of step report.cell_world anchored
+// at the world origin) and carries their mean value; one Gaussian per occupied
+// cell, in cell order.
 TEST(GmfInit, EveryGaussianIsItsCellsWeightedCentroid) {
   const Scene scene = make_scene(3);
   constexpr double kThreshold = 0.1;
@@ -115,6 +116,26 @@ TEST(GmfInit, EveryGaussianIsItsCellsWeightedCentroid) {
     EXPECT_NEAR(intensity(m[k]), std::clamp(s.v / s.count, 0.02, 0.98), 1e-6) << "gaussian " << k;
     ++k;
   }
+}
+
+// A foreground of 2³ voxels around the centre of the stack straddles all three
+// coordinate planes, so origin-anchored cells never hold it in fewer than 8;
+// every budget from 1 up is still met.
+TEST(GmfInit, MeetsSmallBudgetsForAForegroundAroundTheCentre) {
+  io::Volume v = zeros(16, 16, 16);
+  for (int z = 7; z <= 8; ++z)
+    for (int y = 7; y <= 8; ++y)
+      for (int x = 7; x <= 8; ++x) v.at(x, y, z) = 0.5f;
+  const io::WorldFrame frame(16, 16, 16, Eigen::Vector3d::Ones());
+  for (int budget = 1; budget <= 9; ++budget) {
+    const GaussianMixture m = initialize_on_grid(v, frame, 0.1, budget);
+    EXPECT_LE(m.size(), static_cast<std::size_t>(budget)) << "budget " << budget;
+    EXPECT_GE(m.size(), 1u);
+  }
+  // Budget 1: one Gaussian at the centre of the eight voxels (the world origin).
+  const GaussianMixture one = initialize_on_grid(v, frame, 0.1, 1);
+  ASSERT_EQ(one.size(), 1u);
+  for (int a = 0; a < 3; ++a) EXPECT_NEAR(one[0].mean[a], 0.0, 1e-6);
 }
 
 }  // namespace
