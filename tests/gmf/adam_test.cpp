@@ -174,8 +174,8 @@ void expect_round_trip() {
 TEST(Adam, MomentsRoundTripThroughABinaryRecordDouble) { expect_round_trip<double>(); }
 TEST(Adam, MomentsRoundTripThroughABinaryRecordFloat) { expect_round_trip<float>(); }
 
-// A record for another Gaussian count, or a negative step count, is an
-// io::InputError naming the source; the state is left as it was.
+// A record for another Gaussian count (in m or only in v), or a negative step
+// count, is an io::InputError naming the source; the state is left as it was.
 TEST(Adam, ReadingAWrongSizeOrNegativeStepIsRefused) {
   std::mt19937_64 rng(131);
   const Adam<double> a = stepped(3, rng);
@@ -194,6 +194,16 @@ TEST(Adam, ReadingAWrongSizeOrNegativeStepIsRefused) {
       EXPECT_NE(what.find("run/optimizer.bin"), std::string::npos) << what;
       EXPECT_NE(what.find(std::to_string(k * P)), std::string::npos) << what;  // the expected size
     }
+  }
+  // m of the right size, v of another: refused after m was read, state untouched.
+  {
+    const std::vector<double> m_ok(2 * P, 0.5), v_short(2 * P - 1, 0.5);
+    io::BinaryWriter half;
+    half.put_array(std::span<const double>(m_ok));
+    half.put_array(std::span<const double>(v_short));
+    const std::string half_bytes = half.take();
+    io::BinaryReader r(half_bytes, "run/optimizer.bin", "optimizer state");
+    EXPECT_THROW(b.read_moments(r, 3, 2), io::InputError);
   }
   io::BinaryReader r(bytes, "run/optimizer.bin", "optimizer state");
   try {

@@ -51,8 +51,8 @@ TEST(BrickIndex, ListsExactlyTheGaussiansWhoseSupportReachesABrick) {
 }
 
 // A 40 × 24 × 16 stack (voxels of 0.05 world units) with scattered foreground
-// and 10% background samples, in blocks of 4 voxels: bricks of both parts, some
-// sharing an origin.
+// and 10% background samples (weight sqrt(10)), in blocks of 4 voxels: bricks
+// of both parts, some sharing an origin.
 struct Bricks {
   io::WorldFrame frame{40, 24, 16, Eigen::Vector3d(1.0, 0.6, 0.4)};
   io::SparseGrid grid;
@@ -71,7 +71,8 @@ Bricks make_bricks(std::uint64_t seed, int gaussians) {
   std::mt19937_64 rng(seed);
   std::uniform_real_distribution<float> u(0.0f, 1.0f);
   v.voxels.resize(v.size());
-  for (float& x : v.voxels) x = u(rng) < 0.01f ? 0.5f + 0.5f * u(rng) : 0.0f;
+  // Dim (below threshold) but non-zero elsewhere, so background samples carry a value.
+  for (float& x : v.voxels) x = u(rng) < 0.01f ? 0.5f + 0.5f * u(rng) : 0.05f * u(rng);
   io::SparseGridOptions o;
   o.threshold = 0.3;
   o.band_voxels = 1;

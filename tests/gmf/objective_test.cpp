@@ -123,12 +123,15 @@ TEST(GmfObjective, ValueAndGradientAreIdenticalForOneAndTwoThreads) {
     grad.assign(x.size(), 0.0);
     return objective.evaluate(x.data(), grad.data());
   };
-  std::vector<double> g1, g2;
+  std::vector<double> g1;
   const double l1 = run(1, g1);
-  const double l2 = run(2, g2);
-  EXPECT_EQ(l1, l2);
-  EXPECT_EQ(g1, g2);
   EXPECT_GT(l1, objective.constant());
+  // Scheduling varies from run to run: three runs on two threads.
+  for (int repeat = 0; repeat < 3; ++repeat) {
+    std::vector<double> g2;
+    EXPECT_EQ(run(2, g2), l1);
+    EXPECT_EQ(g2, g1);
+  }
 }
 
 }  // namespace
