@@ -16,6 +16,13 @@ TEST(Hash, Fnv1a64OfKnownStrings) {
   EXPECT_EQ(fnv1a64("foobar"), 0x85944171f73967e8ull);
 }
 
+// Bytes are taken unsigned (0x80-0xff and NUL included): FNV-1a written out for
+// these inputs, h = (h ^ byte) * 0x100000001b3 from 0xcbf29ce484222325.
+TEST(Hash, Fnv1a64TakesBytesUnsigned) {
+  EXPECT_EQ(fnv1a64(std::string("\xff\x80\0", 3)), 0xfad4091be587d31eull);
+  EXPECT_EQ(fnv1a64("\xc3\xbc"), 0x0ac20a07b71807eaull);  // "ü" in UTF-8
+}
+
 // Hashing a then b with a's hash as the seed equals hashing a + b.
 TEST(Hash, Fnv1a64ChainsThroughTheSeed) {
   const std::string a = "hisnegs ", b = std::string("state\0file", 10);

@@ -11,6 +11,7 @@
 #include <random>
 #include <set>
 #include <span>
+#include <vector>
 
 #include "io/detail/vdb_grids.hpp"
 #include "io/error.hpp"
@@ -285,6 +286,26 @@ TEST(SparseGrid, VisitActiveLeavesOfAnEmptyBackgroundVisitsNothing) {
   int visits = 0;
   g.visit_active_leaves(SparseGridPart::kBackground, [&](const auto&, auto) { ++visits; });
   EXPECT_EQ(visits, 0);
+}
+
+// A leaf whose voxels were all switched off (OpenVDB keeps it) is not visited.
+TEST(SparseGrid, VisitActiveLeavesSkipsLeavesWithoutActiveVoxels) {
+  auto impl = std::make_shared<SparseGrid::Impl>(SparseGrid().impl());  // initializes OpenVDB
+  impl->volume = openvdb::FloatGrid::create(0.0f);
+  auto acc = impl->volume->getAccessor();
+  acc.setValueOn(openvdb::Coord(3, 3, 3), 0.5f);
+  acc.setValueOn(openvdb::Coord(20, 1, 1), 0.25f);
+  acc.setValueOff(openvdb::Coord(20, 1, 1));
+  ASSERT_EQ(impl->volume->tree().leafCount(), 2u);
+  const SparseGrid g(impl);
+  std::vector<std::array<int, 3>> origins;
+  g.visit_active_leaves(SparseGridPart::kForeground, [&](const std::array<int, 3>& origin, auto voxels) {
+    origins.push_back(origin);
+    ASSERT_EQ(voxels.size(), 1u);
+    EXPECT_EQ(voxels[0].index, (std::array<int, 3>{3, 3, 3}));
+    EXPECT_EQ(voxels[0].value, 0.5f);
+  });
+  EXPECT_EQ(origins, (std::vector<std::array<int, 3>>{{0, 0, 0}}));
 }
 
 }  // namespace
