@@ -49,8 +49,8 @@ TEST(GmfInit, MeetsTheBudgetOnTheForeground) {
 
 // Three foreground voxels of different brightness and a budget of one: a single
 // Gaussian at Σ v p / Σ v (not the brightest voxel, not the plain mean), with
-// a = the cell's mean value (not its maximum). Voxels at or below the threshold
-// do not count.
+// a = the cell's mean value (not its maximum). Voxels below the threshold do
+// not count.
 TEST(GmfInit, PlacesTheGaussianAtTheIntensityWeightedCentroid) {
   io::Volume v = zeros(16, 16, 16);
   const io::WorldFrame frame(16, 16, 16, Eigen::Vector3d::Ones());
