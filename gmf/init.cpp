@@ -17,9 +17,12 @@ struct Cell {
   int count = 0;
 };
 
-std::uint64_t cell_key(const Eigen::Vector3d& p, double cell) {
-  const auto c = [&](double v) { return static_cast<std::uint64_t>(static_cast<std::int64_t>(std::floor(v / cell)) + (1 << 20)); };
-  return (c(p.x()) << 42) | (c(p.y()) << 21) | c(p.z());
+// Cells of edge `cell` with a corner at `corner` (world units).
+std::uint64_t cell_key(const Eigen::Vector3d& p, const Eigen::Vector3d& corner, double cell) {
+  const auto c = [&](double v, double lo) {
+    return static_cast<std::uint64_t>(static_cast<std::int64_t>(std::floor((v - lo) / cell)) + (1 << 20));
+  };
+  return (c(p.x(), corner.x()) << 42) | (c(p.y(), corner.y()) << 21) | c(p.z(), corner.z());
 }
 
 }  // namespace
@@ -41,13 +44,20 @@ GaussianMixture initialize_on_grid(const io::Volume& volume, const io::WorldFram
     throw io::InputError(volume.source + ": no voxel above the foreground threshold " + std::to_string(threshold) +
                          "; lower sparse_grid.threshold");
   }
+  // Cells anchored at the world origin. Such cells never merge across a
+  // coordinate plane, so a foreground around the centre takes up to 8 of them
+  // however large they grow: when even cells of the box's size exceed the
+  // budget (budget < 8), anchor them at the box corner -aspect instead, where
+  // one cell of that size holds the whole stack.
+  Eigen::Vector3d corner = Eigen::Vector3d::Zero();
   auto occupied = [&](double cell) {
     std::unordered_map<std::uint64_t, int> cells;
-    for (const auto& p : pos) cells[cell_key(p, cell)] = 1;
+    for (const auto& p : pos) cells[cell_key(p, corner, cell)] = 1;
     return cells.size();
   };
   // Smallest cell whose occupied count fits the budget (count falls as cells grow).
   double lo = frame.voxel_size().minCoeff() * 0.5, hi = 2.0 * frame.aspect().maxCoeff();
+  if (occupied(hi) > static_cast<std::size_t>(budget)) corner = -frame.aspect();
   if (occupied(lo) <= static_cast<std::size_t>(budget)) hi = lo;
   for (int it = 0; it < 40 && hi / lo > 1.001; ++it) {
     const double mid = std::sqrt(lo * hi);
@@ -56,7 +66,7 @@ GaussianMixture initialize_on_grid(const io::Volume& volume, const io::WorldFram
   const double cell = hi;
   std::unordered_map<std::uint64_t, Cell> cells;
   for (std::size_t i = 0; i < pos.size(); ++i) {
-    Cell& c = cells[cell_key(pos[i], cell)];
+    Cell& c = cells[cell_key(pos[i], corner, cell)];
     c.wsum += val[i];
     c.vsum += val[i];
     c.vmax = std::max<double>(c.vmax, val[i]);

@@ -11,7 +11,8 @@
 namespace hisnegs::gmf {
 
 struct InitReport {
-  double cell_world = 0;          // grid step, world units
+  double cell_world = 0;          // grid step, world units; cells anchored at the world origin (at the
+                                  // box corner -aspect when no origin-anchored grid meets the budget)
   std::int64_t foreground = 0;    // voxels above the threshold
 };
 

@@ -8,10 +8,13 @@
 
 namespace hisnegs::io {
 
+// FNV-1a with the reference 64-bit offset basis 0xcbf29ce484222325 and prime
+// 0x100000001b3 (fnv1a64("") == 0xcbf29ce484222325, fnv1a64("a") ==
+// 0xaf63dc4c8601ec8c). `h` continues a hash: fnv1a64(b, n, fnv1a64(a)) hashes a + b.
 [[nodiscard]] inline std::uint64_t fnv1a64(const void* bytes, std::size_t size,
-                                           std::uint64_t h = 1469598103934665603ull) {
+                                           std::uint64_t h = 0xcbf29ce484222325ull) {
   const auto* p = static_cast<const unsigned char*>(bytes);
-  for (std::size_t i = 0; i < size; ++i) h = (h ^ p[i]) * 1099511628211ull;
+  for (std::size_t i = 0; i < size; ++i) h = (h ^ p[i]) * 0x100000001b3ull;
   return h;
 }
 [[nodiscard]] inline std::uint64_t fnv1a64(std::string_view text) { return fnv1a64(text.data(), text.size()); }

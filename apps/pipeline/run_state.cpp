@@ -4,6 +4,7 @@
 #include "apps/pipeline/format.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
+#include "io/hash.hpp"
 
 namespace hisnegs::apps {
 
@@ -50,12 +51,7 @@ void RunState::save() const {
 }
 
 std::string hash_hex(const std::string& text) {
-  std::uint64_t h = 1469598103934665603ull;
-  for (unsigned char c : text) {
-    h ^= c;
-    h *= 1099511628211ull;
-  }
-  return strf("%016llx", static_cast<unsigned long long>(h));
+  return strf("%016llx", static_cast<unsigned long long>(io::fnv1a64(text)));
 }
 
 std::string file_identity(const fs::path& path) {

@@ -1,13 +1,13 @@
 // The GMF residual block against Ceres' own numeric differentiation (Ridders'
 // extrapolation, DynamicNumericDiffCostFunction) in double, and the Mahalanobis
-// cutoff; plus the brick index and sample extraction it is built from.
+// cutoff. The brick index and samples it is built from: brick_index_test.cpp,
+// samples_test.cpp.
 #include <ceres/dynamic_autodiff_cost_function.h>
 #include <ceres/dynamic_numeric_diff_cost_function.h>
 #include <gtest/gtest.h>
 
 #include <random>
 
-#include "gmf/brick_index.hpp"
 #include "gmf/detail/brick_cost.hpp"
 #include "gmf/gaussian_math.hpp"
 #include "gmf/samples.hpp"
@@ -193,70 +193,6 @@ TEST(BrickCost, CutoffDropsGaussiansBeyondDelta) {
   ASSERT_TRUE(cost.Evaluate(blocks.data(), r, nullptr));
   EXPECT_NEAR(r[0], 0.5 * std::exp(-4.5), 1e-15);  // a = sigmoid(0) = 0.5, m = 9 <= 16
   EXPECT_EQ(r[1], 0.0);                            // m = 25 > 16: outside the support
-}
-
-TEST(BrickIndex, ListsExactlyTheGaussiansWhoseSupportReachesABrick) {
-  // A 32^3 volume in the unit box; bricks at origins (0,0,0) and (24,24,24).
-  const io::WorldFrame frame(32, 32, 32, Eigen::Vector3d::Ones());
-  SampleSet s;
-  s.brick_begin = {0, 1, 2};
-  s.brick_origin = {{0, 0, 0}, {24, 24, 24}};
-  for (int b = 0; b < 2; ++b) {
-    const Eigen::Vector3d p = frame.world_from_index(Eigen::Vector3d(b * 24 + 3, b * 24 + 3, b * 24 + 3));
-    s.x.push_back(p.x());
-    s.y.push_back(p.y());
-    s.z.push_back(p.z());
-    s.value.push_back(1);
-    s.weight.push_back(1);
-  }
-  GaussianMixture mix;
-  auto add = [&](const Eigen::Vector3d& ijk, double sigma_voxels) {
-    GaussianParams g;
-    const Eigen::Vector3d p = frame.world_from_index(ijk);
-    for (int a = 0; a < 3; ++a) g.mean[a] = static_cast<float>(p[a]);
-    for (int a = 0; a < 3; ++a) g.log_scale[a] = static_cast<float>(std::log(sigma_voxels * frame.voxel_size()[a]));
-    mix.push_back(g);
-  };
-  add({3, 3, 3}, 1.0);     // inside brick 0
-  add({12, 3, 3}, 1.0);    // 4σ = 4 voxels: reaches x = 8.. -> not brick 0 (centres 0..7)
-  add({10, 3, 3}, 1.0);    // reaches x = 6: touches brick 0
-  add({16, 16, 16}, 3.0);  // 4σ = 12 voxels: reaches 4..28 -> both bricks
-  add({28, 28, 28}, 0.5);  // brick 1 only
-  const BrickIndex index = build_brick_index(mix, s, frame, 16.0);
-  const auto b0 = index.of(0), b1 = index.of(1);
-  EXPECT_EQ(std::vector<std::uint32_t>(b0.begin(), b0.end()), (std::vector<std::uint32_t>{0, 2, 3}));
-  EXPECT_EQ(std::vector<std::uint32_t>(b1.begin(), b1.end()), (std::vector<std::uint32_t>{3, 4}));
-}
-
-TEST(Samples, ExtractsForegroundAndWeightedBackground) {
-  io::Volume v;
-  v.nx = v.ny = v.nz = 16;
-  v.voxels.assign(v.size(), 0.0f);
-  v.at(5, 5, 5) = 1.0f;
-  io::SparseGridOptions o;
-  o.threshold = 0.5;
-  o.band_voxels = 1;
-  o.background_fraction = 0.25;
-  o.seed = 3;
-  const io::SparseGrid grid = io::build_sparse_grid(v, Eigen::Vector3d::Ones(), o);
-  const SampleSet s = extract_samples(grid, 2.0);
-  EXPECT_EQ(s.foreground, 27);
-  EXPECT_EQ(s.background, grid.background_voxels());
-  EXPECT_EQ(s.size(), static_cast<std::size_t>(s.foreground + s.background));
-  EXPECT_EQ(s.brick_begin.back(), s.size());
-  double bright = 0;
-  for (std::size_t i = 0; i < s.size(); ++i) {
-    if (s.value[i] == 1.0) {
-      bright += 1;
-      const Eigen::Vector3d p = grid.frame().world_from_index(Eigen::Vector3d(5, 5, 5));
-      EXPECT_DOUBLE_EQ(s.x[i], p.x());
-      EXPECT_EQ(s.weight[i], 1.0);
-    }
-    if (i >= static_cast<std::size_t>(s.foreground)) {
-      EXPECT_DOUBLE_EQ(s.weight[i], std::sqrt(2.0 / 0.25));
-    }
-  }
-  EXPECT_EQ(bright, 1);
 }
 
 }  // namespace

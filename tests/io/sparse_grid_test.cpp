@@ -1,11 +1,17 @@
 // Tests of io/sparse_grid: the CONVENTIONS transform, threshold + band topology,
-// values, the background subsample, and bit-exact .vdb round trips.
+// values, the background subsample, bit-exact .vdb round trips, and
+// visit_active_leaves over both parts.
 #include "io/sparse_grid.hpp"
 
 #include <gtest/gtest.h>
 
+#include <array>
 #include <cmath>
+#include <map>
 #include <random>
+#include <set>
+#include <span>
+#include <vector>
 
 #include "io/detail/vdb_grids.hpp"
 #include "io/error.hpp"
@@ -212,6 +218,94 @@ TEST(SparseGrid, OptionsAreValidated) {
   o = SparseGridOptions{};
   o.background_fraction = 2.0;
   EXPECT_THROW(o.validate(), InputError);
+}
+
+// visit_active_leaves over `part` against OpenVDB's own list of active voxels:
+// each active voxel exactly once with its value (= the volume's), grouped by
+// the 8³ leaf holding it, each leaf once with its origin (a multiple of 8).
+void expect_visits_every_active_voxel_once(const SparseGrid& g, SparseGridPart part, const Volume& v) {
+  const openvdb::FloatGrid& grid =
+      part == SparseGridPart::kForeground ? *g.impl().volume : *g.impl().background;
+  std::map<std::array<int, 3>, float> expected;
+  for (auto it = grid.cbeginValueOn(); it; ++it) {
+    expected[{it.getCoord().x(), it.getCoord().y(), it.getCoord().z()}] = *it;
+  }
+  ASSERT_GT(expected.size(), 50u);
+  std::set<std::array<int, 3>> leaves, seen;
+  g.visit_active_leaves(part, [&](const std::array<int, 3>& origin, std::span<const ActiveVoxel> voxels) {
+    EXPECT_TRUE(leaves.insert(origin).second) << "leaf visited twice";
+    EXPECT_FALSE(voxels.empty());
+    for (int a = 0; a < 3; ++a) EXPECT_EQ(origin[a] % 8, 0);
+    for (const ActiveVoxel& av : voxels) {
+      for (int a = 0; a < 3; ++a) {
+        EXPECT_GE(av.index[a], origin[a]);
+        EXPECT_LT(av.index[a], origin[a] + 8);
+      }
+      EXPECT_TRUE(seen.insert(av.index).second) << "voxel visited twice";
+      const auto it = expected.find(av.index);
+      ASSERT_NE(it, expected.end()) << "visited an inactive voxel";
+      EXPECT_EQ(av.value, it->second);
+      EXPECT_EQ(av.value, v.at(av.index[0], av.index[1], av.index[2]));
+    }
+  });
+  EXPECT_EQ(seen.size(), expected.size());
+  EXPECT_EQ(static_cast<std::int64_t>(seen.size()),
+            part == SparseGridPart::kForeground ? g.active_voxels() : g.background_voxels());
+  // The leaves visited are exactly those holding active voxels.
+  std::set<std::array<int, 3>> holding;
+  for (const auto& [idx, value] : expected) holding.insert({idx[0] & ~7, idx[1] & ~7, idx[2] & ~7});
+  EXPECT_EQ(leaves, holding);
+}
+
+TEST(SparseGrid, VisitActiveLeavesVisitsEveryForegroundVoxelOnce) {
+  const Volume v = random_sparse(37, 29, 11, 0.02, 13);
+  SparseGridOptions o;
+  o.threshold = 0.3;
+  o.band_voxels = 1;
+  o.background_fraction = 0.05;
+  const SparseGrid g = build_sparse_grid(v, Eigen::Vector3d(1, 0.8, 0.3), o);
+  expect_visits_every_active_voxel_once(g, SparseGridPart::kForeground, v);
+}
+
+TEST(SparseGrid, VisitActiveLeavesVisitsEveryBackgroundVoxelOnce) {
+  const Volume v = random_sparse(37, 29, 11, 0.02, 17);
+  SparseGridOptions o;
+  o.threshold = 0.3;
+  o.band_voxels = 1;
+  o.background_fraction = 0.05;
+  const SparseGrid g = build_sparse_grid(v, Eigen::Vector3d(1, 0.8, 0.3), o);
+  expect_visits_every_active_voxel_once(g, SparseGridPart::kBackground, v);
+}
+
+// Without background samples the background part has no leaf to visit.
+TEST(SparseGrid, VisitActiveLeavesOfAnEmptyBackgroundVisitsNothing) {
+  const Volume v = random_sparse(20, 20, 9, 0.02, 19);
+  SparseGridOptions o;
+  o.threshold = 0.3;
+  const SparseGrid g = build_sparse_grid(v, Eigen::Vector3d::Ones(), o);
+  int visits = 0;
+  g.visit_active_leaves(SparseGridPart::kBackground, [&](const auto&, auto) { ++visits; });
+  EXPECT_EQ(visits, 0);
+}
+
+// A leaf whose voxels were all switched off (OpenVDB keeps it) is not visited.
+TEST(SparseGrid, VisitActiveLeavesSkipsLeavesWithoutActiveVoxels) {
+  auto impl = std::make_shared<SparseGrid::Impl>(SparseGrid().impl());  // initializes OpenVDB
+  impl->volume = openvdb::FloatGrid::create(0.0f);
+  auto acc = impl->volume->getAccessor();
+  acc.setValueOn(openvdb::Coord(3, 3, 3), 0.5f);
+  acc.setValueOn(openvdb::Coord(20, 1, 1), 0.25f);
+  acc.setValueOff(openvdb::Coord(20, 1, 1));
+  ASSERT_EQ(impl->volume->tree().leafCount(), 2u);
+  const SparseGrid g(impl);
+  std::vector<std::array<int, 3>> origins;
+  g.visit_active_leaves(SparseGridPart::kForeground, [&](const std::array<int, 3>& origin, auto voxels) {
+    origins.push_back(origin);
+    ASSERT_EQ(voxels.size(), 1u);
+    EXPECT_EQ(voxels[0].index, (std::array<int, 3>{3, 3, 3}));
+    EXPECT_EQ(voxels[0].value, 0.5f);
+  });
+  EXPECT_EQ(origins, (std::vector<std::array<int, 3>>{{0, 0, 0}}));
 }
 
 }  // namespace

@@ -1,0 +1,142 @@
+// gmf/init: grid initialization meets the Gaussian budget on the foreground and
+// puts each Gaussian at its cell's intensity-weighted centroid, with the cell's
+// mean value as intensity and half a grid step as σ.
+#include "gmf/init.hpp"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <map>
+
+#include "gmf/gaussian_mixture.hpp"
+#include "io/error.hpp"
+#include "tests/gmf/gmf_test_scenes.hpp"
+
+namespace hisnegs::gmf {
+namespace {
+
+io::Volume zeros(int nx, int ny, int nz) {
+  io::Volume v;
+  v.nx = nx;
+  v.ny = ny;
+  v.nz = nz;
+  v.voxels.assign(v.size(), 0.0f);
+  v.source = "hand-made";
+  v.normalization.method = io::NormalizationMethod::kMinMax;
+  return v;
+}
+
+TEST(GmfInit, MeetsTheBudgetOnTheForeground) {
+  const Scene scene = make_scene(3);
+  InitReport report;
+  const GaussianMixture m = initialize_on_grid(scene.volume, scene.frame, 0.1, 60, &report);
+  EXPECT_LE(m.size(), 60u);
+  EXPECT_GE(m.size(), 30u);  // the search lands close to the budget
+  EXPECT_GT(report.foreground, 0);
+  for (const auto& g : m) {
+    // Centres lie where the volume is bright.
+    const Eigen::Vector3d ijk = scene.frame.index_from_world(Eigen::Vector3d(g.mean[0], g.mean[1], g.mean[2]));
+    const int x = static_cast<int>(std::lround(ijk.x())), y = static_cast<int>(std::lround(ijk.y())),
+              z = static_cast<int>(std::lround(ijk.z()));
+    EXPECT_GT(scene.volume.at(x, y, z), 0.02f);
+  }
+  io::Volume empty = scene.volume;
+  std::fill(empty.voxels.begin(), empty.voxels.end(), 0.0f);
+  EXPECT_THROW((void)initialize_on_grid(empty, scene.frame, 0.1, 60), io::InputError);
+}
+
+// Three foreground voxels of different brightness and a budget of one: a single
+// Gaussian at Σ v p / Σ v (not the brightest voxel, not the plain mean), with
+// a = the cell's mean value (not its maximum). Voxels below the threshold do
+// not count.
+TEST(GmfInit, PlacesTheGaussianAtTheIntensityWeightedCentroid) {
+  io::Volume v = zeros(16, 16, 16);
+  const io::WorldFrame frame(16, 16, 16, Eigen::Vector3d::Ones());
+  // All in the +x +y +z octant of the world box.
+  const std::array<std::array<int, 3>, 3> fg = {{{10, 10, 10}, {11, 10, 10}, {11, 12, 10}}};
+  const std::array<float, 3> value = {0.2f, 0.4f, 0.8f};
+  for (int i = 0; i < 3; ++i) v.at(fg[i][0], fg[i][1], fg[i][2]) = value[i];
+  v.at(3, 3, 3) = 0.09f;       // below the threshold
+  v.at(13, 9, 12) = 0.0999f;   // just below it
+  InitReport report;
+  const GaussianMixture m = initialize_on_grid(v, frame, 0.1, 1, &report);
+  ASSERT_EQ(m.size(), 1u);
+  EXPECT_EQ(report.foreground, 3);
+  Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+  double vsum = 0;
+  for (int i = 0; i < 3; ++i) {
+    centroid += double(value[i]) * frame.world_from_index(Eigen::Vector3d(fg[i][0], fg[i][1], fg[i][2]));
+    vsum += value[i];
+  }
+  centroid /= vsum;
+  for (int a = 0; a < 3; ++a) EXPECT_NEAR(m[0].mean[a], centroid[a], 1e-6) << "axis " << a;
+  EXPECT_NEAR(intensity(m[0]), vsum / 3.0, 1e-6);
+  // σ = half a grid step, at least half a voxel; axis-aligned.
+  const double sigma = std::max(0.5 * frame.voxel_size().x(), 0.5 * report.cell_world);
+  for (int a = 0; a < 3; ++a) EXPECT_NEAR(m[0].log_scale[a], std::log(sigma), 1e-6);
+  EXPECT_EQ(m[0].rotation, (std::array<float, 4>{1, 0, 0, 0}));
+}
+
+// On the scene, every Gaussian sits at the intensity-weighted centroid of the
+// foreground voxels of its cell (world grid of step report.cell_world anchored
+// at the world origin) and carries their mean value; one Gaussian per occupied
+// cell, in cell order.
+TEST(GmfInit, EveryGaussianIsItsCellsWeightedCentroid) {
+  const Scene scene = make_scene(3);
+  constexpr double kThreshold = 0.1;
+  InitReport report;
+  const GaussianMixture m = initialize_on_grid(scene.volume, scene.frame, kThreshold, 60, &report);
+  ASSERT_GT(report.cell_world, 0.0);
+  struct Sum {
+    Eigen::Vector3d weighted = Eigen::Vector3d::Zero();
+    double v = 0;
+    int count = 0;
+  };
+  std::map<std::array<long, 3>, Sum> cells;  // lexicographic (x, y, z) order
+  for (int z = 0; z < scene.volume.nz; ++z)
+    for (int y = 0; y < scene.volume.ny; ++y)
+      for (int x = 0; x < scene.volume.nx; ++x) {
+        const float v = scene.volume.at(x, y, z);
+        if (!(v > kThreshold)) continue;
+        const Eigen::Vector3d p = scene.frame.world_from_index(Eigen::Vector3d(x, y, z));
+        std::array<long, 3> key;
+        for (int a = 0; a < 3; ++a) key[a] = static_cast<long>(std::floor(p[a] / report.cell_world));
+        Sum& s = cells[key];
+        s.weighted += double(v) * p;
+        s.v += v;
+        ++s.count;
+      }
+  ASSERT_EQ(m.size(), cells.size());
+  std::size_t k = 0;
+  for (const auto& [key, s] : cells) {
+    const Eigen::Vector3d c = s.weighted / s.v;
+    for (int a = 0; a < 3; ++a) EXPECT_NEAR(m[k].mean[a], c[a], 1e-6) << "gaussian " << k;
+    EXPECT_NEAR(intensity(m[k]), std::clamp(s.v / s.count, 0.02, 0.98), 1e-6) << "gaussian " << k;
+    ++k;
+  }
+}
+
+// A foreground of 2³ voxels around the centre of the stack straddles all three
+// coordinate planes, so origin-anchored cells never hold it in fewer than 8;
+// every budget from 1 up is still met.
+TEST(GmfInit, MeetsSmallBudgetsForAForegroundAroundTheCentre) {
+  io::Volume v = zeros(16, 16, 16);
+  for (int z = 7; z <= 8; ++z)
+    for (int y = 7; y <= 8; ++y)
+      for (int x = 7; x <= 8; ++x) v.at(x, y, z) = 0.5f;
+  const io::WorldFrame frame(16, 16, 16, Eigen::Vector3d::Ones());
+  for (int budget = 1; budget <= 9; ++budget) {
+    const GaussianMixture m = initialize_on_grid(v, frame, 0.1, budget);
+    EXPECT_LE(m.size(), static_cast<std::size_t>(budget)) << "budget " << budget;
+    EXPECT_GE(m.size(), 1u);
+  }
+  // Budget 1: one Gaussian at the centre of the eight voxels (the world origin).
+  const GaussianMixture one = initialize_on_grid(v, frame, 0.1, 1);
+  ASSERT_EQ(one.size(), 1u);
+  for (int a = 0; a < 3; ++a) EXPECT_NEAR(one[0].mean[a], 0.0, 1e-6);
+}
+
+}  // namespace
+}  // namespace hisnegs::gmf

@@ -1,0 +1,188 @@
+// gmf/samples: extract_samples takes every active voxel of both parts of a
+// sparse grid once, at its world position with its value, grouped into
+// contiguous bricks of `block`³ voxels, background samples weighted
+// sqrt(background_weight / fraction).
+#include "gmf/samples.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <map>
+#include <random>
+#include <set>
+#include <stdexcept>
+
+#include "io/sparse_grid.hpp"
+
+namespace hisnegs::gmf {
+namespace {
+
+TEST(Samples, ExtractsForegroundAndWeightedBackground) {
+  io::Volume v;
+  v.nx = v.ny = v.nz = 16;
+  v.voxels.assign(v.size(), 0.0f);
+  v.at(5, 5, 5) = 1.0f;
+  io::SparseGridOptions o;
+  o.threshold = 0.5;
+  o.band_voxels = 1;
+  o.background_fraction = 0.25;
+  o.seed = 3;
+  const io::SparseGrid grid = io::build_sparse_grid(v, Eigen::Vector3d::Ones(), o);
+  const SampleSet s = extract_samples(grid, 2.0);
+  EXPECT_EQ(s.foreground, 27);
+  EXPECT_EQ(s.background, grid.background_voxels());
+  EXPECT_EQ(s.size(), static_cast<std::size_t>(s.foreground + s.background));
+  EXPECT_EQ(s.brick_begin.back(), s.size());
+  double bright = 0;
+  for (std::size_t i = 0; i < s.size(); ++i) {
+    if (s.value[i] == 1.0) {
+      bright += 1;
+      const Eigen::Vector3d p = grid.frame().world_from_index(Eigen::Vector3d(5, 5, 5));
+      EXPECT_DOUBLE_EQ(s.x[i], p.x());
+      EXPECT_EQ(s.weight[i], 1.0);
+    }
+    if (i >= static_cast<std::size_t>(s.foreground)) {
+      EXPECT_DOUBLE_EQ(s.weight[i], std::sqrt(2.0 / 0.25));
+    }
+  }
+  EXPECT_EQ(bright, 1);
+}
+
+// 21 × 13 × 11 voxels (leaves cut by every face) of scattered foreground and
+// 20% background samples.
+io::SparseGrid small_grid(double background_fraction) {
+  io::Volume v;
+  v.nx = 21;
+  v.ny = 13;
+  v.nz = 11;
+  v.source = "samples";
+  v.normalization.method = io::NormalizationMethod::kMinMax;
+  std::mt19937_64 rng(89);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  v.voxels.resize(v.size());
+  for (float& x : v.voxels) x = u(rng) < 0.03f ? 0.4f + 0.6f * u(rng) : 0.1f * u(rng);
+  io::SparseGridOptions o;
+  o.threshold = 0.3;
+  o.band_voxels = 1;
+  o.background_fraction = background_fraction;
+  o.seed = 5;
+  return io::build_sparse_grid(v, Eigen::Vector3d(1.0, 13.0 / 21, 11.0 / 21), o);
+}
+
+using Index = std::array<int, 3>;
+
+// The active voxels of one part, by index.
+std::map<Index, float> active(const io::SparseGrid& grid, io::SparseGridPart part) {
+  std::map<Index, float> out;
+  grid.visit_active_leaves(part, [&](const auto&, auto voxels) {
+    for (const io::ActiveVoxel& v : voxels) out[v.index] = v.value;
+  });
+  return out;
+}
+
+// The sample's voxel index, recovered from its world position (exact: the
+// position must be world_from_index of an integer index).
+Index index_of(const io::WorldFrame& frame, const SampleSet& s, std::size_t i) {
+  const Eigen::Vector3d p(s.x[i], s.y[i], s.z[i]);
+  const Eigen::Vector3d ijk = frame.index_from_world(p);
+  const Index idx = {static_cast<int>(std::lround(ijk.x())), static_cast<int>(std::lround(ijk.y())),
+                     static_cast<int>(std::lround(ijk.z()))};
+  const Eigen::Vector3d back = frame.world_from_index(Eigen::Vector3d(idx[0], idx[1], idx[2]));
+  EXPECT_EQ(back, p) << "sample " << i;
+  return idx;
+}
+
+// Foreground samples first (weight 1), then background ones: each active voxel
+// of each part exactly once, with its value.
+TEST(Samples, EveryActiveVoxelOnceWithItsWorldPositionAndValue) {
+  const io::SparseGrid grid = small_grid(0.2);
+  const io::WorldFrame frame = grid.frame();
+  const auto fg = active(grid, io::SparseGridPart::kForeground);
+  const auto bg = active(grid, io::SparseGridPart::kBackground);
+  ASSERT_GT(fg.size(), 50u);
+  ASSERT_GT(bg.size(), 50u);
+  const SampleSet s = extract_samples(grid, 1.0, 2);
+  ASSERT_EQ(s.foreground, static_cast<std::int64_t>(fg.size()));
+  ASSERT_EQ(s.background, static_cast<std::int64_t>(bg.size()));
+  ASSERT_EQ(s.size(), fg.size() + bg.size());
+  ASSERT_EQ(s.x.size(), s.size());
+  ASSERT_EQ(s.y.size(), s.size());
+  ASSERT_EQ(s.z.size(), s.size());
+  ASSERT_EQ(s.weight.size(), s.size());
+  std::set<Index> seen_fg, seen_bg;
+  for (std::size_t i = 0; i < s.size(); ++i) {
+    const Index idx = index_of(frame, s, i);
+    const bool is_fg = i < fg.size();
+    const auto& part = is_fg ? fg : bg;
+    const auto it = part.find(idx);
+    ASSERT_NE(it, part.end()) << "sample " << i << " is no active voxel of its part";
+    EXPECT_EQ(s.value[i], static_cast<double>(it->second)) << "sample " << i;
+    EXPECT_TRUE((is_fg ? seen_fg : seen_bg).insert(idx).second) << "voxel sampled twice, sample " << i;
+    if (is_fg) {
+      EXPECT_EQ(s.weight[i], 1.0);
+    }
+  }
+  EXPECT_EQ(seen_fg.size(), fg.size());
+  EXPECT_EQ(seen_bg.size(), bg.size());
+}
+
+// Bricks are contiguous runs of samples, non-empty, in order; every sample lies in
+// its brick's block of `block`³ voxels from brick_origin (a multiple of `block`);
+// within one part no block appears twice. For every allowed block edge.
+TEST(Samples, BricksAreContiguousBlocksForEveryBlockSize) {
+  const io::SparseGrid grid = small_grid(0.2);
+  for (const int block : {1, 2, 4, 8}) {
+    const SampleSet s = extract_samples(grid, 1.0, block);
+    EXPECT_EQ(s.block, block);
+    ASSERT_EQ(s.brick_begin.size(), s.bricks() + 1) << "block " << block;
+    EXPECT_EQ(s.brick_begin.front(), 0u);
+    EXPECT_EQ(s.brick_begin.back(), s.size());
+    std::set<Index> origins_fg, origins_bg;
+    for (std::size_t b = 0; b < s.bricks(); ++b) {
+      ASSERT_LT(s.brick_begin[b], s.brick_begin[b + 1]) << "empty brick " << b << ", block " << block;
+      const Index& o = s.brick_origin[b];
+      for (int a = 0; a < 3; ++a) EXPECT_EQ(o[a] % block, 0) << "brick " << b << ", block " << block;
+      // A brick holds samples of one part only.
+      const bool is_fg = s.brick_begin[b] < s.foreground;
+      EXPECT_EQ(is_fg, s.brick_begin[b + 1] <= s.foreground) << "brick " << b << " straddles the parts";
+      EXPECT_TRUE((is_fg ? origins_fg : origins_bg).insert(o).second) << "block twice, brick " << b;
+      for (std::uint32_t i = s.brick_begin[b]; i < s.brick_begin[b + 1]; ++i) {
+        const Index idx = index_of(grid.frame(), s, i);
+        for (int a = 0; a < 3; ++a) {
+          EXPECT_GE(idx[a], o[a]) << "sample " << i << ", block " << block;
+          EXPECT_LT(idx[a], o[a] + block) << "sample " << i << ", block " << block;
+        }
+      }
+    }
+    if (block < 8) {
+      // Finer blocks split leaves: more bricks than with block 8.
+      EXPECT_GT(s.bricks(), extract_samples(grid, 1.0, 8).bricks()) << "block " << block;
+    }
+  }
+}
+
+TEST(Samples, OtherBlockSizesAreRefused) {
+  const io::SparseGrid grid = small_grid(0.0);
+  for (const int block : {0, -2, 3, 5, 16}) {
+    EXPECT_THROW((void)extract_samples(grid, 1.0, block), std::invalid_argument) << block;
+  }
+}
+
+// Background samples stand for 1 / fraction voxels: weight sqrt(background_weight
+// / fraction); none when either is 0.
+TEST(Samples, BackgroundWeightIsSqrtOfWeightOverFraction) {
+  const io::SparseGrid grid = small_grid(0.2);
+  const SampleSet s = extract_samples(grid, 3.0, 4);
+  ASSERT_GT(s.background, 0);
+  for (std::size_t i = static_cast<std::size_t>(s.foreground); i < s.size(); ++i) {
+    EXPECT_DOUBLE_EQ(s.weight[i], std::sqrt(3.0 / 0.2)) << "sample " << i;
+  }
+  const SampleSet unweighted = extract_samples(grid, 0.0, 4);
+  EXPECT_EQ(unweighted.background, 0);
+  EXPECT_EQ(unweighted.size(), static_cast<std::size_t>(unweighted.foreground));
+  const SampleSet no_background = extract_samples(small_grid(0.0), 3.0, 4);
+  EXPECT_EQ(no_background.background, 0);
+}
+
+}  // namespace
+}  // namespace hisnegs::gmf
