@@ -15,6 +15,7 @@
 
 #include <cmath>
 
+#include "gmf/aggregation.hpp"
 #include "gmf/gaussian_math.hpp"
 #include "gmf/hd.hpp"
 #include "gmf/param_layout.hpp"
@@ -319,50 +320,6 @@ HISNEGS_HD void project_gaussian_backward(const T p[gmf::kGaussianParamCount], c
   for (int k = 0; k < 3; ++k) out[gmf::kLogScale0 + k] += ds[k] * f.scale[k];
   gmf::rotation_vjp(f, dR, dq);
   for (int k = 0; k < 4; ++k) out[gmf::kRotW + k] += dq[k];
-}
-
-// The online soft-max state of one pixel (report §9.3): m = max β g so far,
-// S = Σ e^{β g − m}, W = Σ e^{β g − m} g; the image is W / S (0 when S = 0).
-template <class T>
-struct SoftMaxState {
-  T m, S, W;
-};
-
-template <class T>
-HISNEGS_HD void softmax_init(SoftMaxState<T>& st) {
-  st.m = -INFINITY;
-  st.S = T(0);
-  st.W = T(0);
-}
-
-template <class T>
-HISNEGS_HD void softmax_add(SoftMaxState<T>& st, T g, T beta) {
-  using std::exp;
-  const T bg = beta * g;
-  if (bg > st.m) {
-    const T r = exp(st.m - bg);  // 0 for the first term (m = −∞)
-    st.S = st.S * r + T(1);
-    st.W = st.W * r + g;
-    st.m = bg;
-  } else {
-    const T e = exp(bg - st.m);
-    st.S += e;
-    st.W += e * g;
-  }
-}
-
-template <class T>
-HISNEGS_HD T softmax_value(const SoftMaxState<T>& st) {
-  return st.S > T(0) ? st.W / st.S : T(0);
-}
-
-// dI/dg_k = w_k (1 + β (g_k − I)), w_k = e^{β g_k − m} / S: the soft-MIP's
-// derivative with respect to one term, from the pixel's final m, S and I.
-template <class T>
-HISNEGS_HD T softmax_dI_dg(T g, T beta, T m, T S, T I) {
-  using std::exp;
-  const T w = exp(beta * g - m) / S;
-  return w * (T(1) + beta * (g - I));
 }
 
 }  // namespace hisnegs::splat

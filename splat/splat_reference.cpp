@@ -92,7 +92,7 @@ std::vector<double> render_reference_backward(std::span<const double> params, co
       }
       const double I = W / S;
       for (const auto& [k, g] : terms) {
-        accumulate_pixel_grad(p.splats[k], px, py, dL_dI * softmax_dI_dg(g, beta, m, S, I), grads[k]);
+        accumulate_pixel_grad(p.splats[k], px, py, dL_dI * gmf::softmax_dvalue_dterm(g, beta, m, S, I), grads[k]);
       }
     }
   }

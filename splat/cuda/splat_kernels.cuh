@@ -157,7 +157,7 @@ __device__ __forceinline__ unsigned long long warp_sum(unsigned long long x) {
 }
 
 // 4. One 16x16 block per tile, one thread per pixel. Soft: the online softmax of
-// report §9.3 (softmax_add: one exp per term), skipping a term when even its
+// report §9.3 (gmf::softmax_add: one exp per term), skipping a term when even its
 // largest possible value β a_k is e^-skip below the pixel's running m — as the
 // CPU's forward_tile, but decided per pixel rather than per SIMD chunk. Hard: the
 // running max; a Gaussian with a_k <= m cannot raise it, and since the list is
@@ -176,8 +176,8 @@ __global__ void __launch_bounds__(kBlock)
   const float px = static_cast<float>(col) + 0.5f, py = static_cast<float>(row) + 0.5f;
   const uint2 range = ranges[tile];
 
-  SoftMaxState<float> st;
-  softmax_init(st);  // hard mode keeps its max in st.m
+  gmf::SoftMaxState<float> st;
+  gmf::softmax_init(st);  // hard mode keeps its max in st.m
   unsigned long long skipped = 0;
   bool done = !inside;
   for (std::uint32_t begin = range.x; begin < range.y; begin += kBatch) {
@@ -198,7 +198,7 @@ __global__ void __launch_bounds__(kBlock)
             ++skipped;
             continue;
           }
-          softmax_add(st, s.amplitude * expf(-0.5f * q), tp.k.beta);
+          gmf::softmax_add(st, s.amplitude * expf(-0.5f * q), tp.k.beta);
         } else {
           st.m = fmaxf(st.m, s.amplitude * expf(-0.5f * q));
         }
@@ -216,7 +216,7 @@ __global__ void __launch_bounds__(kBlock)
     if constexpr (kSoft) {
       m_out[at] = st.m;
       S_out[at] = st.S;
-      I_out[at] = softmax_value(st);
+      I_out[at] = gmf::softmax_value(st);
     } else {
       const bool touched = st.m > -INFINITY;
       m_out[at] = st.m;
@@ -240,7 +240,7 @@ __global__ void __launch_bounds__(kBlock)
 }
 
 // 5. Soft backward, same layout as forward: each pixel's dL/dg_k = dL/dI · dI/dg_k
-// (softmax_dI_dg from the forward's final m, S, I), turned into the six 2D gradient
+// (gmf::softmax_dvalue_dterm from the forward's final m, S, I), turned into the six 2D gradient
 // sums by accumulate_pixel_grad, with the CPU backward_tile's skip rule on the final
 // m. The sums are reduced over the block (warp shuffles, then across the 8 warps in
 // shared memory) kGradChunk Gaussians at a time and added to grads (6 per Gaussian:
@@ -292,7 +292,7 @@ __global__ void __launch_bounds__(kBlock)
                  !(tp.k.skip_log_weight > 0.0f && tp.k.beta * s.amplitude + tp.k.skip_log_weight < m);
           if (term) {
             const float gk = s.amplitude * expf(-0.5f * q);
-            accumulate_pixel_grad(s, px, py, dL_dI * softmax_dI_dg(gk, tp.k.beta, m, S, I), g);
+            accumulate_pixel_grad(s, px, py, dL_dI * gmf::softmax_dvalue_dterm(gk, tp.k.beta, m, S, I), g);
           }
         }
         float sums[6] = {g.u, g.v, g.con_a, g.con_b, g.con_c, g.amplitude};

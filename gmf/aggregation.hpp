@@ -1,0 +1,82 @@
+// How the terms g_k of the Gaussians reaching a point combine into one value,
+// shared by the 3D mixture (stage 1 fits it) and the 2D splat (stage 2 renders
+// it): the sum (report Eq. 1) or the softmax-weighted mean of report Eq. 8,
+// f_β = Σ_k w_k g_k with w = softmax(β g), which tends to max_k g_k as β grows.
+// The softmax is kept online in log-sum-exp form so any number of terms, in any
+// order and in groups, combine without overflow. __host__ __device__, no allocation.
+#pragma once
+
+#include <cmath>
+
+#include "gmf/hd.hpp"
+
+namespace hisnegs::gmf {
+
+enum class Aggregation { kSum, kSoftmax };
+
+// The online softmax of some terms: m = max β g so far, S = Σ e^{β g − m},
+// W = Σ e^{β g − m} g; the value is W / S (0 when there is no term, S = 0).
+template <class T>
+struct SoftMaxState {
+  T m, S, W;
+};
+
+template <class T>
+HISNEGS_HD void softmax_init(SoftMaxState<T>& st) {
+  st.m = -INFINITY;
+  st.S = T(0);
+  st.W = T(0);
+}
+
+template <class T>
+HISNEGS_HD void softmax_add(SoftMaxState<T>& st, T g, T beta) {
+  using std::exp;
+  const T bg = beta * g;
+  if (bg > st.m) {
+    const T r = exp(st.m - bg);  // 0 for the first term (m = −∞)
+    st.S = st.S * r + T(1);
+    st.W = st.W * r + g;
+    st.m = bg;
+  } else {
+    const T e = exp(bg - st.m);
+    st.S += e;
+    st.W += e * g;
+  }
+}
+
+// The state of the union of two sets of terms (b merged into a).
+template <class T>
+HISNEGS_HD void softmax_merge(SoftMaxState<T>& a, const SoftMaxState<T>& b) {
+  using std::exp;
+  if (!(b.S > T(0))) return;
+  if (!(a.S > T(0))) {
+    a = b;
+    return;
+  }
+  if (b.m > a.m) {
+    const T r = exp(a.m - b.m);
+    a.S = a.S * r + b.S;
+    a.W = a.W * r + b.W;
+    a.m = b.m;
+  } else {
+    const T r = exp(b.m - a.m);
+    a.S += b.S * r;
+    a.W += b.W * r;
+  }
+}
+
+template <class T>
+HISNEGS_HD T softmax_value(const SoftMaxState<T>& st) {
+  return st.S > T(0) ? st.W / st.S : T(0);
+}
+
+// ∂f_β/∂g_k = w_k (1 + β (g_k − f)), w_k = e^{β g_k − m} / S: the derivative with
+// respect to one term, from the final m, S and value f of all the terms.
+template <class T>
+HISNEGS_HD T softmax_dvalue_dterm(T g, T beta, T m, T S, T f) {
+  using std::exp;
+  const T w = exp(beta * g - m) / S;
+  return w * (T(1) + beta * (g - f));
+}
+
+}  // namespace hisnegs::gmf
