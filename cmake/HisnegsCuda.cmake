@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 # Decides whether the CUDA back end is built (HISNEGS_CUDA = AUTO | ON | OFF).
 # Targets sm_90 (H100/H200) natively plus compute_75 PTX that the driver JITs on
 # any newer GPU, so one binary runs wherever a GPU is present.

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 # All third-party packages, from Debian. Order matters: TBB's own config and
 # Ceres (whose SuiteSparse lookup loads TBB) must come before OpenVDB, whose
 # bundled FindTBB.cmake would otherwise define TBB::tbb half-way.

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 # Common flags for every hisnegs target: warnings, optional sanitizers, fuzzing instrumentation.
 if(HISNEGS_SANITIZE)
   # Global so that every object and every link (tests included) is instrumented.

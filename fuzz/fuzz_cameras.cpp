@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // libFuzzer target for the cameras.json reader: read_cameras_json, and for every
 // accepted file a write/read round trip, which must reproduce it exactly.
 // Only io::InputError may escape; anything else is a finding.

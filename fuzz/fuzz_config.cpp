@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // libFuzzer target for the config reader: load_app_config (strict YAML through
 // io::ConfigFile into every section's options, validated), and for every accepted
 // file a dump/load round trip, whose dump must not change. Only io::InputError

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // libFuzzer target for the PLY checkpoint reader: load_checkpoint (io::read_ply +
 // gmf::checkpoint_from_ply), and for every accepted file a save/load round trip,
 // which must reproduce it exactly. Only io::InputError may escape; anything else is a finding.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Shared by the libFuzzer targets: the scratch file each input is written to
 // (the readers take paths) and the checks every target applies. No reader here.
 #pragma once

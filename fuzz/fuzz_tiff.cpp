@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // libFuzzer target for the TIFF stack reader: inspect_tiff_stack, then
 // load_volume (read_tiff_stack + normalize + world frame) on the same bytes.
 // Only io::InputError may escape the readers; anything else is a finding.

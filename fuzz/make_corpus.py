@@ -1,4 +1,5 @@
 #!/usr/bin/env python3
+# SPDX-License-Identifier: Apache-2.0
 """Seed corpora of the libFuzzer targets, generated (never fetched): small valid
 and slightly malformed TIFF stacks, PLY checkpoints, cameras.json and configs.
 

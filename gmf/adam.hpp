@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Adam (Kingma & Ba 2015) over a flat array of Gaussians' parameters, one learning
 // rate per parameter group (param_layout.hpp), with its state (step count, first
 // and second moments) kept per Gaussian so density control can reset, append and

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // How the terms g_k of the Gaussians reaching a point combine into one value,
 // shared by the 3D mixture (stage 1 fits it) and the 2D splat (stage 2 renders
 // it): the sum (report Eq. 1) or the softmax-weighted mean of report Eq. 8,

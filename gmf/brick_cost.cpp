@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // BrickCost::Evaluate: value and analytic Jacobian per sample and Gaussian.
 #include <algorithm>
 #include <vector>

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // build_brick_index: per-Gaussian support boxes -> (brick, Gaussian) pairs -> CSR.
 #include "gmf/brick_index.hpp"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Which Gaussians can reach which sample block: a Gaussian touches a block when
 // the axis-aligned box of its support {m <= δ} overlaps the block's voxel
 // centres. Rebuilt between fit rounds as Gaussians move. Knows no solver.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Checkpoint <-> PLY table mapping (parameters, `comment hisnegs` metadata) and
 // save / load on top of io::read_ply / io::write_ply. No PLY parsing here.
 #include "gmf/checkpoint.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The checkpoint file (CONVENTIONS "Files → Checkpoint"): the mapping between a
 // GaussianMixture plus its metadata and io's generic PLY table, saving / loading
 // it, and the stack frame its metadata record. Does not parse PLY itself

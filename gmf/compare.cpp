@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // compare_optimizers: Adam first (its loss after N steps is the target), then the
 // others under the same budget; time to target read from each run's log.
 #include "gmf/compare.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // adapt_density: per-sample residuals through the brick index, error shares, and
 // which Gaussians to split (Eq. 17) and where to add new ones (density_ops.hpp).
 #include "gmf/density.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Adaptive density control between GMF fit rounds (report §5.1 and Eq. 17):
 // split the Gaussians that carry concentrated residual error, clone new ones
 // into under-covered foreground, within the Gaussian budget. Pruning (a < 0.01)

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // split_gaussian, isotropic_gaussian, bright_gaussians, keep_gaussians.
 #include "gmf/density_ops.hpp"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The per-Gaussian operations of density control, shared by the stage-1 fit
 // (gmf/density.hpp: which Gaussians, by residual error) and the stage-2 trainer
 // (by screen-space gradient): the Eq. 17 split, a new isotropic Gaussian, and

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Splat-viewer PLY rows and dense resampling of a mixture (on gmf/rasterize's rasterizer).
 #include "gmf/export_formats.hpp"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Checkpoint -> files for other tools: a PLY that 3D Gaussian-splatting viewers open
 // (`hisnegs export splat-ply`, a visual aid: viewers alpha-blend, they do not take a
 // MIP) and the mixture resampled onto a dense voxel grid (`hisnegs export volume`).

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // export_vdb: per-Gaussian supports -> (leaf, Gaussian) pairs -> per-leaf evaluation
 // of f with TBB -> `density` FloatGrid; the `gaussians` PointDataGrid written with
 // openvdb::points and read back by import_vdb_points.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Checkpoint -> OpenVDB (`hisnegs export vdb`): the mixture f(x) rasterized into a
 // sparse `density` FloatGrid (gmf/rasterize.hpp's blocks are its leaves), optionally a `gaussians`
 // PointDataGrid with every parameter of every Gaussian, and the way back from that

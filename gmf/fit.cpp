@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // fit_mixture: Ceres problem assembly per round (parameter blocks per Gaussian,
 // one BrickCost per sample brick), solve under the time budget, prune, measure.
 #include "gmf/fit.hpp"

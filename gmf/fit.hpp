@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The GMF fit (report §2.1, §5): least squares of the mixture against the
 // volume's sparse samples with Ceres, in rounds; between rounds the brick index
 // is rebuilt, faint Gaussians are pruned and density control splits and clones

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The math of one anisotropic Gaussian (CONVENTIONS "Gaussians", report Eq. 1),
 // g(x) = a exp(-½ m), m = Σ_i (u_i / s_i)², u = R(q̂)ᵀ (x − μ), s = exp(log_scale),
 // q̂ = q / |q|, a = sigmoid(logit), as small forward ops, each beside its

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Non-inline parts of gaussian_mixture.hpp: array conversion, the brute-force
 // reference evaluator and summary statistics. No file formats, no fitting.
 #include "gmf/gaussian_mixture.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The Gaussian mixture itself: per-Gaussian parameters as CONVENTIONS "Gaussians"
 // defines them, the container, the closed-form helpers (sigmoid, scales, R(q), Σ),
 // a brute-force reference evaluator and summary statistics. No file formats

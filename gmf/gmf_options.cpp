@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // GmfOptions::validate.
 #include "gmf/gmf_options.hpp"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Options of the GMF stage (config section `gmf`): budget, optimizer choice,
 // stopping, density control. Consumed by the Ceres fit (gmf/fit.*).
 #pragma once

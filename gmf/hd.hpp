@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // HISNEGS_HD marks math shared by the CPU and CUDA back ends: inline
 // __host__ __device__ under nvcc, plain inline elsewhere.
 #pragma once

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Grid initialization.
 #include "gmf/init.hpp"
 

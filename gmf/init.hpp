@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Initial Gaussians for the GMF fit (report §5.1): one per occupied cell of a
 // regular world-space grid over the foreground, the cell size chosen so that
 // the count meets the budget; centres at the cell's intensity-weighted centroid,

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // JacobianProbe: a random sample block and Gaussians, one CostFunction per method.
 #include "gmf/jacobian_probe.hpp"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // One residual block of the stage-1 fit with its Jacobian, evaluated the three ways
 // Ceres offers (the analytic BrickCost, DynamicNumericDiffCostFunction with central
 // differences, DynamicAutoDiffCostFunction with Jets), on a fixed random block:

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // FitObjective: BrickCost residuals and Jacobians reduced to a loss and a gradient.
 #include "gmf/objective.hpp"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The GMF loss ½ Σ w² (f − V)² over every residual block and its gradient with
 // respect to all parameters (flat: Gaussian k's at kGaussianParamCount × k, in
 // GaussianParam order), for the first-order optimizers (L-BFGS, Adam). Built

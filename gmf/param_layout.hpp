@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The layout of one Gaussian's 11 parameters (CONVENTIONS "Gaussians"): their
 // order in memory, in checkpoints and in every gradient, and the optimizer groups
 // they belong to. The one place the parameter count is defined. No math here.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // mean_squared_error in fixed chunks summed in chunk order (TBB over chunks), psnr.
 #include "gmf/psnr.hpp"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The one PSNR of hisnegs (CONVENTIONS "Metrics", data range 1): 10 log10(1 / MSE)
 // of any two equally long arrays, images or volumes alike, with a deterministic
 // reduction (the same value for any thread count). No other metric here.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // BlockRasterizer: per-Gaussian supports -> sorted (block, Gaussian) pairs -> f per
 // block in mixture order; rasterize_mixture on it; VoxelLattice.
 #include "gmf/rasterize.hpp"

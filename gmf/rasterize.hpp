@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The one 3D rasterizer of a mixture: f(x) = Σ_k a_k exp(-½ m_k(x)) (report Eq. 1)
 // at the voxel centres of a lattice, evaluated per 8³ block of voxels that some
 // Gaussian's support reaches (so work and memory follow the supports, never their

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // extract_samples: visit the SparseGrid's active leaves, group each leaf's voxels into blocks.
 #include "gmf/samples.hpp"
 

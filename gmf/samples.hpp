@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The points the GMF fit is measured on: every active voxel of a SparseGrid's
 // `volume` grid (foreground + band) and of its `background` subsample, with
 // world positions, target values and residual weights, grouped into cubic

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // AtomicFile: temp file + fsync + rename; read_file. Also require_regular_file and
 // number_text from error.hpp.
 #include "io/atomic_file.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Whole-file I/O: atomic output files (write to a temporary name in the target's
 // folder, then rename over the target, so a crash never leaves a half-written
 // output) and reading a whole file. Does not know any file format.

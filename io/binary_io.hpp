@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // A little-endian binary record of trivially copyable values, arrays and strings
 // (BinaryWriter), and its checked reader (BinaryReader) whose every failure is one
 // io::InputError line naming the source. For small state files (training and

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // yaml-cpp behind ConfigFile/ConfigReader: typed reads with file:line messages,
 // unknown-key detection with a "did you mean" hint, YAML writing of values.
 #include "io/config.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Strict YAML configuration files: each top-level section is read into one
 // `FooOptions` struct through its `visit(v)` (one `v("field", field)` call per
 // field), so a field's name is written once. Unknown sections/keys and wrong

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Exception types of hisnegs. InputError means "the user's input is wrong" (bad
 // file, bad option, bad config) and maps to exit status 2 in apps; anything else
 // thrown is an internal failure (exit status 1).

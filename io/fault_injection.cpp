@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // HISNEGS_FAULT=NAME:N parsing (once) and the SIGKILL at the N-th arrival.
 #include "io/fault_injection.hpp"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Crash points for the crash-safety tests. With HISNEGS_FAULT=NAME:N in the
 // environment, the N-th arrival at fault_point("NAME") kills the process with
 // SIGKILL, as an out-of-memory killer or a user's `kill -9` would, so a test can

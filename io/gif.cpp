@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // giflib encoding of Image8 frames (grey map or fixed RGB palette, loop and delay
 // extensions) into memory, and slurp-mode decoding for read_gif / inspect_gif.
 #include "io/gif.hpp"

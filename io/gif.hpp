@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Looping animated GIFs of Image8 frames on giflib (written atomically), and the
 // small reader used by tests and `hisnegs info`. Not a general GIF decoder.
 #pragma once

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // 64-bit FNV-1a of a byte range: a fast, stable fingerprint (not cryptographic)
 // for state files and run-folder records.
 #pragma once

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // load_volume: read_tiff_stack + normalize + aspect_scales, per VolumeOptions.
 #include "io/load_volume.hpp"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // From a TIFF path to a normalized, aspect-corrected volume in one call, driven
 // by the `volume` config section. Composes tiff_stack and volume; adds no math.
 #pragma once

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The allocation limit for untrusted sizes: HISNEGS_MAX_ALLOC_GB or MemAvailable.
 #include "io/memory_limit.hpp"
 

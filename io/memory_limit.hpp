@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // How much memory one input may make hisnegs allocate, checked before a large
 // allocation so that a hostile or mistaken header gets a clear error instead of
 // an out-of-memory kill.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // plot_lines: layout, tick choice, a 5x9 bitmap font and thick clipped lines on an
 // RGB Image8. Writing the PNG is png.cpp's job.
 #include "io/plot.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Line charts drawn into an RGB Image8 (for write_png): axes box, nice ticks, labels,
 // title and legend, in an embedded bitmap font. Not a plotting library: no markers, bars or fills.
 #pragma once

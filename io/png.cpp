@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // libpng read/write of Image8 via png_image (the simplified libpng API).
 #include "io/png.hpp"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // 8-bit PNG previews (grey or RGB) on libpng, written atomically, and the
 // float -> 8-bit display mapping. Not a general image library.
 #pragma once

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Building io::SparseGrid from a dense volume (parallel over 8^3 bricks, OpenVDB
 // dilation), .vdb read/write with hisnegs metadata, and inspect_vdb.
 #include "io/sparse_grid.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Sparse OpenVDB form of a normalized volume: a `volume` FloatGrid holding the
 // foreground (voxels above a threshold) dilated by a band, an optional
 // `background` grid with a random subsample of the rest, the CONVENTIONS

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // make_synthetic_neuron: grows a random neuron skeleton in µm, rasterizes it with an
 // anti-aliased tube profile, blurs it with the rest of the PSF and simulates the camera.
 // Owns no file format and no normalization (volume.cpp does that on the result).

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The bundled default data: a deterministic synthetic confocal stack of one neuron
 // (soma, tapering varicose neurites, anisotropic PSF, Poisson-Gaussian camera noise,
 // background subtraction). Owns the generator and its options; knows no file format.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // TIFF stack reading and inspection on libtiff: page layout, channel selection, decoding into float32.
 // Writing is tiff_stack_write.cpp, the libtiff handle detail/tiff_handle.cpp, metadata text detail/tiff_metadata.cpp.
 #include "io/tiff_stack.hpp"

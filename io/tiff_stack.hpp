@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Multi-page TIFF stacks (pages = Z) <-> io::Volume: reading, header-only inspection, atomic ImageJ-style writing.
 // Does not normalize (volume.hpp) or parse metadata text (detail/tiff_metadata.hpp); libtiff stays in the .cpp.
 #pragma once

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // TIFF stack writing on libtiff: float32 / uint8 / uint16 pages with ImageJ
 // metadata, checked values (never clamped), atomic (temp file + rename).
 #include <fcntl.h>

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Wall-clock stopwatch for progress lines and timings in metadata. Not a benchmark
 // harness (that is Google Benchmark in apps/bench).
 #pragma once

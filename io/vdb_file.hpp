@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // OpenVDB for the .cpp files of any layer that builds its own grids (gmf's
 // `export vdb`): one-time initialization, the CONVENTIONS index->world map as an
 // OpenVDB transform, and the atomic .vdb writer. Heavy include: include it only

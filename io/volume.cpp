@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Normalization, statistics, aspect scales and trilinear sampling of io::Volume
 // (CONVENTIONS "Volume" and "World space"). No file formats here.
 #include "io/volume.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The Volume type (a dense Z×Y×X float stack with its spacing and provenance),
 // normalization, aspect scales, index<->world transforms and trilinear sampling,
 // exactly as ../shared/CONVENTIONS.md ("Volume", "World space") defines them.

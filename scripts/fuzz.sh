@@ -1,4 +1,5 @@
 #!/usr/bin/env bash
+# SPDX-License-Identifier: Apache-2.0
 # Fuzzes the four file readers with libFuzzer: builds the `fuzz` preset (clang 14,
 # ASan + UBSan; installs clang and libclang-rt-14-dev if missing), writes the seed
 # corpora (scripts/make-fuzz-corpus.sh) and runs each target RUNS executions

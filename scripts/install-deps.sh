@@ -1,4 +1,5 @@
 #!/usr/bin/env bash
+# SPDX-License-Identifier: Apache-2.0
 # Installs the Debian packages hisnegs builds against, only those missing
 # (idempotent: a second run installs nothing and does not touch apt's lists).
 # Needs root (or sudo). CUDA is optional and never installed here: the build

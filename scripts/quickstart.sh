@@ -1,4 +1,5 @@
 #!/usr/bin/env bash
+# SPDX-License-Identifier: Apache-2.0
 # Quick start, command 1: install what is missing, build (Release), and run the
 # main job on the bundled default data: `hisnegs demo -o out/demo`.
 set -euo pipefail

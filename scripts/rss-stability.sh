@@ -1,4 +1,5 @@
 #!/usr/bin/env bash
+# SPDX-License-Identifier: Apache-2.0
 # Memory stability of a long training: trains a tiny scene (40x40x16
 # synthetic stack, 24² ground truth, ~100 Gaussians) for EPOCHS epochs (default
 # 2000) with `hisnegs train` and samples its resident memory (VmRSS) every

@@ -1,4 +1,5 @@
 #!/usr/bin/env bash
+# SPDX-License-Identifier: Apache-2.0
 # Quick start, command 2: install what is missing, build everything (Release,
 # tests on) and run the whole test suite with CTest. `.ci/run` calls exactly this.
 # HISNEGS_PRESET picks another CMake preset (scripts/test-asan.sh: asan).

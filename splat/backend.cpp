@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Back-end choice: cached CUDA probe and the one-time "using the CPU" notice.
 #include "splat/backend.hpp"
 

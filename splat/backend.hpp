@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Which compute back end runs rendering and training: the TBB CPU back end or
 // CUDA. Probes the CUDA runtime once; without a usable GPU the CPU back end is
 // chosen and a single notice says so. Knows nothing of what the back ends do.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Camera intrinsics, orbit poses and cameras.json (nlohmann::json).
 #include "splat/camera.hpp"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Pinhole cameras exactly as CONVENTIONS "Cameras" defines them: intrinsics
 // from the FOV, world->camera poses (OpenCV axes), the training (106) and
 // evaluation (30) orbits and arbitrary orbits, and cameras.json read/write.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // render_ground_truth: per-view loop over the TBB or CUDA ray marcher.
 #include "splat/ground_truth.hpp"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Ground-truth MIP stacks: every view of a camera set ray-marched on the chosen
 // back end (TBB or CUDA), with per-view timings. Writing files is the caller's.
 #pragma once

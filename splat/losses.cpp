@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The training losses of report §6 (Eq. 11-15) with their exact gradients: one
 // template per loss over the pixel type (float, double), TBB over fixed blocks.
 #include "splat/losses.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The stage-2 training losses of report §6 (Eq. 11-15) on H x W images, each with
 // its exact gradient. Not the trainer, the optimizer or the renderer's backward.
 #pragma once

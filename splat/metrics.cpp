@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // image_metrics (PSNR through gmf/psnr.hpp, MAE directly, SSIM through
 // losses.hpp's scikit-image-equivalent ssim_loss), summarize, comparison_image.
 #include "splat/metrics.hpp"

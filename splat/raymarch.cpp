@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // RayMarcher (brick maxima, TBB tiles over the shared kernel) and the double
 // precision reference march.
 #include "splat/raymarch.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Ground-truth MIP ray marching on the CPU (TBB over 16x16 pixel tiles) with
 // brick-level empty-space skipping, plus the plain double-precision reference
 // that defines the result. The per-pixel math is splat/raymarch_kernel.hpp,

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Per-pixel ground-truth MIP ray marching shared by the TBB and CUDA back ends
 // (CONVENTIONS "Ground-truth MIP"): the pixel's ray, its segment inside the
 // volume box, the sample positions of `exact` and `report` mode, trilinear

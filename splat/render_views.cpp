@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // render_views: one forward per view into the stack, timed per view; turntable().
 #include "splat/render_views.hpp"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Renders every view of a camera set from a mixture with a SplatRenderer, with
 // per-view timings and counters: what `render`, `eval` and the benchmarks share.
 // Writing files is the caller's.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The TBB back end of SplatRenderer: per-Gaussian projection in parallel, an
 // amplitude-ordered counting sort into 16x16 tiles (no depth sort: soft-MIP is
 // order independent), tiles rasterized in parallel by detail/splat_cpu_tiles,

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Per-Gaussian math of soft/hard-MIP splatting shared by the double reference,
 // the TBB and the CUDA back ends (report §2.2, Eq. 2-8): EWA projection of one
 // Gaussian to a 2D conic, its pixel footprint, the 2D value and the exact backward

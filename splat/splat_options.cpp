@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // validate() of the splat-layer option structs.
 #include "splat/splat_options.hpp"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Options of the rendering and training stages, one struct per config section:
 // `camera`, `raymarch`, `splat`, `train` (report Table 1 and Table 4). Only
 // definitions, defaults and validation; the code that uses them lives beside.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // render_reference / render_reference_backward: two passes per pixel (max, then
 // the softmax sums) in double, over all K, and the chain of splat_math.hpp.
 #include "splat/splat_reference.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The definition of soft/hard-MIP splatting in double precision, pixel by pixel
 // over every Gaussian, with its exact backward: what the tests check the TBB and
 // CUDA back ends against. Slow by design (O(pixels × K)); no tiles, no skipping.

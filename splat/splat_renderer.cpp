@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The parts of the SplatRenderer interface common to the back ends: settings,
 // view conversion, the flat parameter view, and the back-end factory.
 #include "splat/splat_renderer.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The soft/hard-MIP splatting renderer behind one interface (TBB or CUDA back end)
 // and the per-frame settings; the math is splat/splat_math.hpp, the double
 // reference splat/splat_reference.hpp. No Gaussian storage of its own beyond a frame.

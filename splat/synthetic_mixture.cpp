@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // make_synthetic_mixture: random walks with momentum, Gaussians spread evenly over
 // them; log-normal scales whose means are the Table 3 values.
 #include "splat/synthetic_mixture.hpp"

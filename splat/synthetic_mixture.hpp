@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Synthetic Gaussian mixtures shaped like the report's Table 3 (mean scales
 // 0.031, 0.028, 0.089 world units) for the rendering benchmarks and tests:
 // Gaussians strung along random smooth neurite-like paths inside the world box.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Trainer: the schedule, the epoch loop, one Adam step (loss, gradients, update)
 // and evaluation. Density control is in trainer_density.cpp, the state record in
 // trainer_state.cpp, checkpoints in training_checkpoint.cpp.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Stage-2 MIP-splatting training (report §6): Adam with per-group learning rates,
 // cosine lr decay and β warm-up (Table 4), the Eq. 16 loss, density control (§6.4,
 // Eq. 17) and its resumable state. Not the losses (losses.hpp), the renderer, the

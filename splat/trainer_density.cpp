@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Trainer::densify and Trainer::prune: which Gaussians to split, clone or drop
 // (by screen-space gradient and intensity); the operations are gmf/density_ops.hpp's.
 #include <algorithm>

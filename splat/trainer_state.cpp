@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Trainer::serialize_state and Trainer::restore_state: the optimizer state beside a
 // checkpoint (step, Adam moments, density statistics, RNG, options) as a binary
 // record (io/binary_io.hpp) tied to its parameters by a hash.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // save_training_checkpoint (model, then state, then `latest`) and resume_training.
 #include "splat/training_checkpoint.hpp"
 

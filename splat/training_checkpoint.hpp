@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The checkpoints of a training run (RUNDIR/checkpoints): each epoch's model and
 // optimizer state as a pair of files plus `latest`, written so a crash at any point
 // leaves a complete pair to resume from, and resuming from them.

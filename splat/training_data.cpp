@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // TrainingData's checks and load_training_data.
 #include "splat/training_data.hpp"
 

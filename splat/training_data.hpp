@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The training views of stage 2: one camera set and its target MIPs, as `hisnegs
 // gt` writes them (DIR/cameras.json + DIR/mips.tif), loaded and checked. Not the
 // training itself (splat/trainer.hpp).

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Implementation of the test helpers: fork/exec with captured stdout/stderr.
 #include "tests/test_support.hpp"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Shared helpers for the hisnegs tests: per-test scratch folders, running the
 // hisnegs executable, locating ../shared/data. No assertions of their own.
 #pragma once

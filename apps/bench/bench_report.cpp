@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // `hisnegs bench report -o DIR`: the report's experiment tables measured in one run
 // on this machine and back end: Table 7 (speed against resolution, with the ray
 // marcher), 9 (speed against K), 10 (360 degree orbit frame times), 11 (soft-MIP

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // `hisnegs bench report`: the reference report's Tables 7, 9, 10, 11 and 12
 // measured in one run on this machine, as Markdown and CSV.
 #pragma once

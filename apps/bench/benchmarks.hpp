@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Google Benchmark suites run by `hisnegs bench SUITE`. Each registers its
 // benchmarks; cmd_bench runs them. Timings are wall clock (UseRealTime) since
 // the code under test is TBB-parallel.

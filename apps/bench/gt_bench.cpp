@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Ground-truth ray-marching benchmarks: ms per view over the 30 evaluation views
 // of a volume, exact and report mode, on the CPU back end and (when a device is
 // present) CUDA. Reports the median per view as a counter.

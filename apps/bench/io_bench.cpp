@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // io benchmarks: TIFF read, read + normalize, sparse grid build, .vdb write.
 #include <benchmark/benchmark.h>
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Splatting benchmarks (report Tables 7, 9, 11): ms per frame of hard MIP, soft-MIP
 // forward and soft-MIP backward against resolution and against K, soft-MIP against
 // β, on synthetic mixtures shaped like Table 3, over the 30 evaluation views; CPU

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // run_cli and the shared option helpers of the hisnegs command line.
 #include "apps/cli/cli_support.hpp"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The hisnegs command line: subcommand registration, the shared options
 // (--config, volume overrides), and error -> exit status mapping
 // (bad input 2, internal failure 1). No computation here.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // `hisnegs bench SUITE [--volume F] [--benchmark_* flags]`: options of the Google
 // Benchmark suites and of `bench report` (apps/bench/).
 #include <benchmark/benchmark.h>

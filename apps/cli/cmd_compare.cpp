@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // `hisnegs compare-optimizers VOLUME -o DIR`: options of the optimizer comparison
 // (pipeline/optimizer_comparison.hpp; the comparison itself lives in gmf).
 #include <sstream>

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // `hisnegs config [--check FILE]`: print the effective configuration as YAML.
 #include <cstdio>
 

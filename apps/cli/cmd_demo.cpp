@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // `hisnegs demo [-o DIR]`: `hisnegs run` on the bundled synthetic neuron with the
 // built-in demo profile (pipeline/demo.hpp) on the CPU back end, in a few minutes.
 #include <cstdio>

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // `hisnegs eval --model m.ply --data GTDIR -o DIR`: options of the evaluation stage
 // (pipeline/eval_stage.hpp) on GTDIR/eval, or GTDIR itself when it holds cameras.json.
 #include "apps/cli/cli_support.hpp"

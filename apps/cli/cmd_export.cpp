@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // `hisnegs export vdb|splat-ply|volume --model m.ply -o OUT` and `hisnegs import vdb
 // IN.vdb -o m.ply`: checkpoint conversion for OpenVDB tools, Gaussian-splat viewers
 // and image viewers. Options and reporting only; the conversions are gmf/export_*.hpp.

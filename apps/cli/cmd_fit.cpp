@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // `hisnegs fit VOLUME -o model.ply`: options of the GMF stage (pipeline/fit_stage.hpp).
 #include "apps/cli/cli_support.hpp"
 #include "apps/pipeline/fit_stage.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // `hisnegs gt VOLUME -o DIR`: options of the ground-truth stage
 // (pipeline/ground_truth_stage.hpp): which orbits or cameras file, image size, mode.
 #include "apps/cli/cli_support.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // `hisnegs info FILE`: what a TIFF stack, .vdb or .ply checkpoint holds.
 #include <cmath>
 #include <cstdio>

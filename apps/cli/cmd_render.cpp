@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // `hisnegs render --model m.ply --cameras cams.json -o DIR`: options of rendering a
 // checkpoint (pipeline/render_model.hpp); `--orbit N` adds DIR/orbit.gif.
 #include "apps/cli/cli_support.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // `hisnegs run VOLUME -o DIR`: options of the whole pipeline in one folder
 // (pipeline/run_pipeline.hpp): reused stages are skipped; --force redoes everything.
 #include "apps/cli/cli_support.hpp"

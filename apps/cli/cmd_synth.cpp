@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // `hisnegs synth -o vol.tif`: options of the synthetic neuron stack (config section
 // `synth`, pipeline/synthetic_stack.hpp).
 #include "apps/cli/cli_support.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // `hisnegs train --init gmf.ply --data GTDIR -o RUNDIR`: options of the training
 // stage (pipeline/train_stage.hpp) on GTDIR/train; --resume continues.
 #include "apps/cli/cli_support.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // `hisnegs vdb VOLUME -o out.vdb`: options of the volume stage (config sections
 // `volume` and `sparse_grid`, pipeline/volume_stage.hpp).
 #include "apps/cli/cli_support.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // console_progress: Progress lines to stdout, the meter to stderr.
 #include "apps/cli/console_progress.hpp"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The command line's Progress sink: lines on stdout, the view meter on stderr
 // (redrawn in place on a terminal, printed once when done otherwise).
 #pragma once

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // AppConfig loading/dumping through io::ConfigFile and each section's visit().
 #include "apps/pipeline/app_config.hpp"
 

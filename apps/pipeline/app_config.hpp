@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The whole configuration of a hisnegs run: one options struct per section of
 // configs/*.yaml, loading (strict), validation and YAML dumping. Defines no
 // option itself: every field lives in its layer's FooOptions.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // ConfigSlice: copies of the sections of an AppConfig a stage reads, named at
 // compile time, and the YAML text of exactly those sections (what fingerprints
 // the stage's settings). Knows no stage and no run folder.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // kDemoProfile and write_demo_volume.
 #include "apps/pipeline/demo.hpp"
 

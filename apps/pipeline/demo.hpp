@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // What `hisnegs demo` runs the pipeline on: its built-in profile (configs/demo.yaml)
 // and the bundled synthetic neuron, written so that a second demo reuses the run.
 #pragma once

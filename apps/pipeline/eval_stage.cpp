@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // evaluate_model and the run folder's evaluation stage.
 #include "apps/pipeline/eval_stage.hpp"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The evaluation stage (config section splat): a model rendered at the views of a
 // ground-truth set and measured per view (CONVENTIONS "Metrics").
 #pragma once

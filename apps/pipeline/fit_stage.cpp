@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // prepare_fit, fit_to_checkpoint, checkpoint_meta and the run folder's fit stage.
 #include "apps/pipeline/fit_stage.hpp"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The GMF stage (config sections volume, sparse_grid, gmf): initialization on the
 // foreground grid, the Ceres/Adam fit, the checkpoint and its iteration log.
 #pragma once

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // strf, format_seconds and format_bytes.
 #include "apps/pipeline/format.hpp"
 

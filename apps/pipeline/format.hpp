@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Text of numbers for progress lines and reports: printf into a std::string,
 // durations and byte counts. Knows no table, file or stage.
 #pragma once

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // write_image_stack, the ground-truth sets and the run folder's ground-truth stage.
 #include "apps/pipeline/ground_truth_stage.hpp"
 

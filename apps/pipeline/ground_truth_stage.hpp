@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The ground-truth stage: ray-marched MIPs of camera sets (config sections volume,
 // raymarch; camera for the run's orbits) as cameras.json, mips.tif, previews/, meta.json.
 #pragma once

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // write_optimizer_comparison: gmf::compare_optimizers and its report files.
 #include "apps/pipeline/optimizer_comparison.hpp"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The optimizer comparison of `compare-optimizers` (config sections volume,
 // sparse_grid, gmf) written as a folder: table, curves, summary and plot.
 #pragma once

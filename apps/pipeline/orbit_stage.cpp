@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // write_orbit_gif and the run folder's orbit stage.
 #include "apps/pipeline/orbit_stage.hpp"
 

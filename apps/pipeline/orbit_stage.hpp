@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The orbit stage (config sections camera, splat): a 360 degree turntable of a
 // model rendered as an animated GIF, with the render time of every frame.
 #pragma once

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Progress: where pipeline stages send what they would print (the CLI prints it,
 // tests collect it, an empty Progress is quiet). Decides no wording and no stream.
 #pragma once

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // render_model: the views of a cameras file and/or an orbit GIF, and render.json.
 #include "apps/pipeline/render_model.hpp"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Rendering a checkpoint (config sections camera, splat): the views of a cameras
 // file as a stack with previews, and/or a turntable GIF, described in render.json.
 #pragma once

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Markdown/CSV tables and the machine description of the report commands.
 #include "apps/pipeline/report_tables.hpp"
 

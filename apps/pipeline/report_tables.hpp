@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // What the reports (`run`'s report.md, `bench report`) share: tables that print
 // as Markdown and CSV, the report's standard tables, and a description of the machine.
 #pragma once

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // run_pipeline: open the run folder, run or reuse each stage (the reuse and resume
 // rules), write the report. What a stage reads and writes is declared by the stage.
 #include "apps/pipeline/run_pipeline.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The one-command pipeline behind `hisnegs run` and `hisnegs demo`: its stages in
 // order, and run_pipeline, which runs or reuses each in a run folder.
 #pragma once

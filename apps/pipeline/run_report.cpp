@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // write_run_report: DIR/report.md of `hisnegs run` from the run folder's files.
 #include "apps/pipeline/run_report.hpp"
 

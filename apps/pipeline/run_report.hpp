@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // DIR/report.md of a run folder, read back from the folder's own files, so a run
 // whose stages were all reused gets the same report as the one that made them.
 #pragma once

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // What every stage of a run folder declares next to its code (the config sections
 // it reads, the stages it builds on, the files it writes) and is given (the
 // RunRequest), and the fingerprint of its inputs. Reuse rules: run_pipeline.cpp.

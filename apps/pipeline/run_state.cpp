@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // RunState (DIR/run.json), hash_hex and file_identity.
 #include "apps/pipeline/run_state.hpp"
 

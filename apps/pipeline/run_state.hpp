@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The record of a run folder, DIR/run.json: per stage its fingerprint, state
 // (started | done), wall time and generation; and the fingerprint hash. Decides
 // no reuse rule (run_pipeline.cpp does) and runs no stage.

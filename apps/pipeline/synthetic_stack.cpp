@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // write_synthetic_stack: io::make_synthetic_neuron, then a uint16 TIFF with its spacing.
 #include "apps/pipeline/synthetic_stack.hpp"
 

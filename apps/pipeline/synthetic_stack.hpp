@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The synthetic neuron written as a uint16 TIFF stack with its spacing (config
 // section synth). The neuron itself is io::make_synthetic_neuron.
 #pragma once

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // train_model (set up, run the epochs, finish) and the run folder's training stage.
 #include "apps/pipeline/train_stage.hpp"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The training stage (config sections train, splat): soft-MIP splatting of a GMF
 // checkpoint on ground-truth MIPs, resumable from its latest checkpoint.
 #pragma once

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // RUN/log.csv of a training run (written, read back on resume) and its curve plot.
 #include "apps/pipeline/training_log.hpp"
 

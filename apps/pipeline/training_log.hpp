@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The files a training run keeps besides its checkpoints: RUN/log.csv (one row per
 // epoch, read back when a run resumes) and the training-curve plot.
 #pragma once

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // write_sparse_grid and the run folder's volume stage.
 #include "apps/pipeline/volume_stage.hpp"
 

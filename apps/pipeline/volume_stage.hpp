@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The volume stage: a TIFF stack loaded, normalized and aspect-corrected into a
 // sparse OpenVDB grid (config sections volume, sparse_grid), standalone and in a run folder.
 #pragma once

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The Ceres residual block of one sample brick: r_j = w_j (f_δ(x_j) − V_j) over
 // the brick's samples, f_δ the sum of the brick's Gaussians that reach x_j
 // (m <= δ), with the analytic Jacobian of gaussian_math.hpp. Parameter blocks:

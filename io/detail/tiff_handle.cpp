@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // libtiff diagnostics routing (per-handle and global handlers) and sample helpers.
 #include "io/detail/tiff_handle.hpp"
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // libtiff plumbing shared by the TIFF reader and writer: an owning handle whose
 // diagnostics are collected (never printed) and appended to our messages, and
 // small sample-type helpers. Includes tiffio.h: for io's .cpp files only.

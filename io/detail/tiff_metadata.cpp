@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // ImageJ description and OME-XML <Pixels> parsing, length units, and the spacing
 // precedence. Pure string work: reading tags from a TIFF is tiff_stack.cpp's job.
 #include "io/detail/tiff_metadata.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Pure parsing of TIFF ImageDescription metadata (ImageJ keys, OME-XML <Pixels>) and the spacing precedence.
 // No libtiff and no file access: tiff_stack.cpp reads the tags and hands their text and values to these functions.
 #pragma once

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The OpenVDB grids behind io::SparseGrid (its pimpl), for io's own .cpp files and
 // tests. Other layers use SparseGrid::visit_active_leaves and io/vdb_file.hpp.
 #pragma once

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // HISNEGS_CUDA_CHECK: every CUDA runtime call and kernel launch is checked and a
 // failure throws std::runtime_error naming the call, file and line.
 #pragma once

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // CUDA device probe: device count, name, compute capability and memory of device 0.
 #include <cuda_runtime.h>
 

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Host-side declarations of the CUDA device probe (implemented in device.cu
 // only when the CUDA back end is built). No CUDA headers here.
 #pragma once

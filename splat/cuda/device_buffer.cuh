@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // DeviceBuffer<T>: the one move-only owner of a cudaMalloc'd array (RAII).
 #pragma once
 

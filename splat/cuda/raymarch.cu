@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // CUDA ground-truth MIPs: one thread per pixel over splat/raymarch_kernel.hpp,
 // 16x16 thread blocks (a tile of rays shares bricks in cache).
 #include <cuda_runtime.h>

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Host interface of the CUDA ground-truth ray marcher (splat/cuda/raymarch.cu):
 // the same kernel as the CPU (splat/raymarch_kernel.hpp), one thread per pixel.
 // Only declared when the CUDA back end is built. No CUDA headers here; C++17.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The CUDA splatting back end behind splat/cuda/splat_cuda.hpp: device buffers kept
 // across frames, binning of (tile, Gaussian) pairs with CUB (scan, stable radix
 // sort), the launches of splat_kernels.cuh, CUDA-event timing and the host copies.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Host interface of the CUDA splatting back end (splat/cuda/splat.cu): the same
 // math as the CPU (splat/splat_math.hpp), 16x16 tiles, one thread block per tile.
 // C++17 and no CUDA headers (nvcc compiles the .cu as C++17); the SplatRenderer

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Device kernels of the CUDA splatting back end (private to splat/cuda/splat.cu):
 // per-Gaussian projection and tile rectangles, (tile, amplitude) key duplication,
 // tile ranges, the per-tile forward/backward rasterizers and the per-Gaussian

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Tile kernels of the CPU splatting back end (see splat_cpu_tiles.hpp): for each
 // Gaussian of a tile, only the rows its δ ellipse crosses and, in each row, only
 // the SIMD chunks of its column span are evaluated; lanes are masked by q <= δ.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The CPU rasterizer's per-tile kernels (forward soft/hard, soft backward), SIMD
 // across the pixels of a tile row with Google Highway, dispatched at run time to
 // the best instruction set. Binning and per-Gaussian work live in splat_cpu.cpp.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // gmf/adam: one step against the hand-computed update per parameter group, the
 // bias correction over several steps against a scalar reference, the per-Gaussian
 // bookkeeping (reset, keep, resize), the binary record and its refusals, and

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The GMF residual block against Ceres' own numeric differentiation (Ridders'
 // extrapolation, DynamicNumericDiffCostFunction) in double, and the Mahalanobis
 // cutoff. The brick index and samples it is built from: brick_index_test.cpp,

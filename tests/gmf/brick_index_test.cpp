@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // gmf/brick_index: which Gaussians reach which sample brick, against a brute
 // force over every voxel centre of every brick (plain and padded supports), the
 // ascending CSR lists, and the loss of the bricks no Gaussian reaches.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Tests of gmf/gaussian_mixture.hpp (container, R(q), Σ, reference evaluator,
 // stats) and gmf/checkpoint.hpp (bit-exact round trips, accepted variants,
 // every rejected checkpoint). Every fixture is generated here.

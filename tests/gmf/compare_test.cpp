@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // compare_optimizers on a tiny scene: Adam defines the target, every run starts
 // from the same mixture, times to target are read from the runs' own logs.
 #include "gmf/compare.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // gmf/density_ops: the Eq. 17 split (axis-aligned and rotated Gaussians, against
 // an Eigen quaternion), longest_axis, isotropic_gaussian's clamp, the pruning
 // threshold of bright_gaussians, keep_rows and keep_gaussians.

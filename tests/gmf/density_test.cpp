@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // gmf/density: adaptive density control on the small known scene: a missing
 // Gaussian is cloned back, an over-wide one split by Eq. 17, and the Gaussian
 // budget gmf.gaussians is never exceeded.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Tests of gmf/export_vdb (density values and topology against direct evaluation of
 // f, transforms, metadata, thread independence, points round trip, rejected input)
 // and gmf/export_formats (splat-viewer PLY mapping, dense resampling). Written files

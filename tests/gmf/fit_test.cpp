@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The GMF fit end to end on small synthetic data: a volume rendered from 20
 // known Gaussians is fitted from a perturbed start and the Gaussians come back;
 // every optimizer lowers the loss; iteration cap and stop loss end the fit.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // gmf/gaussian_math: value against the mixture reference (Σ = R diag(s²) Rᵀ) and
 // every analytic derivative against central finite differences in double, on
 // random, nearly isotropic, very thin and far-away Gaussians; and each forward

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Shared fixtures of the gmf tests: a small volume rendered from 20 known
 // Gaussians (make_scene) and its sparse grid (grid_of). No assertions here.
 #pragma once

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // gmf/init: grid initialization meets the Gaussian budget on the foreground and
 // puts each Gaussian at its cell's intensity-weighted centroid, with the cell's
 // mean value as intensity and half a grid step as σ.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // gmf/objective: the first-order loss ½ Σ w² (f_δ − V)² and its gradient on the
 // small known scene: the gradient against Ridders differences of the value, the
 // value against a direct sum over every sample and Gaussian.

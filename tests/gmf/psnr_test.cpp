@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // gmf/psnr: the known values (identical arrays, a known MSE), refused inputs,
 // and the chunked reduction against a plain sequential sum and across thread
 // counts.

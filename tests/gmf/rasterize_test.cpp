@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // gmf/rasterize: BlockRasterizer's block values against a direct double-precision
 // evaluation (every voxel of every block, and zero wherever no block reaches),
 // the cutoff, tail and clip rules, determinism across thread counts,

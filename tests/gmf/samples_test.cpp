@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // gmf/samples: extract_samples takes every active voxel of both parts of a
 // sparse grid once, at its world position with its value, grouped into
 // contiguous bricks of `block`³ voxels, background samples weighted

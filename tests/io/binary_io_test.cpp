@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // io/binary_io: values, arrays and strings round trip through BinaryWriter and
 // BinaryReader; every truncation and a wrong array size are one-line
 // io::InputErrors naming the source, what is read, and the problem.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Tests of io/config: typed reads, unknown keys/sections, type errors with
 // file:line, enum names, and that the writer's YAML reads back identically.
 #include "io/config.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Tests of io/gif: grey and RGB round trips, loop/delay metadata, argument
 // errors, atomic (all-or-nothing) writes and unreadable inputs.
 #include "io/gif.hpp"

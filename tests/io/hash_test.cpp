@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // io/hash: fnv1a64 against the published FNV-1a 64-bit test vectors, and
 // chaining through the seed argument.
 #include "io/hash.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Tests of io/plot: image shape, where lines land (linear and log axes), broken
 // lines, empty plots, text, legend, palette, tick labels and option errors.
 #include "io/plot.hpp"

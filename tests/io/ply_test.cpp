@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Tests of io/ply.hpp: PlyElement storage and conversions, bit-exact binary round
 // trips, ascii and big-endian reading, every rejected input, atomic writes.
 #include "io/ply.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Tests of io/png: round trips of grey and RGB images, the display mapping, errors.
 #include "io/png.hpp"
 

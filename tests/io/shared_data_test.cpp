@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Tests that the real neuron stacks in ../shared/data read exactly as their README states (shape, dtype,
 // range, spacing and its source). Skipped when the folder is absent; synthetic fixtures are tiff_stack_test's.
 #include <gtest/gtest.h>

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Tests of io/sparse_grid: the CONVENTIONS transform, threshold + band topology,
 // values, the background subsample, bit-exact .vdb round trips, and
 // visit_active_leaves over both parts.

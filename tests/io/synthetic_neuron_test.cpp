@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Tests of io/synthetic_neuron: determinism, the Volume contract (shape, spacing,
 // uint16 counts), realistic sparsity, soma brightest, skeleton sanity, validation.
 #include "io/synthetic_neuron.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Tests of io/detail/tiff_metadata: ImageJ description and OME-XML parsing, units, spacing precedence.
 // Pure strings, no files: reading real TIFFs is tiff_stack_test's.
 #include "io/detail/tiff_metadata.hpp"

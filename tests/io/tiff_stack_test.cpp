@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Tests of io/tiff_stack: round trips, layouts and codecs (fixtures written with libtiff directly),
 // channel selection, spacing precedence and bad inputs. Metadata text parsing is tiff_metadata_test's.
 #include "io/tiff_stack.hpp"

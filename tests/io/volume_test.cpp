@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Tests of io/volume: normalization, statistics, aspect scales (Eq. 9), the
 // CONVENTIONS index<->world map and trilinear sampling against hand-computed values.
 #include "io/volume.hpp"

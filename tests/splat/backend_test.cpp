@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Back-end resolution: CPU always works; AUTO falls back to the CPU without a
 // GPU; an explicit CUDA request without a device is a clear InputError.
 #include "splat/backend.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Cameras: intrinsics from the FOV, orbit poses per CONVENTIONS (including the
 // poles), the 106/30-view orbits, projection vs ray direction, cameras.json.
 #include "splat/camera.hpp"

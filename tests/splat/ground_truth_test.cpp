@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // render_ground_truth over camera sets: CPU result equals per-view rendering,
 // and the CUDA back end equals the CPU (skips without a GPU).
 #include "splat/ground_truth.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The training losses (report Eq. 11-16): every gradient against Ridders central
 // differences of the double-precision path, SSIM and the soft histogram against
 // brute-force definitions written out here, and each loss's defining properties.

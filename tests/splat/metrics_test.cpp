@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Evaluation metrics against an independent computation on known image pairs:
 // PSNR and MAE by hand, SSIM of an image with itself and under a constant offset,
 // the summary statistics, and the comparison image's layout.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Ground-truth ray marching: a bright voxel lands where the camera projects it,
 // the fast marcher equals the definition, exact mode against a 1/20-voxel brute
 // force, misses give 0, report mode, and skipping never changes a pixel.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Every splatting back end (TBB, CUDA) through the public SplatRenderer interface
 // against the double reference: forward, backward, skipping, culling, errors, state
 // between frames. Checks of one back end's internals stay in splat_{cpu,cuda}_test.cpp.

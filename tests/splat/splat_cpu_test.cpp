@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // What only the TBB splatting back end has: its ellipse-band binning and its opt-in
 // skip counter. Forward and backward against the reference: splat_backend_test.cpp.
 #include <gtest/gtest.h>

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // What only the CUDA splatting back end has: agreement with the TBB back end on a
 // training-sized scene, forward and backward, its device timings, and the clear error
 // without a device. Checks every back end must pass: splat_backend_test.cpp. Every

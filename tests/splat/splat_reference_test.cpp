@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The double-precision splatting reference: its backward against central finite
 // differences of its forward for every parameter kind, and the properties that
 // define soft/hard MIP (centre pixel, culling, β -> ∞ limit).

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Small random splatting scenes and the comparison helpers shared by the splat
 // renderer tests (reference, back-end suite, CPU and CUDA specifics). No checks here.
 #pragma once

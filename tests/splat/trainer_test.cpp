@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The stage-2 trainer on tiny scenes: ground truth rendered by the CPU splatter from a
 // known mixture (8 orbit views, 32x32), the trainer started from a perturbed copy.
 // Schedules, one step lowering the loss, density control keeping every per-Gaussian

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The bad-input corpus (docs/reliability.md), generated here and run through the real
 // `hisnegs` executable: each case exits 2 with one line naming the file and the
 // problem, never crashes, and leaves no output file behind.

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The `export` and `import` commands through the real binary on a small generated
 // checkpoint: OpenVDB's own tools (vdb_print, the pyopenvdb binding) read the .vdb,
 // the points round trip gives the same checkpoint file, the splat PLY and TIFF

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // The `compare-optimizers`, `render` and `bench render` commands through the real
 // binary on tiny inputs: every promised file, its shape, and the bad-input errors.
 #include <gtest/gtest.h>

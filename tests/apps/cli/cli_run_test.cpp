@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // `hisnegs run`, `hisnegs demo` and `hisnegs bench report` through the real binary
 // on a tiny synthetic stack: every promised file, finite metrics above a floor,
 // stage reuse, re-running what a config change touches, resuming an interrupted

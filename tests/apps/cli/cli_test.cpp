@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // End-to-end runs of the hisnegs executable: help, synth -> info -> vdb -> info,
 // config dump and the io benchmark suite on a tiny stack.
 #include <gtest/gtest.h>

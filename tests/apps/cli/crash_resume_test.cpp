@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Crash safety of `hisnegs train`: the process is killed with SIGKILL at
 // chosen moments (HISNEGS_FAULT, io/fault_injection.hpp), what it leaves behind is
 // checked (every visible checkpoint complete, `latest` naming a complete pair), and

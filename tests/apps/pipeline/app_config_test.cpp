@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Every shipped config loads and validates; configs/default.yaml holds every
 // field with exactly the in-class defaults; config errors name file and key.
 #include "apps/pipeline/app_config.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // ConfigSlice holds copies of exactly its sections, names them in file order,
 // writes them as the same YAML dump_app_config does, and cannot reach others.
 #include "apps/pipeline/config_slice.hpp"

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // run_pipeline in-process on a tiny synthetic stack: every declared output, then the
 // reuse rules: a second run reuses every stage, a training setting redoes training
 // and what follows it only, an orbit setting the orbit only, --force everything.

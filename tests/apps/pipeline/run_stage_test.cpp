@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // Every stage of the pipeline fingerprints exactly what it reads: a change to any
 // field of a section it declares changes its fingerprint, a change anywhere else
 // does not; so do its upstream stages' generations and its request inputs.
