@@ -28,9 +28,9 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   fuzz::require(reread.views.size() == cameras.views.size(), "view count round-trips");
   for (std::size_t i = 0; i < cameras.views.size(); ++i) {
     const splat::CameraView &u = cameras.views[i], &w = reread.views[i];
-    fuzz::require(u.name == w.name && u.R_cam_from_world == w.R_cam_from_world &&
-                      u.t_cam_from_world == w.t_cam_from_world,
-                  "views round-trip exactly");
+    fuzz::require(
+        u.name == w.name && u.R_cam_from_world == w.R_cam_from_world && u.t_cam_from_world == w.t_cam_from_world,
+        "views round-trip exactly");
   }
   return 0;
 }

@@ -26,9 +26,8 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   const gmf::Checkpoint reread = gmf::load_checkpoint(again);
   fuzz::require(reread.meta == loaded.meta, "checkpoint metadata round-trips");
   fuzz::require(reread.mixture.size() == loaded.mixture.size() &&
-                    (loaded.mixture.empty() ||
-                     std::memcmp(reread.mixture.data(), loaded.mixture.data(),
-                                 loaded.mixture.size() * sizeof(gmf::GaussianParams)) == 0),
+                    (loaded.mixture.empty() || std::memcmp(reread.mixture.data(), loaded.mixture.data(),
+                                                           loaded.mixture.size() * sizeof(gmf::GaussianParams)) == 0),
                 "checkpoint Gaussians round-trip bit-exactly");
   return 0;
 }

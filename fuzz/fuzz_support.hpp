@@ -66,8 +66,7 @@ inline std::filesystem::path write_input(const std::string& name, const std::uin
 // not hold: libFuzzer records the input as a crash.
 inline void require(bool ok, const char* what, const std::string& detail = {}) {
   if (!ok) {
-    std::fprintf(stderr, "fuzz harness: broken promise: %s%s%s\n", what, detail.empty() ? "" : ": ",
-                 detail.c_str());
+    std::fprintf(stderr, "fuzz harness: broken promise: %s%s%s\n", what, detail.empty() ? "" : ": ", detail.c_str());
     std::abort();
   }
 }

@@ -29,8 +29,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     // hyperstacks, OME SizeC) gets decoded too.
     if (info.channels > 1) options.channel = info.channels - 1;
     // Both normalizations, picked by the input's length so either reaches every layout.
-    options.normalization.method =
-        size % 2 ? io::NormalizationMethod::kPercentile : io::NormalizationMethod::kMinMax;
+    options.normalization.method = size % 2 ? io::NormalizationMethod::kPercentile : io::NormalizationMethod::kMinMax;
     const io::LoadedVolume loaded = io::load_volume(path, options);
     const io::Volume& v = loaded.volume;
     fuzz::require(v.nx == info.nx && v.ny == info.ny && v.nz == info.nz,

@@ -28,7 +28,8 @@ BrickIndex build_brick_index(const GaussianMixture& mixture, const SampleSet& sa
   for (std::size_t c = 0; c < cells; ++c) cell_begin[c + 1] += cell_begin[c];
   {
     std::vector<std::uint32_t> fill(cell_begin.begin(), cell_begin.end() - 1);
-    for (std::size_t b = 0; b < samples.bricks(); ++b) cell_bricks[fill[cell_of(samples.brick_origin[b])]++] = static_cast<std::uint32_t>(b);
+    for (std::size_t b = 0; b < samples.bricks(); ++b)
+      cell_bricks[fill[cell_of(samples.brick_origin[b])]++] = static_cast<std::uint32_t>(b);
   }
 
   tbb::combinable<std::vector<std::pair<std::uint32_t, std::uint32_t>>> pairs;
@@ -40,8 +41,10 @@ BrickIndex build_brick_index(const GaussianMixture& mixture, const SampleSet& sa
       double half[3];
       support_half_extents(f, cutoff, half);
       for (double& h : half) h = h * scale_pad + pad_world;
-      const Eigen::Vector3d lo = frame.index_from_world(Eigen::Vector3d(mean[0] - half[0], mean[1] - half[1], mean[2] - half[2]));
-      const Eigen::Vector3d hi = frame.index_from_world(Eigen::Vector3d(mean[0] + half[0], mean[1] + half[1], mean[2] + half[2]));
+      const Eigen::Vector3d lo =
+          frame.index_from_world(Eigen::Vector3d(mean[0] - half[0], mean[1] - half[1], mean[2] - half[2]));
+      const Eigen::Vector3d hi =
+          frame.index_from_world(Eigen::Vector3d(mean[0] + half[0], mean[1] + half[1], mean[2] + half[2]));
       // Brick b holds voxel centres 8b .. 8b + 7: overlap iff hi >= 8b and lo <= 8b + 7.
       int b0[3], b1[3];
       bool empty = false;

@@ -100,8 +100,7 @@ std::string comment(std::string_view key, const std::string& value) {
 std::vector<std::string> meta_comments(const CheckpointMeta& meta) {
   if (meta.format_version != kCheckpointFormatVersion) {
     throw std::invalid_argument("checkpoint metadata format_version " + std::to_string(meta.format_version) +
-                                ": this build writes only version " +
-                                std::to_string(kCheckpointFormatVersion));
+                                ": this build writes only version " + std::to_string(kCheckpointFormatVersion));
   }
   std::vector<std::string> out;
   out.push_back(comment(kFormatVersion, std::to_string(meta.format_version)));
@@ -113,8 +112,8 @@ std::vector<std::string> meta_comments(const CheckpointMeta& meta) {
                                     " is not a positive size");
       }
     }
-    out.push_back(comment(kVolumeShape,
-                          std::to_string(s[0]) + " " + std::to_string(s[1]) + " " + std::to_string(s[2])));
+    out.push_back(
+        comment(kVolumeShape, std::to_string(s[0]) + " " + std::to_string(s[1]) + " " + std::to_string(s[2])));
   }
   if (meta.spacing_um) {
     check_positive3(kSpacing, *meta.spacing_um);
@@ -169,8 +168,8 @@ std::optional<Invalid> first_invalid(const GaussianMixture& mixture) {
 
 // Parses three numbers of type T, each must satisfy `valid`; fails naming the key.
 template <class T, class Valid>
-std::array<T, 3> parse3(const fs::path& source, std::string_view key, std::string_view value,
-                        const char* expected, Valid valid) {
+std::array<T, 3> parse3(const fs::path& source, std::string_view key, std::string_view value, const char* expected,
+                        Valid valid) {
   const std::vector<std::string_view> tok = split_ws(value);
   std::array<T, 3> out{};
   bool ok = tok.size() == 3;
@@ -207,19 +206,19 @@ CheckpointMeta parse_meta(const io::PlyTable& table, const fs::path& source) {
       const std::vector<std::string_view> tok = split_ws(value);
       int version = 0;
       if (tok.size() != 1 || !parse_number(tok[0], version) || version < 1) {
-        io::fail_input(source, "comment hisnegs format_version: expected a positive integer, got '" +
-                                   std::string(value) + "'");
+        io::fail_input(source,
+                       "comment hisnegs format_version: expected a positive integer, got '" + std::string(value) + "'");
       }
       if (version > kCheckpointFormatVersion) {
         io::fail_input(source, "checkpoint format_version " + std::to_string(version) +
-                                   " is newer than this build supports (" +
-                                   std::to_string(kCheckpointFormatVersion) + ")");
+                                   " is newer than this build supports (" + std::to_string(kCheckpointFormatVersion) +
+                                   ")");
       }
       meta.format_version = version;
     } else if (key == kVolumeShape) {
       once(meta.volume_shape_zyx.has_value());
-      meta.volume_shape_zyx = parse3<int>(source, key, value, "three positive integers Z Y X",
-                                          [](int n) { return n > 0; });
+      meta.volume_shape_zyx =
+          parse3<int>(source, key, value, "three positive integers Z Y X", [](int n) { return n > 0; });
     } else if (key == kSpacing || key == kAspect) {
       auto& field = key == kSpacing ? meta.spacing_um : meta.aspect;
       once(field.has_value());

@@ -24,7 +24,7 @@ inline constexpr int kCheckpointFormatVersion = 1;
 // What a checkpoint records besides the Gaussians, one `comment hisnegs KEY VALUE`
 // header line each (absent optionals / an empty normalization write no line).
 struct CheckpointMeta {
-  int format_version = kCheckpointFormatVersion;  // "comment hisnegs format_version 1"
+  int format_version = kCheckpointFormatVersion;       // "comment hisnegs format_version 1"
   std::optional<std::array<int, 3>> volume_shape_zyx;  // "volume_shape Z Y X", each > 0
   std::optional<std::array<double, 3>> spacing_um;     // "spacing_um sx sy sz", µm, finite > 0
   std::optional<std::array<double, 3>> aspect;         // "aspect ax ay az", world half-extents, finite > 0
@@ -70,8 +70,7 @@ struct Checkpoint {
 // PLY. Throws std::invalid_argument "PATH: ..." as checkpoint_to_ply does
 // (nothing is written then), io::InputError / std::runtime_error if the file
 // cannot be written.
-void save_checkpoint(const std::filesystem::path& path, const GaussianMixture& mixture,
-                     const CheckpointMeta& meta);
+void save_checkpoint(const std::filesystem::path& path, const GaussianMixture& mixture, const CheckpointMeta& meta);
 
 // Reads a checkpoint written by save_checkpoint (or by another tool using the
 // same properties). Throws io::InputError naming the file for every problem of

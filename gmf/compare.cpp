@@ -46,7 +46,7 @@ Comparison compare_optimizers(const io::Volume& volume, const io::SparseGrid& gr
     o.optimizer = optimizer;
     o.densify = false;  // same K for everyone: the comparison is of optimizers, not of density control
     o.time_budget_s = options.time_budget_s;
-    o.rounds = 1000;    // rounds only rebuild the index here; the budget (or Adam's steps) ends the run
+    o.rounds = 1000;  // rounds only rebuild the index here; the budget (or Adam's steps) ends the run
     o.max_iterations = optimizer == Optimizer::kAdam ? options.adam_steps : 0;
     o.stop_loss = optimizer != Optimizer::kAdam && options.stop_at_target && comparison.target_loss > 0
                       ? comparison.target_loss

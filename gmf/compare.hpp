@@ -17,25 +17,25 @@ struct CompareOptions {
   // its loss after adam_steps is every other run's target.
   std::vector<Optimizer> optimizers = {Optimizer::kAdam, Optimizer::kLevenbergMarquardt,
                                        Optimizer::kLevenbergMarquardtCgnr, Optimizer::kDogleg, Optimizer::kLbfgs};
-  double time_budget_s = 300;  // wall-clock budget of each run (measuring excluded), > 0
-  int adam_steps = 2000;       // Adam's steps that define the target loss, >= 1
-  bool stop_at_target = false; // end a run once it reaches the target (saves time; its curve stops there)
+  double time_budget_s = 300;   // wall-clock budget of each run (measuring excluded), > 0
+  int adam_steps = 2000;        // Adam's steps that define the target loss, >= 1
+  bool stop_at_target = false;  // end a run once it reaches the target (saves time; its curve stops there)
 };
 
 struct OptimizerRun {
   Optimizer optimizer{};
-  std::string name;                // as in the config: lm, lm-cgnr, dogleg, lbfgs, adam
+  std::string name;  // as in the config: lm, lm-cgnr, dogleg, lbfgs, adam
   FitResult result;
-  double seconds_to_target = -1;   // first logged time with loss <= target; < 0 when never reached
+  double seconds_to_target = -1;  // first logged time with loss <= target; < 0 when never reached
   double final_loss = 0;
   int iterations = 0;
-  int gaussians = 0;               // K at the end (only pruning changes it)
-  std::string failure;             // non-empty when the run failed (e.g. "out of memory"); the log is kept
+  int gaussians = 0;    // K at the end (only pruning changes it)
+  std::string failure;  // non-empty when the run failed (e.g. "out of memory"); the log is kept
 };
 
 struct Comparison {
-  double target_loss = -1;    // Adam's loss after its steps; < 0 without an Adam run
-  int adam_steps_done = 0;    // fewer than CompareOptions::adam_steps when Adam ran out of time
+  double target_loss = -1;  // Adam's loss after its steps; < 0 without an Adam run
+  int adam_steps_done = 0;  // fewer than CompareOptions::adam_steps when Adam ran out of time
   std::vector<OptimizerRun> runs;
 };
 

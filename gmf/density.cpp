@@ -33,7 +33,9 @@ DensityChange adapt_density(GaussianMixture& mixture, const SampleSet& samples, 
       double f = 0;
       for (std::size_t i = 0; i < ids.size(); ++i) {
         double z[3];
-        g[i] = mahalanobis(frames[ids[i]], x, z) <= options.mahalanobis_cutoff ? evaluate_gaussian<double>(frames[ids[i]], x, nullptr) : 0.0;
+        g[i] = mahalanobis(frames[ids[i]], x, z) <= options.mahalanobis_cutoff
+                   ? evaluate_gaussian<double>(frames[ids[i]], x, nullptr)
+                   : 0.0;
         f += g[i];
       }
       const double r = f - samples.value[s];
@@ -54,7 +56,8 @@ DensityChange adapt_density(GaussianMixture& mixture, const SampleSet& samples, 
   const double sd = K ? std::sqrt(var / K) : 0.0;
   std::vector<std::size_t> order(K);
   std::iota(order.begin(), order.end(), 0);
-  std::sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return error[a] > error[b] || (error[a] == error[b] && a < b); });
+  std::sort(order.begin(), order.end(),
+            [&](std::size_t a, std::size_t b) { return error[a] > error[b] || (error[a] == error[b] && a < b); });
   std::vector<GaussianParams> added;
   for (std::size_t k : order) {
     if (change.split >= per_call || room <= 0 || error[k] <= mean + 2 * sd) break;

@@ -14,8 +14,10 @@ namespace hisnegs::gmf {
 
 std::string_view to_string(SplatColormap colormap) {
   switch (colormap) {
-    case SplatColormap::kGrey: return "grey";
-    case SplatColormap::kFire: return "fire";
+    case SplatColormap::kGrey:
+      return "grey";
+    case SplatColormap::kFire:
+      return "fire";
   }
   return "?";
 }
@@ -23,8 +25,10 @@ std::string_view to_string(SplatColormap colormap) {
 std::array<double, 3> splat_color(double a, SplatColormap colormap) {
   const auto unit = [](double v) { return std::clamp(v, 0.0, 1.0); };
   switch (colormap) {
-    case SplatColormap::kGrey: return {unit(a), unit(a), unit(a)};
-    case SplatColormap::kFire: return {unit(3.0 * a), unit(3.0 * a - 1.0), unit(3.0 * a - 2.0)};
+    case SplatColormap::kGrey:
+      return {unit(a), unit(a), unit(a)};
+    case SplatColormap::kFire:
+      return {unit(3.0 * a), unit(3.0 * a - 1.0), unit(3.0 * a - 2.0)};
   }
   throw std::logic_error("invalid SplatColormap");
 }
@@ -48,7 +52,8 @@ io::PlyTable splat_ply_table(const GaussianMixture& mixture, const SplatPlyOptio
   for (std::size_t k = 0; k < mixture.size(); ++k) {
     const GaussianParams& g = mixture[k];
     for (float v : to_array(g)) {
-      if (!std::isfinite(v)) throw std::invalid_argument("gaussian " + std::to_string(k) + " has a non-finite parameter");
+      if (!std::isfinite(v))
+        throw std::invalid_argument("gaussian " + std::to_string(k) + " has a non-finite parameter");
     }
     std::size_t c = 0;
     for (float v : g.mean) row[c++] = v;

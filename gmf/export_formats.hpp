@@ -46,8 +46,7 @@ struct SplatPlyOptions {
 [[nodiscard]] io::PlyTable splat_ply_table(const GaussianMixture& mixture, const SplatPlyOptions& options);
 
 // Writes splat_ply_table atomically as binary little-endian PLY.
-void write_splat_ply(const std::filesystem::path& path, const GaussianMixture& mixture,
-                     const SplatPlyOptions& options);
+void write_splat_ply(const std::filesystem::path& path, const GaussianMixture& mixture, const SplatPlyOptions& options);
 
 // f(x) at every voxel centre of `frame`, x fastest like io::Volume (float32), through
 // gmf::rasterize_mixture with the per-term bound `tail`: every term a_k exp(-m/2) >=

@@ -154,8 +154,7 @@ PointDataGrid::Ptr make_points(const Checkpoint& checkpoint, const openvdb::math
   }
   const vp::PointAttributeVector<openvdb::Vec3d> positions(position);
   const auto index_grid = openvdb::tools::createPointIndexGrid<openvdb::tools::PointIndexGrid>(positions, transform);
-  PointDataGrid::Ptr grid =
-      vp::createPointDataGrid<vp::NullCodec, PointDataGrid>(*index_grid, positions, transform);
+  PointDataGrid::Ptr grid = vp::createPointDataGrid<vp::NullCodec, PointDataGrid>(*index_grid, positions, transform);
   auto& tree = grid->tree();
   const auto& index_tree = index_grid->tree();
   // NullCodec everywhere: the stored floats are the checkpoint's, bit for bit.
@@ -191,7 +190,8 @@ void VdbExportOptions::validate() const {
     throw io::InputError("cutoff = " + io::number_text(cutoff) + ": must be in (0, 1) (normalized intensity)");
   }
   if (!(tail > 0.0 && tail <= cutoff)) {
-    throw io::InputError("tail = " + io::number_text(tail) + ": must be in (0, cutoff = " + io::number_text(cutoff) + "]");
+    throw io::InputError("tail = " + io::number_text(tail) + ": must be in (0, cutoff = " + io::number_text(cutoff) +
+                         "]");
   }
 }
 
@@ -271,8 +271,8 @@ Checkpoint import_vdb_points(const fs::path& path) {
   if (!grid) io::fail_input(path, "grid 'gaussians' is not a PointDataGrid");
   const auto header = grid->getMetadata<openvdb::StringMetadata>(kCheckpointMetaKey);
   if (!header) {
-    io::fail_input(path, "grid 'gaussians' lacks metadata '" + std::string(kCheckpointMetaKey) +
-                             "' (not written by hisnegs?)");
+    io::fail_input(
+        path, "grid 'gaussians' lacks metadata '" + std::string(kCheckpointMetaKey) + "' (not written by hisnegs?)");
   }
 
   const std::size_t K = static_cast<std::size_t>(vp::pointCount(grid->tree()));
@@ -298,10 +298,11 @@ Checkpoint import_vdb_points(const fs::path& path) {
         const openvdb::Index n = *index;
         const std::int32_t k = id.get(n);
         if (k < 0 || static_cast<std::size_t>(k) >= K || seen[k]) {
-          io::fail_input(path, "point attribute 'id' = " + std::to_string(k) + " is " +
-                                   (k < 0 || static_cast<std::size_t>(k) >= K ? "outside 0.." + std::to_string(K) + " - 1"
-                                                                              : std::string("given twice")) +
-                                   " (ids must number the " + std::to_string(K) + " points 0..K-1 once each)");
+          io::fail_input(path,
+                         "point attribute 'id' = " + std::to_string(k) + " is " +
+                             (k < 0 || static_cast<std::size_t>(k) >= K ? "outside 0.." + std::to_string(K) + " - 1"
+                                                                        : std::string("given twice")) +
+                             " (ids must number the " + std::to_string(K) + " points 0..K-1 once each)");
         }
         seen[k] = 1;
         GaussianParams& g = mixture[static_cast<std::size_t>(k)];

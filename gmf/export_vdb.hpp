@@ -37,14 +37,14 @@ struct VdbExportOptions {
 
 // What `export_vdb` made.
 struct VdbExportReport {
-  std::int64_t gaussians = 0;          // K
-  std::int64_t candidate_leaves = 0;   // 8^3 leaves some Gaussian's support reaches
-  std::int64_t leaf_count = 0;         // leaves kept (holding at least one voxel with f > cutoff)
-  std::int64_t active_voxels = 0;      // voxels with f > cutoff
-  std::size_t grid_memory_bytes = 0;   // both grids in memory, as OpenVDB counts it
-  std::uintmax_t file_bytes = 0;       // size of the written .vdb
+  std::int64_t gaussians = 0;         // K
+  std::int64_t candidate_leaves = 0;  // 8^3 leaves some Gaussian's support reaches
+  std::int64_t leaf_count = 0;        // leaves kept (holding at least one voxel with f > cutoff)
+  std::int64_t active_voxels = 0;     // voxels with f > cutoff
+  std::size_t grid_memory_bytes = 0;  // both grids in memory, as OpenVDB counts it
+  std::uintmax_t file_bytes = 0;      // size of the written .vdb
   double rasterize_seconds = 0;
-  double points_seconds = 0;           // building the points grid (0 without points)
+  double points_seconds = 0;  // building the points grid (0 without points)
   double write_seconds = 0;
 };
 
@@ -66,9 +66,9 @@ using ExportProgress = std::function<void(std::int64_t done, std::int64_t total)
 // lattice so fine that the supports would reach more leaves than memory holds
 // (MemAvailable, or HISNEGS_MAX_ALLOC_GB GiB) or span more than 2^23 voxels along an
 // axis; std::runtime_error naming `path` if writing fails.
-VdbExportReport export_vdb(const std::filesystem::path& path, const Checkpoint& checkpoint,
-                           const VoxelLattice& lattice, const VdbExportOptions& options,
-                           const std::string& model_source, const ExportProgress& progress = {});
+VdbExportReport export_vdb(const std::filesystem::path& path, const Checkpoint& checkpoint, const VoxelLattice& lattice,
+                           const VdbExportOptions& options, const std::string& model_source,
+                           const ExportProgress& progress = {});
 
 // Reads the `gaussians` PointDataGrid of a .vdb written by export_vdb with points:
 // attributes `mean` (vec3f), `log_scale` (vec3f), `rotation` (float, stride 4, w x y

@@ -16,8 +16,8 @@
 
 #include "gmf/adam.hpp"
 #include "gmf/brick_index.hpp"
-#include "gmf/density_ops.hpp"
 #include "gmf/density.hpp"
+#include "gmf/density_ops.hpp"
 #include "gmf/detail/brick_cost.hpp"
 #include "gmf/gaussian_math.hpp"
 #include "gmf/init.hpp"
@@ -143,8 +143,7 @@ RoundOutcome solve_least_squares(const SampleSet& samples, const BrickIndex& ind
   so.num_threads = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
   so.minimizer_progress_to_stdout = false;
   so.logging_type = ceres::SILENT;
-  so.trust_region_strategy_type =
-      options.optimizer == Optimizer::kDogleg ? ceres::DOGLEG : ceres::LEVENBERG_MARQUARDT;
+  so.trust_region_strategy_type = options.optimizer == Optimizer::kDogleg ? ceres::DOGLEG : ceres::LEVENBERG_MARQUARDT;
   so.linear_solver_type =
       options.optimizer == Optimizer::kLevenbergMarquardtCgnr ? ceres::CGNR : ceres::SPARSE_NORMAL_CHOLESKY;
   LogCallback callback(log, round, iteration0, constant, K);
@@ -299,12 +298,13 @@ RoundOutcome solve_round(RoundProblem& r, const SampleSet& samples, const GmfOpt
   if (options.optimizer == Optimizer::kLbfgs || options.optimizer == Optimizer::kAdam) {
     const FitObjective objective(samples, r.index, r.params.size(), options.mahalanobis_cutoff);
     return options.optimizer == Optimizer::kLbfgs
-               ? solve_lbfgs(objective, r.x(), r.lower, r.upper, max_iterations, seconds_left, log, round, iteration0, K)
+               ? solve_lbfgs(objective, r.x(), r.lower, r.upper, max_iterations, seconds_left, log, round, iteration0,
+                             K)
                : solve_adam(objective, r.x(), r.lower, r.upper, options, max_iterations, seconds_left, min_voxel, log,
                             round, iteration0, K);
   }
-  return solve_least_squares(samples, r.index, r.params, r.lower, r.upper, quaternion_manifold, options,
-                             max_iterations, seconds_left, log, round, iteration0, K);
+  return solve_least_squares(samples, r.index, r.params, r.lower, r.upper, quaternion_manifold, options, max_iterations,
+                             seconds_left, log, round, iteration0, K);
 }
 
 // Back to float, pruning a < prune_intensity; returns how many were pruned.
@@ -352,21 +352,24 @@ FitResult fit_mixture(const io::Volume& volume, const io::SparseGrid& grid, Gaus
     int round_iterations = options.iterations_per_round;
     if (options.max_iterations > 0) round_iterations = std::min(round_iterations, options.max_iterations - iterations);
     RoundProblem problem = prepare_round(mixture, samples, frame, options);
-    const RoundOutcome outcome = solve_round(problem, samples, options, quaternion_manifold,
-                                             frame.voxel_size().minCoeff(), round_iterations, left, log, round,
-                                             iterations);
+    const RoundOutcome outcome =
+        solve_round(problem, samples, options, quaternion_manifold, frame.voxel_size().minCoeff(), round_iterations,
+                    left, log, round, iterations);
     iterations += outcome.iterations;
     result.stop_reason = outcome.message;
     FitRound stats;
     stats.round = round;
     stats.pruned = take_round_result(problem, options, mixture);
     result.pruned += stats.pruned;
-    const FitIteration end = end_of_round(mixture, volume, frame, options, clock, round, iterations, outcome.final_loss);
+    const FitIteration end =
+        end_of_round(mixture, volume, frame, options, clock, round, iterations, outcome.final_loss);
     log.add(end);
     result.final_psnr_3d = end.psnr_3d;
     const bool last = log.reached_stop_loss || (options.max_iterations > 0 && iterations >= options.max_iterations);
-    if (log.reached_stop_loss) result.stop_reason = "reached gmf.stop_loss";
-    else if (last) result.stop_reason = "gmf.max_iterations";
+    if (log.reached_stop_loss)
+      result.stop_reason = "reached gmf.stop_loss";
+    else if (last)
+      result.stop_reason = "gmf.max_iterations";
     // Density control for the next round (not after the last one, nor when out of time).
     if (!last && options.densify && round + 1 < options.rounds && clock.now() < options.time_budget_s) {
       const BrickIndex current = build_brick_index(mixture, samples, frame, options.mahalanobis_cutoff);

@@ -19,11 +19,11 @@ namespace hisnegs::gmf {
 // One line of the fit log (one solver iteration, or a round's end when psnr_3d is set).
 struct FitIteration {
   int round = 0;
-  int iteration = 0;         // cumulative solver iterations
-  double seconds = 0;        // wall clock since the fit started, without measuring (FitResult::measuring_seconds)
-  double loss = 0;           // ½ Σ w² (f − V)² over all samples
-  double psnr_3d = -1;       // over all voxels; < 0 when not computed at this line
-  int gaussians = 0;         // K
+  int iteration = 0;    // cumulative solver iterations
+  double seconds = 0;   // wall clock since the fit started, without measuring (FitResult::measuring_seconds)
+  double loss = 0;      // ½ Σ w² (f − V)² over all samples
+  double psnr_3d = -1;  // over all voxels; < 0 when not computed at this line
+  int gaussians = 0;    // K
 };
 
 // What density control did at the end of a round.

@@ -42,8 +42,8 @@ HISNEGS_HD T quat_normalize(const T q[4], T q_hat[4]) {
 // dL/dq = (dL/dq̂ − q̂ (q̂ · dL/dq̂)) / |q|: the radial part of dL/dq̂ is projected out.
 template <class T>
 HISNEGS_HD void quat_normalize_vjp(const T q_hat[4], T inv_norm, const T dL_dq_hat[4], T dL_dq[4]) {
-  const T radial = q_hat[0] * dL_dq_hat[0] + q_hat[1] * dL_dq_hat[1] + q_hat[2] * dL_dq_hat[2] +
-                   q_hat[3] * dL_dq_hat[3];
+  const T radial =
+      q_hat[0] * dL_dq_hat[0] + q_hat[1] * dL_dq_hat[1] + q_hat[2] * dL_dq_hat[2] + q_hat[3] * dL_dq_hat[3];
   for (int k = 0; k < 4; ++k) dL_dq[k] = (dL_dq_hat[k] - radial * q_hat[k]) * inv_norm;
 }
 
@@ -74,8 +74,8 @@ HISNEGS_HD void quat_to_rotmat_vjp(const T q[4], const T dR[9], T dL_dq[4]) {
                      T(2) * x * dR[8]);
   dL_dq[2] = T(2) * (T(-2) * y * dR[0] + x * dR[1] + w * dR[2] + x * dR[3] + z * dR[5] - w * dR[6] + z * dR[7] -
                      T(2) * y * dR[8]);
-  dL_dq[3] = T(2) * (T(-2) * z * dR[0] - w * dR[1] + x * dR[2] + w * dR[3] - T(2) * z * dR[4] + y * dR[5] +
-                     x * dR[6] + y * dR[7]);
+  dL_dq[3] = T(2) * (T(-2) * z * dR[0] - w * dR[1] + x * dR[2] + w * dR[3] - T(2) * z * dR[4] + y * dR[5] + x * dR[6] +
+                     y * dR[7]);
 }
 
 // ----- Σ = M Mᵀ, M = R diag(s) -----
@@ -106,8 +106,7 @@ HISNEGS_HD void covariance_from_axes_vjp(const T R[9], const T s[3], const T dL_
   T dM[9];
   for (int r = 0; r < 3; ++r) {
     for (int c = 0; c < 3; ++c) {
-      dM[3 * r + c] =
-          T(2) * (dL_dcov[3 * r] * M[c] + dL_dcov[3 * r + 1] * M[3 + c] + dL_dcov[3 * r + 2] * M[6 + c]);
+      dM[3 * r + c] = T(2) * (dL_dcov[3 * r] * M[c] + dL_dcov[3 * r + 1] * M[3 + c] + dL_dcov[3 * r + 2] * M[6 + c]);
     }
   }
   for (int c = 0; c < 3; ++c) {

@@ -26,8 +26,7 @@ double evaluate_mixture(const GaussianMixture& mixture, const Eigen::Vector3d& x
     // dᵀ Σ⁻¹ d with Σ⁻¹ = R diag(1/s²) Rᵀ: rotate d into the Gaussian's frame and
     // divide by s, which avoids inverting Σ (ill-conditioned for flat Gaussians).
     const Eigen::Matrix3d r = rotation_matrix<double>(g);
-    const Eigen::Vector3d d =
-        x_world - Eigen::Vector3d(g.mean[0], g.mean[1], g.mean[2]);
+    const Eigen::Vector3d d = x_world - Eigen::Vector3d(g.mean[0], g.mean[1], g.mean[2]);
     const Eigen::Vector3d local = (r.transpose() * d).cwiseQuotient(scales<double>(g));
     f += intensity<double>(g) * std::exp(-0.5 * local.squaredNorm());
   }

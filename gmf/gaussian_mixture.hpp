@@ -33,8 +33,7 @@ struct GaussianParams {
   float intensity_logit = 0.0f;
 };
 static_assert(std::is_trivially_copyable_v<GaussianParams> && std::is_standard_layout_v<GaussianParams>);
-static_assert(sizeof(GaussianParams) == kGaussianParamCount * sizeof(float),
-              "GaussianParams must be 11 packed floats");
+static_assert(sizeof(GaussianParams) == kGaussianParamCount * sizeof(float), "GaussianParams must be 11 packed floats");
 
 // Names of the 11 parameters in memory order; they are also the checkpoint's
 // PLY property names (scale_i hold log-scales, rot_0 is w).
@@ -106,8 +105,7 @@ template <std::floating_point T = double>
 }
 template <std::floating_point T = double>
 [[nodiscard]] inline Eigen::Matrix<T, 4, 1> normalized_quaternion(const GaussianParams& g) {
-  return normalized_quaternion<T>(Eigen::Matrix<T, 4, 1>(g.rotation[0], g.rotation[1], g.rotation[2],
-                                                         g.rotation[3]));
+  return normalized_quaternion<T>(Eigen::Matrix<T, 4, 1>(g.rotation[0], g.rotation[1], g.rotation[2], g.rotation[3]));
 }
 
 // R(q) for q = (w, x, y, z), normalized here first (throws like
@@ -176,7 +174,10 @@ template <class T>
     if (std::isfinite(values[i])) continue;
     return "the " + std::string(parameter_group(i)) + " " + std::string(what) + " of Gaussian " +
            std::to_string(i / kGaussianParamCount) + " (" +
-           (std::isnan(values[i]) ? "nan" : values[i] > 0 ? "+inf" : "-inf") + ")";
+           (std::isnan(values[i]) ? "nan"
+            : values[i] > 0       ? "+inf"
+                                  : "-inf") +
+           ")";
   }
   return {};
 }

@@ -12,15 +12,15 @@
 namespace hisnegs::gmf {
 
 struct InitReport {
-  double cell_world = 0;          // grid step, world units; cells anchored at the world origin (at the
-                                  // box corner -aspect when no origin-anchored grid meets the budget)
-  std::int64_t foreground = 0;    // voxels above the threshold
+  double cell_world = 0;        // grid step, world units; cells anchored at the world origin (at the
+                                // box corner -aspect when no origin-anchored grid meets the budget)
+  std::int64_t foreground = 0;  // voxels above the threshold
 };
 
 // `volume` normalized; foreground = voxels > threshold. Returns at most `budget`
 // Gaussians (as close to it as the grid allows). Throws io::InputError when no
 // voxel is above the threshold.
-GaussianMixture initialize_on_grid(const io::Volume& volume, const io::WorldFrame& frame, double threshold,
-                                   int budget, InitReport* report = nullptr);
+GaussianMixture initialize_on_grid(const io::Volume& volume, const io::WorldFrame& frame, double threshold, int budget,
+                                   InitReport* report = nullptr);
 
 }  // namespace hisnegs::gmf

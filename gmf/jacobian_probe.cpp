@@ -73,8 +73,8 @@ JacobianProbe::JacobianProbe(int n_samples, int n_gaussians, JacobianMethod meth
     numeric->SetNumResiduals(d.analytic->num_residuals());
     d.cost = std::move(numeric);
   } else if (method == JacobianMethod::kAutoDiff) {
-    auto* functor = new detail::BrickResiduals{&d.samples, 0, static_cast<std::uint32_t>(n_samples), d.params.size(),
-                                               16.0};
+    auto* functor =
+        new detail::BrickResiduals{&d.samples, 0, static_cast<std::uint32_t>(n_samples), d.params.size(), 16.0};
     auto autodiff = std::make_unique<ceres::DynamicAutoDiffCostFunction<detail::BrickResiduals, 4>>(functor);
     for (int size : d.analytic->parameter_block_sizes()) autodiff->AddParameterBlock(size);
     autodiff->SetNumResiduals(d.analytic->num_residuals());
@@ -98,8 +98,6 @@ double JacobianProbe::evaluate() {
 
 int JacobianProbe::residuals() const { return impl_->active().num_residuals(); }
 
-int JacobianProbe::parameters() const {
-  return static_cast<int>(impl_->params.size()) * kGaussianParamCount;
-}
+int JacobianProbe::parameters() const { return static_cast<int>(impl_->params.size()) * kGaussianParamCount; }
 
 }  // namespace hisnegs::gmf

@@ -10,9 +10,16 @@ namespace hisnegs::gmf {
 
 // Parameter order of every flat array and gradient (== PLY property order).
 enum GaussianParam : int {
-  kMeanX = 0, kMeanY, kMeanZ,
-  kLogScale0, kLogScale1, kLogScale2,
-  kRotW, kRotX, kRotY, kRotZ,
+  kMeanX = 0,
+  kMeanY,
+  kMeanZ,
+  kLogScale0,
+  kLogScale1,
+  kLogScale2,
+  kRotW,
+  kRotX,
+  kRotY,
+  kRotZ,
   kLogit
 };
 // The number of parameters of one Gaussian: the only such constant.
@@ -23,10 +30,10 @@ enum ParamGroup : int { kGroupMeans = 0, kGroupLogScales, kGroupRotation, kGroup
 
 // Group of parameter `param` (0 <= param < kGaussianParamCount).
 HISNEGS_HD constexpr ParamGroup group_of(int param) {
-  return param <= kMeanZ ? kGroupMeans
+  return param <= kMeanZ       ? kGroupMeans
          : param <= kLogScale2 ? kGroupLogScales
-         : param <= kRotZ ? kGroupRotation
-                          : kGroupIntensity;
+         : param <= kRotZ      ? kGroupRotation
+                               : kGroupIntensity;
 }
 
 }  // namespace hisnegs::gmf

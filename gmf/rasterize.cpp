@@ -84,8 +84,8 @@ bool place_support(Support& s, const VoxelLattice& lattice) {
 struct BlockRasterizer::Impl {
   VoxelLattice lattice;
   std::vector<Support> supports;
-  std::vector<Pair> pairs;          // sorted: each block lists its Gaussians in mixture order
-  std::vector<std::size_t> begin;   // block i holds pairs[begin[i] .. begin[i + 1])
+  std::vector<Pair> pairs;         // sorted: each block lists its Gaussians in mixture order
+  std::vector<std::size_t> begin;  // block i holds pairs[begin[i] .. begin[i + 1])
 
   // Supports of all Gaussians; returns Σ_k blocks of box k.
   double build_supports(const GaussianMixture& mixture, const RasterizeOptions& options, const std::string& model);

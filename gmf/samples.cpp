@@ -7,7 +7,6 @@
 #include <stdexcept>
 #include <vector>
 
-
 namespace hisnegs::gmf {
 
 SampleSet extract_samples(const io::SparseGrid& grid, double background_weight, int block) {
@@ -45,13 +44,11 @@ SampleSet extract_samples(const io::SparseGrid& grid, double background_weight, 
       }
     }
   };
-  grid.visit_active_leaves(io::SparseGridPart::kForeground, [&](const auto& o, auto voxels) {
-    add_leaf(o, voxels, 1.0, out.foreground);
-  });
+  grid.visit_active_leaves(io::SparseGridPart::kForeground,
+                           [&](const auto& o, auto voxels) { add_leaf(o, voxels, 1.0, out.foreground); });
   if (bg_weight > 0) {
-    grid.visit_active_leaves(io::SparseGridPart::kBackground, [&](const auto& o, auto voxels) {
-      add_leaf(o, voxels, bg_weight, out.background);
-    });
+    grid.visit_active_leaves(io::SparseGridPart::kBackground,
+                             [&](const auto& o, auto voxels) { add_leaf(o, voxels, bg_weight, out.background); });
   }
   out.brick_begin.push_back(static_cast<std::uint32_t>(out.size()));
   return out;

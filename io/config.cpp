@@ -8,9 +8,9 @@
 #include <algorithm>
 #include <charconv>
 #include <cmath>
+#include <fstream>
 #include <iomanip>
 #include <limits>
-#include <fstream>
 #include <optional>
 #include <set>
 
@@ -87,9 +87,7 @@ ConfigFile ConfigFile::parse(const std::string& text, const std::string& origin)
   return f;
 }
 
-ConfigFile ConfigFile::load(const std::filesystem::path& path) {
-  return parse(read_file(path), path.string());
-}
+ConfigFile ConfigFile::load(const std::filesystem::path& path) { return parse(read_file(path), path.string()); }
 
 const std::string& ConfigFile::origin() const { return impl_->origin; }
 
@@ -117,7 +115,8 @@ ConfigReader::ConfigReader(const ConfigFile& file, std::string_view section) : s
   const YAML::Node node = file.impl_->root[state_->section];
   if (node && !node.IsNull()) {
     if (!node.IsMap()) {
-      throw InputError(at_line(state_->origin, node) + ": section '" + state_->section + "' must be a map of key: value");
+      throw InputError(at_line(state_->origin, node) + ": section '" + state_->section +
+                       "' must be a map of key: value");
     }
     state_->node = node;
   }
@@ -128,8 +127,8 @@ ConfigReader::~ConfigReader() = default;
 void ConfigReader::fail(std::string_view key, const std::string& message) const {
   const YAML::Node n = state_->node ? state_->node[std::string(key)] : YAML::Node();
   // `message` may quote the file's text: printable() keeps it one line.
-  throw InputError((n ? at_line(state_->origin, n) : state_->origin) + ": " + state_->section + "." +
-                   std::string(key) + ": " + printable(message));
+  throw InputError((n ? at_line(state_->origin, n) : state_->origin) + ": " + state_->section + "." + std::string(key) +
+                   ": " + printable(message));
 }
 
 namespace {
@@ -247,9 +246,8 @@ void ConfigReader::finish() const {
   for (const auto& kv : state_->node) {
     const std::string key = key_text(state_->origin, kv.first, "key");
     if (!state_->used.count(key)) {
-      throw InputError(at_line(state_->origin, kv.first) + ": unknown key '" + state_->section + "." +
-                       printable(key) + "'" +
-                       suggestion(key, state_->used));
+      throw InputError(at_line(state_->origin, kv.first) + ": unknown key '" + state_->section + "." + printable(key) +
+                       "'" + suggestion(key, state_->used));
     }
   }
 }

@@ -67,7 +67,7 @@ class ConfigReader {
   void operator()(std::string_view key, std::array<double, 3>& value);
   void operator()(std::string_view key, std::vector<double>& value);
   template <class E>
-    requires std::is_enum_v<E>
+  requires std::is_enum_v<E>
   void operator()(std::string_view key, E& value, EnumNames<E> names) {
     std::string text;
     if (!read_string(key, text)) return;
@@ -102,7 +102,7 @@ class ConfigWriter {
     out_ << "  " << key << ": " << format(value) << "\n";
   }
   template <class E>
-    requires std::is_enum_v<E>
+  requires std::is_enum_v<E>
   void operator()(std::string_view key, const E& value, EnumNames<E> names) {
     for (const auto& [name, e] : names) {
       if (e == value) out_ << "  " << key << ": " << name << "\n";
@@ -141,7 +141,7 @@ struct EnumFieldSetter {
   template <class T>
   void operator()(std::string_view, T&) {}
   template <class E>
-    requires std::is_enum_v<E>
+  requires std::is_enum_v<E>
   void operator()(std::string_view k, E& value, EnumNames<E> names) {
     if (k != key) return;
     found = true;

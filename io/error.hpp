@@ -19,8 +19,7 @@ class InputError : public std::runtime_error {
 };
 
 // "PATH: message" with the path as the user typed it.
-[[nodiscard]] inline std::string describe(const std::filesystem::path& path,
-                                          const std::string& message) {
+[[nodiscard]] inline std::string describe(const std::filesystem::path& path, const std::string& message) {
   return path.string() + ": " + message;
 }
 

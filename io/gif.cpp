@@ -60,8 +60,8 @@ std::array<GifColorType, kPaletteSize> rgb_palette() {
     for (int g = 0; g < kGreenLevels; ++g) {
       for (int b = 0; b < kBlueLevels; ++b) {
         p[(r * kGreenLevels + g) * kBlueLevels + b] = {static_cast<GifByteType>(level_value(r, kRedLevels)),
-                                                        static_cast<GifByteType>(level_value(g, kGreenLevels)),
-                                                        static_cast<GifByteType>(level_value(b, kBlueLevels))};
+                                                       static_cast<GifByteType>(level_value(g, kGreenLevels)),
+                                                       static_cast<GifByteType>(level_value(b, kBlueLevels))};
       }
     }
   }
@@ -276,8 +276,8 @@ std::vector<Image8> read_gif(const std::filesystem::path& path) {
   const Decoder gif = open_and_slurp(path);
   const int width = gif->SWidth, height = gif->SHeight;
   if (width <= 0 || height <= 0) {
-    fail_input(path, "GIF canvas is " + std::to_string(width) + "x" + std::to_string(height) +
-                         ", expected at least 1x1");
+    fail_input(path,
+               "GIF canvas is " + std::to_string(width) + "x" + std::to_string(height) + ", expected at least 1x1");
   }
   bool grey = is_grey_map(gif->SColorMap);
   for (int i = 0; i < gif->ImageCount; ++i) grey = grey && is_grey_map(gif->SavedImages[i].ImageDesc.ColorMap);

@@ -13,11 +13,11 @@ namespace hisnegs::io {
 
 // Config section `volume`.
 struct VolumeOptions {
-  NormalizationOptions normalization;           // method: minmax | percentile, percentile_lo/hi in %
-  AspectMode aspect = AspectMode::kPhysical;    // physical | shape (report Eq. 9)
-  std::vector<double> spacing_um;               // [] = from the file; else [sx, sy, sz] µm, each > 0
-  int channel = -1;                             // channel of multi-channel files, -1 = none (error if needed)
-  double foreground_threshold = 0.2;            // relative level for the "foreground fraction" statistic, (0, 1)
+  NormalizationOptions normalization;         // method: minmax | percentile, percentile_lo/hi in %
+  AspectMode aspect = AspectMode::kPhysical;  // physical | shape (report Eq. 9)
+  std::vector<double> spacing_um;             // [] = from the file; else [sx, sy, sz] µm, each > 0
+  int channel = -1;                           // channel of multi-channel files, -1 = none (error if needed)
+  double foreground_threshold = 0.2;          // relative level for the "foreground fraction" statistic, (0, 1)
 
   void validate() const;  // throws InputError("volume.FIELD = VALUE: rule")
   template <class V>

@@ -52,8 +52,8 @@ void check_allocation(const std::filesystem::path& path, double bytes, const std
   std::string limit_source;
   const double limit = allocation_limit_bytes(&limit_source);
   if (bytes > limit) {
-    fail_input(path, "would need " + gib_text(bytes) + " for " + what + " but the limit is " + gib_text(limit) +
-                         " (" + limit_source + ")");
+    fail_input(path, "would need " + gib_text(bytes) + " for " + what + " but the limit is " + gib_text(limit) + " (" +
+                         limit_source + ")");
   }
 }
 

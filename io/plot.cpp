@@ -78,8 +78,8 @@ struct Canvas {
 bool is_drawn(unsigned char c) { return (c & 0xC0) != 0x80; }
 
 int text_width(std::string_view text, int scale) {
-  const auto n = static_cast<int>(std::count_if(text.begin(), text.end(),
-                                                [](char c) { return is_drawn(static_cast<unsigned char>(c)); }));
+  const auto n = static_cast<int>(
+      std::count_if(text.begin(), text.end(), [](char c) { return is_drawn(static_cast<unsigned char>(c)); }));
   return n > 0 ? (n * kAdvance - 1) * scale : 0;
 }
 
@@ -97,8 +97,10 @@ void draw_text(const Canvas& canvas, int x, int y, std::string_view text, int sc
         const int u = (pen + col) * scale, v = r * scale;  // position along / across the text
         for (int dy = 0; dy < scale; ++dy)
           for (int dx = 0; dx < scale; ++dx) {
-            if (vertical) canvas.put(x + v + dy, y - 1 - u - dx, kBlack);
-            else canvas.put(x + u + dx, y + v + dy, kBlack);
+            if (vertical)
+              canvas.put(x + v + dy, y - 1 - u - dx, kBlack);
+            else
+              canvas.put(x + u + dx, y + v + dy, kBlack);
           }
       }
     pen += kAdvance;
@@ -119,7 +121,8 @@ void draw_segment(const Canvas& canvas, double x0, double y0, double x1, double 
   const double slope = du > 0.0 ? dv / du : 0.0, half_span = r * std::sqrt(1.0 + slope * slope) + 1.0;
   for (int u = static_cast<int>(std::floor(ua - r)); u <= static_cast<int>(std::floor(ub + r)); ++u) {
     const double uc = u + 0.5, v_line = va + slope * (std::clamp(uc, ua, ub) - ua);
-    const int v0 = static_cast<int>(std::floor(v_line - half_span)), v1 = static_cast<int>(std::floor(v_line + half_span));
+    const int v0 = static_cast<int>(std::floor(v_line - half_span)),
+              v1 = static_cast<int>(std::floor(v_line + half_span));
     for (int v = v0; v <= v1; ++v) {
       const double vc = v + 0.5;
       const double t = length2 > 0.0 ? std::clamp(((uc - ua) * du + (vc - va) * dv) / length2, 0.0, 1.0) : 0.0;
@@ -259,8 +262,14 @@ std::string format_tick_label(double value, double step, bool scientific) {
 std::array<std::uint8_t, 3> plot_color(int i) {
   // Okabe & Ito (2008): blue, vermillion, bluish green, reddish purple, orange, sky
   // blue, black, yellow. Yellow is last: it is faint on white.
-  static constexpr std::array<Rgb, 8> kPalette = {{{0, 114, 178}, {213, 94, 0}, {0, 158, 115}, {204, 121, 167},
-                                                   {230, 159, 0}, {86, 180, 233}, {0, 0, 0}, {240, 228, 66}}};
+  static constexpr std::array<Rgb, 8> kPalette = {{{0, 114, 178},
+                                                   {213, 94, 0},
+                                                   {0, 158, 115},
+                                                   {204, 121, 167},
+                                                   {230, 159, 0},
+                                                   {86, 180, 233},
+                                                   {0, 0, 0},
+                                                   {240, 228, 66}}};
   const int n = static_cast<int>(kPalette.size());
   return kPalette[static_cast<std::size_t>(((i % n) + n) % n)];
 }
@@ -387,11 +396,10 @@ void draw_titles(const Canvas& full, const PlotLayout& L, const PlotOptions& opt
   const int centre_x = (L.area.x0 + L.area.x1) / 2;
   if (!options.title.empty()) draw_text(full, centre_x - text_width(options.title, s) / 2, L.pad, options.title, s);
   if (!options.x_label.empty())
-    draw_text(full, centre_x - text_width(options.x_label, s) / 2, options.height - L.pad - kCapH * s,
-              options.x_label, s);
+    draw_text(full, centre_x - text_width(options.x_label, s) / 2, options.height - L.pad - kCapH * s, options.x_label,
+              s);
   if (!options.y_label.empty())
-    draw_text(full, L.pad, (L.area.y0 + L.area.y1) / 2 + text_width(options.y_label, s) / 2, options.y_label, s,
-              true);
+    draw_text(full, L.pad, (L.area.y0 + L.area.y1) / 2 + text_width(options.y_label, s) / 2, options.y_label, s, true);
 }
 
 // Legend, top right inside the plot area, on top of the data.

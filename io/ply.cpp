@@ -7,10 +7,10 @@
 #include <algorithm>
 #include <cctype>
 #include <cerrno>
-#include <cmath>
-#include <cstdlib>
 #include <charconv>
+#include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <system_error>
 
@@ -28,11 +28,11 @@ struct TypeName {
   PlyType type;
 };
 constexpr TypeName kTypeNames[] = {
-    {"char", PlyType::kInt8},     {"uchar", PlyType::kUint8},    {"short", PlyType::kInt16},
-    {"ushort", PlyType::kUint16}, {"int", PlyType::kInt32},      {"uint", PlyType::kUint32},
-    {"float", PlyType::kFloat32}, {"double", PlyType::kFloat64}, {"int8", PlyType::kInt8},
-    {"uint8", PlyType::kUint8},   {"int16", PlyType::kInt16},    {"uint16", PlyType::kUint16},
-    {"int32", PlyType::kInt32},   {"uint32", PlyType::kUint32},  {"float32", PlyType::kFloat32},
+    {"char", PlyType::kInt8},       {"uchar", PlyType::kUint8},    {"short", PlyType::kInt16},
+    {"ushort", PlyType::kUint16},   {"int", PlyType::kInt32},      {"uint", PlyType::kUint32},
+    {"float", PlyType::kFloat32},   {"double", PlyType::kFloat64}, {"int8", PlyType::kInt8},
+    {"uint8", PlyType::kUint8},     {"int16", PlyType::kInt16},    {"uint16", PlyType::kUint16},
+    {"int32", PlyType::kInt32},     {"uint32", PlyType::kUint32},  {"float32", PlyType::kFloat32},
     {"float64", PlyType::kFloat64},
 };
 }  // namespace
@@ -70,8 +70,7 @@ bool is_valid_name(std::string_view name) {
 
 PlyElement::PlyElement(std::string name) : name_(std::move(name)) {}
 
-PlyElement::PlyElement(std::string name, std::int64_t count, std::vector<PlyProperty> properties,
-                       Uninitialized)
+PlyElement::PlyElement(std::string name, std::int64_t count, std::vector<PlyProperty> properties, Uninitialized)
     : name_(std::move(name)), count_(count), properties_(std::move(properties)) {
   if (count_ < 0) {
     throw std::invalid_argument("PLY element '" + name_ + "': negative count " + std::to_string(count_));
@@ -88,10 +87,9 @@ PlyElement::PlyElement(std::string name, std::int64_t count, std::vector<PlyProp
     offsets_.push_back(row_size_);
     row_size_ += size_of(p.type);
   }
-  if (row_size_ > 0 &&
-      static_cast<std::uint64_t>(count_) > std::numeric_limits<std::size_t>::max() / row_size_) {
-    throw std::invalid_argument("PLY element '" + name_ + "': " + std::to_string(count_) +
-                                " rows of " + std::to_string(row_size_) + " bytes overflow");
+  if (row_size_ > 0 && static_cast<std::uint64_t>(count_) > std::numeric_limits<std::size_t>::max() / row_size_) {
+    throw std::invalid_argument("PLY element '" + name_ + "': " + std::to_string(count_) + " rows of " +
+                                std::to_string(row_size_) + " bytes overflow");
   }
   bytes_.resize(static_cast<std::size_t>(count_) * row_size_);  // left uninitialized
 }
@@ -115,8 +113,8 @@ std::size_t PlyElement::require_property(std::string_view name) const {
 
 void PlyElement::require_index(std::size_t prop) const {
   if (prop >= properties_.size()) {
-    throw std::out_of_range("PLY element '" + name_ + "' has no property #" + std::to_string(prop) +
-                            " (it has " + std::to_string(properties_.size()) + ")");
+    throw std::out_of_range("PLY element '" + name_ + "' has no property #" + std::to_string(prop) + " (it has " +
+                            std::to_string(properties_.size()) + ")");
   }
 }
 
@@ -328,8 +326,8 @@ class PlyReader {
       if (c == '\n') break;
       line_.push_back(static_cast<char>(c));
       if (line_.size() > kMaxHeaderLineBytes) {
-        fail("header line " + std::to_string(line_no_ + 1) + " is longer than " +
-             std::to_string(kMaxHeaderLineBytes) + " bytes (not a PLY header?)");
+        fail("header line " + std::to_string(line_no_ + 1) + " is longer than " + std::to_string(kMaxHeaderLineBytes) +
+             " bytes (not a PLY header?)");
       }
     }
     if (header_bytes_ > kMaxHeaderBytes) {
@@ -458,9 +456,9 @@ class PlyReader {
       if (too_big) {
         // count × row_size may not fit 64 bits; say so rather than print a wrapped number.
         const bool overflows = count > std::numeric_limits<std::uint64_t>::max() / e.row_size;
-        const std::string expected =
-            overflows ? std::to_string(count) + " rows × " + std::to_string(e.row_size) + " bytes"
-                      : std::to_string(count * e.row_size) + " bytes";
+        const std::string expected = overflows
+                                         ? std::to_string(count) + " rows × " + std::to_string(e.row_size) + " bytes"
+                                         : std::to_string(count * e.row_size) + " bytes";
         fail("expected " + expected + " of " + e.name + " data, file has " + std::to_string(remaining));
       }
       PlyElement element(std::move(e.name), e.count, std::move(e.properties), PlyElement::Uninitialized{});
@@ -490,8 +488,8 @@ class PlyReader {
       // Every value takes at least one character and one separator.
       const std::uint64_t per_row = e.properties.size();
       if (per_row > 0 && static_cast<std::uint64_t>(e.count) > (tokens.remaining() + 1) / 2 / per_row) {
-        fail("expected " + std::to_string(e.count) + " rows of " + std::to_string(per_row) + " values of " +
-             e.name + " data, file has only " + std::to_string(tokens.remaining()) + " bytes left");
+        fail("expected " + std::to_string(e.count) + " rows of " + std::to_string(per_row) + " values of " + e.name +
+             " data, file has only " + std::to_string(tokens.remaining()) + " bytes left");
       }
       PlyElement element(std::move(e.name), e.count, std::move(e.properties), PlyElement::Uninitialized{});
       std::byte* row = element.bytes().data();
@@ -501,8 +499,8 @@ class PlyReader {
           const std::string_view token = tokens.next();
           const PlyProperty& prop = element.properties()[p];
           if (token.empty()) {
-            fail("ascii data cut short: expected " + std::to_string(element.count()) + " rows of " +
-                 element.name() + ", file ends in row " + std::to_string(r) + " at property " + prop.name);
+            fail("ascii data cut short: expected " + std::to_string(element.count()) + " rows of " + element.name() +
+                 ", file ends in row " + std::to_string(r) + " at property " + prop.name);
           }
           detail::visit_ply_type(prop.type, [&](auto tag) {
             using S = decltype(tag);
@@ -520,8 +518,7 @@ class PlyReader {
     }
     const std::string_view extra = tokens.next();
     if (!extra.empty()) {
-      fail("line " + std::to_string(tokens.line()) + ": unexpected data " + quote(extra) +
-           " after the last element");
+      fail("line " + std::to_string(tokens.line()) + ": unexpected data " + quote(extra) + " after the last element");
     }
   }
 

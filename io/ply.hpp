@@ -40,24 +40,31 @@ enum class PlyType : std::uint8_t { kInt8, kUint8, kInt16, kUint16, kInt32, kUin
 
 // The C++ types that are stored exactly as one PlyType.
 template <class T>
-concept PlyScalar = std::same_as<T, std::int8_t> || std::same_as<T, std::uint8_t> ||
-                    std::same_as<T, std::int16_t> || std::same_as<T, std::uint16_t> ||
-                    std::same_as<T, std::int32_t> || std::same_as<T, std::uint32_t> ||
-                    std::same_as<T, float> || std::same_as<T, double>;
+concept PlyScalar = std::same_as<T, std::int8_t> || std::same_as<T, std::uint8_t> || std::same_as<T, std::int16_t> ||
+    std::same_as<T, std::uint16_t> || std::same_as<T, std::int32_t> || std::same_as<T, std::uint32_t> ||
+    std::same_as<T, float> || std::same_as<T, double>;
 // Any number a column can be converted to or from (bool excluded).
 template <class T>
 concept PlyConvertible = std::is_arithmetic_v<T> && !std::same_as<std::remove_cv_t<T>, bool>;
 
 template <PlyScalar T>
 [[nodiscard]] constexpr PlyType ply_type_of() {
-  if constexpr (std::same_as<T, std::int8_t>) return PlyType::kInt8;
-  else if constexpr (std::same_as<T, std::uint8_t>) return PlyType::kUint8;
-  else if constexpr (std::same_as<T, std::int16_t>) return PlyType::kInt16;
-  else if constexpr (std::same_as<T, std::uint16_t>) return PlyType::kUint16;
-  else if constexpr (std::same_as<T, std::int32_t>) return PlyType::kInt32;
-  else if constexpr (std::same_as<T, std::uint32_t>) return PlyType::kUint32;
-  else if constexpr (std::same_as<T, float>) return PlyType::kFloat32;
-  else return PlyType::kFloat64;
+  if constexpr (std::same_as<T, std::int8_t>)
+    return PlyType::kInt8;
+  else if constexpr (std::same_as<T, std::uint8_t>)
+    return PlyType::kUint8;
+  else if constexpr (std::same_as<T, std::int16_t>)
+    return PlyType::kInt16;
+  else if constexpr (std::same_as<T, std::uint16_t>)
+    return PlyType::kUint16;
+  else if constexpr (std::same_as<T, std::int32_t>)
+    return PlyType::kInt32;
+  else if constexpr (std::same_as<T, std::uint32_t>)
+    return PlyType::kUint32;
+  else if constexpr (std::same_as<T, float>)
+    return PlyType::kFloat32;
+  else
+    return PlyType::kFloat64;
 }
 
 struct PlyProperty {
@@ -91,14 +98,22 @@ using ByteBuffer = std::vector<std::byte, DefaultInitAllocator<std::byte>>;
 template <class F>
 decltype(auto) visit_ply_type(PlyType type, F&& f) {
   switch (type) {
-    case PlyType::kInt8: return f(std::int8_t{});
-    case PlyType::kUint8: return f(std::uint8_t{});
-    case PlyType::kInt16: return f(std::int16_t{});
-    case PlyType::kUint16: return f(std::uint16_t{});
-    case PlyType::kInt32: return f(std::int32_t{});
-    case PlyType::kUint32: return f(std::uint32_t{});
-    case PlyType::kFloat32: return f(float{});
-    case PlyType::kFloat64: return f(double{});
+    case PlyType::kInt8:
+      return f(std::int8_t{});
+    case PlyType::kUint8:
+      return f(std::uint8_t{});
+    case PlyType::kInt16:
+      return f(std::int16_t{});
+    case PlyType::kUint16:
+      return f(std::uint16_t{});
+    case PlyType::kInt32:
+      return f(std::int32_t{});
+    case PlyType::kUint32:
+      return f(std::uint32_t{});
+    case PlyType::kFloat32:
+      return f(float{});
+    case PlyType::kFloat64:
+      return f(double{});
   }
   throw std::logic_error("invalid PlyType");
 }
@@ -215,8 +230,7 @@ class PlyElement {
                                           const std::string& target) const;
   // A copy of *this with one more (zeroed) property; `count_if_first` is the row
   // count when *this has no properties yet.
-  [[nodiscard]] PlyElement with_property(std::string name, PlyType type,
-                                         std::int64_t count_if_first) const;
+  [[nodiscard]] PlyElement with_property(std::string name, PlyType type, std::int64_t count_if_first) const;
 
   std::string name_;
   std::int64_t count_ = 0;
@@ -270,8 +284,7 @@ std::vector<T> PlyElement::column_as(std::size_t prop) const {
       S v;
       std::memcpy(&v, p, sizeof v);
       if (!detail::convert_value(v, out[r])) {
-        throw_unrepresentable(prop, static_cast<std::int64_t>(r), static_cast<double>(v),
-                              detail::arithmetic_name<T>());
+        throw_unrepresentable(prop, static_cast<std::int64_t>(r), static_cast<double>(v), detail::arithmetic_name<T>());
       }
     }
   });
@@ -282,9 +295,8 @@ template <PlyConvertible T>
 void PlyElement::set_column(std::size_t prop, std::span<const T> values) {
   require_index(prop);
   if (values.size() != static_cast<std::size_t>(count_)) {
-    throw std::invalid_argument("PLY element '" + name_ + "' property '" + properties_[prop].name +
-                                "': " + std::to_string(values.size()) + " values for " +
-                                std::to_string(count_) + " rows");
+    throw std::invalid_argument("PLY element '" + name_ + "' property '" + properties_[prop].name + "': " +
+                                std::to_string(values.size()) + " values for " + std::to_string(count_) + " rows");
   }
   if (values.empty()) return;  // no rows, no buffer: null + offset would be undefined
   std::byte* p = bytes_.data() + offsets_[prop];
@@ -305,8 +317,7 @@ template <PlyConvertible T>
 void PlyElement::add_column(std::string name, PlyType type, std::span<const T> values) {
   if (!properties_.empty() && values.size() != static_cast<std::size_t>(count_)) {
     throw std::invalid_argument("PLY element '" + name_ + "': column '" + name + "' has " +
-                                std::to_string(values.size()) + " values for " +
-                                std::to_string(count_) + " rows");
+                                std::to_string(values.size()) + " values for " + std::to_string(count_) + " rows");
   }
   // Build the repacked element aside and swap it in only once every value
   // converted, so a throw leaves *this unchanged.

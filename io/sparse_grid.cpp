@@ -18,8 +18,8 @@
 #include "io/atomic_file.hpp"
 #include "io/config.hpp"
 #include "io/detail/vdb_grids.hpp"
-#include "io/vdb_file.hpp"
 #include "io/error.hpp"
+#include "io/vdb_file.hpp"
 
 namespace hisnegs::io {
 
@@ -124,7 +124,8 @@ namespace {
 struct BrickGrid {
   int nbx, nby, nbz;
   explicit BrickGrid(const Volume& v)
-      : nbx((v.nx + kLeafDim - 1) / kLeafDim), nby((v.ny + kLeafDim - 1) / kLeafDim),
+      : nbx((v.nx + kLeafDim - 1) / kLeafDim),
+        nby((v.ny + kLeafDim - 1) / kLeafDim),
         nbz((v.nz + kLeafDim - 1) / kLeafDim) {}
   [[nodiscard]] std::size_t count() const { return static_cast<std::size_t>(nbx) * nby * nbz; }
   [[nodiscard]] Coord origin(std::size_t b) const {
@@ -199,7 +200,7 @@ void dilate_band(const Volume& vol, int band_voxels, FloatTree& tree) {
   openvdb::tools::dilateActiveValues(tree, band_voxels, openvdb::tools::NN_FACE_EDGE_VERTEX,
                                      openvdb::tools::IGNORE_TILES);
   openvdb::tree::LeafManager<FloatTree> manager(tree);
-  manager.foreach([&](LeafT& leaf, std::size_t) {
+  manager.foreach ([&](LeafT& leaf, std::size_t) {
     for (auto it = leaf.beginValueOn(); it; ++it) {
       const Coord c = it.getCoord();
       if (c.x() < 0 || c.y() < 0 || c.z() < 0 || c.x() >= vol.nx || c.y() >= vol.ny || c.z() >= vol.nz) {
@@ -270,7 +271,8 @@ openvdb::Vec3d to_vdb(const std::array<double, 3>& v) { return {v[0], v[1], v[2]
 
 void put_meta(FloatGrid& g, const SparseGridMeta& m) {
   g.insertMeta("hisnegs_format_version", openvdb::Int32Metadata(1));
-  g.insertMeta("volume_shape_xyz", openvdb::Vec3IMetadata(openvdb::Vec3i(m.shape_xyz[0], m.shape_xyz[1], m.shape_xyz[2])));
+  g.insertMeta("volume_shape_xyz",
+               openvdb::Vec3IMetadata(openvdb::Vec3i(m.shape_xyz[0], m.shape_xyz[1], m.shape_xyz[2])));
   g.insertMeta("spacing_um", openvdb::Vec3DMetadata(to_vdb(m.spacing_um)));
   g.insertMeta("aspect", openvdb::Vec3DMetadata(to_vdb(m.aspect)));
   g.insertMeta("normalization", openvdb::StringMetadata(std::string(to_string(m.normalization.method))));
@@ -333,7 +335,8 @@ SparseGrid read_vdb(const std::filesystem::path& path) {
   const auto spacing = get_meta<openvdb::Vec3DMetadata>(g, path, "spacing_um");
   const auto aspect = get_meta<openvdb::Vec3DMetadata>(g, path, "aspect");
   m.shape_xyz = {shape.x(), shape.y(), shape.z()};
-  if (shape.x() <= 0 || shape.y() <= 0 || shape.z() <= 0) fail_input(path, "metadata 'volume_shape_xyz' is not positive");
+  if (shape.x() <= 0 || shape.y() <= 0 || shape.z() <= 0)
+    fail_input(path, "metadata 'volume_shape_xyz' is not positive");
   m.spacing_um = {spacing.x(), spacing.y(), spacing.z()};
   m.aspect = Eigen::Vector3d(aspect.x(), aspect.y(), aspect.z());
   m.normalization.method = parse_method(path, get_meta<openvdb::StringMetadata>(g, path, "normalization"));

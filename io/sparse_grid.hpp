@@ -23,13 +23,13 @@ namespace hisnegs::io {
 
 // How a volume becomes sparse (config section `sparse_grid`).
 struct SparseGridOptions {
-  double threshold = 0.05;           // normalized value above which a voxel is foreground, [0, 1)
-  int band_voxels = 2;               // dilation of the foreground, steps of the 26-neighbourhood, [0, 32]
+  double threshold = 0.05;  // normalized value above which a voxel is foreground, [0, 1)
+  int band_voxels = 2;      // dilation of the foreground, steps of the 26-neighbourhood, [0, 32]
   // Share of the remaining voxels sampled into `background`, [0, 1]. 0 keeps the
   // .vdb compact (scattered samples cost an 8^3 leaf each); the GMF fit sets its
   // own (gmf.background_fraction).
   double background_fraction = 0.0;
-  std::uint64_t seed = 0;            // seed of the background subsample
+  std::uint64_t seed = 0;  // seed of the background subsample
 
   void validate() const;  // throws InputError("sparse_grid.FIELD = VALUE: rule")
   template <class V>
@@ -52,12 +52,12 @@ enum class SparseGridPart { kForeground, kBackground };
 
 // What a .vdb written by hisnegs records about its source volume.
 struct SparseGridMeta {
-  std::array<int, 3> shape_xyz{0, 0, 0};          // X, Y, Z of the source stack
+  std::array<int, 3> shape_xyz{0, 0, 0};  // X, Y, Z of the source stack
   std::array<double, 3> spacing_um{1.0, 1.0, 1.0};
-  Eigen::Vector3d aspect{1, 1, 1};                // world half-extents
+  Eigen::Vector3d aspect{1, 1, 1};  // world half-extents
   Normalization normalization;
   std::string source;
-  SparseGridOptions options;                      // how it was built
+  SparseGridOptions options;  // how it was built
 };
 
 class SparseGrid {
@@ -68,10 +68,10 @@ class SparseGrid {
 
   [[nodiscard]] std::int64_t active_voxels() const;      // in `volume` (foreground + band)
   [[nodiscard]] std::int64_t background_voxels() const;  // in `background` (0 when not sampled)
-  [[nodiscard]] std::int64_t leaf_count() const;          // 8^3 leaves of `volume`
-  [[nodiscard]] std::size_t memory_bytes() const;         // both grids, as OpenVDB counts it
+  [[nodiscard]] std::int64_t leaf_count() const;         // 8^3 leaves of `volume`
+  [[nodiscard]] std::size_t memory_bytes() const;        // both grids, as OpenVDB counts it
   [[nodiscard]] const SparseGridMeta& meta() const;
-  [[nodiscard]] WorldFrame frame() const;                 // the CONVENTIONS frame of the source stack
+  [[nodiscard]] WorldFrame frame() const;  // the CONVENTIONS frame of the source stack
   // Value stored at integer voxel (x, y, z) of `volume` and whether it is active.
   [[nodiscard]] float value(int x, int y, int z, bool* active = nullptr) const;
 

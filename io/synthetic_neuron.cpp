@@ -4,9 +4,9 @@
 // Owns no file format and no normalization (volume.cpp does that on the result).
 #include "io/synthetic_neuron.hpp"
 
-#include <Eigen/Geometry>  // unitOrthogonal
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
+#include <Eigen/Geometry>  // unitOrthogonal
 
 #include <algorithm>
 #include <cmath>
@@ -26,17 +26,17 @@ namespace {
 using Eigen::Vector3d;
 
 // Morphology constants that shape the neuron but are not worth a knob.
-constexpr double kTrunkWidening = 0.8;    // primary radius at the soma is (1 + this) x max_radius
-constexpr double kTrunkLengthUm = 3.0;    // e-folding length of that widening
-constexpr double kChildRadiusRatio = 0.75;   // fork: child radius / parent radius at the fork
-constexpr double kParentRadiusRatio = 0.88;  // fork: parent radius after / before the fork
-constexpr double kMinForkSpacingUm = 3.0;    // no fork closer than this to a neurite's start
-constexpr double kBeadBrightening = 0.3;  // a mean bead is 30 % denser than its neurite
+constexpr double kTrunkWidening = 0.8;         // primary radius at the soma is (1 + this) x max_radius
+constexpr double kTrunkLengthUm = 3.0;         // e-folding length of that widening
+constexpr double kChildRadiusRatio = 0.75;     // fork: child radius / parent radius at the fork
+constexpr double kParentRadiusRatio = 0.88;    // fork: parent radius after / before the fork
+constexpr double kMinForkSpacingUm = 3.0;      // no fork closer than this to a neurite's start
+constexpr double kBeadBrightening = 0.3;       // a mean bead is 30 % denser than its neurite
 constexpr double kMaxNeuriteBrightness = 0.9;  // neurites stay dimmer than the soma (= 1)
-constexpr double kSomaLobeOffset = 0.3;   // soma = sphere + 3 lobes at this x radius off-centre
-constexpr double kSomaLobeRadius = 0.7;   // lobe radius / soma radius (lobes stay inside it)
-constexpr double kProfileCutoff = 4.0;    // profiles are evaluated out to r + 4 sigma
-constexpr double kMaxVoxels = 2147483648.0;  // 2^31: the volume must stay addressable
+constexpr double kSomaLobeOffset = 0.3;        // soma = sphere + 3 lobes at this x radius off-centre
+constexpr double kSomaLobeRadius = 0.7;        // lobe radius / soma radius (lobes stay inside it)
+constexpr double kProfileCutoff = 4.0;         // profiles are evaluated out to r + 4 sigma
+constexpr double kMaxVoxels = 2147483648.0;    // 2^31: the volume must stay addressable
 
 std::uint64_t splitmix64(std::uint64_t x) {
   x += 0x9E3779B97F4A7C15ULL;
@@ -52,15 +52,15 @@ std::uint64_t stream_seed(std::uint64_t seed, std::uint64_t stream, std::uint64_
   return splitmix64(splitmix64(seed ^ stream) + index);
 }
 
-template <class T> std::string to_text(const T& value) {
+template <class T>
+std::string to_text(const T& value) {
   std::ostringstream out;
   out << value;
   return out.str();
 }
 
 // "synth.FIELD = VALUE: RULE", as every options struct reports (config section `synth`).
-[[noreturn]] void fail_field(const std::string& field, const std::string& value,
-                             const std::string& rule) {
+[[noreturn]] void fail_field(const std::string& field, const std::string& value, const std::string& rule) {
   fail_option("synth", field, value, rule);
 }
 
@@ -68,8 +68,7 @@ void require_range(const char* field, double value, double lo, double hi, bool l
   const bool ok = std::isfinite(value) && (lo_open ? value > lo : value >= lo) && value <= hi;
   if (!ok) {
     fail_field(field, to_text(value),
-               std::string("must be in ") + (lo_open ? "(" : "[") + to_text(lo) + ", " +
-                   to_text(hi) + "]");
+               std::string("must be in ") + (lo_open ? "(" : "[") + to_text(lo) + ", " + to_text(hi) + "]");
   }
 }
 
@@ -92,12 +91,12 @@ class Random {
 // Morphology: persistent random walks in µm that fork, taper and bead.
 
 struct NeuriteSeed {
-  int parent_node = 0;   // skeleton node the neurite grows from
-  Vector3d position;     // its first node
-  Vector3d direction;    // unit
+  int parent_node = 0;  // skeleton node the neurite grows from
+  Vector3d position;    // its first node
+  Vector3d direction;   // unit
   double radius_start = 0;
   double path_from_soma_um = 0;
-  int order = 0;         // 0 for primaries, +1 per fork
+  int order = 0;  // 0 for primaries, +1 per fork
   double log_brightness = 0;
 };
 
@@ -114,8 +113,7 @@ Vector3d random_perpendicular(const Vector3d& d, double z_scale, Random& rng) {
 
 class SkeletonGrower {
  public:
-  explicit SkeletonGrower(const SyntheticNeuronOptions& o)
-      : o_(o), rng_(stream_seed(o.seed, kMorphologyStream, 0)) {
+  explicit SkeletonGrower(const SyntheticNeuronOptions& o) : o_(o), rng_(stream_seed(o.seed, kMorphologyStream, 0)) {
     for (int a = 0; a < 3; ++a) {
       const int n = a == 0 ? o.nx : a == 1 ? o.ny : o.nz;
       hi_[a] = (n - 1) * o.spacing_um[a] - o.margin_um;
@@ -132,8 +130,7 @@ class SkeletonGrower {
     for (int i = 0; i < n; ++i) {
       const double phi = phi0 + 2 * std::numbers::pi * (i + rng_.uniform(-0.3, 0.3)) / n;
       const double elevation = rng_.uniform(-max_elevation, max_elevation);
-      const Vector3d dir(std::cos(elevation) * std::cos(phi), std::cos(elevation) * std::sin(phi),
-                         std::sin(elevation));
+      const Vector3d dir(std::cos(elevation) * std::cos(phi), std::cos(elevation) * std::sin(phi), std::sin(elevation));
       NeuriteSeed seed;
       seed.parent_node = 0;
       seed.position = soma_ + 0.8 * o_.soma_radius_um * dir;
@@ -190,11 +187,9 @@ class SkeletonGrower {
     const double w = o_.varicosity_length_um;
     while (beads.last_centre < s + kProfileCutoff * w) {
       beads.last_centre += o_.varicosity_period_um * rng_.uniform(0.5, 1.5);
-      beads.centre_amplitude.emplace_back(beads.last_centre,
-                                          rng_.uniform(0.4, 1.6));
+      beads.centre_amplitude.emplace_back(beads.last_centre, rng_.uniform(0.4, 1.6));
     }
-    while (!beads.centre_amplitude.empty() &&
-           beads.centre_amplitude.front().first < s - kProfileCutoff * w) {
+    while (!beads.centre_amplitude.empty() && beads.centre_amplitude.front().first < s - kProfileCutoff * w) {
       beads.centre_amplitude.pop_front();
     }
     double bump = 0;
@@ -222,17 +217,16 @@ class SkeletonGrower {
     const double decay = std::exp(-step / o_.brightness_correlation_um);
     const double kick = o_.brightness_variation * std::sqrt(1 - decay * decay);
     while (true) {
-      double r_base = o_.min_radius_um +
-                      (radius_start - o_.min_radius_um) * std::exp(-s_local / o_.taper_length_um);
+      double r_base = o_.min_radius_um + (radius_start - o_.min_radius_um) * std::exp(-s_local / o_.taper_length_um);
       if (seed.order == 0) r_base *= 1 + kTrunkWidening * std::exp(-s_local / kTrunkLengthUm);
       const double bump = bead_bump(beads, s_local);
-      const double brightness = std::min(
-          kMaxNeuriteBrightness, o_.neurite_brightness * std::exp(log_b) * (1 + kBeadBrightening * bump));
+      const double brightness =
+          std::min(kMaxNeuriteBrightness, o_.neurite_brightness * std::exp(log_b) * (1 + kBeadBrightening * bump));
       nodes_.push_back({pos, r_base + o_.varicosity_radius_um * bump, previous, brightness});
       previous = static_cast<int>(nodes_.size()) - 1;
 
-      if (seed.order < o_.max_branch_order && started_ < o_.max_branches &&
-          s_local >= kMinForkSpacingUm && rng_.uniform(0, 1) < o_.branch_probability_per_um * step) {
+      if (seed.order < o_.max_branch_order && started_ < o_.max_branches && s_local >= kMinForkSpacingUm &&
+          rng_.uniform(0, 1) < o_.branch_probability_per_um * step) {
         const double angle = rng_.uniform(25, 65) * std::numbers::pi / 180;
         const Vector3d u = random_perpendicular(dir, z_scale, rng_);
         const Vector3d child_dir = (std::cos(angle) * dir + std::sin(angle) * u).normalized();
@@ -298,8 +292,8 @@ struct Grid {
   double s[3];
 };
 
-Primitive make_primitive(const Vector3d& p0, double r0, double b0, const Vector3d& p1, double r1,
-                         double b1, const Grid& g, const double sigma_aa[3]) {
+Primitive make_primitive(const Vector3d& p0, double r0, double b0, const Vector3d& p1, double r1, double b1,
+                         const Grid& g, const double sigma_aa[3]) {
   Primitive p{p0, p1, r0, r1, b0, b1};
   const double r = std::max(r0, r1);
   for (int a = 0; a < 3; ++a) {
@@ -312,10 +306,9 @@ Primitive make_primitive(const Vector3d& p0, double r0, double b0, const Vector3
   return p;
 }
 
-void rasterize_slice(const std::vector<Primitive>& prims, const std::vector<int>& ids, int k,
-                     const Grid& g, const double sigma_aa[3], float* slice) {
-  const double var[3] = {sigma_aa[0] * sigma_aa[0], sigma_aa[1] * sigma_aa[1],
-                         sigma_aa[2] * sigma_aa[2]};
+void rasterize_slice(const std::vector<Primitive>& prims, const std::vector<int>& ids, int k, const Grid& g,
+                     const double sigma_aa[3], float* slice) {
+  const double var[3] = {sigma_aa[0] * sigma_aa[0], sigma_aa[1] * sigma_aa[1], sigma_aa[2] * sigma_aa[2]};
   const double var_max = std::max({var[0], var[1], var[2]});
   const double var_mean = (var[0] + var[1] + var[2]) / 3;
   const double z = k * g.s[2];
@@ -340,9 +333,10 @@ void rasterize_slice(const std::vector<Primitive>& prims, const std::vector<int>
         if (row[i] >= b) continue;  // max-combine: cannot raise this voxel
         const double r = p.r0 + t * (p.r1 - p.r0);
         const double sigma2 =
-            rho2 > 1e-24 ? (delta.x() * delta.x() * var[0] + delta.y() * delta.y() * var[1] +
-                            delta.z() * delta.z() * var[2]) / rho2
-                         : var_mean;
+            rho2 > 1e-24
+                ? (delta.x() * delta.x() * var[0] + delta.y() * delta.y() * var[1] + delta.z() * delta.z() * var[2]) /
+                      rho2
+                : var_mean;
         const double rho = std::sqrt(rho2);
         double slab;
         if (sigma2 > 0) {
@@ -376,8 +370,7 @@ std::vector<float> gaussian_kernel(double sigma_vox) {
 // Convolves `count` lines of length `len` (element m of line l at base(l) + m * stride).
 // Lines are independent, so any parallel split gives the same result.
 template <class Base>
-void blur_lines(float* data, int count, int len, std::size_t stride, Base base,
-                const std::vector<float>& w) {
+void blur_lines(float* data, int count, int len, std::size_t stride, Base base, const std::vector<float>& w) {
   const int radius = static_cast<int>(w.size() / 2);
   tbb::parallel_for(tbb::blocked_range<int>(0, count), [&](const tbb::blocked_range<int>& range) {
     std::vector<float> line(len);
@@ -397,16 +390,18 @@ void blur_lines(float* data, int count, int len, std::size_t stride, Base base,
 void blur(std::vector<float>& v, const Grid& g, const double sigma_vox[3]) {
   const std::size_t nx = g.n[0], ny = g.n[1];
   if (sigma_vox[0] > 0) {
-    blur_lines(v.data(), g.n[1] * g.n[2], g.n[0], 1, [&](int l) { return l * nx; },
-               gaussian_kernel(sigma_vox[0]));
+    blur_lines(
+        v.data(), g.n[1] * g.n[2], g.n[0], 1, [&](int l) { return l * nx; }, gaussian_kernel(sigma_vox[0]));
   }
   if (sigma_vox[1] > 0) {
-    blur_lines(v.data(), g.n[0] * g.n[2], g.n[1], nx,
-               [&](int l) { return (l / nx) * nx * ny + l % nx; }, gaussian_kernel(sigma_vox[1]));
+    blur_lines(
+        v.data(), g.n[0] * g.n[2], g.n[1], nx, [&](int l) { return (l / nx) * nx * ny + l % nx; },
+        gaussian_kernel(sigma_vox[1]));
   }
   if (sigma_vox[2] > 0) {
-    blur_lines(v.data(), g.n[0] * g.n[1], g.n[2], nx * ny,
-               [&](int l) { return static_cast<std::size_t>(l); }, gaussian_kernel(sigma_vox[2]));
+    blur_lines(
+        v.data(), g.n[0] * g.n[1], g.n[2], nx * ny, [&](int l) { return static_cast<std::size_t>(l); },
+        gaussian_kernel(sigma_vox[2]));
   }
 }
 
@@ -436,8 +431,7 @@ void SyntheticNeuronOptions::validate() const {
   require_range("min_radius_um", min_radius_um, 0, 10, true);
   require_range("max_radius_um", max_radius_um, 0, 10, true);
   if (min_radius_um > max_radius_um) {
-    fail_field("min_radius_um", to_text(min_radius_um),
-               "must not exceed max_radius_um = " + to_text(max_radius_um));
+    fail_field("min_radius_um", to_text(min_radius_um), "must not exceed max_radius_um = " + to_text(max_radius_um));
   }
   require_range("taper_length_um", taper_length_um, 0, 1e4, true);
   require_range("branch_probability_per_um", branch_probability_per_um, 0, 1);
@@ -474,8 +468,7 @@ void SyntheticNeuronOptions::validate() const {
     if (2 * (soma_radius_um + margin_um) > extent) {
       fail_field("soma_radius_um", to_text(soma_radius_um),
                  "soma diameter + 2 margin_um (" + to_text(2 * (soma_radius_um + margin_um)) +
-                     " µm) must fit the stack's " + "xyz"[a] + " extent of " + to_text(extent) +
-                     " µm");
+                     " µm) must fit the stack's " + "xyz"[a] + " extent of " + to_text(extent) + " µm");
     }
   }
 }
@@ -501,8 +494,8 @@ std::vector<Primitive> make_primitives(const std::vector<NeuriteNode>& nodes, co
                                        const Grid& g, const double sigma_aa[3]) {
   std::vector<Primitive> prims;
   const NeuriteNode& soma = nodes[0];
-  prims.push_back(make_primitive(soma.position_um, soma.radius_um, 1.0, soma.position_um, soma.radius_um, 1.0, g,
-                                 sigma_aa));
+  prims.push_back(
+      make_primitive(soma.position_um, soma.radius_um, 1.0, soma.position_um, soma.radius_um, 1.0, g, sigma_aa));
   for (const Vector3d& c : lobes) {
     const double r = kSomaLobeRadius * soma.radius_um;
     prims.push_back(make_primitive(c, r, 1.0, c, r, 1.0, g, sigma_aa));
@@ -529,9 +522,8 @@ std::vector<float> render_intensity(const std::vector<Primitive>& prims, const G
   }
   const std::size_t slice_size = static_cast<std::size_t>(g.n[0]) * g.n[1];
   std::vector<float> intensity(slice_size * nz, 0.0f);
-  tbb::parallel_for(0, nz, [&](int k) {
-    rasterize_slice(prims, by_slice[k], k, g, sigma_aa, intensity.data() + k * slice_size);
-  });
+  tbb::parallel_for(
+      0, nz, [&](int k) { rasterize_slice(prims, by_slice[k], k, g, sigma_aa, intensity.data() + k * slice_size); });
   blur(intensity, g, sigma_blur_vox);
   return intensity;
 }

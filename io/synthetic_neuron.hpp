@@ -19,31 +19,31 @@ namespace hisnegs::io {
 // whatever the number of threads). Config section `synth`; keys are field names.
 struct SyntheticNeuronOptions {
   // --- stack geometry
-  int nx = 192;  // stack columns (X), [8, 4096]
-  int ny = 192;  // stack rows (Y), [8, 4096]
-  int nz = 48;   // stack pages (Z), [8, 4096]
+  int nx = 192;                                       // stack columns (X), [8, 4096]
+  int ny = 192;                                       // stack rows (Y), [8, 4096]
+  int nz = 48;                                        // stack pages (Z), [8, 4096]
   std::array<double, 3> spacing_um{0.33, 0.33, 1.0};  // voxel size (x, y, z) in µm, each in (0, 100]
-  std::uint64_t seed = 1;  // seeds the morphology and the noise; any value
+  std::uint64_t seed = 1;                             // seeds the morphology and the noise; any value
 
   // --- morphology (all lengths in µm, in the physical frame of the stack)
-  int primary_branches = 5;         // neurites leaving the soma, [1, 16]
-  double soma_radius_um = 4.0;      // soma sphere radius, (0, 50]; must fit inside the box
-  double max_radius_um = 1.0;       // primary neurite radius a few µm out of the soma (its trunk
-                                    // widens to 1.8x at the soma), [min_radius_um, 10]
-  double min_radius_um = 0.25;      // radius the neurites taper towards, (0, max_radius_um]
-  double taper_length_um = 25.0;    // e-folding path length of the taper max -> min, (0, 1e4]
-  double branch_probability_per_um = 0.06;   // chance per µm of path that a branch forks, [0, 1]
-  int max_branch_order = 3;         // forks per path from soma to tip at most, [0, 8]
-  int max_branches = 64;            // neurite pieces (primaries + forks) in all, [primary_branches, 1024]
-  double max_path_length_um = 120;  // a neurite stops this far along its path from the soma, (0, 1e5]
-  double step_um = 0.5;             // skeleton node spacing along a neurite, [0.05, 5]
-  double tortuosity = 0.15;         // direction change per step: std dev (rad) per sqrt(µm), [0, 2]
-  double outward_bias = 0.04;       // per-µm pull of the direction away from the soma, [0, 1]
-  double planarity = 0.6;           // how much z motion is damped (flat arbor), [0, 1]; 0 = isotropic
-  double margin_um = 1.0;           // skeleton keeps this far from every face of the box, [0, 1e4]
-  double varicosity_period_um = 4.0;     // mean distance between varicosities (beads), (0, 1e4]
-  double varicosity_radius_um = 0.3;     // mean radius a bead adds to its neurite, µm, [0, 10]
-  double varicosity_length_um = 0.6;     // bead half-length (Gaussian std dev of the bump), (0, 100]
+  int primary_branches = 5;                 // neurites leaving the soma, [1, 16]
+  double soma_radius_um = 4.0;              // soma sphere radius, (0, 50]; must fit inside the box
+  double max_radius_um = 1.0;               // primary neurite radius a few µm out of the soma (its trunk
+                                            // widens to 1.8x at the soma), [min_radius_um, 10]
+  double min_radius_um = 0.25;              // radius the neurites taper towards, (0, max_radius_um]
+  double taper_length_um = 25.0;            // e-folding path length of the taper max -> min, (0, 1e4]
+  double branch_probability_per_um = 0.06;  // chance per µm of path that a branch forks, [0, 1]
+  int max_branch_order = 3;                 // forks per path from soma to tip at most, [0, 8]
+  int max_branches = 64;                    // neurite pieces (primaries + forks) in all, [primary_branches, 1024]
+  double max_path_length_um = 120;          // a neurite stops this far along its path from the soma, (0, 1e5]
+  double step_um = 0.5;                     // skeleton node spacing along a neurite, [0.05, 5]
+  double tortuosity = 0.15;                 // direction change per step: std dev (rad) per sqrt(µm), [0, 2]
+  double outward_bias = 0.04;               // per-µm pull of the direction away from the soma, [0, 1]
+  double planarity = 0.6;                   // how much z motion is damped (flat arbor), [0, 1]; 0 = isotropic
+  double margin_um = 1.0;                   // skeleton keeps this far from every face of the box, [0, 1e4]
+  double varicosity_period_um = 4.0;        // mean distance between varicosities (beads), (0, 1e4]
+  double varicosity_radius_um = 0.3;        // mean radius a bead adds to its neurite, µm, [0, 10]
+  double varicosity_length_um = 0.6;        // bead half-length (Gaussian std dev of the bump), (0, 100]
 
   // --- brightness: relative emitter density, soma = 1
   double neurite_brightness = 0.55;      // mean neurite density relative to the soma, (0, 0.9]
@@ -56,11 +56,11 @@ struct SyntheticNeuronOptions {
   double psf_sigma_z_um = 0.6;    // axial PSF std dev, [0, 100]
 
   // --- detector: counts = gain * Poisson(photons) + Normal(0, read_noise) + camera_offset
-  double peak_photons = 200;             // expected photons per voxel inside the soma, (0, 1e5]
-  double background_photons = 0.5;       // expected autofluorescence photons per voxel, [0, 1e4]
-  double gain_counts_per_photon = 1.0;   // camera counts per detected photon, (0, 100]
-  double read_noise = 2.0;               // camera read noise std dev in counts, [0, 1e4]
-  double camera_offset = 100;            // camera bias in counts, [0, 60000]
+  double peak_photons = 200;            // expected photons per voxel inside the soma, (0, 1e5]
+  double background_photons = 0.5;      // expected autofluorescence photons per voxel, [0, 1e4]
+  double gain_counts_per_photon = 1.0;  // camera counts per detected photon, (0, 100]
+  double read_noise = 2.0;              // camera read noise std dev in counts, [0, 1e4]
+  double camera_offset = 100;           // camera bias in counts, [0, 60000]
 
   // Background subtraction, part of the simulated acquisition (the shipped real stacks
   // were processed this way): subtract round(camera_offset + sigmas * read_noise)
@@ -74,11 +74,18 @@ struct SyntheticNeuronOptions {
 
   // Calls v("name", field) once per field above, in declaration order, with name ==
   // the field's name (config loading, printing).
-  template <class V> void visit(V&& v) { visit_fields(*this, v); }
-  template <class V> void visit(V&& v) const { visit_fields(*this, v); }
+  template <class V>
+  void visit(V&& v) {
+    visit_fields(*this, v);
+  }
+  template <class V>
+  void visit(V&& v) const {
+    visit_fields(*this, v);
+  }
 
  private:
-  template <class Self, class V> static void visit_fields(Self& s, V& v) {
+  template <class Self, class V>
+  static void visit_fields(Self& s, V& v) {
     v("nx", s.nx);
     v("ny", s.ny);
     v("nz", s.nz);

@@ -38,7 +38,6 @@ using detail::TiffHandle;
 
 namespace {
 
-
 // ---------------------------------------------------------------------------
 // Memory limit for hostile headers.
 
@@ -49,7 +48,6 @@ std::string count_text(double count) {
   std::snprintf(text, sizeof text, count < 9e15 ? "%.0f" : "%.3g", count);
   return text;
 }
-
 
 // ---------------------------------------------------------------------------
 // Page format.
@@ -77,25 +75,38 @@ PageFormat read_page_format(TIFF* tif) {
 
 std::string photometric_text(std::uint16_t photometric) {
   switch (photometric) {
-    case PHOTOMETRIC_MINISBLACK: return "min-is-black grey";
-    case PHOTOMETRIC_MINISWHITE: return "min-is-white (inverted grey)";
-    case PHOTOMETRIC_RGB: return "RGB";
-    case PHOTOMETRIC_PALETTE: return "palette colour";
-    case PHOTOMETRIC_YCBCR: return "YCbCr";
-    case PHOTOMETRIC_SEPARATED: return "separated (CMYK)";
-    default: return "photometric " + std::to_string(photometric);
+    case PHOTOMETRIC_MINISBLACK:
+      return "min-is-black grey";
+    case PHOTOMETRIC_MINISWHITE:
+      return "min-is-white (inverted grey)";
+    case PHOTOMETRIC_RGB:
+      return "RGB";
+    case PHOTOMETRIC_PALETTE:
+      return "palette colour";
+    case PHOTOMETRIC_YCBCR:
+      return "YCbCr";
+    case PHOTOMETRIC_SEPARATED:
+      return "separated (CMYK)";
+    default:
+      return "photometric " + std::to_string(photometric);
   }
 }
 
 std::string sample_format_text(const PageFormat& f) {
   const std::string bits = std::to_string(f.bits) + "-bit ";
   switch (f.sample_format) {
-    case SAMPLEFORMAT_UINT: return bits + "unsigned integer";
-    case SAMPLEFORMAT_INT: return bits + "signed integer";
-    case SAMPLEFORMAT_IEEEFP: return bits + "float";
-    case SAMPLEFORMAT_COMPLEXINT: return bits + "complex integer";
-    case SAMPLEFORMAT_COMPLEXIEEEFP: return bits + "complex float";
-    default: return bits + "sample format " + std::to_string(f.sample_format);
+    case SAMPLEFORMAT_UINT:
+      return bits + "unsigned integer";
+    case SAMPLEFORMAT_INT:
+      return bits + "signed integer";
+    case SAMPLEFORMAT_IEEEFP:
+      return bits + "float";
+    case SAMPLEFORMAT_COMPLEXINT:
+      return bits + "complex integer";
+    case SAMPLEFORMAT_COMPLEXIEEEFP:
+      return bits + "complex float";
+    default:
+      return bits + "sample format " + std::to_string(f.sample_format);
   }
 }
 
@@ -109,8 +120,8 @@ SampleType sample_type_of(const fs::path& path, const PageFormat& f) {
   if (unsigned_int && f.bits == 8) return SampleType::kUint8;
   if (unsigned_int && f.bits == 16) return SampleType::kUint16;
   if (f.sample_format == SAMPLEFORMAT_IEEEFP && f.bits == 32) return SampleType::kFloat32;
-  fail_input(path, "unsupported sample format: " + sample_format_text(f) +
-                       "; expected 8/16-bit unsigned or 32-bit float");
+  fail_input(path,
+             "unsupported sample format: " + sample_format_text(f) + "; expected 8/16-bit unsigned or 32-bit float");
 }
 
 void check_photometric(const fs::path& path, std::uint16_t photometric) {
@@ -118,7 +129,6 @@ void check_photometric(const fs::path& path, std::uint16_t photometric) {
   fail_input(path, "unsupported photometric interpretation: " + photometric_text(photometric) +
                        "; expected min-is-black grey or RGB");
 }
-
 
 // libtiff's codec name ("None", "LZW", "AdobeDeflate", ...) or "unknown (N)".
 std::string compression_name(std::uint16_t compression) {
@@ -135,7 +145,7 @@ struct StackLayout {
   int pages = 0;          // IFDs in the file
   int page_channels = 1;  // channels stored as separate pages
   int nz = 0;
-  int stride_z = 1;       // page = z * stride_z + page_channel * stride_c
+  int stride_z = 1;  // page = z * stride_z + page_channel * stride_c
   int stride_c = 0;
   VoxelSpacing spacing;
   std::string compression;
@@ -255,9 +265,8 @@ PageCounts imagej_page_order(const detail::ImageJDescription& imagej, const fs::
   }
   if (static_cast<double>(n.c_pages) * static_cast<double>(n.nz) * static_cast<double>(n.nt) !=
       static_cast<double>(images)) {
-    fail_input(path, "ImageJ description: channels=" + std::to_string(n.c_pages) + " x slices=" +
-                         std::to_string(n.nz) + " x frames=" + std::to_string(n.nt) +
-                         " does not equal images=" + std::to_string(images));
+    fail_input(path, "ImageJ description: channels=" + std::to_string(n.c_pages) + " x slices=" + std::to_string(n.nz) +
+                         " x frames=" + std::to_string(n.nt) + " does not equal images=" + std::to_string(images));
   }
   if (images != s.pages) {
     fail_input(path, "ImageJ description says images=" + std::to_string(images) + " but the file has " +
@@ -282,8 +291,8 @@ void resolve_page_order(const StackDescription& d, const fs::path& path, const T
     n = imagej_page_order(*d.imagej, path, s);
   }
   if (n.nt > 1) {
-    fail_input(path, "has " + std::to_string(n.nt) + " time points (" + (d.ome ? "OME SizeT" : "ImageJ frames") +
-                         "=" + std::to_string(n.nt) + "); expected a single 3D stack");
+    fail_input(path, "has " + std::to_string(n.nt) + " time points (" + (d.ome ? "OME SizeT" : "ImageJ frames") + "=" +
+                         std::to_string(n.nt) + "); expected a single 3D stack");
   }
   if (n.c_pages * s.format.samples > std::numeric_limits<int>::max()) fail_input(path, "has too many channels");
   s.page_channels = static_cast<int>(n.c_pages);
@@ -296,8 +305,8 @@ void resolve_page_order(const StackDescription& d, const fs::path& path, const T
 }
 
 // The voxel spacing by the CONVENTIONS precedence (option, OME, ImageJ, resolution tags).
-void resolve_stack_spacing(TIFF* tif, const StackDescription& d, const fs::path& path,
-                           const TiffReadOptions& options, StackLayout& s) {
+void resolve_stack_spacing(TIFF* tif, const StackDescription& d, const fs::path& path, const TiffReadOptions& options,
+                           StackLayout& s) {
   detail::SpacingEvidence evidence;
   evidence.user_um = options.spacing_um;
   evidence.ome = d.ome ? &*d.ome : nullptr;
@@ -316,8 +325,7 @@ void resolve_stack_spacing(TIFF* tif, const StackDescription& d, const fs::path&
 
 // Reads the header of the current (first) directory. Checks everything that
 // inspect and read share; `options.channel` is only range-checked here.
-StackLayout analyse_stack(TIFF* tif, const TiffHandle& handle, const fs::path& path,
-                          const TiffReadOptions& options) {
+StackLayout analyse_stack(TIFF* tif, const TiffHandle& handle, const fs::path& path, const TiffReadOptions& options) {
   StackLayout s;
   read_first_page(tif, handle, path, s);
   const StackDescription description = read_description(tif, path);
@@ -343,8 +351,7 @@ std::unique_ptr<TiffHandle> open_for_read(const fs::path& path) {
 // dst[i] = src[(i * stride + offset)] for i < count; memcpy keeps it alias-safe
 // and unaligned-safe, and compiles to plain loads.
 template <class T>
-void convert_samples(const unsigned char* src, std::size_t stride, std::size_t offset, float* dst,
-                     std::size_t count) {
+void convert_samples(const unsigned char* src, std::size_t stride, std::size_t offset, float* dst, std::size_t count) {
   src += offset * sizeof(T);
   for (std::size_t i = 0; i < count; ++i) {
     T v;
@@ -356,9 +363,15 @@ void convert_samples(const unsigned char* src, std::size_t stride, std::size_t o
 void convert(SampleType type, const unsigned char* src, std::size_t stride, std::size_t offset, float* dst,
              std::size_t count) {
   switch (type) {
-    case SampleType::kUint8: convert_samples<std::uint8_t>(src, stride, offset, dst, count); break;
-    case SampleType::kUint16: convert_samples<std::uint16_t>(src, stride, offset, dst, count); break;
-    case SampleType::kFloat32: convert_samples<float>(src, stride, offset, dst, count); break;
+    case SampleType::kUint8:
+      convert_samples<std::uint8_t>(src, stride, offset, dst, count);
+      break;
+    case SampleType::kUint16:
+      convert_samples<std::uint16_t>(src, stride, offset, dst, count);
+      break;
+    case SampleType::kFloat32:
+      convert_samples<float>(src, stride, offset, dst, count);
+      break;
   }
 }
 
@@ -380,8 +393,8 @@ class DecodeBuffer {
 };
 
 // Decodes sample `sample` of the current directory (page `page`) into `dst` (ny*nx floats).
-void decode_page(TIFF* tif, const TiffHandle& handle, const fs::path& path, int page, const StackLayout& s,
-                 int sample, float* dst, DecodeBuffer& buffer) {
+void decode_page(TIFF* tif, const TiffHandle& handle, const fs::path& path, int page, const StackLayout& s, int sample,
+                 float* dst, DecodeBuffer& buffer) {
   const std::size_t nx = s.format.width, ny = s.format.height;
   const std::size_t bytes = bytes_of(s.type);
   std::uint16_t compression = COMPRESSION_NONE;
@@ -437,7 +450,6 @@ void decode_page(TIFF* tif, const TiffHandle& handle, const fs::path& path, int 
   }
 }
 
-
 }  // namespace
 
 // ---------------------------------------------------------------------------
@@ -458,7 +470,6 @@ void TiffReadOptions::validate() const {
     }
   }
 }
-
 
 TiffStackInfo inspect_tiff_stack(const fs::path& path, const TiffReadOptions& options) {
   options.validate();
@@ -490,8 +501,8 @@ Volume read_tiff_stack(const fs::path& path, const TiffReadOptions& options) {
   }
   if (s.nz < 2) {
     if (s.pages == 1) fail_input(path, "is a single 2D image (1 page); expected a 3D stack");
-    fail_input(path, "has a single Z slice (" + std::to_string(s.pages) + " pages, " +
-                         std::to_string(s.channels()) + " channels); expected a 3D stack");
+    fail_input(path, "has a single Z slice (" + std::to_string(s.pages) + " pages, " + std::to_string(s.channels()) +
+                         " channels); expected a 3D stack");
   }
   const int channel = options.channel.value_or(0);
   const int page_channel = channel / s.format.samples;
@@ -524,8 +535,8 @@ Volume read_tiff_stack(const fs::path& path, const TiffReadOptions& options) {
   const std::size_t page_voxels = static_cast<std::size_t>(nx) * ny;
   for (int page = 0; page <= last_page; ++page) {
     if (page > 0 && (!TIFFReadDirectory(tif) || handle->messages().errors > 0)) {
-      fail_input(path, "cannot read page " + std::to_string(page) + " of " + std::to_string(s.pages) +
-                           handle->detail());
+      fail_input(path,
+                 "cannot read page " + std::to_string(page) + " of " + std::to_string(s.pages) + handle->detail());
     }
     const PageFormat f = read_page_format(tif);
     if (!(f == s.format)) {
@@ -543,9 +554,8 @@ Volume read_tiff_stack(const fs::path& path, const TiffReadOptions& options) {
       const float* bad = std::find_if(dst, dst + page_voxels, [](float v) { return !std::isfinite(v); });
       if (bad != dst + page_voxels) {
         const auto i = static_cast<std::size_t>(bad - dst);
-        fail_input(path, "voxel (x=" + std::to_string(i % nx) + ", y=" + std::to_string(i / nx) +
-                             ", z=" + std::to_string(z) + ") is " + non_finite_text(*bad) +
-                             "; float stacks must be finite");
+        fail_input(path, "voxel (x=" + std::to_string(i % nx) + ", y=" + std::to_string(i / nx) + ", z=" +
+                             std::to_string(z) + ") is " + non_finite_text(*bad) + "; float stacks must be finite");
       }
     }
   }

@@ -41,8 +41,7 @@ struct TiffReadOptions {
 // channels without options.channel, several time points, NaN/Inf voxels, or a
 // volume larger than the memory limit (checked before allocating: /proc/meminfo
 // MemAvailable, or the environment variable HISNEGS_MAX_ALLOC_GB in GiB).
-[[nodiscard]] Volume read_tiff_stack(const std::filesystem::path& path,
-                                     const TiffReadOptions& options = {});
+[[nodiscard]] Volume read_tiff_stack(const std::filesystem::path& path, const TiffReadOptions& options = {});
 
 // How write_tiff_stack stores a stack.
 struct TiffWriteOptions {
@@ -70,25 +69,24 @@ struct TiffWriteOptions {
 // not fit an integer type (checked before anything is created); std::invalid_argument
 // if voxels.size() != nx*ny*nz; std::runtime_error naming the path if writing fails
 // (disk full, ...). The target is untouched and no temporary file remains on any throw.
-void write_tiff_stack(const std::filesystem::path& path, std::span<const float> voxels, int nx,
-                      int ny, int nz, const TiffWriteOptions& options = {});
+void write_tiff_stack(const std::filesystem::path& path, std::span<const float> voxels, int nx, int ny, int nz,
+                      const TiffWriteOptions& options = {});
 
 // Writes `volume` as above. When options.spacing_um is empty the volume's
 // spacing is written, unless all three axes are kDefault (unknown spacing stays
 // unknown: nothing is written, so reading back gives kDefault again).
-void write_tiff_stack(const std::filesystem::path& path, const Volume& volume,
-                      const TiffWriteOptions& options);
+void write_tiff_stack(const std::filesystem::path& path, const Volume& volume, const TiffWriteOptions& options);
 
 // What a stack holds, from its tags only (no pixel data is decoded).
 struct TiffStackInfo {
   int nx = 0, ny = 0, nz = 0;  // X (columns), Y (rows), Z (slices of one channel)
   int channels = 1;            // channels to choose from (samples × page channels)
   SampleType type = SampleType::kUint8;
-  VoxelSpacing spacing;        // as read_tiff_stack would report it
-  std::string compression;     // libtiff codec name of page 0 ("None", "LZW", "AdobeDeflate", ...)
-  bool tiled = false;          // page 0 is tiled
-  bool bigtiff = false;        // BigTIFF (64-bit offsets)
-  int pages = 0;               // IFDs in the file
+  VoxelSpacing spacing;     // as read_tiff_stack would report it
+  std::string compression;  // libtiff codec name of page 0 ("None", "LZW", "AdobeDeflate", ...)
+  bool tiled = false;       // page 0 is tiled
+  bool bigtiff = false;     // BigTIFF (64-bit offsets)
+  int pages = 0;            // IFDs in the file
 };
 
 // Reads only the header: nz, channels and spacing as read_tiff_stack would
@@ -96,7 +94,6 @@ struct TiffStackInfo {
 // require options.channel (info reports the channel count); an out-of-range
 // options.channel, unsupported sample formats, time series and non-TIFF files
 // throw InputError as read_tiff_stack does.
-[[nodiscard]] TiffStackInfo inspect_tiff_stack(const std::filesystem::path& path,
-                                               const TiffReadOptions& options = {});
+[[nodiscard]] TiffStackInfo inspect_tiff_stack(const std::filesystem::path& path, const TiffReadOptions& options = {});
 
 }  // namespace hisnegs::io

@@ -105,7 +105,8 @@ void set_page_tags(TIFF* tif, int nx, int ny, std::size_t rows_per_strip, const 
   TIFFSetField(tif, TIFFTAG_IMAGELENGTH, static_cast<std::uint32_t>(ny));
   TIFFSetField(tif, TIFFTAG_BITSPERSAMPLE, static_cast<std::uint16_t>(8 * bytes_of(options.type)));
   TIFFSetField(tif, TIFFTAG_SAMPLESPERPIXEL, static_cast<std::uint16_t>(1));
-  TIFFSetField(tif, TIFFTAG_SAMPLEFORMAT, options.type == SampleType::kFloat32 ? SAMPLEFORMAT_IEEEFP : SAMPLEFORMAT_UINT);
+  TIFFSetField(tif, TIFFTAG_SAMPLEFORMAT,
+               options.type == SampleType::kFloat32 ? SAMPLEFORMAT_IEEEFP : SAMPLEFORMAT_UINT);
   TIFFSetField(tif, TIFFTAG_PHOTOMETRIC, PHOTOMETRIC_MINISBLACK);
   TIFFSetField(tif, TIFFTAG_PLANARCONFIG, PLANARCONFIG_CONTIG);
   TIFFSetField(tif, TIFFTAG_ROWSPERSTRIP, static_cast<std::uint32_t>(rows_per_strip));
@@ -136,9 +137,15 @@ bool write_page_strips(TIFF* tif, const float* page, int nx, int ny, std::size_t
     const std::size_t count = rows * static_cast<std::size_t>(nx);
     const float* src = page + row * static_cast<std::size_t>(nx);
     switch (type) {
-      case SampleType::kUint8: pack_samples<std::uint8_t>(src, count, strip.data()); break;
-      case SampleType::kUint16: pack_samples<std::uint16_t>(src, count, strip.data()); break;
-      case SampleType::kFloat32: pack_samples<float>(src, count, strip.data()); break;
+      case SampleType::kUint8:
+        pack_samples<std::uint8_t>(src, count, strip.data());
+        break;
+      case SampleType::kUint16:
+        pack_samples<std::uint16_t>(src, count, strip.data());
+        break;
+      case SampleType::kFloat32:
+        pack_samples<float>(src, count, strip.data());
+        break;
     }
     const auto size = static_cast<tmsize_t>(count * bytes);
     if (TIFFWriteEncodedStrip(tif, static_cast<std::uint32_t>(s), strip.data(), size) != size) return false;

@@ -18,22 +18,32 @@ namespace hisnegs::io {
 
 std::string_view to_string(SampleType type) {
   switch (type) {
-    case SampleType::kUint8: return "uint8";
-    case SampleType::kUint16: return "uint16";
-    case SampleType::kFloat32: return "float32";
+    case SampleType::kUint8:
+      return "uint8";
+    case SampleType::kUint16:
+      return "uint16";
+    case SampleType::kFloat32:
+      return "float32";
   }
   return "?";
 }
 
 std::string_view to_string(SpacingSource source) {
   switch (source) {
-    case SpacingSource::kDefault: return "default 1 um (none stored)";
-    case SpacingSource::kUser: return "command line/config";
-    case SpacingSource::kOmeXml: return "OME-XML PhysicalSize";
-    case SpacingSource::kImageJSpacing: return "ImageJ spacing=";
-    case SpacingSource::kImageJResolution: return "ImageJ X/YResolution";
-    case SpacingSource::kTiffResolution: return "TIFF X/YResolution (cm)";
-    case SpacingSource::kFile: return "file metadata";
+    case SpacingSource::kDefault:
+      return "default 1 um (none stored)";
+    case SpacingSource::kUser:
+      return "command line/config";
+    case SpacingSource::kOmeXml:
+      return "OME-XML PhysicalSize";
+    case SpacingSource::kImageJSpacing:
+      return "ImageJ spacing=";
+    case SpacingSource::kImageJResolution:
+      return "ImageJ X/YResolution";
+    case SpacingSource::kTiffResolution:
+      return "TIFF X/YResolution (cm)";
+    case SpacingSource::kFile:
+      return "file metadata";
   }
   return "?";
 }
@@ -65,9 +75,12 @@ std::string VoxelSpacing::describe() const {
 
 std::string_view to_string(NormalizationMethod method) {
   switch (method) {
-    case NormalizationMethod::kNone: return "none";
-    case NormalizationMethod::kMinMax: return "minmax";
-    case NormalizationMethod::kPercentile: return "percentile";
+    case NormalizationMethod::kNone:
+      return "none";
+    case NormalizationMethod::kMinMax:
+      return "minmax";
+    case NormalizationMethod::kPercentile:
+      return "percentile";
   }
   return "?";
 }
@@ -135,8 +148,7 @@ MinMax parallel_min_max(const std::vector<float>& v) {
 void throw_nonfinite(const Volume& vol, std::size_t i) {
   const std::size_t x = i % vol.nx, y = (i / vol.nx) % vol.ny, z = i / (static_cast<std::size_t>(vol.nx) * vol.ny);
   std::ostringstream s;
-  s << "voxel (x=" << x << ", y=" << y << ", z=" << z << ") is " << vol.voxels[i]
-    << "; expected finite values";
+  s << "voxel (x=" << x << ", y=" << y << ", z=" << z << ") is " << vol.voxels[i] << "; expected finite values";
   fail_input(vol.source, s.str());
 }
 
@@ -182,8 +194,8 @@ void normalize(Volume& volume, const NormalizationOptions& options) {
     hi = p[1];
     if (!(hi > lo)) {
       std::ostringstream s;
-      s << "percentiles " << options.percentile_lo << " and " << options.percentile_hi
-        << " are both " << lo << "; use a wider range or `minmax`";
+      s << "percentiles " << options.percentile_lo << " and " << options.percentile_hi << " are both " << lo
+        << "; use a wider range or `minmax`";
       fail_input(volume.source, s.str());
     }
   }
@@ -258,9 +270,7 @@ VolumeStats compute_stats(const Volume& volume, double fg_rel) {
   return st;
 }
 
-std::string_view to_string(AspectMode mode) {
-  return mode == AspectMode::kPhysical ? "physical" : "shape";
-}
+std::string_view to_string(AspectMode mode) { return mode == AspectMode::kPhysical ? "physical" : "shape"; }
 
 Eigen::Vector3d aspect_scales(int nx, int ny, int nz, const VoxelSpacing& spacing, AspectMode mode) {
   Eigen::Vector3d extent(nx, ny, nz);
@@ -270,8 +280,7 @@ Eigen::Vector3d aspect_scales(int nx, int ny, int nz, const VoxelSpacing& spacin
   return extent / extent.maxCoeff();
 }
 
-WorldFrame::WorldFrame(int nx, int ny, int nz, const Eigen::Vector3d& aspect)
-    : shape_(nx, ny, nz), aspect_(aspect) {
+WorldFrame::WorldFrame(int nx, int ny, int nz, const Eigen::Vector3d& aspect) : shape_(nx, ny, nz), aspect_(aspect) {
   const Eigen::Vector3d n = shape_.cast<double>();
   scale_ = (2.0 * aspect_.array() / n.array()).matrix();
   offset_ = (aspect_.array() * (1.0 / n.array() - 1.0)).matrix();

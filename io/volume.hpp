@@ -34,8 +34,7 @@ enum class SpacingSource {
 // Voxel size in µm along x (columns), y (rows), z (pages), and the origin of each.
 struct VoxelSpacing {
   std::array<double, 3> um{1.0, 1.0, 1.0};
-  std::array<SpacingSource, 3> source{SpacingSource::kDefault, SpacingSource::kDefault,
-                                      SpacingSource::kDefault};
+  std::array<SpacingSource, 3> source{SpacingSource::kDefault, SpacingSource::kDefault, SpacingSource::kDefault};
   // "0.3296 x 0.3296 x 0.9988 µm (x, y: ImageJ X/YResolution; z: ImageJ spacing=)".
   [[nodiscard]] std::string describe() const;
 };
@@ -57,24 +56,22 @@ struct Normalization {
 // How `normalize` maps raw values into [0, 1] (config section `volume`).
 struct NormalizationOptions {
   NormalizationMethod method = NormalizationMethod::kMinMax;  // minmax | percentile
-  double percentile_lo = 0.1;   // percent, [0, 100), lower clip for `percentile`
+  double percentile_lo = 0.1;                                 // percent, [0, 100), lower clip for `percentile`
   double percentile_hi = 99.9;  // percent, (percentile_lo, 100], upper clip for `percentile`
   void validate() const;        // throws InputError naming the field
 };
 
 // A dense stack V[z][y][x] stored x-fastest: index = (z * ny + y) * nx + x.
 struct Volume {
-  int nx = 0, ny = 0, nz = 0;   // X (columns), Y (rows), Z (pages)
-  std::vector<float> voxels;     // nx*ny*nz values
+  int nx = 0, ny = 0, nz = 0;  // X (columns), Y (rows), Z (pages)
+  std::vector<float> voxels;   // nx*ny*nz values
   SampleType stored_as = SampleType::kFloat32;
   VoxelSpacing spacing;
-  Normalization normalization;   // method kNone until normalize() ran
-  std::string source;            // file path or "synthetic"
+  Normalization normalization;  // method kNone until normalize() ran
+  std::string source;           // file path or "synthetic"
 
   [[nodiscard]] std::size_t size() const { return static_cast<std::size_t>(nx) * ny * nz; }
-  [[nodiscard]] std::size_t index(int x, int y, int z) const {
-    return (static_cast<std::size_t>(z) * ny + y) * nx + x;
-  }
+  [[nodiscard]] std::size_t index(int x, int y, int z) const { return (static_cast<std::size_t>(z) * ny + y) * nx + x; }
   [[nodiscard]] float at(int x, int y, int z) const { return voxels[index(x, y, z)]; }
   [[nodiscard]] float& at(int x, int y, int z) { return voxels[index(x, y, z)]; }
 };
@@ -99,8 +96,7 @@ enum class AspectMode { kPhysical, kShape };
 
 // Half-extents a of the world box [-a, a]^3: (X sx, Y sy, Z sz) / max(...) for
 // kPhysical, (X, Y, Z) / max(X, Y, Z) for kShape (report Eq. 9).
-[[nodiscard]] Eigen::Vector3d aspect_scales(int nx, int ny, int nz, const VoxelSpacing& spacing,
-                                            AspectMode mode);
+[[nodiscard]] Eigen::Vector3d aspect_scales(int nx, int ny, int nz, const VoxelSpacing& spacing, AspectMode mode);
 
 // The index <-> world map of a volume of shape (nx, ny, nz) with half-extents `aspect`.
 // Continuous index (i, j, k) = (column, row, page); integer indices are voxel centres.
@@ -121,9 +117,7 @@ class WorldFrame {
   [[nodiscard]] const Eigen::Vector3d& voxel_size() const { return scale_; }
   [[nodiscard]] const Eigen::Vector3d& aspect() const { return aspect_; }
   [[nodiscard]] const Eigen::Vector3i& shape() const { return shape_; }  // (X, Y, Z)
-  [[nodiscard]] bool contains(const Eigen::Vector3d& p) const {
-    return (p.array().abs() <= aspect_.array()).all();
-  }
+  [[nodiscard]] bool contains(const Eigen::Vector3d& p) const { return (p.array().abs() <= aspect_.array()).all(); }
 
  private:
   Eigen::Vector3i shape_{0, 0, 0};
@@ -135,7 +129,6 @@ class WorldFrame {
 // CONVENTIONS trilinear sampling: 0 outside the box, else interpolation between
 // voxel centres with the continuous index clamped to [0, N-1]. Reference
 // implementation (double precision index math); the ray marchers specialise it.
-[[nodiscard]] float sample_trilinear(const Volume& volume, const WorldFrame& frame,
-                                     const Eigen::Vector3d& p_world);
+[[nodiscard]] float sample_trilinear(const Volume& volume, const WorldFrame& frame, const Eigen::Vector3d& p_world);
 
 }  // namespace hisnegs::io

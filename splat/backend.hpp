@@ -17,13 +17,13 @@ enum class BackendRequest { kAuto, kCpu, kCuda };
 [[nodiscard]] BackendRequest parse_backend_request(std::string_view text, std::string_view option = "--backend");
 
 struct CudaDeviceInfo {
-  bool compiled = false;       // this build has the CUDA back end
-  bool available = false;      // a device can be used now
+  bool compiled = false;   // this build has the CUDA back end
+  bool available = false;  // a device can be used now
   int device_count = 0;
-  std::string name;            // device 0
+  std::string name;  // device 0
   int compute_major = 0, compute_minor = 0;
   std::size_t memory_bytes = 0;
-  std::string reason;          // why not available (driver message), empty if available
+  std::string reason;  // why not available (driver message), empty if available
 };
 // Probed once per process (thread-safe), cached afterwards.
 [[nodiscard]] const CudaDeviceInfo& cuda_device_info();

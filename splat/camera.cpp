@@ -44,7 +44,8 @@ Intrinsics make_intrinsics(const CameraOptions& options) {
 
 CameraView orbit_view(double elevation_deg, double azimuth_deg, double radius, std::string name) {
   const double e = elevation_deg * kDegToRad, phi = azimuth_deg * kDegToRad;
-  const Eigen::Vector3d C = radius * Eigen::Vector3d(std::cos(e) * std::cos(phi), std::cos(e) * std::sin(phi), std::sin(e));
+  const Eigen::Vector3d C =
+      radius * Eigen::Vector3d(std::cos(e) * std::cos(phi), std::cos(e) * std::sin(phi), std::sin(e));
   const Eigen::Vector3d z = -C.normalized();
   const Eigen::Vector3d up = std::abs(std::sin(e)) > 0.999 ? Eigen::Vector3d(0, 1, 0) : Eigen::Vector3d(0, 0, 1);
   const Eigen::Vector3d x = z.cross(up).normalized();
@@ -71,7 +72,8 @@ CameraSet training_orbit(const CameraOptions& options) {
   for (int ring = 0; ring < 4; ++ring) {
     for (int j = 0; j < counts[ring]; ++j) {
       const double phi = 360.0 * (j + 0.5 * (ring % 2)) / counts[ring];
-      set.views.push_back(orbit_view(elevations[ring], phi, options.orbit_radius, indexed_name("train", set.views.size())));
+      set.views.push_back(
+          orbit_view(elevations[ring], phi, options.orbit_radius, indexed_name("train", set.views.size())));
     }
   }
   return set;
@@ -91,7 +93,8 @@ CameraSet custom_orbit(const CameraOptions& options, const std::vector<double>& 
                        const std::vector<double>& azimuths_deg) {
   CameraSet set{make_intrinsics(options), {}};
   for (double e : elevations_deg) {
-    if (!(e >= -90.0 && e <= 90.0)) throw io::InputError("--elevations: " + std::to_string(e) + " is outside [-90, 90]");
+    if (!(e >= -90.0 && e <= 90.0))
+      throw io::InputError("--elevations: " + std::to_string(e) + " is outside [-90, 90]");
     for (double phi : azimuths_deg) {
       set.views.push_back(orbit_view(e, phi, options.orbit_radius, indexed_name("view", set.views.size())));
     }
@@ -221,9 +224,9 @@ CameraSet read_cameras_json(const std::filesystem::path& path) {
   const auto views = j.find("views");
   if (views == j.end() || !views->is_array()) r.fail("views", "missing or not a list");
   if (views->empty()) r.fail("views", "is empty");
-  io::check_allocation(path, 4.0 * K.width * K.height * static_cast<double>(views->size()),
-                       std::to_string(views->size()) + " float32 images of " + std::to_string(K.width) + "x" +
-                           std::to_string(K.height));
+  io::check_allocation(
+      path, 4.0 * K.width * K.height * static_cast<double>(views->size()),
+      std::to_string(views->size()) + " float32 images of " + std::to_string(K.width) + "x" + std::to_string(K.height));
   for (std::size_t i = 0; i < views->size(); ++i) {
     const Json& jv = (*views)[i];
     const std::string where = "views[" + std::to_string(i) + "].";
@@ -239,17 +242,20 @@ CameraSet read_cameras_json(const std::filesystem::path& path) {
       const Json& jr = (*R)[row];
       if (!jr.is_array() || jr.size() != 3) r.fail(where + "R", "expected 3 rows of 3 numbers");
       for (int c = 0; c < 3; ++c) {
-        if (!jr[c].is_number() || !std::isfinite(jr[c].get<double>())) r.fail(where + "R", "non-numeric or non-finite entry");
+        if (!jr[c].is_number() || !std::isfinite(jr[c].get<double>()))
+          r.fail(where + "R", "non-numeric or non-finite entry");
         v.R_cam_from_world(row, c) = jr[c].get<double>();
       }
     }
     const auto T = jv.find("T");
     if (T == jv.end() || !T->is_array() || T->size() != 3) r.fail(where + "T", "expected 3 numbers");
     for (int c = 0; c < 3; ++c) {
-      if (!(*T)[c].is_number() || !std::isfinite((*T)[c].get<double>())) r.fail(where + "T", "non-numeric or non-finite entry");
+      if (!(*T)[c].is_number() || !std::isfinite((*T)[c].get<double>()))
+        r.fail(where + "T", "non-numeric or non-finite entry");
       v.t_cam_from_world(c) = (*T)[c].get<double>();
     }
-    const double orth = (v.R_cam_from_world * v.R_cam_from_world.transpose() - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff();
+    const double orth =
+        (v.R_cam_from_world * v.R_cam_from_world.transpose() - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff();
     const double det = v.R_cam_from_world.determinant();
     if (orth > 1e-6 || std::abs(det - 1.0) > 1e-6) {
       std::ostringstream s;

@@ -19,10 +19,10 @@ namespace hisnegs::splat {
 inline constexpr int kMaxImageSide = 16384;
 
 struct Intrinsics {
-  int width = 256, height = 256;  // pixels
-  double fx = 0, fy = 0;          // focal lengths, pixels
-  double cx = 0, cy = 0;          // principal point, pixels (pixel (c, r) has centre (c + 0.5, r + 0.5))
-  double near = 0.01, far = 10.0; // clipping distances, world units
+  int width = 256, height = 256;   // pixels
+  double fx = 0, fy = 0;           // focal lengths, pixels
+  double cx = 0, cy = 0;           // principal point, pixels (pixel (c, r) has centre (c + 0.5, r + 0.5))
+  double near = 0.01, far = 10.0;  // clipping distances, world units
 };
 
 // fx = fy = (W/2) / tan(fov/2), cx = W/2, cy = H/2 (CONVENTIONS defaults).

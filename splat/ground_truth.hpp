@@ -16,8 +16,8 @@ namespace hisnegs::splat {
 
 struct MipStack {
   int width = 0, height = 0, views = 0;
-  std::vector<float> pixels;              // views × height × width, view-major
-  std::vector<double> seconds_per_view;   // wall clock of each view's render
+  std::vector<float> pixels;             // views × height × width, view-major
+  std::vector<double> seconds_per_view;  // wall clock of each view's render
   Backend backend = Backend::kCpu;
 
   [[nodiscard]] std::span<const float> view(int i) const {

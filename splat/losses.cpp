@@ -45,8 +45,8 @@ void check_images(const char* loss, std::size_t render, std::size_t target, std:
 // Parallel loops over fixed blocks. TBB's own ranges split by load, so a reduction
 // over them would round differently from run to run; fixed blocks, each with its own
 // partial sum added up in block order, give the same bits whatever the thread count.
-constexpr std::size_t kRowsPerBlock = 8;        // image rows per task
-constexpr std::size_t kPixelsPerBlock = 4096;   // pixels per task (the histogram)
+constexpr std::size_t kRowsPerBlock = 8;       // image rows per task
+constexpr std::size_t kPixelsPerBlock = 4096;  // pixels per task (the histogram)
 
 std::size_t block_count(std::size_t n, std::size_t block) { return (n + block - 1) / block; }
 
@@ -72,8 +72,8 @@ double ordered_sum(const double* values, std::size_t count) {
 // ---------------------------------------------------------------- Eq. 11
 
 template <class T>
-double weighted_mse_impl(std::span<const T> p, std::span<const T> g, int width, int height, double w_fg,
-                         double weight, std::span<T> grad) {
+double weighted_mse_impl(std::span<const T> p, std::span<const T> g, int width, int height, double w_fg, double weight,
+                         std::span<T> grad) {
   check_images("weighted_mse", p.size(), g.size(), grad.size(), width, height, 1, weight);
   const std::size_t n = p.size();
   const double inv_n = 1.0 / static_cast<double>(n);
@@ -264,8 +264,8 @@ void ssim_row_adjoint(std::span<const T> xs, std::span<const T> ys, SsimBuffers&
 }
 
 template <class T>
-double ssim_impl(std::span<const T> xs, std::span<const T> ys, int width, int height, double weight,
-                 std::span<T> grad, LossWorkspace& workspace) {
+double ssim_impl(std::span<const T> xs, std::span<const T> ys, int width, int height, double weight, std::span<T> grad,
+                 LossWorkspace& workspace) {
   check_images("ssim_loss", xs.size(), ys.size(), grad.size(), width, height, kSsimTaps, weight);
   SsimBuffers b(width, height, workspace);
   ssim_row_pass(xs, ys, b);
@@ -571,8 +571,7 @@ double intensity_kl_impl(std::span<const T> render, std::span<const T> target, i
 // ---------------------------------------------------------------- Eq. 15
 
 template <class T>
-double scale_regularizer_impl(std::span<const T> params, double s_min, double s_max, double weight,
-                              std::span<T> grad) {
+double scale_regularizer_impl(std::span<const T> params, double s_min, double s_max, double weight, std::span<T> grad) {
   if (params.size() % gmf::kGaussianParamCount != 0 || (!grad.empty() && grad.size() != params.size()))
     throw std::invalid_argument("scale_regularizer: params/grad hold " + std::to_string(params.size()) + "/" +
                                 std::to_string(grad.size()) + " values, expected whole Gaussians (grad may be empty)");
@@ -669,8 +668,8 @@ double ssim_loss(std::span<const float> render, std::span<const float> target, i
                  std::span<float> grad, LossWorkspace& workspace) {
   return ssim_impl(render, target, width, height, weight, grad, workspace);
 }
-double ssim_loss(std::span<const double> render, std::span<const double> target, int width, int height,
-                 double weight, std::span<double> grad, LossWorkspace& workspace) {
+double ssim_loss(std::span<const double> render, std::span<const double> target, int width, int height, double weight,
+                 std::span<double> grad, LossWorkspace& workspace) {
   return ssim_impl(render, target, width, height, weight, grad, workspace);
 }
 
@@ -678,8 +677,8 @@ double edge_loss(std::span<const float> render, std::span<const float> target, i
                  std::span<float> grad, LossWorkspace& workspace) {
   return edge_impl(render, target, width, height, weight, grad, workspace);
 }
-double edge_loss(std::span<const double> render, std::span<const double> target, int width, int height,
-                 double weight, std::span<double> grad, LossWorkspace& workspace) {
+double edge_loss(std::span<const double> render, std::span<const double> target, int width, int height, double weight,
+                 std::span<double> grad, LossWorkspace& workspace) {
   return edge_impl(render, target, width, height, weight, grad, workspace);
 }
 
@@ -703,9 +702,8 @@ double scale_regularizer(std::span<const double> params, double s_min, double s_
   return scale_regularizer_impl(params, s_min, s_max, weight, grad);
 }
 
-ImageLossTerms combined_image_loss(std::span<const float> render, std::span<const float> target, int width,
-                                   int height, const ImageLossWeights& weights, std::span<float> grad,
-                                   LossWorkspace& workspace) {
+ImageLossTerms combined_image_loss(std::span<const float> render, std::span<const float> target, int width, int height,
+                                   const ImageLossWeights& weights, std::span<float> grad, LossWorkspace& workspace) {
   return combined_impl(render, target, width, height, weights, grad, workspace);
 }
 ImageLossTerms combined_image_loss(std::span<const double> render, std::span<const double> target, int width,

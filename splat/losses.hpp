@@ -46,28 +46,28 @@ double weighted_mse(std::span<const double> render, std::span<const double> targ
 // use_sample_covariance=False, data_range 1): the SSIM map is averaged over the pixels
 // at least 5 from every border, whose windows lie inside the image, so the filter's
 // border mode never matters. Requires width, height >= 11. So 1 − L is the metric.
-double ssim_loss(std::span<const float> render, std::span<const float> target, int width, int height,
-                 double weight, std::span<float> grad, LossWorkspace& workspace);
-double ssim_loss(std::span<const double> render, std::span<const double> target, int width, int height,
-                 double weight, std::span<double> grad, LossWorkspace& workspace);
+double ssim_loss(std::span<const float> render, std::span<const float> target, int width, int height, double weight,
+                 std::span<float> grad, LossWorkspace& workspace);
+double ssim_loss(std::span<const double> render, std::span<const double> target, int width, int height, double weight,
+                 std::span<double> grad, LossWorkspace& workspace);
 
 // Eq. 13, ‖∇P − ∇G‖² as the mean squared difference of Sobel responses:
 // L = (1/N) Σ_p [(S_x * (P − G))_p² + (S_y * (P − G))_p²], with the unnormalised 3x3
 // Sobel kernels S_x = [1 2 1]ᵀ[−1 0 1] (x along columns), S_y = S_xᵀ, and replicated
 // borders (no edge appears at the image border).
-double edge_loss(std::span<const float> render, std::span<const float> target, int width, int height,
-                 double weight, std::span<float> grad, LossWorkspace& workspace);
-double edge_loss(std::span<const double> render, std::span<const double> target, int width, int height,
-                 double weight, std::span<double> grad, LossWorkspace& workspace);
+double edge_loss(std::span<const float> render, std::span<const float> target, int width, int height, double weight,
+                 std::span<float> grad, LossWorkspace& workspace);
+double edge_loss(std::span<const double> render, std::span<const double> target, int width, int height, double weight,
+                 std::span<double> grad, LossWorkspace& workspace);
 
 // The differentiable intensity histogram of Eq. 14. A pixel of value x puts mass
 // κ_b(x) = Δ/(√(2π) h) exp(−½ ((c_b − x)/h)²) into bin b, centre c_b = (b + ½) Δ,
 // Δ = 1/bins (≈ 1 in all for x well inside [0, 1]); m_b = (1/N) Σ_i κ_b(x_i) and
 // p_b = (m_b + ε) / Σ_b' (m_b' + ε).
 struct SoftHistogramOptions {
-  int bins = 64;                   // number of bins on [0, 1], [2, 4096]
-  double bandwidth = 1.0 / 64.0;   // kernel standard deviation h, intensity units, > 0
-  double epsilon = 1e-6;           // ε added to every bin's mass (keeps the log finite), > 0
+  int bins = 64;                  // number of bins on [0, 1], [2, 4096]
+  double bandwidth = 1.0 / 64.0;  // kernel standard deviation h, intensity units, > 0
+  double epsilon = 1e-6;          // ε added to every bin's mass (keeps the log finite), > 0
 
   void validate() const;
 };
@@ -118,9 +118,8 @@ struct ImageLossTerms {
 
 // The image part of Eq. 16 (everything but L_reg): adds ∂total/∂render into `grad`
 // (or only evaluates when `grad` is empty).
-ImageLossTerms combined_image_loss(std::span<const float> render, std::span<const float> target, int width,
-                                   int height, const ImageLossWeights& weights, std::span<float> grad,
-                                   LossWorkspace& workspace);
+ImageLossTerms combined_image_loss(std::span<const float> render, std::span<const float> target, int width, int height,
+                                   const ImageLossWeights& weights, std::span<float> grad, LossWorkspace& workspace);
 ImageLossTerms combined_image_loss(std::span<const double> render, std::span<const double> target, int width,
                                    int height, const ImageLossWeights& weights, std::span<double> grad,
                                    LossWorkspace& workspace);

@@ -43,9 +43,9 @@ struct BrickMax {
 
 // Everything per view.
 struct ViewParams {
-  double Rt[9];               // Rᵀ (camera -> world rotation), row-major
-  double center_world[3];     // camera centre C
-  double fx, fy, cx, cy;      // intrinsics
+  double Rt[9];            // Rᵀ (camera -> world rotation), row-major
+  double center_world[3];  // camera centre C
+  double fx, fy, cx, cy;   // intrinsics
   int width, height;
 };
 
@@ -65,9 +65,13 @@ struct MarchParams {
 // inlining them without -ffast-math (an out-of-line libm call per sample cost 16 %).
 // Volumes and rays here are finite (io rejects NaN/Inf), so plain selects are exact.
 template <class T>
-HISNEGS_HD T min_of(T a, T b) { return b < a ? b : a; }
+HISNEGS_HD T min_of(T a, T b) {
+  return b < a ? b : a;
+}
 template <class T>
-HISNEGS_HD T max_of(T a, T b) { return a < b ? b : a; }
+HISNEGS_HD T max_of(T a, T b) {
+  return a < b ? b : a;
+}
 HISNEGS_HD int clampi(int v, int lo, int hi) { return v < lo ? lo : (v > hi ? hi : v); }
 HISNEGS_HD float clampf(float v, float lo, float hi) { return min_of(max_of(v, lo), hi); }
 
@@ -121,8 +125,8 @@ HISNEGS_HD void pixel_ray(const ViewParams& view, int col, int row, double d[3])
 }
 
 // MIP of one ray: o, d in world space (d unit length). Returns 0 when it misses the box.
-HISNEGS_HD float march_ray(const DenseVolume& vol, const BrickMax& bricks, const MarchParams& mp, const double o_world[3],
-                           const double d_world[3]) {
+HISNEGS_HD float march_ray(const DenseVolume& vol, const BrickMax& bricks, const MarchParams& mp,
+                           const double o_world[3], const double d_world[3]) {
   constexpr double kFar = 1.0e300;
   const int n[3] = {vol.nx, vol.ny, vol.nz};
   const int nb[3] = {bricks.bx, bricks.by, bricks.bz};
@@ -198,14 +202,15 @@ HISNEGS_HD float march_ray(const DenseVolume& vol, const BrickMax& bricks, const
       if (interior) {
         for (int i = lo; i < hi; ++i) {
           const double t = t0 + i * dt;
-          best = max_of(best, trilinear_interior(vol, static_cast<float>(o[0] + t * d[0]),
-                                                 static_cast<float>(o[1] + t * d[1]), static_cast<float>(o[2] + t * d[2])));
+          best = max_of(
+              best, trilinear_interior(vol, static_cast<float>(o[0] + t * d[0]), static_cast<float>(o[1] + t * d[1]),
+                                       static_cast<float>(o[2] + t * d[2])));
         }
       } else {
         for (int i = lo; i < hi; ++i) {
           const double t = t0 + i * dt;
           best = max_of(best, trilinear(vol, static_cast<float>(o[0] + t * d[0]), static_cast<float>(o[1] + t * d[1]),
-                                       static_cast<float>(o[2] + t * d[2])));
+                                        static_cast<float>(o[2] + t * d[2])));
         }
       }
       if (best >= mp.global_max) break;

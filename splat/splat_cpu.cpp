@@ -21,8 +21,8 @@
 namespace hisnegs::splat {
 namespace {
 
-using gmf::kGaussianParamCount;
 using detail::kAmplitudeBuckets;
+using gmf::kGaussianParamCount;
 // Binning widens δ by this factor and the ellipse by kBinPad pixels each side, so
 // rounding never drops a tile the kernels' per-pixel test q <= δ would reach.
 constexpr float kBinWiden = 1.0f + 1e-3f;
@@ -78,14 +78,14 @@ class CpuSplatRenderer final : public SplatRenderer {
   std::vector<EllipseRows<float>> rows_;      // per Gaussian: its ellipse row by row, for binning
   std::vector<std::uint32_t> order_;          // visible Gaussians, amplitude descending
   std::vector<std::uint32_t> bucket_count_;
-  std::vector<std::uint32_t> tile_offset_;    // tiles + 1
-  std::vector<std::uint32_t> chunk_cursor_;   // per (chunk of order_, tile): entry count, then write cursor
-  std::vector<std::int32_t> chunk_diff_;      // per (chunk, tile row, tile column + 1): count differences
-  std::vector<std::uint32_t> entries_;        // Gaussian id per (tile, rank)
-  std::vector<detail::PackedSplat> packed_;   // per Gaussian: its 2D parameters for the tile kernels
-  std::vector<float> m_, S_, I_;              // per pixel
-  std::vector<float> entry_grads_;            // 6 per entry
-  std::vector<double> gaussian_grads_;        // 6 per Gaussian
+  std::vector<std::uint32_t> tile_offset_;   // tiles + 1
+  std::vector<std::uint32_t> chunk_cursor_;  // per (chunk of order_, tile): entry count, then write cursor
+  std::vector<std::int32_t> chunk_diff_;     // per (chunk, tile row, tile column + 1): count differences
+  std::vector<std::uint32_t> entries_;       // Gaussian id per (tile, rank)
+  std::vector<detail::PackedSplat> packed_;  // per Gaussian: its 2D parameters for the tile kernels
+  std::vector<float> m_, S_, I_;             // per pixel
+  std::vector<float> entry_grads_;           // 6 per entry
+  std::vector<double> gaussian_grads_;       // 6 per Gaussian
   SplatFrameStats stats_;
 };
 
@@ -116,15 +116,16 @@ void CpuSplatRenderer::forward(std::span<const float> params, const Intrinsics& 
     std::array<detail::BandJob, 256> jobs;  // tile_bands in batches
     std::size_t pending = 0;
     for (std::size_t k = range.begin(); k != range.end(); ++k) {
-      Splat2D<float> s = project_gaussian(&params_[kGaussianParamCount * k], view_params_, settings.cutoff, settings.low_pass);
+      Splat2D<float> s =
+          project_gaussian(&params_[kGaussianParamCount * k], view_params_, settings.cutoff, settings.low_pass);
       if (s.visible) s.visible = find_tiles(k, s);
       if (s.visible && band_job(k, &jobs[pending]) && ++pending == jobs.size()) {
         detail::tile_bands(jobs.data(), pending);
         pending = 0;
       }
       bucket_[k] = s.visible ? static_cast<std::int16_t>(kAmplitudeBuckets - 1 -
-                                                          std::clamp(static_cast<int>(s.amplitude * kAmplitudeBuckets), 0,
-                                                                     kAmplitudeBuckets - 1))
+                                                         std::clamp(static_cast<int>(s.amplitude * kAmplitudeBuckets),
+                                                                    0, kAmplitudeBuckets - 1))
                              : std::int16_t{-1};
       splats_[k] = s;
       detail::PackedSplat& p = packed_[k];
@@ -334,7 +335,8 @@ void CpuSplatRenderer::backward(std::span<const float> dL_dimage, std::span<floa
       Splat2DGrad<double> g{g6[0], g6[1], g6[2], g6[3], g6[4], g6[5]};
       double out[kGaussianParamCount] = {};
       project_gaussian_backward(p, view, cache, g, out);
-      for (int i = 0; i < kGaussianParamCount; ++i) dL_dparams[kGaussianParamCount * k + i] += static_cast<float>(out[i]);
+      for (int i = 0; i < kGaussianParamCount; ++i)
+        dL_dparams[kGaussianParamCount * k + i] += static_cast<float>(out[i]);
       if (!screen_grad.empty()) screen_grad[k] += static_cast<float>(std::hypot(g6[0], g6[1]));
     }
   });

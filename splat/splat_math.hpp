@@ -57,11 +57,11 @@ struct KernelSettings {
 // One Gaussian as the rasterizer sees it.
 template <class T>
 struct Splat2D {
-  T u, v;           // μ2D, pixels (Eq. 5)
+  T u, v;                 // μ2D, pixels (Eq. 5)
   T con_a, con_b, con_c;  // conic Σ2D⁻¹ = [[a, b], [b, c]]
-  T amplitude;      // a_k = sigmoid(ℓ)
-  T half_w, half_h; // half extents of the δ ellipse's bounding box, pixels
-  T depth;          // z_cam of μ
+  T amplitude;            // a_k = sigmoid(ℓ)
+  T half_w, half_h;       // half extents of the δ ellipse's bounding box, pixels
+  T depth;                // z_cam of μ
   bool visible;
 };
 

@@ -47,12 +47,14 @@ void TrainOptions::validate() const {
   // `--epochs` can shorten a run without editing the schedule.
   io::require_in_range(s, "beta_warmup_epochs", beta_warmup_epochs, 0, 1e7);
   io::require_in_range(s, "foreground_weight", foreground_weight, 1.0, 1e6);
-  for (auto [name, value] : {std::pair{"lambda_ssim", lambda_ssim}, std::pair{"lambda_edge", lambda_edge},
-                             std::pair{"lambda_intensity", lambda_intensity}, std::pair{"lambda_scale", lambda_scale}}) {
+  for (auto [name, value] :
+       {std::pair{"lambda_ssim", lambda_ssim}, std::pair{"lambda_edge", lambda_edge},
+        std::pair{"lambda_intensity", lambda_intensity}, std::pair{"lambda_scale", lambda_scale}}) {
     io::require_in_range(s, name, value, 0.0, 1e6);
   }
   io::require_positive(s, "scale_min", scale_min);
-  if (!(scale_max > scale_min)) io::fail_option(s, "scale_max", std::to_string(scale_max), "must exceed train.scale_min");
+  if (!(scale_max > scale_min))
+    io::fail_option(s, "scale_max", std::to_string(scale_max), "must exceed train.scale_min");
   io::require_in_range(s, "densify_every", densify_every, 1, 1e9);
   io::require_in_range(s, "densify_from", densify_from, 0, 1e9);
   io::require_in_range(s, "densify_until", densify_until, densify_from, 1e9);

@@ -38,10 +38,10 @@ enum class RaymarchMode { kExact, kReport };
 // Ground-truth ray marching (CONVENTIONS "Ground-truth MIP").
 struct RaymarchOptions {
   RaymarchMode mode = RaymarchMode::kExact;  // exact | report
-  double step_voxels = 0.5;   // exact mode step, in units of the smallest world voxel size, (0, 4]
-  int samples = 200;          // report mode: number of samples per ray, [2, 100000]
-  double t_near = 0.5;        // report mode: first sample distance, world units, >= 0
-  double t_far = 6.0;         // report mode: last sample distance, world units, > t_near
+  double step_voxels = 0.5;                  // exact mode step, in units of the smallest world voxel size, (0, 4]
+  int samples = 200;                         // report mode: number of samples per ray, [2, 100000]
+  double t_near = 0.5;                       // report mode: first sample distance, world units, >= 0
+  double t_far = 6.0;                        // report mode: last sample distance, world units, > t_near
 
   void validate() const;
   template <class V>
@@ -54,13 +54,12 @@ struct RaymarchOptions {
   }
 };
 
-
 // Soft/hard-MIP splatting (report Eq. 2-8, §9.3).
 struct SplatOptions {
-  MipMode mode = MipMode::kSoft;      // soft | hard
-  double beta = 50.0;                 // soft-MIP sharpness β, > 0
-  double mahalanobis_cutoff = 16.0;   // δ: a Gaussian touches pixels with dᵀΣ⁻¹d <= δ, > 0
-  double low_pass = 0.0;              // 2D dilation added to Σ_2D diagonal, pixels², >= 0 (report: none)
+  MipMode mode = MipMode::kSoft;     // soft | hard
+  double beta = 50.0;                // soft-MIP sharpness β, > 0
+  double mahalanobis_cutoff = 16.0;  // δ: a Gaussian touches pixels with dᵀΣ⁻¹d <= δ, > 0
+  double low_pass = 0.0;             // 2D dilation added to Σ_2D diagonal, pixels², >= 0 (report: none)
   // Soft-MIP terms whose softmax weight is below e^-skip_log_weight of the pixel's
   // largest (β a_k < m − skip_log_weight) are skipped by the fast back ends, and
   // counted; 0 = never skip. The error this allows in a pixel is below
@@ -80,41 +79,41 @@ struct SplatOptions {
 
 // Stage-2 training (report §6, Tables 1 and 4).
 struct TrainOptions {
-  int epochs = 2000;                 // training epochs, [1, 10^7]
-  double lr_initial = 3e-3;          // Adam learning rate at epoch 0, > 0
-  double lr_final = 1e-5;            // learning rate at the last epoch (cosine decay), (0, lr_initial]
+  int epochs = 2000;         // training epochs, [1, 10^7]
+  double lr_initial = 3e-3;  // Adam learning rate at epoch 0, > 0
+  double lr_final = 1e-5;    // learning rate at the last epoch (cosine decay), (0, lr_initial]
   // Per-group multipliers of the learning rate (the report uses one rate for all: 1).
   // The means' rate is also multiplied by the scene scale (1 for hisnegs worlds).
-  double lr_means = 1.0;             // means, > 0
-  double lr_log_scales = 1.0;        // log-scales, > 0
-  double lr_rotation = 1.0;          // raw quaternions, > 0
-  double lr_intensity = 1.0;         // intensity logits, > 0
-  double beta_start = 10.0;          // β at epoch 0, > 0
-  double beta_end = 50.0;            // β after warm-up, >= beta_start
-  int beta_warmup_epochs = 500;      // linear β warm-up length, epochs, [0, 10^7] (may exceed epochs)
-  double foreground_weight = 5.0;    // w_fg of the weighted MSE (Eq. 11), >= 1
-  double lambda_ssim = 0.2;          // weight of 1 - SSIM (Eq. 12), >= 0
-  double lambda_edge = 0.1;          // weight of the Sobel edge loss (Eq. 13), >= 0
-  double lambda_intensity = 0.01;    // weight of the histogram KL (Eq. 14), >= 0
-  double lambda_scale = 1.0;         // weight of the scale regularizer (Eq. 15), >= 0
-  double scale_min = 0.001;          // s_min of Eq. 15, world units, > 0
-  double scale_max = 0.5;            // s_max of Eq. 15, world units, > scale_min
-  int densify_every = 100;           // split/clone period, epochs, >= 1
-  int densify_from = 100;            // first epoch of split/clone, >= 0
-  int densify_until = 1500;          // last epoch of split/clone, >= densify_from
+  double lr_means = 1.0;           // means, > 0
+  double lr_log_scales = 1.0;      // log-scales, > 0
+  double lr_rotation = 1.0;        // raw quaternions, > 0
+  double lr_intensity = 1.0;       // intensity logits, > 0
+  double beta_start = 10.0;        // β at epoch 0, > 0
+  double beta_end = 50.0;          // β after warm-up, >= beta_start
+  int beta_warmup_epochs = 500;    // linear β warm-up length, epochs, [0, 10^7] (may exceed epochs)
+  double foreground_weight = 5.0;  // w_fg of the weighted MSE (Eq. 11), >= 1
+  double lambda_ssim = 0.2;        // weight of 1 - SSIM (Eq. 12), >= 0
+  double lambda_edge = 0.1;        // weight of the Sobel edge loss (Eq. 13), >= 0
+  double lambda_intensity = 0.01;  // weight of the histogram KL (Eq. 14), >= 0
+  double lambda_scale = 1.0;       // weight of the scale regularizer (Eq. 15), >= 0
+  double scale_min = 0.001;        // s_min of Eq. 15, world units, > 0
+  double scale_max = 0.5;          // s_max of Eq. 15, world units, > scale_min
+  int densify_every = 100;         // split/clone period, epochs, >= 1
+  int densify_from = 100;          // first epoch of split/clone, >= 0
+  int densify_until = 1500;        // last epoch of split/clone, >= densify_from
   // Split/clone a Gaussian whose mean over views of |dL_view/dμ2D| × (pixels per view)
   // reaches this (pixels⁻¹; the gradient of the per-view pixel sum), >= 0.
   double densify_grad_threshold = 0.05;
   double densify_scale_threshold = 0.01;  // largest scale above: split, else clone; world units, > 0
-  double split_scale = 0.8;          // Eq. 17: children's scales = split_scale × parent's, (0, 1]
-  double split_offset = 0.5;         // Eq. 17: children at μ ± split_offset × s_max (longest axis), >= 0
-  int prune_every = 25;              // prune period, epochs, >= 1
-  double prune_intensity = 0.01;     // prune a_k below this, [0, 1)
-  int max_gaussians = 100000;        // cap on K during density control, >= 1
-  int save_every = 100;              // checkpoint period, epochs, >= 1
-  int views_per_step = 1;            // mini-batch of views per optimizer step, >= 1
-  int crop_size = 0;                 // random square crop edge, pixels (0 = whole image)
-  std::uint64_t seed = 0;            // view shuffling, crops, density control
+  double split_scale = 0.8;               // Eq. 17: children's scales = split_scale × parent's, (0, 1]
+  double split_offset = 0.5;              // Eq. 17: children at μ ± split_offset × s_max (longest axis), >= 0
+  int prune_every = 25;                   // prune period, epochs, >= 1
+  double prune_intensity = 0.01;          // prune a_k below this, [0, 1)
+  int max_gaussians = 100000;             // cap on K during density control, >= 1
+  int save_every = 100;                   // checkpoint period, epochs, >= 1
+  int views_per_step = 1;                 // mini-batch of views per optimizer step, >= 1
+  int crop_size = 0;                      // random square crop edge, pixels (0 = whole image)
+  std::uint64_t seed = 0;                 // view shuffling, crops, density control
 
   void validate() const;
   template <class V>

@@ -28,7 +28,8 @@ Projected project_all(std::span<const double> params, const ViewParams<double>& 
 }
 
 // The g_k of the Gaussians touching pixel (px, py): (index, g).
-void touching(const Projected& p, double px, double py, double cutoff, std::vector<std::pair<std::size_t, double>>& out) {
+void touching(const Projected& p, double px, double py, double cutoff,
+              std::vector<std::pair<std::size_t, double>>& out) {
   out.clear();
   for (std::size_t k = 0; k < p.splats.size(); ++k) {
     const Splat2D<double>& s = p.splats[k];

@@ -14,7 +14,6 @@ namespace hisnegs::splat {
 
 std::unique_ptr<SplatRenderer> make_cpu_splat_renderer();  // splat_cpu.cpp
 
-
 #if HISNEGS_HAVE_CUDA
 namespace {
 
@@ -23,8 +22,7 @@ class CudaSplatRenderer final : public SplatRenderer {
  public:
   void forward(std::span<const float> params, const Intrinsics& K, const CameraView& view,
                const SplatSettings& settings, std::span<float> image) override {
-    if (params.size() % gmf::kGaussianParamCount != 0 ||
-        image.size() != static_cast<std::size_t>(K.width) * K.height) {
+    if (params.size() % gmf::kGaussianParamCount != 0 || image.size() != static_cast<std::size_t>(K.width) * K.height) {
       throw std::invalid_argument("splat: parameter or image span of the wrong size");
     }
     count_ = params.size() / gmf::kGaussianParamCount;
@@ -85,7 +83,6 @@ ViewParams<T> make_splat_view(const Intrinsics& K, const CameraView& view) {
 }
 template ViewParams<float> make_splat_view<float>(const Intrinsics&, const CameraView&);
 template ViewParams<double> make_splat_view<double>(const Intrinsics&, const CameraView&);
-
 
 std::unique_ptr<SplatRenderer> make_splat_renderer(Backend backend) {
   if (backend == Backend::kCpu) return make_cpu_splat_renderer();

@@ -28,8 +28,8 @@ double soft_mip_beta(const TrainOptions& o, int epoch) {
   return o.beta_start + (o.beta_end - o.beta_start) * t;
 }
 
-Trainer::Trainer(const TrainOptions& options, const SplatSettings& splat, TrainingData data,
-                 std::vector<float> params, std::unique_ptr<SplatRenderer> renderer, double scene_scale)
+Trainer::Trainer(const TrainOptions& options, const SplatSettings& splat, TrainingData data, std::vector<float> params,
+                 std::unique_ptr<SplatRenderer> renderer, double scene_scale)
     : options_(options),
       splat_(splat),
       data_(std::move(data)),
@@ -49,7 +49,8 @@ Trainer::Trainer(const TrainOptions& options, const SplatSettings& splat, Traini
   if (const std::string bad = gmf::describe_non_finite<float>(params_, "value"); !bad.empty()) {
     throw std::invalid_argument("Trainer: " + bad + " of the initial model is not finite");
   }
-  if (!(scene_scale_ > 0) || !std::isfinite(scene_scale_)) throw std::invalid_argument("Trainer: scene_scale must be > 0");
+  if (!(scene_scale_ > 0) || !std::isfinite(scene_scale_))
+    throw std::invalid_argument("Trainer: scene_scale must be > 0");
   const int edge = std::min(data_.intrinsics.width, data_.intrinsics.height);
   if (options_.crop_size > edge) {
     throw std::invalid_argument("Trainer: train.crop_size " + std::to_string(options_.crop_size) +
@@ -114,9 +115,8 @@ Trainer::StepSums Trainer::train_step(std::span<const int> view_indices) {
   if (view_indices.size() > 1) {
     for (float& g : grad_) g /= B;
   }
-  const double reg = options_.lambda_scale *
-                     scale_regularizer(std::span<const float>(params_), options_.scale_min, options_.scale_max,
-                                       options_.lambda_scale, grad_);
+  const double reg = options_.lambda_scale * scale_regularizer(std::span<const float>(params_), options_.scale_min,
+                                                               options_.scale_max, options_.lambda_scale, grad_);
   sums.loss += static_cast<double>(view_indices.size()) * reg;
   if (!std::isfinite(sums.loss)) {
     throw std::runtime_error("training diverged: the loss is not finite in epoch " + std::to_string(epoch_ + 1) +
@@ -154,10 +154,10 @@ Trainer::Evaluation Trainer::evaluate() {
                                                                options_.scale_max, 0.0, std::span<float>());
   for (int i = 0; i < data_.count(); ++i) {
     renderer_->forward(params_, intr, data_.views[static_cast<std::size_t>(i)], settings, image_);
-    e.loss += combined_image_loss(image_, data_.image(i), intr.width, intr.height, weights_, std::span<float>(),
-                                  workspace_)
-                  .total +
-              reg;
+    e.loss +=
+        combined_image_loss(image_, data_.image(i), intr.width, intr.height, weights_, std::span<float>(), workspace_)
+            .total +
+        reg;
     e.psnr += gmf::psnr(image_, data_.image(i));
   }
   e.loss /= data_.count();

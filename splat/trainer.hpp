@@ -30,16 +30,15 @@ namespace hisnegs::splat {
 // × min(1, e / beta_warmup_epochs), beta_end when beta_warmup_epochs = 0.
 [[nodiscard]] double soft_mip_beta(const TrainOptions& options, int epoch);
 
-
 // What one epoch did (means over the training views seen in it).
 struct EpochReport {
-  int epoch = 0;          // 1-based number of the epoch just finished
-  double loss = 0;        // mean per-view Eq. 16 loss (image terms + L_reg of its step)
-  double psnr = 0;        // mean per-view PSNR, dB (of the crop when crop_size > 0)
-  double beta = 0;        // β it was trained at
-  double lr = 0;          // base learning rate it was trained at
-  double seconds = 0;     // wall time of the epoch incl. density control
-  int gaussians = 0;      // K after density control
+  int epoch = 0;                          // 1-based number of the epoch just finished
+  double loss = 0;                        // mean per-view Eq. 16 loss (image terms + L_reg of its step)
+  double psnr = 0;                        // mean per-view PSNR, dB (of the crop when crop_size > 0)
+  double beta = 0;                        // β it was trained at
+  double lr = 0;                          // base learning rate it was trained at
+  double seconds = 0;                     // wall time of the epoch incl. density control
+  int gaussians = 0;                      // K after density control
   int split = 0, cloned = 0, pruned = 0;  // density control at its end
 };
 

@@ -20,8 +20,8 @@ void TrainingData::check() const {
   const std::size_t n = static_cast<std::size_t>(intrinsics.width) * intrinsics.height;
   if (images.size() != views.size() * n) {
     throw std::invalid_argument("TrainingData: " + std::to_string(images.size()) + " pixels for " +
-                                std::to_string(views.size()) + " views of " + std::to_string(intrinsics.width) +
-                                "x" + std::to_string(intrinsics.height));
+                                std::to_string(views.size()) + " views of " + std::to_string(intrinsics.width) + "x" +
+                                std::to_string(intrinsics.height));
   }
 }
 

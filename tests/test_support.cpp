@@ -45,8 +45,8 @@ std::string slurp(const fs::path& p) {
 }  // namespace
 
 CommandResult run_hisnegs(const std::vector<std::string>& args) {
-  const fs::path tmp = fs::temp_directory_path() /
-                       ("hisnegs-run-" + std::to_string(::getpid()) + "-" + std::to_string(::rand()));
+  const fs::path tmp =
+      fs::temp_directory_path() / ("hisnegs-run-" + std::to_string(::getpid()) + "-" + std::to_string(::rand()));
   const fs::path out_path = tmp.string() + ".out", err_path = tmp.string() + ".err";
   const pid_t pid = ::fork();
   if (pid < 0) throw std::runtime_error("fork failed");

@@ -29,9 +29,9 @@ class ScratchDir {
 };
 
 struct CommandResult {
-  int exit_code = -1;   // the process exit status; 128+N when killed by signal N
-  std::string out;      // stdout
-  std::string err;      // stderr
+  int exit_code = -1;  // the process exit status; 128+N when killed by signal N
+  std::string out;     // stdout
+  std::string err;     // stderr
 };
 
 // Runs the hisnegs executable of this build with `args` (no shell quoting needed).

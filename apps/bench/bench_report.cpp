@@ -71,8 +71,8 @@ class Timer {
     for (std::size_t i = 0; static_cast<int>(i) < r_.max_frames; ++i) {
       if (static_cast<int>(i) >= r_.min_frames && budget.elapsed() > r_.seconds_per_case) break;
       const splat::CameraSet one{cameras.intrinsics, {cameras.views[i % n]}};
-      const splat::MipStack s = splat::render_ground_truth(volume.volume, volume.frame, one, splat::RaymarchOptions{},
-                                                           backend);
+      const splat::MipStack s =
+          splat::render_ground_truth(volume.volume, volume.frame, one, splat::RaymarchOptions{}, backend);
       t.seconds.push_back(s.seconds_per_view.at(0));
     }
     return t;
@@ -142,9 +142,10 @@ std::string header_section(const Bench& b) {
   md += strf("Volume (ray marcher, Table 12): %s, %dx%dx%d.  \n",
              io::printable(r.volume_label.empty() ? r.volume.string() : r.volume_label, 200).c_str(),
              b.volume.volume.nx, b.volume.volume.ny, b.volume.volume.nz);
-  md += strf("Timing: median wall time per frame over up to %d frames (at least %d, about %.3g s per case) after 3 "
-             "warm-up frames, cycling through the 30 evaluation views; soft-MIP beta 50 unless stated.\n\n",
-             r.max_frames, r.min_frames, r.seconds_per_case);
+  md += strf(
+      "Timing: median wall time per frame over up to %d frames (at least %d, about %.3g s per case) after 3 "
+      "warm-up frames, cycling through the 30 evaluation views; soft-MIP beta 50 unless stated.\n\n",
+      r.max_frames, r.min_frames, r.seconds_per_case);
   return md;
 }
 
@@ -168,8 +169,9 @@ std::string table7_resolution(const Bench& b) {
 
 // Table 9: against K at 256^2 (synthetic mixtures: a run has no checkpoints of other sizes).
 std::string table9_gaussians(const Bench& b) {
-  Table t9{{"K", "soft-MIP ms", "soft FPS", "hard MIP ms", "hard FPS", "visible K (mean)", "real time (soft >= 30 FPS)?"},
-           {}};
+  Table t9{
+      {"K", "soft-MIP ms", "soft FPS", "hard MIP ms", "hard FPS", "visible K (mean)", "real time (soft >= 30 FPS)?"},
+      {}};
   const splat::CameraSet views256 = eval_views(256);
   for (int K : b.r.gaussians) {
     splat::SyntheticMixtureOptions o;
@@ -230,8 +232,8 @@ std::string table11_beta(const Bench& b) {
     const double p_ref = gmf::psnr(img.pixels, ref.pixels);
     const double p_hard = gmf::psnr(img.pixels, max.pixels);
     const double t = median(b.timer.splat(*b.renderer, b.params(), views, s).seconds);
-    t11.add({strf("%g", beta), strf("%.2f", p_ref), strf("%.3g", mae), strf("%.3g", max_err), strf("%.2f", p_hard),
-             ms(t)});
+    t11.add(
+        {strf("%g", beta), strf("%.2f", p_ref), strf("%.3g", mae), strf("%.3g", max_err), strf("%.2f", p_hard), ms(t)});
     b.say(strf("Table 11: beta %g: %.2f dB against beta 1000", beta, p_ref));
   }
   write_table(b.r.dir, "table11", t11);
@@ -244,7 +246,8 @@ std::string table12_memory(const Bench& b) {
   MemoryInputs mem;
   mem.shape_xyz = {b.volume.volume.nx, b.volume.volume.ny, b.volume.volume.nz};
   mem.gaussians = b.model.size();
-  if (!b.r.model.empty()) mem.checkpoint_file = std::pair{b.r.model.filename().string(), file_bytes(b.r.model.string())};
+  if (!b.r.model.empty())
+    mem.checkpoint_file = std::pair{b.r.model.filename().string(), file_bytes(b.r.model.string())};
   const Table t12 = memory_table(mem);
   write_table(b.r.dir, "table12", t12);
   return "## Table 12: memory (the volume against the model)\n\n" + t12.markdown() + "\n";
@@ -255,8 +258,9 @@ std::string table12_memory(const Bench& b) {
 void write_bench_report(const BenchReportRequest& r, const Progress& progress) {
   check_request(r);
   io::Stopwatch total;
-  Bench b{r, progress, Timer(r), io::load_volume(r.volume, io::VolumeOptions{}), splat::make_splat_renderer(r.backend),
-          {}, {}, {}, {}};
+  Bench b{
+      r,  progress, Timer(r), io::load_volume(r.volume, io::VolumeOptions{}), splat::make_splat_renderer(r.backend), {},
+      {}, {},       {}};
   load_model(b);
   b.soft.mode = splat::MipMode::kSoft;
   b.soft.beta = 50.0f;

@@ -23,15 +23,15 @@ void run(benchmark::State& state, gmf::JacobianMethod method) {
 }  // namespace
 
 void register_gmf_benchmarks() {
-  benchmark::RegisterBenchmark("gmf/residual_block/analytic",
-                               [](benchmark::State& s) { run(s, gmf::JacobianMethod::kAnalytic); })
-      ->Unit(benchmark::kMicrosecond);
-  benchmark::RegisterBenchmark("gmf/residual_block/numeric_central",
-                               [](benchmark::State& s) { run(s, gmf::JacobianMethod::kNumericCentral); })
-      ->Unit(benchmark::kMicrosecond);
-  benchmark::RegisterBenchmark("gmf/residual_block/autodiff",
-                               [](benchmark::State& s) { run(s, gmf::JacobianMethod::kAutoDiff); })
-      ->Unit(benchmark::kMicrosecond);
+  benchmark::RegisterBenchmark("gmf/residual_block/analytic", [](benchmark::State& s) {
+    run(s, gmf::JacobianMethod::kAnalytic);
+  })->Unit(benchmark::kMicrosecond);
+  benchmark::RegisterBenchmark("gmf/residual_block/numeric_central", [](benchmark::State& s) {
+    run(s, gmf::JacobianMethod::kNumericCentral);
+  })->Unit(benchmark::kMicrosecond);
+  benchmark::RegisterBenchmark("gmf/residual_block/autodiff", [](benchmark::State& s) {
+    run(s, gmf::JacobianMethod::kAutoDiff);
+  })->Unit(benchmark::kMicrosecond);
 }
 
 }  // namespace hisnegs::apps::bench

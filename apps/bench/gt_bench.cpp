@@ -27,24 +27,31 @@ void register_gt_benchmarks(const std::filesystem::path& volume, int size) {
     for (const auto mode : {splat::RaymarchMode::kExact, splat::RaymarchMode::kReport}) {
       const std::string label = std::string("gt/") + std::string(splat::to_string(backend)) + "/" +
                                 (mode == splat::RaymarchMode::kExact ? "exact/" : "report/") + name;
-      benchmark::RegisterBenchmark(label.c_str(), [loaded, size, backend, mode](benchmark::State& state) {
-        splat::CameraOptions co;
-        co.width = co.height = size;
-        const splat::CameraSet eval = splat::evaluation_orbit(co);
-        splat::RaymarchOptions ro;
-        ro.mode = mode;
-        std::vector<double> per_view;
-        for (auto _ : state) {
-          // One iteration = the 30 evaluation views; the median view is the figure.
-          const splat::MipStack stack = splat::render_ground_truth(loaded->volume, loaded->frame, eval, ro, backend);
-          per_view.insert(per_view.end(), stack.seconds_per_view.begin(), stack.seconds_per_view.end());
-          state.SetIterationTime(std::accumulate(stack.seconds_per_view.begin(), stack.seconds_per_view.end(), 0.0));
-        }
-        std::sort(per_view.begin(), per_view.end());
-        state.counters["median_ms_per_view"] = 1e3 * per_view[per_view.size() / 2];
-        state.counters["max_ms_per_view"] = 1e3 * per_view.back();
-        state.counters["views"] = static_cast<double>(per_view.size());
-      })->Unit(benchmark::kMillisecond)->UseManualTime()->Iterations(2);
+      benchmark::RegisterBenchmark(
+          label.c_str(),
+          [loaded, size, backend, mode](benchmark::State& state) {
+            splat::CameraOptions co;
+            co.width = co.height = size;
+            const splat::CameraSet eval = splat::evaluation_orbit(co);
+            splat::RaymarchOptions ro;
+            ro.mode = mode;
+            std::vector<double> per_view;
+            for (auto _ : state) {
+              // One iteration = the 30 evaluation views; the median view is the figure.
+              const splat::MipStack stack =
+                  splat::render_ground_truth(loaded->volume, loaded->frame, eval, ro, backend);
+              per_view.insert(per_view.end(), stack.seconds_per_view.begin(), stack.seconds_per_view.end());
+              state.SetIterationTime(
+                  std::accumulate(stack.seconds_per_view.begin(), stack.seconds_per_view.end(), 0.0));
+            }
+            std::sort(per_view.begin(), per_view.end());
+            state.counters["median_ms_per_view"] = 1e3 * per_view[per_view.size() / 2];
+            state.counters["max_ms_per_view"] = 1e3 * per_view.back();
+            state.counters["views"] = static_cast<double>(per_view.size());
+          })
+          ->Unit(benchmark::kMillisecond)
+          ->UseManualTime()
+          ->Iterations(2);
     }
   }
 }

@@ -24,43 +24,48 @@ const char* pass_name(Pass p) { return p == Pass::kHard ? "hard" : p == Pass::kS
 
 void register_case(const std::string& label, std::shared_ptr<const gmf::GaussianMixture> mixture, int size,
                    splat::Backend backend, Pass pass, float beta) {
-  benchmark::RegisterBenchmark(label.c_str(), [=](benchmark::State& state) {
-    splat::CameraOptions co;
-    co.width = co.height = size;
-    const splat::CameraSet eval = splat::evaluation_orbit(co);
-    auto renderer = splat::make_splat_renderer(backend);
-    splat::SplatSettings settings;
-    settings.mode = pass == Pass::kHard ? splat::MipMode::kHard : splat::MipMode::kSoft;
-    settings.beta = beta;
-    const auto params = splat::flat_params(*mixture);
-    std::vector<float> image(static_cast<std::size_t>(size) * size);
-    std::vector<float> dL_dI(image.size(), 1e-3f), grad(params.size());
-    auto frame = [&](std::size_t i) {
-      const splat::CameraView& view = eval.views[i % eval.views.size()];
-      renderer->forward(params, eval.intrinsics, view, settings, image);
-      if (pass != Pass::kBackward) return 0.0;
-      io::Stopwatch watch;  // backward alone: its forward is the one just run
-      renderer->backward(dL_dI, grad);
-      return watch.elapsed();
-    };
-    for (std::size_t i = 0; i < 3; ++i) frame(i);  // warm-up: buffers sized, caches filled
-    std::vector<double> ms;
-    std::int64_t visible = 0;
-    std::size_t i = 0;
-    for (auto _ : state) {
-      io::Stopwatch watch;
-      const double backward_s = frame(i++);
-      const double s = pass == Pass::kBackward ? backward_s : watch.elapsed();
-      state.SetIterationTime(s);
-      ms.push_back(1e3 * s);
-      visible += renderer->stats().visible;
-    }
-    std::sort(ms.begin(), ms.end());
-    state.counters["median_ms"] = ms[ms.size() / 2];
-    state.counters["p95_ms"] = ms[std::min(ms.size() - 1, ms.size() * 95 / 100)];
-    state.counters["K"] = static_cast<double>(mixture->size());
-    state.counters["visible"] = static_cast<double>(visible) / static_cast<double>(ms.size());
-  })->Unit(benchmark::kMillisecond)->UseManualTime()->MinTime(0.5);
+  benchmark::RegisterBenchmark(label.c_str(),
+                               [=](benchmark::State& state) {
+                                 splat::CameraOptions co;
+                                 co.width = co.height = size;
+                                 const splat::CameraSet eval = splat::evaluation_orbit(co);
+                                 auto renderer = splat::make_splat_renderer(backend);
+                                 splat::SplatSettings settings;
+                                 settings.mode = pass == Pass::kHard ? splat::MipMode::kHard : splat::MipMode::kSoft;
+                                 settings.beta = beta;
+                                 const auto params = splat::flat_params(*mixture);
+                                 std::vector<float> image(static_cast<std::size_t>(size) * size);
+                                 std::vector<float> dL_dI(image.size(), 1e-3f), grad(params.size());
+                                 auto frame = [&](std::size_t i) {
+                                   const splat::CameraView& view = eval.views[i % eval.views.size()];
+                                   renderer->forward(params, eval.intrinsics, view, settings, image);
+                                   if (pass != Pass::kBackward) return 0.0;
+                                   io::Stopwatch watch;  // backward alone: its forward is the one just run
+                                   renderer->backward(dL_dI, grad);
+                                   return watch.elapsed();
+                                 };
+                                 for (std::size_t i = 0; i < 3; ++i) frame(i);  // warm-up: buffers sized, caches filled
+                                 std::vector<double> ms;
+                                 std::int64_t visible = 0;
+                                 std::size_t i = 0;
+                                 for (auto _ : state) {
+                                   io::Stopwatch watch;
+                                   const double backward_s = frame(i++);
+                                   const double s = pass == Pass::kBackward ? backward_s : watch.elapsed();
+                                   state.SetIterationTime(s);
+                                   ms.push_back(1e3 * s);
+                                   visible += renderer->stats().visible;
+                                 }
+                                 std::sort(ms.begin(), ms.end());
+                                 state.counters["median_ms"] = ms[ms.size() / 2];
+                                 state.counters["p95_ms"] = ms[std::min(ms.size() - 1, ms.size() * 95 / 100)];
+                                 state.counters["K"] = static_cast<double>(mixture->size());
+                                 state.counters["visible"] =
+                                     static_cast<double>(visible) / static_cast<double>(ms.size());
+                               })
+      ->Unit(benchmark::kMillisecond)
+      ->UseManualTime()
+      ->MinTime(0.5);
 }
 
 }  // namespace

@@ -14,8 +14,7 @@ namespace hisnegs::apps {
 
 AppConfig& GlobalOptions::config() {
   if (!config_) {
-    config_ = load_app_config(config_path.empty() ? std::nullopt
-                                                  : std::optional<std::filesystem::path>(config_path));
+    config_ = load_app_config(config_path.empty() ? std::nullopt : std::optional<std::filesystem::path>(config_path));
   }
   return *config_;
 }

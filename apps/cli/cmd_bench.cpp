@@ -3,8 +3,8 @@
 // Benchmark suites and of `bench report` (apps/bench/).
 #include <benchmark/benchmark.h>
 
-#include <cstdio>
 #include <unistd.h>
+#include <cstdio>
 
 #include <filesystem>
 
@@ -34,7 +34,8 @@ void add_bench_options(CLI::App* cmd, BenchArgs& a) {
   cmd->add_option("--sizes", a.sizes, "gt, render: image sizes (default gt 256, render 128,256,512,1024)")
       ->delimiter(',');
   cmd->add_option("--gaussians", a.gaussians, "render: K values at 256² (default 12000,...,62000)")->delimiter(',');
-  cmd->add_option("--betas", a.betas, "render, report: soft-MIP beta values (default render 1,10,50,100,500; report 1,5,...,500)")
+  cmd->add_option("--betas", a.betas,
+                  "render, report: soft-MIP beta values (default render 1,10,50,100,500; report 1,5,...,500)")
       ->delimiter(',');
   cmd->add_option("-o,--output", a.out, "report: output folder (report.md, table7/9/10/11/12.csv)");
   cmd->add_option("--model", a.model, "report: checkpoint to measure (default: synthetic K = 50000)");

@@ -22,7 +22,8 @@ void add_compare_command(CLI::App& app, GlobalOptions& global) {
   args->compare.time_budget_s = -1;  // default: gmf.time_budget_s
   cmd->add_option("VOLUME", args->volume, "TIFF stack")->required();
   cmd->add_option("-o,--output", args->out, "output folder")->required();
-  cmd->add_option("--optimizers", args->optimizers, "comma-separated subset of lm,lm-cgnr,dogleg,lbfgs,adam (default all)");
+  cmd->add_option("--optimizers", args->optimizers,
+                  "comma-separated subset of lm,lm-cgnr,dogleg,lbfgs,adam (default all)");
   cmd->add_option("--gaussians", args->gaussians, "Gaussian budget (gmf.gaussians)");
   cmd->add_option("--time-budget", args->compare.time_budget_s, "seconds per optimizer (default gmf.time_budget_s)");
   cmd->add_option("--adam-steps", args->compare.adam_steps, "Adam steps that define the target loss")

@@ -24,8 +24,8 @@ void add_demo_command(CLI::App& app, GlobalOptions& global) {
   cmd->add_flag("--force", args->force, "redo every stage, even those finished earlier");
   cmd->callback([args, &global] {
     // --config FILE replaces the demo profile (FILE overlays the defaults as usual).
-    const AppConfig config = global.config_path.empty() ? load_app_config_text(kDemoProfile, "demo profile")
-                                                        : global.config();
+    const AppConfig config =
+        global.config_path.empty() ? load_app_config_text(kDemoProfile, "demo profile") : global.config();
     const std::filesystem::path dir = args->out;
     const Progress progress = global.progress();
     io::Stopwatch watch;

@@ -8,7 +8,8 @@
 namespace hisnegs::apps {
 
 void add_eval_command(CLI::App& app, GlobalOptions& global) {
-  auto* cmd = app.add_subcommand("eval", "measure a model on the evaluation views: PSNR, MAE, SSIM per view (metrics.json/csv)");
+  auto* cmd = app.add_subcommand(
+      "eval", "measure a model on the evaluation views: PSNR, MAE, SSIM per view (metrics.json/csv)");
   struct Args {
     std::string model, data, out, mode, backend = "auto";
     std::optional<double> beta;

@@ -35,8 +35,8 @@ io::WorldFrame header_frame(const std::string& path, const io::VolumeOptions& op
 io::WorldFrame native_frame(const gmf::Checkpoint& checkpoint, const std::string& model, const char* instead) {
   const std::optional<io::WorldFrame> frame = gmf::model_frame(checkpoint.meta);
   if (!frame) {
-    io::fail_input(model, std::string("records no volume_shape / aspect, so its native voxels are unknown; give ") +
-                              instead);
+    io::fail_input(model,
+                   std::string("records no volume_shape / aspect, so its native voxels are unknown; give ") + instead);
   }
   return *frame;
 }
@@ -87,8 +87,9 @@ void run_export_vdb(const VdbArgs& args, GlobalOptions& global) {
   }
   const gmf::ExportProgress progress = [&](std::int64_t done, std::int64_t total) {
     if (global.quiet || watch.elapsed() < kProgressAfterSeconds) return;
-    std::printf("export vdb: %3.0f %% of %lld leaves, %s\n", 100.0 * static_cast<double>(done) / static_cast<double>(total),
-                static_cast<long long>(total), format_seconds(watch.elapsed()).c_str());
+    std::printf("export vdb: %3.0f %% of %lld leaves, %s\n",
+                100.0 * static_cast<double>(done) / static_cast<double>(total), static_cast<long long>(total),
+                format_seconds(watch.elapsed()).c_str());
     std::fflush(stdout);
   };
   const gmf::VdbExportReport r = gmf::export_vdb(args.out, checkpoint, lattice, args.options, args.model, progress);
@@ -98,15 +99,16 @@ void run_export_vdb(const VdbArgs& args, GlobalOptions& global) {
     const Eigen::Vector3i& n = frame->shape();
     dense = ", dense float32 of the stack " + format_bytes(4.0 * n.x() * n.y() * n.z());
   }
-  std::printf("export vdb: wrote %s: `density` on %s, %lld active voxels (f > %g) in %lld leaves of %lld reached, "
-              "K %lld%s; file %s%s; rasterize %s%s, write %s\n",
-              args.out.c_str(), lattice_text.c_str(), static_cast<long long>(r.active_voxels), args.options.cutoff,
-              static_cast<long long>(r.leaf_count), static_cast<long long>(r.candidate_leaves),
-              static_cast<long long>(r.gaussians), args.options.points ? " + `gaussians` points" : "",
-              format_bytes(static_cast<double>(r.file_bytes)).c_str(), dense.c_str(),
-              format_seconds(r.rasterize_seconds).c_str(),
-              args.options.points ? (", points " + format_seconds(r.points_seconds)).c_str() : "",
-              format_seconds(r.write_seconds).c_str());
+  std::printf(
+      "export vdb: wrote %s: `density` on %s, %lld active voxels (f > %g) in %lld leaves of %lld reached, "
+      "K %lld%s; file %s%s; rasterize %s%s, write %s\n",
+      args.out.c_str(), lattice_text.c_str(), static_cast<long long>(r.active_voxels), args.options.cutoff,
+      static_cast<long long>(r.leaf_count), static_cast<long long>(r.candidate_leaves),
+      static_cast<long long>(r.gaussians), args.options.points ? " + `gaussians` points" : "",
+      format_bytes(static_cast<double>(r.file_bytes)).c_str(), dense.c_str(),
+      format_seconds(r.rasterize_seconds).c_str(),
+      args.options.points ? (", points " + format_seconds(r.points_seconds)).c_str() : "",
+      format_seconds(r.write_seconds).c_str());
 }
 
 struct VolumeArgs {
@@ -167,12 +169,14 @@ void add_export_command(CLI::App& app, GlobalOptions& global) {
   auto vdb_args = std::make_shared<VdbArgs>();
   vdb->add_option("--model", vdb_args->model, "checkpoint (.ply)")->required();
   vdb->add_option("-o,--output", vdb_args->out, "output .vdb")->required();
-  auto* voxel = vdb->add_option("--voxel-size", vdb_args->voxel_size,
-                                "cubic voxels of this world size, a voxel centre at the origin (within the model's box)");
+  auto* voxel =
+      vdb->add_option("--voxel-size", vdb_args->voxel_size,
+                      "cubic voxels of this world size, a voxel centre at the origin (within the model's box)");
   auto* match = vdb->add_option("--match-volume", vdb_args->match_volume,
                                 "use the voxels of this TIFF stack (default: the model's own stack)");
   voxel->excludes(match);
-  vdb->add_option("--cutoff", vdb_args->options.cutoff, "EPS: voxels with f <= EPS are inactive")->capture_default_str();
+  vdb->add_option("--cutoff", vdb_args->options.cutoff, "EPS: voxels with f <= EPS are inactive")
+      ->capture_default_str();
   vdb->add_option("--tail", vdb_args->options.tail, "leave out each Gaussian where its value is below this")
       ->capture_default_str();
   vdb->add_flag("--points", vdb_args->options.points, "also write every Gaussian's parameters as a PointDataGrid");
@@ -200,10 +204,11 @@ void add_export_command(CLI::App& app, GlobalOptions& global) {
     const gmf::Checkpoint checkpoint = gmf::load_checkpoint(splat_args->model);
     gmf::write_splat_ply(splat_args->out, checkpoint.mixture, options);
     if (!global.quiet) {
-      std::printf("export splat-ply: wrote %s: %zu Gaussians, %s colours%s (a visual aid: viewers alpha-blend, "
-                  "they do not show a MIP)\n",
-                  splat_args->out.c_str(), checkpoint.mixture.size(), std::string(gmf::to_string(options.colormap)).c_str(),
-                  options.sh_rest ? ", SH degree 3 layout" : "");
+      std::printf(
+          "export splat-ply: wrote %s: %zu Gaussians, %s colours%s (a visual aid: viewers alpha-blend, "
+          "they do not show a MIP)\n",
+          splat_args->out.c_str(), checkpoint.mixture.size(), std::string(gmf::to_string(options.colormap)).c_str(),
+          options.sh_rest ? ", SH degree 3 layout" : "");
     }
   });
 

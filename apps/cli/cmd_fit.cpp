@@ -7,7 +7,8 @@
 namespace hisnegs::apps {
 
 void add_fit_command(CLI::App& app, GlobalOptions& global) {
-  auto* cmd = app.add_subcommand("fit", "fit a Gaussian Mixture Field to a stack with Ceres (writes a .ply checkpoint)");
+  auto* cmd =
+      app.add_subcommand("fit", "fit a Gaussian Mixture Field to a stack with Ceres (writes a .ply checkpoint)");
   struct Args {
     std::string volume, out, optimizer, log;
     std::optional<int> gaussians;

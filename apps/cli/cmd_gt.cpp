@@ -30,7 +30,8 @@ void add_gt_command(CLI::App& app, GlobalOptions& global) {
   cmd->add_option("--mode", args->mode, "exact | report (default from config: raymarch.mode)");
   cmd->add_option("--size", args->size, "image width = height in pixels (default from config)");
   cmd->add_option("--backend", args->backend, "auto | cpu | cuda");
-  cmd->add_option("--elevations", args->elevations, "custom orbit: elevations in degrees, e.g. -30,0,30")->delimiter(',');
+  cmd->add_option("--elevations", args->elevations, "custom orbit: elevations in degrees, e.g. -30,0,30")
+      ->delimiter(',');
   cmd->add_option("--azimuths", args->azimuths, "custom orbit: azimuths in degrees, e.g. 0,90,180")->delimiter(',');
   cmd->add_option("--ring-views", args->ring_views, "custom orbit: N azimuths evenly spaced instead of --azimuths");
   cmd->add_option("--radius", args->radius, "orbit radius (world units; default camera.orbit_radius)");

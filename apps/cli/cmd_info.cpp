@@ -73,8 +73,10 @@ void info_tiff(const std::filesystem::path& path, GlobalOptions& global, const V
   const auto& s = raw.spacing.um;
   print_row("extent", fmt("%.4g", raw.nx * s[0]) + " x " + fmt("%.4g", raw.ny * s[1]) + " x " +
                           fmt("%.4g", raw.nz * s[2]) + " um");
-  print_row("aspect", "physical " + vec3(io::aspect_scales(raw.nx, raw.ny, raw.nz, raw.spacing, io::AspectMode::kPhysical)) +
-                          ", shape (Eq. 9) " + vec3(io::aspect_scales(raw.nx, raw.ny, raw.nz, raw.spacing, io::AspectMode::kShape)) +
+  print_row("aspect", "physical " +
+                          vec3(io::aspect_scales(raw.nx, raw.ny, raw.nz, raw.spacing, io::AspectMode::kPhysical)) +
+                          ", shape (Eq. 9) " +
+                          vec3(io::aspect_scales(raw.nx, raw.ny, raw.nz, raw.spacing, io::AspectMode::kShape)) +
                           "; using " + std::string(io::to_string(options.aspect)));
   print_row("intensity", "min " + fmt("%.6g", raw_stats.min) + ", max " + fmt("%.6g", raw_stats.max) + ", mean " +
                              fmt("%.4g", raw_stats.mean) + ", std " + fmt("%.4g", raw_stats.stddev));
@@ -111,7 +113,8 @@ void info_ply(const std::filesystem::path& path) {
   print_row("file", path.string());
   print_row("format", "hisnegs checkpoint (PLY), format version " + std::to_string(ckpt.meta.format_version));
   print_row("gaussians", std::to_string(st.count) + " (" +
-                             format_bytes(static_cast<double>(st.count) * gmf::kGaussianParamCount * 4.0) + " of parameters)");
+                             format_bytes(static_cast<double>(st.count) * gmf::kGaussianParamCount * 4.0) +
+                             " of parameters)");
   if (ckpt.meta.volume_shape_zyx) {
     const auto& v = *ckpt.meta.volume_shape_zyx;
     print_row("volume", "Z=" + std::to_string(v[0]) + " Y=" + std::to_string(v[1]) + " X=" + std::to_string(v[2]));
@@ -147,9 +150,15 @@ void add_info_command(CLI::App& app, GlobalOptions& global) {
   overrides->add_to(cmd);
   cmd->callback([path, overrides, &global] {
     switch (detect_kind(*path)) {
-      case FileKind::kTiff: info_tiff(*path, global, *overrides); break;
-      case FileKind::kVdb: info_vdb(*path); break;
-      case FileKind::kPly: info_ply(*path); break;
+      case FileKind::kTiff:
+        info_tiff(*path, global, *overrides);
+        break;
+      case FileKind::kVdb:
+        info_vdb(*path);
+        break;
+      case FileKind::kPly:
+        info_ply(*path);
+        break;
     }
   });
 }

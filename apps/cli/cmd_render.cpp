@@ -8,7 +8,8 @@
 namespace hisnegs::apps {
 
 void add_render_command(CLI::App& app, GlobalOptions& global) {
-  auto* cmd = app.add_subcommand("render", "render a checkpoint as soft/hard MIP splats (render.tif, previews, orbit GIF)");
+  auto* cmd =
+      app.add_subcommand("render", "render a checkpoint as soft/hard MIP splats (render.tif, previews, orbit GIF)");
   struct Args {
     std::string model, cameras, out, mode, backend = "auto";
     std::optional<double> beta;

@@ -65,15 +65,14 @@ class ConfigSlice {
   explicit ConfigSlice(const typename detail::SectionType<Members>::type&... sections) : sections_(sections...) {}
 
   template <auto Member>
-    requires kHolds<Member>
+  requires kHolds<Member>
   [[nodiscard]] const typename detail::SectionType<Member>::type& get() const {
     return std::get<index_of<Member>()>(sections_);
   }
 
   // The slice of some of these sections (a stage handing part of its settings on).
   template <auto... Sub>
-    requires(kHolds<Sub> && ...)
-  [[nodiscard]] ConfigSlice<Sub...> slice() const {
+  requires(kHolds<Sub>&&...) [[nodiscard]] ConfigSlice<Sub...> slice() const {
     return ConfigSlice<Sub...>(get<Sub>()...);
   }
 

@@ -6,7 +6,8 @@
 
 namespace hisnegs::apps {
 
-const char* const kDemoProfile = R"(# The profile of `hisnegs demo` (built into the program; this copy is checked against it by a test):
+const char* const kDemoProfile =
+    R"(# The profile of `hisnegs demo` (built into the program; this copy is checked against it by a test):
 # the bundled synthetic neuron through the whole pipeline in a few minutes on a 2-core CPU.
 # Overlaid on the defaults (configs/default.yaml). Compared with the defaults: a smaller
 # Adam GMF fit (6000 Gaussians, 30 s), and a short training (24 epochs, beta warm-up over

@@ -62,7 +62,8 @@ EvalOutcome evaluate_model(const std::filesystem::path& model, const std::filesy
   const splat::SplatSettings settings = splat::SplatSettings::from(config.get<&AppConfig::splat>());
   auto renderer = splat::make_splat_renderer(backend);
   const splat::CameraSet cameras{truth.intrinsics, truth.views};
-  const splat::RenderedViews r = splat::render_views(*renderer, splat::flat_params(checkpoint.mixture), cameras, settings);
+  const splat::RenderedViews r =
+      splat::render_views(*renderer, splat::flat_params(checkpoint.mixture), cameras, settings);
   ViewMeasurements m;
   measure_views(truth, r, dir, m);
   const EvalOutcome outcome{truth.count(), splat::summarize(m.psnr), splat::summarize(m.mae), splat::summarize(m.ssim)};
@@ -90,8 +91,7 @@ EvalOutcome evaluate_model(const std::filesystem::path& model, const std::filesy
   return outcome;
 }
 
-nlohmann::ordered_json EvalStage::run(const RunRequest& request, const Config& config, bool,
-                                      const Progress& progress) {
+nlohmann::ordered_json EvalStage::run(const RunRequest& request, const Config& config, bool, const Progress& progress) {
   const std::filesystem::path dir = request.dir / "eval";
   std::filesystem::remove_all(dir);
   evaluate_model(request.dir / "train" / "final.ply", request.dir / "gt" / "eval", dir, config, request.backend,

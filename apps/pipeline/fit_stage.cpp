@@ -49,8 +49,8 @@ FitSetup prepare_fit(const std::string& volume_path, const FitConfig& config, co
   sparse.background_fraction = gmf.background_fraction;  // the fit's own need (see GmfOptions)
   setup.grid = io::build_sparse_grid(setup.loaded.volume, setup.loaded.frame.aspect(), sparse);
   gmf::InitReport init_report;
-  setup.mixture = gmf::initialize_on_grid(setup.loaded.volume, setup.loaded.frame, sparse_grid.threshold,
-                                          gmf.gaussians, &init_report);
+  setup.mixture = gmf::initialize_on_grid(setup.loaded.volume, setup.loaded.frame, sparse_grid.threshold, gmf.gaussians,
+                                          &init_report);
   progress.say("%s: %s: %lld samples (%lld active voxels), %zu Gaussians on a %.4g grid (budget %d), %s", label,
                volume_path.c_str(), static_cast<long long>(setup.grid.active_voxels() + setup.grid.background_voxels()),
                static_cast<long long>(setup.grid.active_voxels()), setup.mixture.size(), init_report.cell_world,
@@ -89,16 +89,14 @@ FitOutcome fit_to_checkpoint(const std::string& volume, const FitConfig& config,
     io::write_file_atomic(log_csv, csv.data(), csv.size());
   }
   const FitOutcome outcome{mixture.size(), result.final_psnr_3d, watch.elapsed(), result.stop_reason};
-  progress.say("fit: wrote %s: K %zu (%d pruned), 3D PSNR %.2f dB, %s (%s)", out.c_str(), mixture.size(),
-               result.pruned, result.final_psnr_3d, format_seconds(outcome.seconds).c_str(),
-               result.stop_reason.c_str());
+  progress.say("fit: wrote %s: K %zu (%d pruned), 3D PSNR %.2f dB, %s (%s)", out.c_str(), mixture.size(), result.pruned,
+               result.final_psnr_3d, format_seconds(outcome.seconds).c_str(), result.stop_reason.c_str());
   return outcome;
 }
 
-nlohmann::ordered_json FitStage::run(const RunRequest& request, const Config& config, bool,
-                                     const Progress& progress) {
-  const FitOutcome fit =
-      fit_to_checkpoint(request.volume.string(), config, request.dir / "gmf.ply", request.dir / "fit_log.csv", progress);
+nlohmann::ordered_json FitStage::run(const RunRequest& request, const Config& config, bool, const Progress& progress) {
+  const FitOutcome fit = fit_to_checkpoint(request.volume.string(), config, request.dir / "gmf.ply",
+                                           request.dir / "fit_log.csv", progress);
   return {{"gaussians", fit.gaussians}, {"psnr_3d", fit.psnr_3d}, {"stop", fit.stop_reason}};
 }
 

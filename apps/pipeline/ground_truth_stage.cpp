@@ -63,15 +63,14 @@ void write_image_stack(const std::filesystem::path& dir, const std::string& name
   }
 }
 
-void write_ground_truth_set(const std::filesystem::path& dir, const std::string& label,
-                            const splat::CameraSet& cameras, const io::LoadedVolume& loaded,
-                            const std::string& volume_path, const RaymarchConfig& config, splat::Backend backend,
-                            const Progress& progress) {
+void write_ground_truth_set(const std::filesystem::path& dir, const std::string& label, const splat::CameraSet& cameras,
+                            const io::LoadedVolume& loaded, const std::string& volume_path,
+                            const RaymarchConfig& config, splat::Backend backend, const Progress& progress) {
   const splat::RaymarchOptions& rm = config.get<&AppConfig::raymarch>();
   rm.validate();
   io::Stopwatch watch;
-  const splat::MipStack stack = splat::render_ground_truth(
-      loaded.volume, loaded.frame, cameras, rm, backend, [&](int done, int total) {
+  const splat::MipStack stack =
+      splat::render_ground_truth(loaded.volume, loaded.frame, cameras, rm, backend, [&](int done, int total) {
         if (!progress.meter) return;
         const double per_view = watch.elapsed() / done;
         progress.meter(strf("gt %s: %d/%d views, %.1f ms/view, ETA %s", label.c_str(), done, total, per_view * 1e3,

@@ -25,10 +25,9 @@ using RaymarchConfig = ConfigSlice<&AppConfig::raymarch>;
 // Ray-marches `cameras` through `loaded` and writes DIR/{cameras.json, mips.tif,
 // previews/NNN.png, meta.json}; `label` names the set in progress (a meter of views,
 // then one "gt: LABEL: ..." line). `volume_path` is recorded in meta.json.
-void write_ground_truth_set(const std::filesystem::path& dir, const std::string& label,
-                            const splat::CameraSet& cameras, const io::LoadedVolume& loaded,
-                            const std::string& volume_path, const RaymarchConfig& config, splat::Backend backend,
-                            const Progress& progress);
+void write_ground_truth_set(const std::filesystem::path& dir, const std::string& label, const splat::CameraSet& cameras,
+                            const io::LoadedVolume& loaded, const std::string& volume_path,
+                            const RaymarchConfig& config, splat::Backend backend, const Progress& progress);
 
 struct GroundTruthSet {
   std::string label;  // "train", "eval", "custom", ...

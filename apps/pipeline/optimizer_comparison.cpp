@@ -29,8 +29,8 @@ std::string results_csv(const gmf::Comparison& c) {
     if (run.seconds_to_target >= 0) s << run.seconds_to_target;
     s << "," << run.final_loss << ",";
     if (run.failure.empty()) s << run.result.final_psnr_3d;  // empty: a failed run has no final model
-    s << "," << run.iterations << "," << run.result.seconds
-      << "," << run.gaussians << ",\"" << run.result.stop_reason << "\"\n";
+    s << "," << run.iterations << "," << run.result.seconds << "," << run.gaussians << ",\"" << run.result.stop_reason
+      << "\"\n";
   }
   return s.str();
 }
@@ -63,9 +63,11 @@ std::string summary_md(const gmf::Comparison& c, const std::string& volume, cons
     if (run.optimizer == gmf::Optimizer::kAdam) adam = &run;
   }
   if (adam != nullptr) {
-    std::snprintf(line, sizeof line, "Target: the loss Adam reached after %d steps, %.6g", c.adam_steps_done, c.target_loss);
+    std::snprintf(line, sizeof line, "Target: the loss Adam reached after %d steps, %.6g", c.adam_steps_done,
+                  c.target_loss);
     s << line;
-    if (c.adam_steps_done < o.adam_steps) s << " (Adam ran out of time before the " << o.adam_steps << " steps asked for)";
+    if (c.adam_steps_done < o.adam_steps)
+      s << " (Adam ran out of time before the " << o.adam_steps << " steps asked for)";
     s << ".\n\n";
   } else {
     s << "Adam was not run, so there is no target loss; compare final losses.\n\n";
@@ -88,11 +90,12 @@ std::string summary_md(const gmf::Comparison& c, const std::string& volume, cons
       psnr = line;
     }
     std::snprintf(line, sizeof line, "| %s | %s | %s | %.6g | %s | %d | %.1f | %s |\n", run.name.c_str(),
-                  to_target.c_str(), ratio.c_str(), run.final_loss, psnr.c_str(), run.iterations,
-                  run.result.seconds, run.result.stop_reason.c_str());
+                  to_target.c_str(), ratio.c_str(), run.final_loss, psnr.c_str(), run.iterations, run.result.seconds,
+                  run.result.stop_reason.c_str());
     s << line;
   }
-  s << "\n![loss against wall time](loss_vs_time.png)\n\nPer-iteration logs: `curves.csv`; this table: `results.csv`.\n";
+  s << "\n![loss against wall time](loss_vs_time.png)\n\nPer-iteration logs: `curves.csv`; this table: "
+       "`results.csv`.\n";
   return s.str();
 }
 
@@ -138,7 +141,8 @@ gmf::Comparison write_optimizer_comparison(const std::filesystem::path& dir, con
   auto save = [&](const gmf::Comparison& c) {
     write_text_file(dir / "results.csv", results_csv(c));
     write_text_file(dir / "curves.csv", curves_csv(c));
-    write_text_file(dir / "summary.md", summary_md(c, volume, compare, static_cast<int>(setup.mixture.size()), samples));
+    write_text_file(dir / "summary.md",
+                    summary_md(c, volume, compare, static_cast<int>(setup.mixture.size()), samples));
     io::write_png(dir / "loss_vs_time.png", loss_plot(c));
   };
   const gmf::Comparison c = gmf::compare_optimizers(

@@ -16,11 +16,13 @@ namespace hisnegs::apps {
 std::vector<double> write_orbit_gif(const std::filesystem::path& gif, splat::SplatRenderer& renderer,
                                     std::span<const float> params, const OrbitConfig& config,
                                     const OrbitOptions& orbit) {
-  const splat::CameraSet cameras = splat::turntable(config.get<&AppConfig::camera>(), orbit.frames, orbit.elevation_deg);
+  const splat::CameraSet cameras =
+      splat::turntable(config.get<&AppConfig::camera>(), orbit.frames, orbit.elevation_deg);
   const splat::RenderedViews r =
       splat::render_views(renderer, params, cameras, splat::SplatSettings::from(config.get<&AppConfig::splat>()));
   std::vector<io::Image8> images;
-  for (int i = 0; i < r.stack.views; ++i) images.push_back(io::to_gray8(r.stack.view(i), r.stack.width, r.stack.height));
+  for (int i = 0; i < r.stack.views; ++i)
+    images.push_back(io::to_gray8(r.stack.view(i), r.stack.width, r.stack.height));
   io::write_gif(gif, images, orbit.delay_ms);
   return r.stack.seconds_per_view;
 }

@@ -17,9 +17,9 @@ namespace hisnegs::apps {
 using OrbitConfig = ConfigSlice<&AppConfig::camera, &AppConfig::splat>;
 
 struct OrbitOptions {
-  int frames = 72;             // views of the turntable, [1, 3600]; report Table 10: 72 (5 degree steps)
-  double elevation_deg = 30;   // camera elevation in degrees
-  int delay_ms = 50;           // GIF frame time
+  int frames = 72;            // views of the turntable, [1, 3600]; report Table 10: 72 (5 degree steps)
+  double elevation_deg = 30;  // camera elevation in degrees
+  int delay_ms = 50;          // GIF frame time
 };
 
 // Renders the orbit of `params` (camera intrinsics and radius from `camera`, splatting

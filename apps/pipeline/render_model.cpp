@@ -57,7 +57,8 @@ void render_model(const RenderRequest& request, const RenderConfig& config, cons
   if (request.orbit) {
     const OrbitOptions& o = *request.orbit;
     const std::vector<double> seconds = write_orbit_gif(dir / "orbit.gif", *renderer, params, config, o);
-    meta["orbit"] = {{"frames", o.frames}, {"elevation_deg", o.elevation_deg}, {"median_ms_per_frame", median_ms(seconds)}};
+    meta["orbit"] = {
+        {"frames", o.frames}, {"elevation_deg", o.elevation_deg}, {"median_ms_per_frame", median_ms(seconds)}};
     progress.say("render: orbit of %d frames at %.3g deg elevation, median %.2f ms/frame -> %s", o.frames,
                  o.elevation_deg, median_ms(seconds), (dir / "orbit.gif").c_str());
   }

@@ -15,10 +15,10 @@ namespace hisnegs::apps {
 using RenderConfig = OrbitConfig;
 
 struct RenderRequest {
-  std::filesystem::path model;            // checkpoint (.ply)
-  std::filesystem::path cameras;          // cameras.json whose views to render; empty: none
-  std::filesystem::path dir;              // output folder
-  std::optional<OrbitOptions> orbit;      // also DIR/orbit.gif
+  std::filesystem::path model;        // checkpoint (.ply)
+  std::filesystem::path cameras;      // cameras.json whose views to render; empty: none
+  std::filesystem::path dir;          // output folder
+  std::optional<OrbitOptions> orbit;  // also DIR/orbit.gif
   splat::Backend backend = splat::Backend::kCpu;
 };
 

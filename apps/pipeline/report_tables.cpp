@@ -133,9 +133,8 @@ Table gaussian_table(const std::vector<std::pair<std::string, gmf::MixtureStats>
   row("Mean scale (x, y, z)", [](const gmf::MixtureStats& s) {
     return strf("(%.4f, %.4f, %.4f)", s.mean_scale[0], s.mean_scale[1], s.mean_scale[2]);
   });
-  row("Intensity range", [](const gmf::MixtureStats& s) {
-    return strf("[%.3f, %.3f]", s.intensity_min, s.intensity_max);
-  });
+  row("Intensity range",
+      [](const gmf::MixtureStats& s) { return strf("[%.3f, %.3f]", s.intensity_min, s.intensity_max); });
   row("Mean intensity", [](const gmf::MixtureStats& s) { return strf("%.3f", s.intensity_mean); });
   return t;
 }
@@ -145,8 +144,8 @@ Table memory_table(const MemoryInputs& in) {
   const double voxels = static_cast<double>(in.shape_xyz[0]) * in.shape_xyz[1] * in.shape_xyz[2];
   const double raw = 4.0 * voxels;
   auto ratio = [&](double bytes) { return bytes > 0 ? strf("%.1fx", raw / bytes) : std::string("-"); };
-  t.add({strf("Raw volume %dx%dx%d (float32)", in.shape_xyz[0], in.shape_xyz[1], in.shape_xyz[2]),
-         strf("%.0f", voxels), format_bytes(raw), "1x"});
+  t.add({strf("Raw volume %dx%dx%d (float32)", in.shape_xyz[0], in.shape_xyz[1], in.shape_xyz[2]), strf("%.0f", voxels),
+         format_bytes(raw), "1x"});
   if (in.sparse_file) {
     t.add({"Sparse grid file " + in.sparse_file->first, "-", format_bytes(in.sparse_file->second),
            ratio(in.sparse_file->second)});

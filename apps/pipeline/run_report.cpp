@@ -65,7 +65,7 @@ const char* stage_title(const std::string& name) {
 
 // What the report reads back from the run folder.
 struct RunFiles {
-  Json volume, metrics, orbit;  // volume.json, eval/metrics.json, orbit.json
+  Json volume, metrics, orbit;   // volume.json, eval/metrics.json, orbit.json
   gmf::Checkpoint fit, trained;  // gmf.ply, train/final.ply
 };
 
@@ -98,13 +98,13 @@ std::string summary_section(const RunFiles& f, const Json& run_state, const RunS
   s.add({"Evaluation PSNR", strf("%.2f +- %.2f dB (min %.2f, max %.2f) over %d views", psnr.at("mean").get<double>(),
                                  psnr.at("std").get<double>(), psnr.at("min").get<double>(),
                                  psnr.at("max").get<double>(), metrics.at("views").get<int>())});
-  s.add({"Evaluation MAE / SSIM", strf("%.5f / %.4f", metrics.at("mae").at("mean").get<double>(),
-                                       metrics.at("ssim").at("mean").get<double>())});
-  s.add({"Rendering", strf("%s MIP, beta %.4g", metrics.at("mode").get<std::string>().c_str(),
-                           metrics.at("beta").get<double>())});
+  s.add({"Evaluation MAE / SSIM",
+         strf("%.5f / %.4f", metrics.at("mae").at("mean").get<double>(), metrics.at("ssim").at("mean").get<double>())});
+  s.add({"Rendering",
+         strf("%s MIP, beta %.4g", metrics.at("mode").get<std::string>().c_str(), metrics.at("beta").get<double>())});
   if (run_state.contains("fit")) {
-    s.add({"GMF fit", strf("K %zu, 3D PSNR %.2f dB (%s)", f.fit.mixture.size(),
-                           run_state["fit"].value("psnr_3d", 0.0), run_state["fit"].value("stop", "").c_str())});
+    s.add({"GMF fit", strf("K %zu, 3D PSNR %.2f dB (%s)", f.fit.mixture.size(), run_state["fit"].value("psnr_3d", 0.0),
+                           run_state["fit"].value("stop", "").c_str())});
   }
   s.add({"Trained model", strf("K %zu ([train/final.ply](train/final.ply))", f.trained.mixture.size())});
   double all_stages = 0;
@@ -125,16 +125,18 @@ std::string stages_section(const RunSummary& summary) {
 std::string evaluation_section(const Json& metrics) {
   const Json& psnr = metrics.at("psnr");
   std::string md = "## Evaluation views (report Table 8)\n\n";
-  md += strf("Soft-MIP splats of the trained model against ray-marched ground truth at the %d held-out evaluation "
-             "views (CONVENTIONS \"Metrics\"); per view also in [eval/metrics.csv](eval/metrics.csv).\n\n",
-             metrics.at("views").get<int>());
+  md += strf(
+      "Soft-MIP splats of the trained model against ray-marched ground truth at the %d held-out evaluation "
+      "views (CONVENTIONS \"Metrics\"); per view also in [eval/metrics.csv](eval/metrics.csv).\n\n",
+      metrics.at("views").get<int>());
   Table v{{"view", "name", "PSNR (dB)", "MAE", "SSIM", "visible K"}, {}};
   for (const Json& row : metrics.at("per_view")) {
     v.add({std::to_string(row.at("view").get<int>()), row.at("name").get<std::string>(),
            strf("%.2f", row.at("psnr").get<double>()), strf("%.5f", row.at("mae").get<double>()),
            strf("%.4f", row.at("ssim").get<double>()), std::to_string(row.at("visible").get<int>())});
   }
-  v.add({"mean", "", strf("%.2f", psnr.at("mean").get<double>()), strf("%.5f", metrics.at("mae").at("mean").get<double>()),
+  v.add({"mean", "", strf("%.2f", psnr.at("mean").get<double>()),
+         strf("%.5f", metrics.at("mae").at("mean").get<double>()),
          strf("%.4f", metrics.at("ssim").at("mean").get<double>()),
          strf("%.0f", metrics.at("visible").at("mean").get<double>())});
   v.add({"std", "", strf("%.2f", psnr.at("std").get<double>()), strf("%.5f", metrics.at("mae").at("std").get<double>()),
@@ -152,8 +154,8 @@ std::string training_section(const fs::path& dir) {
   std::string md = "## Training\n\n";
   const std::vector<std::string> last = last_log_row(dir / "train" / "log.csv");
   if (last.size() >= 5) {
-    md += "Last epoch " + last[0] + ": loss " + last[2] + ", training-view PSNR " +
-          strf("%.2f", std::stod(last[3])) + " dB, K " + last[4] + ", " + format_seconds(std::stod(last[1])) +
+    md += "Last epoch " + last[0] + ": loss " + last[2] + ", training-view PSNR " + strf("%.2f", std::stod(last[3])) +
+          " dB, K " + last[4] + ", " + format_seconds(std::stod(last[1])) +
           " of training. Log: [train/log.csv](train/log.csv).\n\n";
   }
   return md + "![training curve](train/training_curve.png)\n\n";
@@ -179,11 +181,12 @@ std::string memory_section(const fs::path& dir, const RunFiles& f) {
 
 std::string orbit_section(const Json& orbit) {
   std::string md = "## Orbit (report Table 10)\n\n";
-  md += strf("%d frames of a 360 degree orbit at %.3g degrees elevation, %dx%d, K %zu, %s back end "
-             "(render time per frame, the GIF encoding excluded):\n\n",
-             orbit.at("frames").get<int>(), orbit.at("elevation_deg").get<double>(), orbit.at("width").get<int>(),
-             orbit.at("height").get<int>(), orbit.at("gaussians").get<std::size_t>(),
-             orbit.at("backend").get<std::string>().c_str());
+  md += strf(
+      "%d frames of a 360 degree orbit at %.3g degrees elevation, %dx%d, K %zu, %s back end "
+      "(render time per frame, the GIF encoding excluded):\n\n",
+      orbit.at("frames").get<int>(), orbit.at("elevation_deg").get<double>(), orbit.at("width").get<int>(),
+      orbit.at("height").get<int>(), orbit.at("gaussians").get<std::size_t>(),
+      orbit.at("backend").get<std::string>().c_str());
   md += frame_time_table(orbit.at("seconds_per_frame").get<std::vector<double>>()).markdown() + "\n";
   return md + "![orbit](orbit.gif)\n";
 }

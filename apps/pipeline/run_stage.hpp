@@ -23,8 +23,8 @@ struct RunRequest {
   std::filesystem::path volume;  // TIFF stack
   std::filesystem::path dir;     // run folder
   splat::Backend backend = splat::Backend::kCpu;
-  bool force = false;            // redo stages finished earlier
-  int orbit_frames = 72;         // report Table 10: 72 frames, 5 degree steps
+  bool force = false;     // redo stages finished earlier
+  int orbit_frames = 72;  // report Table 10: 72 frames, 5 degree steps
   double orbit_elevation = 30.0;
 };
 

@@ -90,11 +90,12 @@ void run_epochs(TrainingSession& s, const fs::path& run, int epochs, const Progr
     if (trainer.checkpoint_due()) splat::save_training_checkpoint(run / "checkpoints", trainer, s.meta);
     if (progress.quiet()) continue;
     const double per_epoch = watch.elapsed() / (trainer.epoch() - first_epoch);
-    std::string line = strf("train: epoch %d/%d: loss %.6g, PSNR %.2f dB, K %d, beta %.4g, lr %.3g, %s/epoch, ETA %s",
-                            r.epoch, epochs, r.loss, r.psnr, r.gaussians, r.beta, r.lr,
-                            format_seconds(r.seconds).c_str(),
-                            format_seconds(per_epoch * (epochs - trainer.epoch())).c_str());
-    if (r.split + r.cloned + r.pruned > 0) line += strf(" (%d split, %d cloned, %d pruned)", r.split, r.cloned, r.pruned);
+    std::string line =
+        strf("train: epoch %d/%d: loss %.6g, PSNR %.2f dB, K %d, beta %.4g, lr %.3g, %s/epoch, ETA %s", r.epoch, epochs,
+             r.loss, r.psnr, r.gaussians, r.beta, r.lr, format_seconds(r.seconds).c_str(),
+             format_seconds(per_epoch * (epochs - trainer.epoch())).c_str());
+    if (r.split + r.cloned + r.pruned > 0)
+      line += strf(" (%d split, %d cloned, %d pruned)", r.split, r.cloned, r.pruned);
     progress.line(line);
   }
 }

@@ -23,13 +23,13 @@ io::SparseGrid write_sparse_grid(const std::filesystem::path& volume_path, const
   io::write_vdb(out, grid);
   const double t_write = watch.lap();
   const double total = static_cast<double>(loaded.volume.size());
-  progress.say("vdb: wrote %s: %lld active voxels (%.3f %% of %.2f M), %lld background samples, %lld leaves, %s "
-               "in memory (dense float32: %s); load %s, build %s, write %s",
-               out.c_str(), static_cast<long long>(grid.active_voxels()), 100.0 * grid.active_voxels() / total,
-               total / 1e6, static_cast<long long>(grid.background_voxels()),
-               static_cast<long long>(grid.leaf_count()), format_bytes(static_cast<double>(grid.memory_bytes())).c_str(),
-               format_bytes(total * 4.0).c_str(), format_seconds(t_load).c_str(), format_seconds(t_build).c_str(),
-               format_seconds(t_write).c_str());
+  progress.say(
+      "vdb: wrote %s: %lld active voxels (%.3f %% of %.2f M), %lld background samples, %lld leaves, %s "
+      "in memory (dense float32: %s); load %s, build %s, write %s",
+      out.c_str(), static_cast<long long>(grid.active_voxels()), 100.0 * grid.active_voxels() / total, total / 1e6,
+      static_cast<long long>(grid.background_voxels()), static_cast<long long>(grid.leaf_count()),
+      format_bytes(static_cast<double>(grid.memory_bytes())).c_str(), format_bytes(total * 4.0).c_str(),
+      format_seconds(t_load).c_str(), format_seconds(t_build).c_str(), format_seconds(t_write).c_str());
   return grid;
 }
 

@@ -74,9 +74,12 @@ void install_global_handlers() {
 
 std::size_t bytes_of(SampleType type) {
   switch (type) {
-    case SampleType::kUint8: return 1;
-    case SampleType::kUint16: return 2;
-    case SampleType::kFloat32: return 4;
+    case SampleType::kUint8:
+      return 1;
+    case SampleType::kUint16:
+      return 2;
+    case SampleType::kFloat32:
+      return 4;
   }
   return 4;
 }

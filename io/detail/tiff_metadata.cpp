@@ -73,11 +73,16 @@ std::string decode_xml_entities(std::string_view s) {
     }
     const std::string_view ent = s.substr(i + 1, semi - i - 1);
     bool ok = true;
-    if (ent == "amp") out += '&';
-    else if (ent == "lt") out += '<';
-    else if (ent == "gt") out += '>';
-    else if (ent == "quot") out += '"';
-    else if (ent == "apos") out += '\'';
+    if (ent == "amp")
+      out += '&';
+    else if (ent == "lt")
+      out += '<';
+    else if (ent == "gt")
+      out += '>';
+    else if (ent == "quot")
+      out += '"';
+    else if (ent == "apos")
+      out += '\'';
     else if (ent.size() > 1 && ent[0] == '#') {
       const bool hex = ent[1] == 'x' || ent[1] == 'X';
       const std::string_view digits = ent.substr(hex ? 2 : 1);
@@ -130,10 +135,10 @@ std::optional<double> length_unit_um(std::string_view unit) {
   unit = trim(unit);
   // Symbols are case-sensitive (mm is not Mm); OME UnitsLength spellings first.
   static const std::pair<std::string_view, double> kSymbols[] = {
-      {"\xC2\xB5m", 1.0},     // µm, U+00B5 MICRO SIGN in UTF-8 (OME's spelling)
-      {"\xCE\xBCm", 1.0},     // μm, U+03BC GREEK SMALL LETTER MU
-      {"\xB5m", 1.0},         // µm in Latin-1 (old ImageJ files)
-      {"\\u00B5m", 1.0},      // ImageJ escapes µ in its description this way
+      {"\xC2\xB5m", 1.0},  // µm, U+00B5 MICRO SIGN in UTF-8 (OME's spelling)
+      {"\xCE\xBCm", 1.0},  // μm, U+03BC GREEK SMALL LETTER MU
+      {"\xB5m", 1.0},      // µm in Latin-1 (old ImageJ files)
+      {"\\u00B5m", 1.0},   // ImageJ escapes µ in its description this way
       {"\\u00b5m", 1.0},
       {"um", 1.0},
       {"nm", 1e-3},
@@ -151,13 +156,12 @@ std::optional<double> length_unit_um(std::string_view unit) {
     if (unit == symbol) return um;
   }
   static const std::pair<std::string_view, double> kWords[] = {
-      {"micron", 1.0},      {"microns", 1.0},     {"micrometer", 1.0}, {"micrometers", 1.0},
-      {"micrometre", 1.0},  {"micrometres", 1.0}, {"nanometer", 1e-3}, {"nanometers", 1e-3},
-      {"nanometre", 1e-3},  {"nanometres", 1e-3}, {"millimeter", 1e3}, {"millimeters", 1e3},
-      {"millimetre", 1e3},  {"millimetres", 1e3}, {"centimeter", 1e4}, {"centimeters", 1e4},
-      {"centimetre", 1e4},  {"centimetres", 1e4}, {"meter", 1e6},      {"meters", 1e6},
-      {"metre", 1e6},       {"metres", 1e6},      {"inch", 25400.0},   {"inches", 25400.0},
-      {"angstrom", 1e-4},   {"angstroms", 1e-4},
+      {"micron", 1.0},      {"microns", 1.0},     {"micrometer", 1.0},  {"micrometers", 1.0}, {"micrometre", 1.0},
+      {"micrometres", 1.0}, {"nanometer", 1e-3},  {"nanometers", 1e-3}, {"nanometre", 1e-3},  {"nanometres", 1e-3},
+      {"millimeter", 1e3},  {"millimeters", 1e3}, {"millimetre", 1e3},  {"millimetres", 1e3}, {"centimeter", 1e4},
+      {"centimeters", 1e4}, {"centimetre", 1e4},  {"centimetres", 1e4}, {"meter", 1e6},       {"meters", 1e6},
+      {"metre", 1e6},       {"metres", 1e6},      {"inch", 25400.0},    {"inches", 25400.0},  {"angstrom", 1e-4},
+      {"angstroms", 1e-4},
   };
   const std::string lower = ascii_lower(unit);
   for (const auto& [word, um] : kWords) {
@@ -184,18 +188,24 @@ ImageJDescription parse_imagej_description(std::string_view text) {
     auto count = [&](std::optional<int>& field) {
       const std::optional<long long> n = parse_integer(value);
       if (!n || *n < 1 || *n > std::numeric_limits<int>::max()) {
-        fail("ImageJ description: " + std::string(key) + "=" + printable(value) +
-             " is not a positive integer");
+        fail("ImageJ description: " + std::string(key) + "=" + printable(value) + " is not a positive integer");
       }
       field = static_cast<int>(*n);
     };
-    if (key == "images") count(d.images);
-    else if (key == "channels") count(d.channels);
-    else if (key == "slices") count(d.slices);
-    else if (key == "frames") count(d.frames);
-    else if (key == "hyperstack") d.hyperstack = value == "true";
-    else if (key == "unit") d.unit = std::string(value);
-    else if (key == "spacing") spacing_text = std::string(value);
+    if (key == "images")
+      count(d.images);
+    else if (key == "channels")
+      count(d.channels);
+    else if (key == "slices")
+      count(d.slices);
+    else if (key == "frames")
+      count(d.frames);
+    else if (key == "hyperstack")
+      d.hyperstack = value == "true";
+    else if (key == "unit")
+      d.unit = std::string(value);
+    else if (key == "spacing")
+      spacing_text = std::string(value);
   }
   if (!is_pixel_unit(d.unit)) {
     d.um_per_unit = length_unit_um(d.unit);
@@ -209,8 +219,7 @@ ImageJDescription parse_imagej_description(std::string_view text) {
     if (!d.spacing) {
       d.spacing_error = "ImageJ description: spacing=" + printable(*spacing_text) + " is not a number";
     } else if (!std::isfinite(*d.spacing) || *d.spacing <= 0) {
-      d.spacing_error = "ImageJ description: spacing=" + printable(*spacing_text) +
-                        " must be a positive finite number";
+      d.spacing_error = "ImageJ description: spacing=" + printable(*spacing_text) + " must be a positive finite number";
       d.spacing.reset();
     }
   }

@@ -29,12 +29,12 @@ namespace hisnegs::io::detail {
 // The keys of an ImageJ ImageDescription ("ImageJ=1.x\nimages=..\n...") that
 // hisnegs uses. Counts are absent when the key is missing.
 struct ImageJDescription {
-  std::optional<int> images;    // total pages = channels * slices * frames
-  std::optional<int> channels;  // hyperstack channels (pages interleaved, C fastest)
-  std::optional<int> slices;    // Z
-  std::optional<int> frames;    // T
-  bool hyperstack = false;      // `hyperstack=true`
-  std::string unit;             // `unit=` as written ("" if missing)
+  std::optional<int> images;          // total pages = channels * slices * frames
+  std::optional<int> channels;        // hyperstack channels (pages interleaved, C fastest)
+  std::optional<int> slices;          // Z
+  std::optional<int> frames;          // T
+  bool hyperstack = false;            // `hyperstack=true`
+  std::string unit;                   // `unit=` as written ("" if missing)
   std::optional<double> um_per_unit;  // µm per `unit`; nullopt if unknown or pixel
   std::optional<double> spacing;      // `spacing=` (z step) in `unit`
   // Why the calibration cannot be used (an unknown unit, `spacing=abc`, a
@@ -53,9 +53,9 @@ struct ImageJDescription {
 
 // The attributes of the first OME-XML <Pixels> element that hisnegs uses.
 struct OmePixels {
-  std::string dimension_order;  // "XY" + a permutation of "ZCT", e.g. "XYZCT"
+  std::string dimension_order;                                        // "XY" + a permutation of "ZCT", e.g. "XYZCT"
   int size_x = 0, size_y = 0, size_z = 1, size_c = 1, size_time = 1;  // SizeX..SizeT
-  std::array<std::optional<double>, 3> physical_size_um;  // x, y, z; nullopt if absent/pixel
+  std::array<std::optional<double>, 3> physical_size_um;              // x, y, z; nullopt if absent/pixel
   std::string spacing_error;  // as ImageJDescription::spacing_error (names the attribute)
 };
 
@@ -73,9 +73,9 @@ struct SpacingEvidence {
   std::optional<std::array<double, 3>> user_um;  // --spacing / config (wins)
   const OmePixels* ome = nullptr;                // OME-XML, if the file has it
   const ImageJDescription* imagej = nullptr;     // ImageJ description, if any
-  double x_resolution = 0;   // TIFF XResolution in pixels per unit; <= 0 when absent
-  double y_resolution = 0;   // TIFF YResolution
-  int resolution_unit = 2;   // TIFF ResolutionUnit: 1 none, 2 inch (the default), 3 cm
+  double x_resolution = 0;                       // TIFF XResolution in pixels per unit; <= 0 when absent
+  double y_resolution = 0;                       // TIFF YResolution
+  int resolution_unit = 2;                       // TIFF ResolutionUnit: 1 none, 2 inch (the default), 3 cm
 };
 
 // Resolves spacing axis by axis: user > OME PhysicalSize > ImageJ (x, y from

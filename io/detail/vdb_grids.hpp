@@ -15,5 +15,4 @@ struct SparseGrid::Impl {
   SparseGridMeta meta;
 };
 
-
 }  // namespace hisnegs::io

@@ -8,13 +8,13 @@
 #include <stdexcept>
 #include <string>
 
-#define HISNEGS_CUDA_CHECK(call)                                                                          \
-  do {                                                                                                    \
-    const cudaError_t hisnegs_err_ = (call);                                                              \
-    if (hisnegs_err_ != cudaSuccess) {                                                                    \
-      throw std::runtime_error(std::string("CUDA error in ") + #call + " at " + __FILE__ + ":" +          \
-                               std::to_string(__LINE__) + ": " + cudaGetErrorString(hisnegs_err_));      \
-    }                                                                                                     \
+#define HISNEGS_CUDA_CHECK(call)                                                                    \
+  do {                                                                                              \
+    const cudaError_t hisnegs_err_ = (call);                                                        \
+    if (hisnegs_err_ != cudaSuccess) {                                                              \
+      throw std::runtime_error(std::string("CUDA error in ") + #call + " at " + __FILE__ + ":" +    \
+                               std::to_string(__LINE__) + ": " + cudaGetErrorString(hisnegs_err_)); \
+    }                                                                                               \
   } while (0)
 
 // After a kernel launch: launch-configuration errors now, execution errors at the next sync.

@@ -23,8 +23,8 @@ namespace hisnegs::splat::cuda {
 namespace {
 
 using gmf::kGaussianParamCount;
-constexpr int kGaussianThreads = 256;     // preprocess / duplicate / range kernels
-constexpr int kProjectionThreads = 128;   // projection backward (double, register heavy)
+constexpr int kGaussianThreads = 256;    // preprocess / duplicate / range kernels
+constexpr int kProjectionThreads = 128;  // projection backward (double, register heavy)
 
 // Grows `buffer` to at least `count` elements (contents are not kept). Never
 // shrinks, and grows by at least half, so once frame sizes settle no frame allocates.
@@ -108,27 +108,25 @@ struct CudaSplatter::Impl {
   double forward_ms = 0.0, backward_ms = 0.0;
 
   // Device state, grown only when needed (reserve()).
-  DeviceBuffer<float> params;                      // 11 K
-  DeviceBuffer<Splat2D<float>> splats;             // K
-  DeviceBuffer<kernels::TileRect> rects;           // K
-  DeviceBuffer<std::uint64_t> touched, offsets;    // K + 1: tiles per Gaussian, their exclusive scan
-  DeviceBuffer<std::uint64_t> keys[2];             // entries: tile << 32 | amplitude key (sort double buffer)
-  DeviceBuffer<std::uint32_t> ids[2];              // entries: Gaussian id
-  const std::uint32_t* sorted_ids = nullptr;       // whichever of ids[] holds the sorted list
-  DeviceBuffer<uint2> ranges;                      // tiles: [begin, end) into the sorted list
-  DeviceBuffer<float> m, S, I;                     // pixels: softmax state kept for backward
-  DeviceBuffer<kernels::FrameCounters> counters;   // 1
+  DeviceBuffer<float> params;                     // 11 K
+  DeviceBuffer<Splat2D<float>> splats;            // K
+  DeviceBuffer<kernels::TileRect> rects;          // K
+  DeviceBuffer<std::uint64_t> touched, offsets;   // K + 1: tiles per Gaussian, their exclusive scan
+  DeviceBuffer<std::uint64_t> keys[2];            // entries: tile << 32 | amplitude key (sort double buffer)
+  DeviceBuffer<std::uint32_t> ids[2];             // entries: Gaussian id
+  const std::uint32_t* sorted_ids = nullptr;      // whichever of ids[] holds the sorted list
+  DeviceBuffer<uint2> ranges;                     // tiles: [begin, end) into the sorted list
+  DeviceBuffer<float> m, S, I;                    // pixels: softmax state kept for backward
+  DeviceBuffer<kernels::FrameCounters> counters;  // 1
   DeviceBuffer<unsigned char> cub_temp;
-  DeviceBuffer<float> dL_dI;                       // pixels
-  DeviceBuffer<float> grads2d;                     // 6 K: u, v, con_a, con_b, con_c, amplitude
-  DeviceBuffer<float> dL_dparams, screen_grad;     // 11 K, K
+  DeviceBuffer<float> dL_dI;                    // pixels
+  DeviceBuffer<float> grads2d;                  // 6 K: u, v, con_a, con_b, con_c, amplitude
+  DeviceBuffer<float> dL_dparams, screen_grad;  // 11 K, K
   std::vector<float> host_scratch;
 
   Event start, scan_done, sort_start, stop;
 
-  kernels::TileParams tile_params() const {
-    return {view.width, view.height, tiles_x, settings};
-  }
+  kernels::TileParams tile_params() const { return {view.width, view.height, tiles_x, settings}; }
   void bin();
 };
 

@@ -18,10 +18,10 @@
 
 namespace hisnegs::splat::cuda::kernels {
 
-constexpr int kBlock = kTileSize * kTileSize;       // one thread per pixel of a tile
+constexpr int kBlock = kTileSize * kTileSize;  // one thread per pixel of a tile
 constexpr int kWarps = kBlock / 32;
-constexpr int kBatch = kBlock;              // Gaussians loaded into shared memory at once
-constexpr int kGradChunk = 32;              // backward: Gaussians reduced per shared-memory round
+constexpr int kBatch = kBlock;  // Gaussians loaded into shared memory at once
+constexpr int kGradChunk = 32;  // backward: Gaussians reduced per shared-memory round
 constexpr unsigned kFullMask = 0xffffffffu;
 
 // Per-frame constants of the rasterizers.
@@ -47,14 +47,14 @@ struct TileRect {
 // pixel of margin). `touched` has count + 1 entries; the last is set to 0 so an
 // exclusive scan of it ends in the total.
 __global__ void __launch_bounds__(256)
-    preprocess_kernel(const float* __restrict__ params, int count, ViewParams<float> view, float cutoff,
-                      float low_pass, Splat2D<float>* __restrict__ splats, TileRect* __restrict__ rects,
+    preprocess_kernel(const float* __restrict__ params, int count, ViewParams<float> view, float cutoff, float low_pass,
+                      Splat2D<float>* __restrict__ splats, TileRect* __restrict__ rects,
                       std::uint64_t* __restrict__ touched, FrameCounters* __restrict__ counters) {
   const int k = blockIdx.x * blockDim.x + threadIdx.x;
   if (k == 0) touched[count] = 0;
   if (k >= count) return;
-  Splat2D<float> s = project_gaussian(params + static_cast<std::size_t>(gmf::kGaussianParamCount) * k, view, cutoff,
-                                      low_pass);
+  Splat2D<float> s =
+      project_gaussian(params + static_cast<std::size_t>(gmf::kGaussianParamCount) * k, view, cutoff, low_pass);
   std::uint64_t n = 0;
   if (s.visible) {
     // Clamped to [-1, size] before the int conversion (same rectangle, no overflow for
@@ -249,8 +249,8 @@ __global__ void __launch_bounds__(kBlock)
 __global__ void __launch_bounds__(kBlock)
     backward_kernel(const uint2* __restrict__ ranges, const std::uint32_t* __restrict__ ids,
                     const Splat2D<float>* __restrict__ splats, TileParams tp, const float* __restrict__ m_in,
-                    const float* __restrict__ S_in, const float* __restrict__ I_in,
-                    const float* __restrict__ dL_dI_in, float* __restrict__ grads) {
+                    const float* __restrict__ S_in, const float* __restrict__ I_in, const float* __restrict__ dL_dI_in,
+                    float* __restrict__ grads) {
   __shared__ SharedBatch batch;
   __shared__ float partial[kWarps][kGradChunk][6];
   const int tile = blockIdx.x;
@@ -289,8 +289,8 @@ __global__ void __launch_bounds__(kBlock)
           const float q = splat_distance(s, px, py);
           // The forward's skip rule, on the final m (>= the running m the forward saw):
           // the terms dropped here have weight below e^-skip as well.
-          term = q <= tp.k.cutoff &&
-                 !(tp.k.skip_log_weight > 0.0f && tp.k.beta * s.amplitude + tp.k.skip_log_weight < m);
+          term =
+              q <= tp.k.cutoff && !(tp.k.skip_log_weight > 0.0f && tp.k.beta * s.amplitude + tp.k.skip_log_weight < m);
           if (term) {
             const float gk = s.amplitude * expf(-0.5f * q);
             accumulate_pixel_grad(s, px, py, dL_dI * gmf::softmax_dvalue_dterm(gk, tp.k.beta, m, S, I), g);
@@ -331,7 +331,8 @@ __global__ void __launch_bounds__(128)
   double screen = 0.0;
   if (splats[k].visible) {
     double p[gmf::kGaussianParamCount];
-    for (int i = 0; i < gmf::kGaussianParamCount; ++i) p[i] = params[static_cast<std::size_t>(gmf::kGaussianParamCount) * k + i];
+    for (int i = 0; i < gmf::kGaussianParamCount; ++i)
+      p[i] = params[static_cast<std::size_t>(gmf::kGaussianParamCount) * k + i];
     ProjectionCache<double> cache;
     const Splat2D<double> s = project_gaussian(p, view, cutoff, low_pass, &cache);
     if (s.visible) {
@@ -341,7 +342,8 @@ __global__ void __launch_bounds__(128)
       screen = hypot(g.u, g.v);
     }
   }
-  for (int i = 0; i < gmf::kGaussianParamCount; ++i) dL_dparams[static_cast<std::size_t>(gmf::kGaussianParamCount) * k + i] = static_cast<float>(out[i]);
+  for (int i = 0; i < gmf::kGaussianParamCount; ++i)
+    dL_dparams[static_cast<std::size_t>(gmf::kGaussianParamCount) * k + i] = static_cast<float>(out[i]);
   if (screen_grad != nullptr) screen_grad[k] = static_cast<float>(screen);
 }
 

@@ -3,7 +3,8 @@
 // Gaussian of a tile, only the rows its δ ellipse crosses and, in each row, only
 // the SIMD chunks of its column span are evaluated; lanes are masked by q <= δ.
 // Compiled once per instruction set by Highway (foreach_target) and dispatched.
-// clang-format off: Highway's foreach_target.h must come before its per-target headers.
+// Highway's foreach_target.h must come before its per-target headers.
+// clang-format off
 #undef HWY_TARGET_INCLUDE
 #define HWY_TARGET_INCLUDE "splat/detail/splat_cpu_tiles.cpp"
 #include <hwy/foreach_target.h>  // IWYU pragma: keep
@@ -23,7 +24,6 @@ HWY_BEFORE_NAMESPACE();
 namespace hisnegs::splat::detail {
 namespace HWY_NAMESPACE {
 namespace hn = hwy::HWY_NAMESPACE;
-
 
 // ln x for x > 0 to ~1e-6 absolute, without libm (it dominated the culling's cost):
 // x = 2^e · r with r in [√½, √2), ln r = 2 atanh(z), z = (r − 1)/(r + 1), |z| < 0.172.
@@ -118,8 +118,9 @@ struct RowFloors {
       float lowest = std::numeric_limits<float>::infinity();
       for (int c = 0; c < f.width; ++c) lowest = std::min(lowest, M[r * kTileSize + c]);
       const float floor = lowest - f.k.skip_log_weight;
-      ln_floor[r] = (exact || !(floor > 0.0f)) ? -std::numeric_limits<float>::infinity()
-                    : floor == std::numeric_limits<float>::infinity() ? floor : fast_log(floor);
+      ln_floor[r] = (exact || !(floor > 0.0f))                        ? -std::numeric_limits<float>::infinity()
+                    : floor == std::numeric_limits<float>::infinity() ? floor
+                                                                      : fast_log(floor);
     }
     tile_floor = min_of_rows(f);
   }
@@ -186,7 +187,8 @@ inline std::int64_t row_spans(const TileFrame& f, const RowFloors& floors, const
     const auto row = hn::Iota(d, static_cast<float>(r0));
     const auto row_ok = hn::Lt(row, height);
     const auto dy = hn::Add(dy0, row);
-    const auto cut = hn::Min(delta, hn::Add(hn::Sub(peak2, hn::Mul(hn::Set(d, 2.0f), hn::Load(d, floors.ln_floor + r0))), margin));
+    const auto cut =
+        hn::Min(delta, hn::Add(hn::Sub(peak2, hn::Mul(hn::Set(d, 2.0f), hn::Load(d, floors.ln_floor + r0))), margin));
     const auto dy2det = hn::Mul(hn::Mul(dy, dy), vdet);
     const auto mid = hn::NegMulAdd(B_over_A, dy, mid0);  // chord centre: u − B dy / A, tile-local
     const auto D = hn::NegMulAdd(one, dy2det, hn::Mul(vA, hn::Mul(cut, widen)));
@@ -244,19 +246,26 @@ HWY_INLINE std::uint32_t batch_hits(const TileFrame& f, const RowFloors& floors,
     };
     const auto minus_B_inv_A = hn::Neg(hn::Mul(vB, hn::Load(d, inv_A + j0)));
     const auto minus_B_inv_C = hn::Neg(hn::Mul(vB, hn::Load(d, inv_C + j0)));
-    auto along_x = [&](auto y) { return q(hn::Min(hn::Max(hn::Mul(minus_B_inv_A, y), xa), xb), y); };  // edge at fixed y
-    auto along_y = [&](auto x) { return q(x, hn::Min(hn::Max(hn::Mul(minus_B_inv_C, x), ya), yb)); };  // edge at fixed x
+    auto along_x = [&](auto y) {
+      return q(hn::Min(hn::Max(hn::Mul(minus_B_inv_A, y), xa), xb), y);
+    };  // edge at fixed y
+    auto along_y = [&](auto x) {
+      return q(x, hn::Min(hn::Max(hn::Mul(minus_B_inv_C, x), ya), yb));
+    };  // edge at fixed x
     const auto edges = hn::Min(hn::Min(along_x(ya), along_x(yb)), hn::Min(along_y(xa), along_y(xb)));
-    const auto inside = hn::And(hn::And(hn::Le(xa, zero), hn::Ge(xb, zero)), hn::And(hn::Le(ya, zero), hn::Ge(yb, zero)));
+    const auto inside =
+        hn::And(hn::And(hn::Le(xa, zero), hn::Ge(xb, zero)), hn::And(hn::Le(ya, zero), hn::Ge(yb, zero)));
     const auto min_q = hn::IfThenZeroElse(inside, edges);
     // The tile's loosest cutoff: min(δ, 2 (ln_peak − tile floor) + margin).
-    const auto cut = hn::Min(delta, hn::Add(hn::MulAdd(two, hn::Load(d, ln_amp + j0), floor2), hn::Set(d, kCutoffMargin)));
+    const auto cut =
+        hn::Min(delta, hn::Add(hn::MulAdd(two, hn::Load(d, ln_amp + j0), floor2), hn::Set(d, kCutoffMargin)));
     const auto hit = hn::And(hn::And(hn::Gt(cut, zero), hn::Le(min_q, hn::Mul(cut, hn::Set(d, kRejectSlack)))),
                              hn::Lt(hn::Iota(d, static_cast<float>(j0)), hn::Set(d, static_cast<float>(n))));
     std::uint8_t mask_bits[8] = {};
     hn::StoreMaskBits(d, hit, mask_bits);
     std::uint32_t lane_bits = 0;
-    for (int byte = 0; byte < (N + 7) / 8 && byte < 4; ++byte) lane_bits |= static_cast<std::uint32_t>(mask_bits[byte]) << (8 * byte);
+    for (int byte = 0; byte < (N + 7) / 8 && byte < 4; ++byte)
+      lane_bits |= static_cast<std::uint32_t>(mask_bits[byte]) << (8 * byte);
     bits |= lane_bits << j0;
   }
   return bits & ((1u << kRefreshEvery) - 1u);
@@ -286,7 +295,8 @@ HWY_INLINE void for_each_chunk(const TileFrame& f, const RowSpans& spans, const 
       const auto dx = hn::Add(iota, hn::Add(x_minus_u, hn::Set(d, static_cast<float>(c))));
       const auto q = hn::MulAdd(hn::MulAdd(vA, dx, twoBdy), dx, Cdy2);
       auto mask = hn::Le(q, vcut);
-      if (c + lanes > f.width) mask = hn::And(mask, hn::Lt(hn::Iota(d, static_cast<float>(c)), hn::Set(d, static_cast<float>(f.width))));
+      if (c + lanes > f.width)
+        mask = hn::And(mask, hn::Lt(hn::Iota(d, static_cast<float>(c)), hn::Set(d, static_cast<float>(f.width))));
       if (hn::AllFalse(d, mask)) continue;
       body(r * kTileSize + c, vdy, dx, q, mask);
     }
@@ -374,7 +384,8 @@ void ForwardTile(const TileFrame& f, const TileGaussians& gs, float* m_out, floa
   constexpr float kInf = std::numeric_limits<float>::infinity();
   // Tile-local rows of 16; the padding columns past the image hold +∞ in lm and M
   // (they never lower a row's floor) and are never written by the passes.
-  HWY_ALIGN float lm[kTileSize * kTileSize], M[kTileSize * kTileSize], S[kTileSize * kTileSize], W[kTileSize * kTileSize];
+  HWY_ALIGN float lm[kTileSize * kTileSize], M[kTileSize * kTileSize], S[kTileSize * kTileSize],
+      W[kTileSize * kTileSize];
   for (int r = 0; r < kTileSize; ++r) {
     for (int c = 0; c < kTileSize; ++c) lm[r * kTileSize + c] = c < f.width ? -kInf : kInf;
   }
@@ -474,7 +485,8 @@ HWY_INLINE void GaussianGrads(const TileFrame& f, const BackwardPixels& p, const
     const auto Gk = Exp2NonPositive(d, hn::Mul(minus_half_log2e, q));
     const auto gk = hn::Mul(vamp, Gk);
     // dI/dg = w (1 + β (g − I)), w = e^{βg − m} / S
-    const auto w = hn::Mul(Exp2NonPositive(d, hn::MulSub(beta2, gk, hn::Load(d, p.m2 + at))), hn::Load(d, p.inv_S + at));
+    const auto w =
+        hn::Mul(Exp2NonPositive(d, hn::MulSub(beta2, gk, hn::Load(d, p.m2 + at))), hn::Load(d, p.inv_S + at));
     const auto dI_dg = hn::Mul(w, hn::MulAdd(beta, hn::Sub(gk, hn::Load(d, p.I + at)), one));
     const auto dL_dg = hn::IfThenElseZero(mask, hn::Mul(dL_dI, dI_dg));
     samp = hn::MulAdd(dL_dg, Gk, samp);
@@ -494,8 +506,8 @@ HWY_INLINE void GaussianGrads(const TileFrame& f, const BackwardPixels& p, const
   out[5] = hn::GetLane(hn::SumOfLanes(d, samp));
 }
 
-void BackwardTile(const TileFrame& f, const TileGaussians& gs, const float* m_in, const float* S_in,
-                  const float* I_in, const float* dL_dI_in, float* grads) {
+void BackwardTile(const TileFrame& f, const TileGaussians& gs, const float* m_in, const float* S_in, const float* I_in,
+                  const float* dL_dI_in, float* grads) {
   BackwardPixels pixels;
   LoadBackwardPixels(f, m_in, S_in, I_in, dL_dI_in, pixels);
   const RowFloors floors = BackwardFloors(f, pixels);
@@ -543,15 +555,18 @@ HWY_INLINE void OneTileBands(const EllipseBands& e, int ty0, int rows, int x0, i
     // Right edge: at the rightmost point's dy clamped to the band; left likewise.
     const auto above_r = hn::Lt(dy_right, ya), below_r = hn::Gt(dy_right, yb);
     const auto above_l = hn::Lt(dy_left, ya), below_l = hn::Gt(dy_left, yb);
-    auto right = hn::IfThenElse(above_r, hn::Add(ma, ra), hn::IfThenElse(below_r, hn::Add(mb, rb), hn::Add(u, hn::Set(d, e.x_right))));
-    auto left = hn::IfThenElse(above_l, hn::Sub(ma, ra), hn::IfThenElse(below_l, hn::Sub(mb, rb), hn::Sub(u, hn::Set(d, e.x_right))));
+    auto right = hn::IfThenElse(above_r, hn::Add(ma, ra),
+                                hn::IfThenElse(below_r, hn::Add(mb, rb), hn::Add(u, hn::Set(d, e.x_right))));
+    auto left = hn::IfThenElse(above_l, hn::Sub(ma, ra),
+                               hn::IfThenElse(below_l, hn::Sub(mb, rb), hn::Sub(u, hn::Set(d, e.x_right))));
     const auto ok_r = hn::Or(hn::And(above_r, oka), hn::Or(hn::And(below_r, okb), hn::Not(hn::Or(above_r, below_r))));
     const auto ok_l = hn::Or(hn::And(above_l, oka), hn::Or(hn::And(below_l, okb), hn::Not(hn::Or(above_l, below_l))));
     const auto hit = hn::And(hn::And(ok_r, ok_l), hn::Lt(band, hn::Set(d, static_cast<float>(rows))));
     // Pixel columns ⌈left − pad − ½⌉ .. ⌊right + pad − ½⌋, then tiles within [x0, x1].
     const auto half_pad = hn::Set(d, e.pad + 0.5f);
     const auto c0 = hn::Ceil(hn::Min(hn::Max(hn::Sub(left, half_pad), lowest), highest));
-    const auto c1 = hn::Floor(hn::Min(hn::Max(hn::Sub(hn::Add(right, hn::Set(d, e.pad)), hn::Set(d, 0.5f)), lowest), highest));
+    const auto c1 =
+        hn::Floor(hn::Min(hn::Max(hn::Sub(hn::Add(right, hn::Set(d, e.pad)), hn::Set(d, 0.5f)), lowest), highest));
     const auto t0 = hn::Max(x0f, hn::Floor(hn::Mul(hn::Max(c0, zero), inv_tile)));
     const auto t1 = hn::Min(x1f, hn::Floor(hn::Mul(c1, inv_tile)));
     const auto none = hn::Not(hn::And(hit, hn::And(hn::Le(c0, c1), hn::Le(t0, t1))));

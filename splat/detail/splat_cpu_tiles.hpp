@@ -15,9 +15,9 @@ namespace hisnegs::splat::detail {
 // constants their tests would otherwise divide for at every (tile, Gaussian) entry:
 // one cache line, read through the tile's id list.
 struct alignas(64) PackedSplat {
-  float u, v;        // centre, pixels
-  float A, B, C;     // conic Σ2D⁻¹ = [[A, B], [B, C]]
-  float amp, ln_amp; // a and ln a
+  float u, v;               // centre, pixels
+  float A, B, C;            // conic Σ2D⁻¹ = [[A, B], [B, C]]
+  float amp, ln_amp;        // a and ln a
   float inv_A, inv_C, det;  // 1/A, 1/C, A C − B²
 };
 
@@ -50,7 +50,7 @@ struct TileFrame {
 inline constexpr int kBandsAtOnce = 8;
 struct EllipseBands {
   float u, v, slope, k1, k2, x_right, dy_right;  // EllipseRows<float>
-  float pad;                                      // pixels added each side
+  float pad;                                     // pixels added each side
 };
 struct BandJob {
   EllipseBands e;

@@ -78,7 +78,7 @@ double worst_jacobian_error(const SampleSet& s, Mixture& m, double cutoff) {
   ceres::NumericDiffOptions nd;
   nd.ridders_relative_initial_step_size = 1e-3;
   ceres::DynamicNumericDiffCostFunction<ResidualsOnly, ceres::RIDDERS> numeric(new ResidualsOnly{&cost},
-                                                                                ceres::TAKE_OWNERSHIP, nd);
+                                                                               ceres::TAKE_OWNERSHIP, nd);
   for (int size : cost.parameter_block_sizes()) numeric.AddParameterBlock(size);
   numeric.SetNumResiduals(cost.num_residuals());
   const std::vector<double*> blocks = blocks_of(m);

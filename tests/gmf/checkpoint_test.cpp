@@ -45,8 +45,7 @@ GaussianMixture random_mixture(std::size_t k, std::uint32_t seed) {
 }
 
 bool bit_equal(const GaussianMixture& a, const GaussianMixture& b) {
-  return a.size() == b.size() &&
-         (a.empty() || std::memcmp(a.data(), b.data(), a.size() * sizeof(GaussianParams)) == 0);
+  return a.size() == b.size() && (a.empty() || std::memcmp(a.data(), b.data(), a.size() * sizeof(GaussianParams)) == 0);
 }
 
 CheckpointMeta full_meta() {
@@ -280,12 +279,14 @@ TEST(Checkpoint, FileLayoutFollowsConventions) {
     EXPECT_EQ(v.properties()[j].name, kGaussianParamNames[j]);
     EXPECT_EQ(v.properties()[j].type, io::PlyType::kFloat32);
   }
-  const std::vector<std::string> expected = {
-      "hisnegs format_version 1",    "hisnegs volume_shape 60 512 512",
-      "hisnegs spacing_um 0.3296 0.3296 0.9988",
-      "hisnegs aspect 1 1 " + shortest(60 * 0.9988 / (512 * 0.3296)),
-      "hisnegs normalization minmax 0 254", "hisnegs trainer soft-mip v2", "hisnegs empty_value",
-      "hisnegs spaced   two leading blanks"};
+  const std::vector<std::string> expected = {"hisnegs format_version 1",
+                                             "hisnegs volume_shape 60 512 512",
+                                             "hisnegs spacing_um 0.3296 0.3296 0.9988",
+                                             "hisnegs aspect 1 1 " + shortest(60 * 0.9988 / (512 * 0.3296)),
+                                             "hisnegs normalization minmax 0 254",
+                                             "hisnegs trainer soft-mip v2",
+                                             "hisnegs empty_value",
+                                             "hisnegs spaced   two leading blanks"};
   EXPECT_EQ(t.comments, expected);
   EXPECT_EQ(v.column_as<float>("x")[2], random_mixture(3, 1)[2].mean[0]);
 }
@@ -413,8 +414,8 @@ TEST(Checkpoint, MissingFileIsInputError) {
 
 TEST(Checkpoint, NewerFormatVersionIsRejected) {
   ScratchDir dir;
-  io::write_ply(dir / "v2.ply", make_table(random_mixture(2, 17), param_names(), io::PlyType::kFloat32,
-                                           {"hisnegs format_version 2"}));
+  io::write_ply(dir / "v2.ply",
+                make_table(random_mixture(2, 17), param_names(), io::PlyType::kFloat32, {"hisnegs format_version 2"}));
   expect_load_error(dir / "v2.ply", "format_version 2 is newer than this build supports (1)");
 }
 

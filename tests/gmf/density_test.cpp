@@ -31,7 +31,8 @@ TEST(GmfDensity, ClonesWhereAGaussianIsMissing) {
   ASSERT_EQ(change.cloned, 1);
   const auto& clone = m[m.size() - 1];
   const auto& missing = scene.truth[3];
-  const Eigen::Vector3d d(clone.mean[0] - missing.mean[0], clone.mean[1] - missing.mean[1], clone.mean[2] - missing.mean[2]);
+  const Eigen::Vector3d d(clone.mean[0] - missing.mean[0], clone.mean[1] - missing.mean[1],
+                          clone.mean[2] - missing.mean[2]);
   EXPECT_LT(d.norm(), 1.5 * scene.frame.voxel_size().maxCoeff());  // at the strongest under-covered voxel
 }
 

@@ -16,8 +16,8 @@
 #include <random>
 
 #include "gmf/export_formats.hpp"
-#include "io/vdb_file.hpp"
 #include "io/error.hpp"
+#include "io/vdb_file.hpp"
 #include "tests/test_support.hpp"
 
 namespace hisnegs::gmf {
@@ -357,9 +357,9 @@ TEST(ExportFormats, SplatPlyMapsEveryGaussianOntoViewerFields) {
   ASSERT_EQ(v->count(), 5);
   std::vector<std::string> names;
   for (const auto& p : v->properties()) names.push_back(p.name);
-  const std::vector<std::string> expect = {"x",       "y",       "z",       "nx",      "ny",    "nz",
-                                           "f_dc_0",  "f_dc_1",  "f_dc_2",  "opacity", "scale_0", "scale_1",
-                                           "scale_2", "rot_0",   "rot_1",   "rot_2",   "rot_3"};
+  const std::vector<std::string> expect = {"x",       "y",      "z",      "nx",      "ny",      "nz",
+                                           "f_dc_0",  "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1",
+                                           "scale_2", "rot_0",  "rot_1",  "rot_2",   "rot_3"};
   EXPECT_EQ(names, expect);
   for (std::size_t k = 0; k < m.size(); ++k) {
     const auto row = static_cast<std::int64_t>(k);

@@ -14,9 +14,7 @@
 namespace hisnegs::gmf {
 namespace {
 
-Eigen::Matrix3d covariance_of(const GaussianParams& g) {
-  return covariance(g);
-}
+Eigen::Matrix3d covariance_of(const GaussianParams& g) { return covariance(g); }
 
 TEST(GmfFit, RecoversAKnownMixtureFromAPerturbedStart) {
   const Scene scene = make_scene(7);

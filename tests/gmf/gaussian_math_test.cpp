@@ -152,8 +152,8 @@ TEST(GaussianMath, SupportBoxHoldsTheCutoffEllipsoid) {
 // over the inputs: a derivative that is ~0 is judged against the gradient's scale.
 // `h0[i]` is the initial Ridders step of input i.
 template <class Loss>
-double worst_vjp_error(const std::vector<double>& x, const std::vector<double>& analytic,
-                       const std::vector<double>& h0, Loss&& loss) {
+double worst_vjp_error(const std::vector<double>& x, const std::vector<double>& analytic, const std::vector<double>& h0,
+                       Loss&& loss) {
   double largest = 0;
   for (double g : analytic) largest = std::max(largest, std::abs(g));
   double worst = 0;
@@ -198,9 +198,8 @@ TEST(GaussianMath, SigmoidVjpMatchesCentralDifferences) {
     const double u = normals(rng, 1)[0];
     const double a = sigmoid(x[0]);
     const std::vector<double> analytic = {sigmoid_vjp(a, u)};
-    worst = std::max(worst, worst_vjp_error(x, analytic, {0.1}, [&](const std::vector<double>& y) {
-      return u * sigmoid(y[0]);
-    }));
+    worst = std::max(
+        worst, worst_vjp_error(x, analytic, {0.1}, [&](const std::vector<double>& y) { return u * sigmoid(y[0]); }));
   }
   EXPECT_LT(worst, kVjpTolerance);
 }
@@ -221,10 +220,10 @@ TEST(GaussianMath, QuatNormalizeVjpMatchesCentralDifferences) {
     quat_normalize_vjp(q_hat, inv_norm, u.data(), dq);
     const double h = 0.01 / inv_norm;
     worst = std::max(worst, worst_vjp_error(q, {dq, dq + 4}, {h, h, h, h}, [&](const std::vector<double>& y) {
-      double y_hat[4];
-      (void)quat_normalize(y.data(), y_hat);
-      return dot(u, y_hat);
-    }));
+                       double y_hat[4];
+                       (void)quat_normalize(y.data(), y_hat);
+                       return dot(u, y_hat);
+                     }));
   }
   EXPECT_LT(worst, kVjpTolerance);
 }
@@ -239,10 +238,10 @@ TEST(GaussianMath, QuatToRotmatVjpMatchesCentralDifferences) {
     double dq[4];
     quat_to_rotmat_vjp(q.data(), u.data(), dq);
     worst = std::max(worst, worst_vjp_error(q, {dq, dq + 4}, {0.1, 0.1, 0.1, 0.1}, [&](const std::vector<double>& y) {
-      double R[9];
-      quat_to_rotmat(y.data(), R);
-      return dot(u, R);
-    }));
+                       double R[9];
+                       quat_to_rotmat(y.data(), R);
+                       return dot(u, R);
+                     }));
   }
   EXPECT_LT(worst, kVjpTolerance);
 }
@@ -345,9 +344,9 @@ TEST(GaussianMath, MahalanobisVjpMatchesCentralDifferences) {
     std::vector<double> h0(15, 0.01);
     for (int i = 0; i < 3; ++i) h0[i] = 0.1 * std::exp(std::min({x[12], x[13], x[14]}));
     worst = std::max(worst, worst_vjp_error(x, analytic, h0, [&](const std::vector<double>& y) {
-      double zz[3];
-      return u * mahalanobis(frame(y), p, zz);
-    }));
+                       double zz[3];
+                       return u * mahalanobis(frame(y), p, zz);
+                     }));
   }
   EXPECT_LT(worst, kVjpTolerance);
 }
@@ -370,11 +369,11 @@ TEST(GaussianMath, RotationVjpMatchesCentralDifferences) {
     rotation_vjp(f, u.data(), dq);
     const double h = 0.01 / f.inv_q_norm;
     worst = std::max(worst, worst_vjp_error(q, {dq, dq + 4}, {h, h, h, h}, [&](const std::vector<double>& y) {
-      double y_hat[4], R[9];
-      (void)quat_normalize(y.data(), y_hat);
-      quat_to_rotmat(y_hat, R);
-      return dot(u, R);
-    }));
+                       double y_hat[4], R[9];
+                       (void)quat_normalize(y.data(), y_hat);
+                       quat_to_rotmat(y_hat, R);
+                       return dot(u, R);
+                     }));
   }
   EXPECT_LT(worst, kVjpTolerance);
 }

@@ -46,7 +46,8 @@ inline Scene make_scene(std::uint64_t seed) {
     std::normal_distribution<double> gauss(0, 1);
     Eigen::Vector4d q(gauss(rng), gauss(rng), gauss(rng), gauss(rng));  // uniform random rotation
     q.normalize();
-    g.rotation = {static_cast<float>(q[0]), static_cast<float>(q[1]), static_cast<float>(q[2]), static_cast<float>(q[3])};
+    g.rotation = {static_cast<float>(q[0]), static_cast<float>(q[1]), static_cast<float>(q[2]),
+                  static_cast<float>(q[3])};
     const double a = 0.4 + 0.5 * u(rng);
     g.intensity_logit = static_cast<float>(std::log(a / (1 - a)));
     s.truth.push_back(g);

@@ -59,8 +59,8 @@ TEST(GmfInit, PlacesTheGaussianAtTheIntensityWeightedCentroid) {
   const std::array<std::array<int, 3>, 3> fg = {{{10, 10, 10}, {11, 10, 10}, {11, 12, 10}}};
   const std::array<float, 3> value = {0.2f, 0.4f, 0.8f};
   for (int i = 0; i < 3; ++i) v.at(fg[i][0], fg[i][1], fg[i][2]) = value[i];
-  v.at(3, 3, 3) = 0.09f;       // below the threshold
-  v.at(13, 9, 12) = 0.0999f;   // just below it
+  v.at(3, 3, 3) = 0.09f;      // below the threshold
+  v.at(13, 9, 12) = 0.0999f;  // just below it
   InitReport report;
   const GaussianMixture m = initialize_on_grid(v, frame, 0.1, 1, &report);
   ASSERT_EQ(m.size(), 1u);

@@ -68,10 +68,10 @@ double direct(const std::vector<GaussianFrame<double>>& frames, const double x[3
 }
 
 struct Coverage {
-  std::size_t voxels = 0;          // voxels in some block
-  std::size_t nonzero = 0;         // of them, with a counted term
-  std::size_t dropped = 0;         // of them, with an uncounted term (beyond the cutoff or below the tail)
-  std::size_t outside_clip = 0;    // of them, outside the clip box but reached by some Gaussian
+  std::size_t voxels = 0;        // voxels in some block
+  std::size_t nonzero = 0;       // of them, with a counted term
+  std::size_t dropped = 0;       // of them, with an uncounted term (beyond the cutoff or below the tail)
+  std::size_t outside_clip = 0;  // of them, outside the clip box but reached by some Gaussian
 };
 
 bool inside(const VoxelLattice& lattice, const Eigen::Vector3i& v) {

@@ -46,8 +46,9 @@ std::string error_of(const std::string& yaml) {
 
 TEST(Config, ReadsEveryTypeAndKeepsDefaults) {
   Demo d;
-  ConfigFile::parse("demo:\n  n: 7\n  x: 3e-3\n  flag: true\n  v: [4, 5, 6.5]\n  list: []\n  seed: 18446744073709551615\n  mode: b\n",
-                    "cfg.yaml")
+  ConfigFile::parse(
+      "demo:\n  n: 7\n  x: 3e-3\n  flag: true\n  v: [4, 5, 6.5]\n  list: []\n  seed: 18446744073709551615\n  mode: b\n",
+      "cfg.yaml")
       .read("demo", d);
   EXPECT_EQ(d.n, 7);
   EXPECT_DOUBLE_EQ(d.x, 3e-3);
@@ -111,9 +112,9 @@ TEST(Config, MessagesQuotingTheFileStayOneLine) {
   const std::vector<std::string> cases = {
       "demo:\n  n: \"1\\n2\"\n",  // a value with a line break
       "demo:\n  \"a\\rb\": 1\n",  // an unknown key with a carriage return
-      "\"x\\ny\": 1\n",          // an unknown section with a line break
-      "(\xb1\r\r\r\r\r:",       // the fuzzer's input: a section name ending in CRs
-      bad_escape,                // the fuzzer's input: invalid YAML quoting a control byte
+      "\"x\\ny\": 1\n",           // an unknown section with a line break
+      "(\xb1\r\r\r\r\r:",         // the fuzzer's input: a section name ending in CRs
+      bad_escape,                 // the fuzzer's input: invalid YAML quoting a control byte
   };
   for (const std::string& yaml : cases) {
     try {

@@ -166,16 +166,14 @@ TEST(Gif, BadArgumentsThrowNamingTheValue) {
   const std::vector<Image8> ok(1, grey_frame(4, 4, 0));
   EXPECT_NE(input_error_message([&] { write_gif(path, {}); }).find("no frames"), std::string::npos);
   EXPECT_NE(input_error_message([&] { write_gif(path, ok, -1); }).find("-1"), std::string::npos);
-  EXPECT_NE(input_error_message([&] { write_gif(path, ok, kGifMaxDelayMs + 1); }).find("655351"),
-            std::string::npos);
+  EXPECT_NE(input_error_message([&] { write_gif(path, ok, kGifMaxDelayMs + 1); }).find("655351"), std::string::npos);
   Image8 two_channels = grey_frame(4, 4, 0);
   two_channels.channels = 2;
   two_channels.pixels.resize(32);
   EXPECT_NE(input_error_message([&] { write_gif(path, std::vector<Image8>{two_channels}); }).find("2 channels"),
             std::string::npos);
   const Image8 empty = grey_frame(0, 4, 0);
-  EXPECT_NE(input_error_message([&] { write_gif(path, std::vector<Image8>{empty}); }).find("0x4"),
-            std::string::npos);
+  EXPECT_NE(input_error_message([&] { write_gif(path, std::vector<Image8>{empty}); }).find("0x4"), std::string::npos);
   Image8 short_buffer = grey_frame(4, 4, 0);
   short_buffer.pixels.pop_back();
   EXPECT_NE(input_error_message([&] { write_gif(path, std::vector<Image8>{short_buffer}); }).find("15"),

@@ -148,8 +148,10 @@ TEST(Plot, LogYPlacesDecadesEvenly) {
     const int x0 = min_x(px) + 3, x1 = max_x(px) - 3;
     const double straight = 0.5 * (mean_row(px, x0) + mean_row(px, x1));
     const double middle = mean_row(px, (x0 + x1) / 2);
-    if (log) EXPECT_NEAR(middle, straight, 3.0);
-    else EXPECT_GT(middle - straight, 100.0);
+    if (log)
+      EXPECT_NEAR(middle, straight, 3.0);
+    else
+      EXPECT_GT(middle - straight, 100.0);
   }
 }
 

@@ -60,27 +60,25 @@ PlyElement all_types_element() {
   e.add_column<std::int16_t>("i16", std::vector<std::int16_t>{-32768, 32767, 0, -1, 300});
   e.add_column<std::uint16_t>("u16", std::vector<std::uint16_t>{0, 65535, 1, 32768, 4000});
   e.add_column<std::int32_t>("i32", std::vector<std::int32_t>{std::numeric_limits<std::int32_t>::min(),
-                                                              std::numeric_limits<std::int32_t>::max(), 0,
-                                                              -1, 123456});
+                                                              std::numeric_limits<std::int32_t>::max(), 0, -1, 123456});
   e.add_column<std::uint32_t>("u32", std::vector<std::uint32_t>{0, 4294967295u, 1, 2147483648u, 99});
-  e.add_column<float>("f32", std::vector<float>{std::bit_cast<float>(0x7fc00123u), -0.0f,
-                                                std::numeric_limits<float>::denorm_min(),
-                                                -std::numeric_limits<float>::infinity(),
-                                                std::numeric_limits<float>::max()});
-  e.add_column<double>("f64", std::vector<double>{std::bit_cast<double>(0x7ff8000000000abcull), -0.0,
-                                                  std::numeric_limits<double>::denorm_min(),
-                                                  std::numeric_limits<double>::infinity(),
-                                                  std::numeric_limits<double>::lowest()});
+  e.add_column<float>(
+      "f32", std::vector<float>{std::bit_cast<float>(0x7fc00123u), -0.0f, std::numeric_limits<float>::denorm_min(),
+                                -std::numeric_limits<float>::infinity(), std::numeric_limits<float>::max()});
+  e.add_column<double>(
+      "f64",
+      std::vector<double>{std::bit_cast<double>(0x7ff8000000000abcull), -0.0, std::numeric_limits<double>::denorm_min(),
+                          std::numeric_limits<double>::infinity(), std::numeric_limits<double>::lowest()});
   return e;
 }
 
 TEST(PlyType, NamesAndAliasesParse) {
   const std::pair<const char*, PlyType> cases[] = {
-      {"char", PlyType::kInt8},     {"int8", PlyType::kInt8},       {"uchar", PlyType::kUint8},
-      {"uint8", PlyType::kUint8},   {"short", PlyType::kInt16},     {"int16", PlyType::kInt16},
-      {"ushort", PlyType::kUint16}, {"uint16", PlyType::kUint16},   {"int", PlyType::kInt32},
-      {"int32", PlyType::kInt32},   {"uint", PlyType::kUint32},     {"uint32", PlyType::kUint32},
-      {"float", PlyType::kFloat32}, {"float32", PlyType::kFloat32}, {"double", PlyType::kFloat64},
+      {"char", PlyType::kInt8},      {"int8", PlyType::kInt8},       {"uchar", PlyType::kUint8},
+      {"uint8", PlyType::kUint8},    {"short", PlyType::kInt16},     {"int16", PlyType::kInt16},
+      {"ushort", PlyType::kUint16},  {"uint16", PlyType::kUint16},   {"int", PlyType::kInt32},
+      {"int32", PlyType::kInt32},    {"uint", PlyType::kUint32},     {"uint32", PlyType::kUint32},
+      {"float", PlyType::kFloat32},  {"float32", PlyType::kFloat32}, {"double", PlyType::kFloat64},
       {"float64", PlyType::kFloat64}};
   for (const auto& [name, type] : cases) {
     EXPECT_EQ(parse_ply_type(name), type) << name;
@@ -151,7 +149,7 @@ TEST(PlyElement, FailedAddColumnLeavesElementUnchanged) {
   PlyElement e("vertex");
   e.add_column<float>("x", std::vector<float>{1.0f, 2.0f});
   const PlyElement before = e;
-  EXPECT_THROW(e.add_column<float>("y", std::vector<float>{1.0f}), std::invalid_argument);      // size
+  EXPECT_THROW(e.add_column<float>("y", std::vector<float>{1.0f}), std::invalid_argument);        // size
   EXPECT_THROW(e.add_column<float>("x", std::vector<float>{1.0f, 2.0f}), std::invalid_argument);  // duplicate
   EXPECT_THROW(e.add_column<double>("c", PlyType::kUint8, std::vector<double>{1.0, 256.0}), std::range_error);
   EXPECT_TRUE(e == before);
@@ -359,7 +357,8 @@ std::string binary_vertices(int declared, int floats_present) {
   return s;
 }
 
-const std::string kAsciiXY = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nend_header\n";
+const std::string kAsciiXY =
+    "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nend_header\n";
 
 std::vector<BadPly> bad_plys() {
   return {
@@ -385,8 +384,7 @@ std::vector<BadPly> bad_plys() {
       {"list_property",
        "ply\nformat ascii 1.0\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n3 0 1 2\n",
        "list properties are not supported: element face property vertex_indices"},
-      {"unknown_format", "ply\nformat binary_middle_endian 1.0\nend_header\n",
-       "unknown format 'binary_middle_endian'"},
+      {"unknown_format", "ply\nformat binary_middle_endian 1.0\nend_header\n", "unknown format 'binary_middle_endian'"},
       {"unsupported_version", "ply\nformat ascii 2.0\nend_header\n", "unsupported PLY version '2.0'"},
       {"no_format_line", "ply\nelement vertex 0\nend_header\n", "header has no format line"},
       {"property_before_element", "ply\nformat ascii 1.0\nproperty float x\nend_header\n",
@@ -399,11 +397,11 @@ std::vector<BadPly> bad_plys() {
       {"binary_cut_short", binary_vertices(10, 25), "expected 120 bytes of vertex data, file has 100"},
       {"binary_trailing_bytes", binary_vertices(1, 3) + "abc", "3 unexpected bytes after the last element"},
       {"ascii_cut_short", kAsciiXY + "1.0 2.0 3.0 4.0 5.0\n", "ascii data cut short"},
-      {"ascii_bad_value", kAsciiXY + "1.0 abc 3.0 4.0 5.0 6.0\n", "line 7: 'abc' is not a valid float for vertex 0 property y"},
+      {"ascii_bad_value", kAsciiXY + "1.0 abc 3.0 4.0 5.0 6.0\n",
+       "line 7: 'abc' is not a valid float for vertex 0 property y"},
       {"ascii_float_overflow", "ply\nformat ascii 1.0\nelement vertex 1\nproperty float c\nend_header\n1e39\n",
        "'1e39' is not a valid float"},
-      {"ascii_int_out_of_range",
-       "ply\nformat ascii 1.0\nelement vertex 1\nproperty uchar c\nend_header\n256\n",
+      {"ascii_int_out_of_range", "ply\nformat ascii 1.0\nelement vertex 1\nproperty uchar c\nend_header\n256\n",
        "'256' is not a valid uchar"},
       {"ascii_junk_after_data", kAsciiXY + "1 2\n3 4\n5 6\nxyz\n",
        "line 10: unexpected data 'xyz' after the last element"},

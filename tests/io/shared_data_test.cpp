@@ -60,8 +60,7 @@ TEST(SharedData, Op2Neuron) {
 }
 
 TEST(SharedData, RivuletTestNeuron) {
-  check({"rivulet_test_neuron.tif", 119, 415, 409, 0, 255, 1, 1, 1, SpacingSource::kDefault,
-         SpacingSource::kDefault});
+  check({"rivulet_test_neuron.tif", 119, 415, 409, 0, 255, 1, 1, 1, SpacingSource::kDefault, SpacingSource::kDefault});
 }
 
 }  // namespace

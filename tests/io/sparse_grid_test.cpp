@@ -225,8 +225,7 @@ TEST(SparseGrid, OptionsAreValidated) {
 // each active voxel exactly once with its value (= the volume's), grouped by
 // the 8³ leaf holding it, each leaf once with its origin (a multiple of 8).
 void expect_visits_every_active_voxel_once(const SparseGrid& g, SparseGridPart part, const Volume& v) {
-  const openvdb::FloatGrid& grid =
-      part == SparseGridPart::kForeground ? *g.impl().volume : *g.impl().background;
+  const openvdb::FloatGrid& grid = part == SparseGridPart::kForeground ? *g.impl().volume : *g.impl().background;
   std::map<std::array<int, 3>, float> expected;
   for (auto it = grid.cbeginValueOn(); it; ++it) {
     expected[{it.getCoord().x(), it.getCoord().y(), it.getCoord().z()}] = *it;

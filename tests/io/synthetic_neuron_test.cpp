@@ -151,8 +151,7 @@ TEST(SyntheticNeuron, BackgroundSubtractionIsCountedAndOptional) {
 
 // Every voxel holding the maximum lies in the soma: within its radius plus the PSF
 // reach (3 sigma) and one voxel of the soma centre (skeleton node 0).
-void expect_max_in_soma(const Volume& v, const std::vector<NeuriteNode>& skeleton,
-                        const SyntheticNeuronOptions& o) {
+void expect_max_in_soma(const Volume& v, const std::vector<NeuriteNode>& skeleton, const SyntheticNeuronOptions& o) {
   ASSERT_FALSE(skeleton.empty());
   ASSERT_EQ(skeleton[0].parent, -1);
   const Eigen::Vector3d centre = skeleton[0].position_um;
@@ -251,11 +250,10 @@ TEST(SyntheticNeuronOptions, VisitNamesEveryFieldOnceAndCanSetIt) {
     }
   });
   for (const auto& [name, count] : seen) EXPECT_EQ(count, 1) << name;
-  for (const char* name : {"nx", "ny", "nz", "spacing_um", "seed", "primary_branches",
-                           "soma_radius_um", "max_radius_um", "min_radius_um",
-                           "branch_probability_per_um", "psf_sigma_xy_um", "psf_sigma_z_um",
-                           "peak_photons", "read_noise", "camera_offset", "background_subtract",
-                           "background_subtract_sigmas"}) {
+  for (const char* name :
+       {"nx", "ny", "nz", "spacing_um", "seed", "primary_branches", "soma_radius_um", "max_radius_um", "min_radius_um",
+        "branch_probability_per_um", "psf_sigma_xy_um", "psf_sigma_z_um", "peak_photons", "read_noise", "camera_offset",
+        "background_subtract", "background_subtract_sigmas"}) {
     EXPECT_EQ(seen.count(name), 1u) << name;
   }
   EXPECT_EQ(o.nx, 77);

@@ -143,8 +143,7 @@ TEST(TiffMetadataOme, MalformedSizeThrowsNamingTheAttribute) {
     EXPECT_NE(std::string(e.what()).find("SizeY"), std::string::npos) << e.what();
   }
   EXPECT_THROW((void)parse_ome_pixels("<OME><Pixels SizeY='3' DimensionOrder='XYZCT'/></OME>"), InputError);
-  EXPECT_THROW((void)parse_ome_pixels("<OME><Pixels SizeX='4' SizeY='3' DimensionOrder='XYZZT'/></OME>"),
-               InputError);
+  EXPECT_THROW((void)parse_ome_pixels("<OME><Pixels SizeX='4' SizeY='3' DimensionOrder='XYZZT'/></OME>"), InputError);
   EXPECT_THROW((void)parse_ome_pixels("<OME><Image/></OME>"), InputError);
   EXPECT_THROW((void)parse_ome_pixels("<OME><Pixels SizeX=4 SizeY='3'/></OME>"), InputError);
 }
@@ -153,12 +152,14 @@ TEST(TiffMetadataOme, MalformedPhysicalSizeIsASpacingErrorNamingTheAttribute) {
   const OmePixels p = parse_ome_pixels("<OME><Pixels SizeX='4' SizeY='3' PhysicalSizeX='0,33'/></OME>");
   EXPECT_FALSE(p.physical_size_um[0]);
   EXPECT_NE(p.spacing_error.find("PhysicalSizeX=\"0,33\""), std::string::npos) << p.spacing_error;
-  const OmePixels q = parse_ome_pixels("<OME><Pixels SizeX='4' SizeY='3' PhysicalSizeZ='1' PhysicalSizeZUnit='parsec-ish'/></OME>");
+  const OmePixels q =
+      parse_ome_pixels("<OME><Pixels SizeX='4' SizeY='3' PhysicalSizeZ='1' PhysicalSizeZUnit='parsec-ish'/></OME>");
   EXPECT_NE(q.spacing_error.find("PhysicalSizeZUnit"), std::string::npos) << q.spacing_error;
 }
 
 TEST(TiffMetadataOme, PixelUnitMeansUncalibrated) {
-  const OmePixels p = parse_ome_pixels("<OME><Pixels SizeX='4' SizeY='3' PhysicalSizeX='1' PhysicalSizeXUnit='pixel'/></OME>");
+  const OmePixels p =
+      parse_ome_pixels("<OME><Pixels SizeX='4' SizeY='3' PhysicalSizeX='1' PhysicalSizeXUnit='pixel'/></OME>");
   EXPECT_FALSE(p.physical_size_um[0]);
   EXPECT_TRUE(p.spacing_error.empty());
 }

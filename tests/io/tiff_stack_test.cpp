@@ -38,9 +38,9 @@ struct Fixture {
   std::uint16_t planar = PLANARCONFIG_CONTIG;
   std::uint16_t photometric = PHOTOMETRIC_MINISBLACK;
   std::uint16_t compression = COMPRESSION_NONE;
-  std::uint32_t tile = 0;            // square tile size; 0 writes strips
-  std::uint32_t rows_per_strip = 0;  // 0: one strip per page
-  std::string description;           // page 0's ImageDescription ("" = none)
+  std::uint32_t tile = 0;                    // square tile size; 0 writes strips
+  std::uint32_t rows_per_strip = 0;          // 0: one strip per page
+  std::string description;                   // page 0's ImageDescription ("" = none)
   float x_resolution = 0, y_resolution = 0;  // written when > 0
   std::uint16_t resolution_unit = RESUNIT_NONE;
   // Value of sample `s` of pixel (x, y) on page `page`.
@@ -54,15 +54,25 @@ void store(const Fixture& f, double v, unsigned char* dst) {
   const bool is_float = f.sample_format == SAMPLEFORMAT_IEEEFP;
   const bool is_signed = f.sample_format == SAMPLEFORMAT_INT;
   switch (f.bits) {
-    case 8: is_signed ? put(static_cast<std::int8_t>(v)) : put(static_cast<std::uint8_t>(v)); break;
-    case 16: is_signed ? put(static_cast<std::int16_t>(v)) : put(static_cast<std::uint16_t>(v)); break;
-    case 32:
-      if (is_float) put(static_cast<float>(v));
-      else if (is_signed) put(static_cast<std::int32_t>(v));
-      else put(static_cast<std::uint32_t>(v));
+    case 8:
+      is_signed ? put(static_cast<std::int8_t>(v)) : put(static_cast<std::uint8_t>(v));
       break;
-    case 64: put(v); break;
-    default: FAIL() << "fixture: unsupported bits";
+    case 16:
+      is_signed ? put(static_cast<std::int16_t>(v)) : put(static_cast<std::uint16_t>(v));
+      break;
+    case 32:
+      if (is_float)
+        put(static_cast<float>(v));
+      else if (is_signed)
+        put(static_cast<std::int32_t>(v));
+      else
+        put(static_cast<std::uint32_t>(v));
+      break;
+    case 64:
+      put(v);
+      break;
+    default:
+      FAIL() << "fixture: unsupported bits";
   }
 }
 
@@ -119,12 +129,14 @@ void write_fixture(const fs::path& path, const Fixture& f) {
             for (int x = 0; x < f.nx; ++x) {
               for (std::size_t k = 0; k < per_pixel; ++k) {
                 const int s = separate ? plane : static_cast<int>(k);
-                store(f, f.value(page, s, x, static_cast<int>(row + r)), &buf[((r * f.nx + x) * per_pixel + k) * bytes]);
+                store(f, f.value(page, s, x, static_cast<int>(row + r)),
+                      &buf[((r * f.nx + x) * per_pixel + k) * bytes]);
               }
             }
           }
           const std::uint32_t strip = TIFFComputeStrip(tif, row, static_cast<std::uint16_t>(plane));
-          ASSERT_GT(TIFFWriteEncodedStrip(tif, strip, buf.data(), static_cast<tmsize_t>(rows * f.nx * per_pixel * bytes)), 0);
+          ASSERT_GT(
+              TIFFWriteEncodedStrip(tif, strip, buf.data(), static_cast<tmsize_t>(rows * f.nx * per_pixel * bytes)), 0);
         }
       }
     }
@@ -279,9 +291,9 @@ TEST(TiffStackRoundTrip, VolumeOverloadWritesItsSpacing) {
 TEST(TiffStackWrite, WritesAnImageJDescription) {
   ScratchDir dir;
   const std::vector<float> values = {0, 1, 2, 3, 4, 5, 6, 7};
-  write_tiff_stack(dir / "d.tif", values, 2, 2, 2, {.type = SampleType::kUint8, .spacing_um = std::array<double, 3>{1, 1, 2.5}});
-  EXPECT_EQ(image_description(dir / "d.tif"),
-            "ImageJ=1.11a\nimages=2\nslices=2\nunit=um\nspacing=2.5\nmin=0\nmax=7\n");
+  write_tiff_stack(dir / "d.tif", values, 2, 2, 2,
+                   {.type = SampleType::kUint8, .spacing_um = std::array<double, 3>{1, 1, 2.5}});
+  EXPECT_EQ(image_description(dir / "d.tif"), "ImageJ=1.11a\nimages=2\nslices=2\nunit=um\nspacing=2.5\nmin=0\nmax=7\n");
 }
 
 TEST(TiffStackWrite, Uint8RejectsOutOfRangeValue) {
@@ -742,8 +754,9 @@ TEST(TiffStackBadInput, TimeSeries) {
 TEST(TiffStackBadInput, HostileCountsInMetadataDoNotOverflow) {
   ScratchDir dir;
   Fixture f;
-  f.description = "<OME><Pixels SizeX='7' SizeY='5' SizeZ='2000000000' SizeC='2000000000' SizeT='2000000000' "
-                  "DimensionOrder='XYZCT'/></OME>";
+  f.description =
+      "<OME><Pixels SizeX='7' SizeY='5' SizeZ='2000000000' SizeC='2000000000' SizeT='2000000000' "
+      "DimensionOrder='XYZCT'/></OME>";
   write_fixture(dir / "ome.tif", f);
   expect_input_error(dir / "ome.tif", "OME-XML describes 8e+27 planes");
   f.description = "ImageJ=1.11a\nimages=3\nchannels=2000000000\nslices=2000000000\nframes=2000000000\n";

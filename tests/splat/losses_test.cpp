@@ -12,8 +12,8 @@
 #include <limits>
 #include <numbers>
 #include <random>
-#include <utility>
 #include <stdexcept>
+#include <utility>
 #include <vector>
 
 #include "gmf/gaussian_math.hpp"
@@ -93,8 +93,7 @@ TEST(LossWeightedMse, GradientMatchesFiniteDifferences) {
   std::vector<double> grad(render.size(), 0.0);
   weighted_mse(render, target, kW, kH, 5.0, 1.0, grad);
   expect_gradient_matches_fd(
-      [&](const std::vector<double>& r) { return weighted_mse(r, target, kW, kH, 5.0, 1.0, {}); }, render, grad,
-      1e-2);
+      [&](const std::vector<double>& r) { return weighted_mse(r, target, kW, kH, 5.0, 1.0, {}); }, render, grad, 1e-2);
 }
 
 // ------------------------------------------------------------------ Eq. 12
@@ -164,8 +163,8 @@ TEST(LossSsim, GradientMatchesFiniteDifferences) {
     LossWorkspace ws;
     std::vector<double> grad(render.size(), 0.0);
     ssim_loss(render, target, kW, kH, 1.0, grad, ws);
-    expect_gradient_matches_fd(
-        [&](const std::vector<double>& r) { return ssim_loss(r, target, kW, kH, 1.0, {}, ws); }, render, grad, 1e-3);
+    expect_gradient_matches_fd([&](const std::vector<double>& r) { return ssim_loss(r, target, kW, kH, 1.0, {}, ws); },
+                               render, grad, 1e-3);
   }
 }
 
@@ -230,8 +229,8 @@ TEST(LossEdge, GradientMatchesFiniteDifferences) {
   LossWorkspace ws;
   std::vector<double> grad(render.size(), 0.0);
   edge_loss(render, target, kW, kH, 1.0, grad, ws);
-  expect_gradient_matches_fd(
-      [&](const std::vector<double>& r) { return edge_loss(r, target, kW, kH, 1.0, {}, ws); }, render, grad, 1e-2);
+  expect_gradient_matches_fd([&](const std::vector<double>& r) { return edge_loss(r, target, kW, kH, 1.0, {}, ws); },
+                             render, grad, 1e-2);
 }
 
 // ------------------------------------------------------------------ Eq. 14

@@ -61,11 +61,11 @@ TEST(Metrics, ComparisonImageIsTruthRenderError) {
   ASSERT_EQ(img.width, 3 * W);
   ASSERT_EQ(img.height, H);
   ASSERT_EQ(img.channels, 3);
-  EXPECT_EQ(img.pixels[0], 255);                // truth panel
-  EXPECT_EQ(img.pixels[3 * W], 0);              // render panel
-  EXPECT_EQ(img.pixels[3 * 2 * W + 0], 255);    // error panel: white at saturation
+  EXPECT_EQ(img.pixels[0], 255);              // truth panel
+  EXPECT_EQ(img.pixels[3 * W], 0);            // render panel
+  EXPECT_EQ(img.pixels[3 * 2 * W + 0], 255);  // error panel: white at saturation
   EXPECT_EQ(img.pixels[3 * 2 * W + 2], 255);
-  EXPECT_EQ(img.pixels[3 * (2 * W + 1)], 0);    // no error: black
+  EXPECT_EQ(img.pixels[3 * (2 * W + 1)], 0);  // no error: black
   EXPECT_THROW(image_metrics(render, std::vector<float>(3), W, H), std::invalid_argument);
 }
 

@@ -72,7 +72,8 @@ TEST(RayMarch, BrightVoxelPeaksWhereTheCameraProjectsIt) {
   RaymarchOptions ro;
   ro.step_voxels = 0.05;  // fine steps so the peak pixel is the one whose ray passes nearest the centre
   const RayMarcher m(v, frame, ro);
-  for (const auto& [e, a] : std::vector<std::pair<double, double>>{{0, 0}, {30, 45}, {-60, 200}, {89.5, 10}, {-90, 0}}) {
+  for (const auto& [e, a] :
+       std::vector<std::pair<double, double>>{{0, 0}, {30, 45}, {-60, 200}, {89.5, 10}, {-90, 0}}) {
     const CameraView view = orbit_view(e, a, 2.5, "v");
     const std::vector<float> img = render(m, K, view);
     const auto it = std::max_element(img.begin(), img.end());
@@ -115,7 +116,8 @@ TEST(RayMarch, FastMarcherEqualsTheDefinition) {
       const std::vector<float> img = render(m, K, view);
       for (int r = 0; r < K.height; ++r)
         for (int c = 0; c < K.width; ++c) {
-          const double ref = march_ray_reference(v, frame, ro, view.center_world(), ray_direction(K, view, c + 0.5, r + 0.5));
+          const double ref =
+              march_ray_reference(v, frame, ro, view.center_world(), ray_direction(K, view, c + 0.5, r + 0.5));
           worst = std::max(worst, std::abs(ref - img[static_cast<std::size_t>(r) * K.width + c]));
         }
     }
@@ -207,8 +209,8 @@ TEST(RayMarch, RaysThatMissTheBoxAreZero) {
   const Intrinsics K = make_intrinsics(co);
   const CameraView view = orbit_view(0, 0, 2.5, "v");
   const std::vector<float> img = render(m, K, view);
-  EXPECT_EQ(img[0], 0.0f);                    // corner ray passes far from the small box
-  EXPECT_EQ(img[32 * 64 + 32], 1.0f);         // centre ray crosses it
+  EXPECT_EQ(img[0], 0.0f);             // corner ray passes far from the small box
+  EXPECT_EQ(img[32 * 64 + 32], 1.0f);  // centre ray crosses it
   // A ray pointing away from the box.
   const double o[3] = {2.5, 0, 0}, d[3] = {1, 0, 0};
   EXPECT_EQ(kernels::march_ray(m.dense(), m.bricks(), m.params(), o, d), 0.0f);

@@ -57,8 +57,8 @@ constexpr SceneCase kForwardScenes[] = {{21, 30, 70, 45}, {22, 30, 70, 45}, {51,
                                         {52, 20, 64, 48}, {53, 20, 70, 45}, {54, 20, 70, 45}};
 
 std::string describe(const SceneCase& c) {
-  return "seed " + std::to_string(c.seed) + " (" + std::to_string(c.count) + " Gaussians, " +
-         std::to_string(c.width) + " x " + std::to_string(c.height) + ")";
+  return "seed " + std::to_string(c.seed) + " (" + std::to_string(c.count) + " Gaussians, " + std::to_string(c.width) +
+         " x " + std::to_string(c.height) + ")";
 }
 
 // Float math against double: values lie in [0, 1] and each pixel is a softmax-weighted
@@ -351,8 +351,10 @@ TEST_P(SplatBackend, FramesOfDifferentSizesDoNotShareState) {
 // "SplatBackend.<Test>/Cpu", ".../Cuda" (-Wswitch names a new back end left out).
 std::string backend_test_name(const ::testing::TestParamInfo<Backend>& info) {
   switch (info.param) {
-    case Backend::kCpu: return "Cpu";
-    case Backend::kCuda: return "Cuda";
+    case Backend::kCpu:
+      return "Cpu";
+    case Backend::kCuda:
+      return "Cuda";
   }
   return "Backend" + std::to_string(static_cast<int>(info.param));
 }

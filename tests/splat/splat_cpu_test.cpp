@@ -53,8 +53,8 @@ TEST(SplatCpu, EllipseBandsHoldEveryPixelInsideTheCutoff) {
     gf.con_c = static_cast<float>(g.con_c);
     const EllipseRows<float> ef = ellipse_rows(gf, static_cast<float>(delta), 1.0f + 1e-3f);
     std::int16_t tx0[detail::kBandsAtOnce], tx1[detail::kBandsAtOnce];
-    const detail::BandJob job{{ef.u, ef.v, ef.slope, ef.k1, ef.k2, ef.x_right, ef.dy_right, 0.25f}, 0, kRows / kTile, 0,
-                              11, tx0, tx1};
+    const detail::BandJob job{
+        {ef.u, ef.v, ef.slope, ef.k1, ef.k2, ef.x_right, ef.dy_right, 0.25f}, 0, kRows / kTile, 0, 11, tx0, tx1};
     detail::tile_bands(&job, 1);
     const double half_w = std::sqrt(delta * sxx);
     for (int ty = 0; ty < kRows / kTile; ++ty) {

@@ -209,7 +209,7 @@ Trainer densify_trainer(int max_gaussians) {
   }
   init[0 * kP + 4] = std::log(0.12f);  // longest axis: 1
   TrainOptions o = quiet_options(10);
-  o.densify_grad_threshold = 0.0;   // every Gaussian seen in a view is a candidate
+  o.densify_grad_threshold = 0.0;  // every Gaussian seen in a view is a candidate
   o.densify_scale_threshold = 0.07;
   o.max_gaussians = max_gaussians;
   Trainer trainer = make_trainer(o, init);
@@ -229,7 +229,7 @@ TEST(Trainer, DensifyRespectsMaxGaussiansAndKeepsArraysAligned) {
   EXPECT_EQ(trainer.grad_accum().size(), 8u);
   EXPECT_EQ(trainer.grad_count().size(), 8u);
   for (std::size_t k = 0; k < 8; ++k) EXPECT_EQ(trainer.grad_count()[k], 0u);  // statistics reset
-  for (std::size_t i = 5 * kP; i < 8 * kP; ++i) {  // new Gaussians start with zero moments
+  for (std::size_t i = 5 * kP; i < 8 * kP; ++i) {                              // new Gaussians start with zero moments
     EXPECT_EQ(trainer.adam_m()[i], 0.0f);
     EXPECT_EQ(trainer.adam_v()[i], 0.0f);
   }
@@ -279,21 +279,21 @@ TEST(Trainer, DensifySplitsLargeByEq17AndClonesSmall) {
   }
   EXPECT_EQ(change.split, splits);
   EXPECT_EQ(change.cloned, 5 - splits);
-  EXPECT_GE(splits, 1);       // Gaussian 0 (s_max 0.12)
-  EXPECT_LE(splits, 4);       // Gaussian 1 (0.04) is cloned
+  EXPECT_GE(splits, 1);  // Gaussian 0 (s_max 0.12)
+  EXPECT_LE(splits, 4);  // Gaussian 1 (0.04) is cloned
 }
 
 TEST(Trainer, ResumeIsBitIdenticalToAnUninterruptedRun) {
   TrainOptions o = quiet_options(6);
-  o.views_per_step = 3;      // uneven batches (8 = 3 + 3 + 2)
-  o.crop_size = 24;          // random crops draw from the RNG that resume must restore
+  o.views_per_step = 3;  // uneven batches (8 = 3 + 3 + 2)
+  o.crop_size = 24;      // random crops draw from the RNG that resume must restore
   o.densify_from = 2;
   o.densify_until = 4;
   o.densify_every = 2;
   o.densify_grad_threshold = 0.0;
   o.max_gaussians = 9;
   o.prune_every = 3;
-  o.prune_intensity = 0.6;   // prunes some of the truth's a in [0.5, 0.9]
+  o.prune_intensity = 0.6;  // prunes some of the truth's a in [0.5, 0.9]
   o.save_every = 2;
   const std::vector<float> init = perturbed(true_params());
 

@@ -68,7 +68,8 @@ class CliExport : public ::testing::Test {
   // A checkpoint written as `fit` would (shape, spacing, aspect, normalization,
   // source) and a matching stack; Gaussians of 0.6-2.4 voxels.
   void SetUp() override {
-    const io::VoxelSpacing spacing{{1.0, 1.0, 2.0}, {io::SpacingSource::kUser, io::SpacingSource::kUser, io::SpacingSource::kUser}};
+    const io::VoxelSpacing spacing{{1.0, 1.0, 2.0},
+                                   {io::SpacingSource::kUser, io::SpacingSource::kUser, io::SpacingSource::kUser}};
     const Eigen::Vector3d aspect = io::aspect_scales(20, 24, 10, spacing, io::AspectMode::kPhysical);
     frame_ = io::WorldFrame(20, 24, 10, aspect);
     std::mt19937 rng(11);
@@ -172,8 +173,8 @@ TEST_F(CliExport, MatchVolumeAndVoxelSizeSetTheLattice) {
   std::vector<float> v(40 * 48 * 20, 0.0f);
   v[0] = 1.0f;
   io::write_tiff_stack(dir_ / "fine.tif", v, 40, 48, 20, o);
-  const auto fine = run_hisnegs({"export", "vdb", "--model", model(), "-o", dir_ / "fine.vdb", "--match-volume",
-                                 dir_ / "fine.tif"});
+  const auto fine =
+      run_hisnegs({"export", "vdb", "--model", model(), "-o", dir_ / "fine.vdb", "--match-volume", dir_ / "fine.tif"});
   ASSERT_EQ(fine.exit_code, 0) << fine.err;
   const auto info = run_hisnegs({"info", dir_ / "fine.vdb"});
   ASSERT_EQ(info.exit_code, 0) << info.err;
@@ -186,15 +187,16 @@ TEST_F(CliExport, MatchVolumeAndVoxelSizeSetTheLattice) {
   // A stack over another world box (different physical aspect) is refused.
   o.spacing_um = std::array<double, 3>{1.0, 1.0, 1.0};
   io::write_tiff_stack(dir_ / "other.tif", v, 40, 48, 20, o);
-  const auto other = run_hisnegs({"export", "vdb", "--model", model(), "-o", dir_ / "other.vdb", "--match-volume",
-                                  dir_ / "other.tif"});
+  const auto other = run_hisnegs(
+      {"export", "vdb", "--model", model(), "-o", dir_ / "other.vdb", "--match-volume", dir_ / "other.tif"});
   EXPECT_EQ(other.exit_code, 2);
   EXPECT_NE(other.err.find("differs from the model's"), std::string::npos) << other.err;
   EXPECT_FALSE(fs::exists(dir_ / "other.vdb"));
 }
 
 TEST_F(CliExport, SplatPlyHasTheViewerFields) {
-  const auto r = run_hisnegs({"export", "splat-ply", "--model", model(), "-o", dir_ / "splat.ply", "--colormap", "fire"});
+  const auto r =
+      run_hisnegs({"export", "splat-ply", "--model", model(), "-o", dir_ / "splat.ply", "--colormap", "fire"});
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_NE(r.out.find("not show a MIP"), std::string::npos) << r.out;
   const io::PlyTable t = io::read_ply(dir_ / "splat.ply");

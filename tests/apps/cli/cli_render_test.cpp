@@ -41,9 +41,9 @@ TEST(CliCompare, WritesTableCurvesSummaryAndPlot) {
   testing::ScratchDir dir;
   ASSERT_EQ(run_hisnegs({"-q", "synth", "-o", dir / "s.tif", "--shape", "16,40,40"}).exit_code, 0);
   testing::write_text(dir / "c.yaml", "gmf:\n  iterations_per_round: 4\n");
-  const auto r = run_hisnegs({"--config", dir / "c.yaml", "compare-optimizers", dir / "s.tif", "-o", dir / "cmp",
-                              "--optimizers", "lm-cgnr,adam,lbfgs", "--gaussians", "60", "--adam-steps", "8",
-                              "--time-budget", "20"});
+  const auto r =
+      run_hisnegs({"--config", dir / "c.yaml", "compare-optimizers", dir / "s.tif", "-o", dir / "cmp", "--optimizers",
+                   "lm-cgnr,adam,lbfgs", "--gaussians", "60", "--adam-steps", "8", "--time-budget", "20"});
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_EQ(csv_rows(dir / "cmp" / "results.csv"), 3);
   EXPECT_GT(csv_rows(dir / "cmp" / "curves.csv"), 8);
@@ -80,8 +80,8 @@ TEST(CliRender, WritesStackPreviewsMetaAndOrbit) {
 TEST(CliEval, WritesMetricsAndComparisonImages) {
   testing::ScratchDir dir;
   ASSERT_NO_FATAL_FAILURE(make_model_and_ground_truth(dir.path(), 32, "both"));
-  const auto r = run_hisnegs({"eval", "--model", dir / "m.ply", "--data", dir / "gt", "-o", dir / "ev", "--backend",
-                              "cpu"});
+  const auto r =
+      run_hisnegs({"eval", "--model", dir / "m.ply", "--data", dir / "gt", "-o", dir / "ev", "--backend", "cpu"});
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_NE(r.out.find("30 views of 32x32"), std::string::npos) << r.out;
   EXPECT_EQ(csv_rows(dir / "ev" / "metrics.csv"), 30);
@@ -115,7 +115,8 @@ TEST(CliTrain, WritesRunFolderResumesAndRejectsBadInput) {
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_EQ(csv_rows(dir / "run" / "log.csv"), 4);
   // Missing ground truth: one line naming what is missing, no run folder.
-  r = run_hisnegs({"train", "--init", dir / "m.ply", "--data", dir / "nowhere", "-o", dir / "run2", "--backend", "cpu"});
+  r = run_hisnegs(
+      {"train", "--init", dir / "m.ply", "--data", dir / "nowhere", "-o", dir / "run2", "--backend", "cpu"});
   EXPECT_EQ(r.exit_code, 2);
   EXPECT_NE(r.err.find("nowhere"), std::string::npos) << r.err;
   EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;

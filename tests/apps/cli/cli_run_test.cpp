@@ -69,8 +69,8 @@ class CliRun : public ::testing::Test {
     ASSERT_EQ(run_hisnegs({"--config", dir_ / "tiny.yaml", "-q", "synth", "-o", dir_ / "s.tif"}).exit_code, 0);
   }
   testing::CommandResult run(const std::vector<std::string>& extra = {}, const std::string& config = "tiny.yaml") {
-    std::vector<std::string> args{"--config", dir_ / config, "run", dir_ / "s.tif", "-o", dir_ / "run", "--backend",
-                                  "cpu", "--orbit-frames", "6"};
+    std::vector<std::string> args{"--config",   dir_ / config, "run", dir_ / "s.tif",   "-o",
+                                  dir_ / "run", "--backend",   "cpu", "--orbit-frames", "6"};
     args.insert(args.end(), extra.begin(), extra.end());
     return run_hisnegs(args);
   }
@@ -114,8 +114,8 @@ TEST_F(CliRun, WritesEveryOutputThenReusesFinishedStages) {
   EXPECT_EQ(fs::last_write_time(out / "train" / "final.ply"), train_time);
 
   // A training setting changed: training and what follows it run again, the rest is reused.
-  testing::write_text(dir_ / "longer.yaml", std::string(kTinyPipeline).replace(
-                                                std::string(kTinyPipeline).find("epochs: 3"), 9, "epochs: 4"));
+  testing::write_text(dir_ / "longer.yaml",
+                      std::string(kTinyPipeline).replace(std::string(kTinyPipeline).find("epochs: 3"), 9, "epochs: 4"));
   r = run({}, "longer.yaml");
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_EQ(reused_stages(r.out), 3) << r.out;  // volume, ground truth, fit
@@ -181,9 +181,10 @@ TEST(CliDemo, RunsThePipelineOnTheSyntheticNeuron) {
 TEST(CliBench, ReportWritesEveryTableWithTinySizes) {
   testing::ScratchDir dir;
   ASSERT_EQ(run_hisnegs({"-q", "synth", "-o", dir / "s.tif", "--shape", "16,32,32"}).exit_code, 0);
-  const auto r = run_hisnegs({"bench", "report", "-o", dir / "b", "--volume", dir / "s.tif", "--sizes", "32,48",
-                              "--gaussians", "300,600", "--betas", "1,50", "--orbit-frames", "4", "--views", "2",
-                              "--min-frames", "2", "--max-frames", "4", "--seconds-per-case", "0.1", "--backend", "cpu"});
+  const auto r = run_hisnegs(
+      {"bench",        "report",  "-o",           dir / "b", "--volume",           dir / "s.tif", "--sizes",   "32,48",
+       "--gaussians",  "300,600", "--betas",      "1,50",    "--orbit-frames",     "4",           "--views",   "2",
+       "--min-frames", "2",       "--max-frames", "4",       "--seconds-per-case", "0.1",         "--backend", "cpu"});
   ASSERT_EQ(r.exit_code, 0) << r.err << r.out;
   EXPECT_EQ(csv_rows(dir / "b" / "table7.csv"), 2);
   EXPECT_EQ(csv_rows(dir / "b" / "table9.csv"), 2);

@@ -73,7 +73,8 @@ TEST(Cli, IoBenchmarkSuiteRuns) {
 TEST(Cli, GmfBenchmarkSuiteRuns) {
   const auto r = run_hisnegs({"bench", "gmf", "--benchmark_min_time=0.01"});
   ASSERT_EQ(r.exit_code, 0) << r.err;
-  for (const char* name : {"gmf/residual_block/analytic", "gmf/residual_block/numeric_central", "gmf/residual_block/autodiff"}) {
+  for (const char* name :
+       {"gmf/residual_block/analytic", "gmf/residual_block/numeric_central", "gmf/residual_block/autodiff"}) {
     EXPECT_NE(r.out.find(name), std::string::npos) << r.out;
   }
 }

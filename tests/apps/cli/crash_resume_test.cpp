@@ -46,10 +46,10 @@ class CrashSafeTraining : public ::testing::Test {
                            "--optimizer", "adam"})
                   .exit_code,
               0);
-    ASSERT_EQ(run_hisnegs({"-q", "gt", d / "s.tif", "-o", d / "gt", "--orbit", "both", "--size", "24", "--backend",
-                           "cpu"})
-                  .exit_code,
-              0);
+    ASSERT_EQ(
+        run_hisnegs({"-q", "gt", d / "s.tif", "-o", d / "gt", "--orbit", "both", "--size", "24", "--backend", "cpu"})
+            .exit_code,
+        0);
     const auto r = train("reference");
     ASSERT_EQ(r.exit_code, 0) << r.err;
   }
@@ -59,8 +59,8 @@ class CrashSafeTraining : public ::testing::Test {
   }
   static testing::CommandResult train(const std::string& run, bool resume = false) {
     const fs::path d = dir_->path();
-    std::vector<std::string> args{"-q", "--config", d / "t.yaml", "train", "--init", d / "m.ply", "--data", d / "gt",
-                                  "-o", d / run, "--backend", "cpu"};
+    std::vector<std::string> args{"-q",     "--config", d / "t.yaml", "train", "--init",    d / "m.ply",
+                                  "--data", d / "gt",   "-o",         d / run, "--backend", "cpu"};
     if (resume) args.push_back("--resume");
     return run_hisnegs(args);
   }

@@ -23,9 +23,13 @@ const fs::path kConfigs = fs::path(HISNEGS_SOURCE_DIR) / "configs";
 struct KeyLister {
   std::vector<std::string> keys;
   template <class T>
-  void operator()(std::string_view key, T&) { keys.emplace_back(key); }
+  void operator()(std::string_view key, T&) {
+    keys.emplace_back(key);
+  }
   template <class T, class N>
-  void operator()(std::string_view key, T&, N) { keys.emplace_back(key); }
+  void operator()(std::string_view key, T&, N) {
+    keys.emplace_back(key);
+  }
 };
 
 TEST(AppConfig, EveryShippedConfigLoads) {

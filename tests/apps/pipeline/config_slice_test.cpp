@@ -15,7 +15,9 @@ using VolumeGmf = ConfigSlice<&AppConfig::gmf, &AppConfig::volume>;  // delibera
 
 // Whether `get<Member>()` compiles on a Slice: reading an undeclared section must not.
 template <class Slice, auto Member>
-concept CanGet = requires(const Slice& slice) { slice.template get<Member>(); };
+concept CanGet = requires(const Slice& slice) {
+  slice.template get<Member>();
+};
 
 static_assert(CanGet<VolumeGmf, &AppConfig::gmf>);
 static_assert(CanGet<VolumeGmf, &AppConfig::volume>);
@@ -54,7 +56,7 @@ TEST(ConfigSlice, TextIsTheDumpOfItsSectionsAlone) {
 TEST(ConfigSlice, SubSliceKeepsTheValues) {
   AppConfig config;
   config.volume.channel = 3;
-  const ConfigSlice<&AppConfig::volume> sub = VolumeGmf(config).slice<&AppConfig::volume>();
+  const ConfigSlice<& AppConfig::volume> sub = VolumeGmf(config).slice<&AppConfig::volume>();
   EXPECT_EQ(sub.get<&AppConfig::volume>().channel, 3);
   EXPECT_EQ(sub.text(), ConfigSlice<&AppConfig::volume>(config).text());
 }
