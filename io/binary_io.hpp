@@ -32,7 +32,7 @@ class BinaryWriter {
   void put_array(std::span<const T> values) {
     static_assert(std::is_trivially_copyable_v<T>);
     put<std::uint64_t>(values.size());
-    bytes_.append(reinterpret_cast<const char*>(values.data()), values.size_bytes());
+    if (!values.empty()) bytes_.append(reinterpret_cast<const char*>(values.data()), values.size_bytes());
   }
   void put_string(std::string_view text) { put_array(std::span<const char>(text.data(), text.size())); }
   [[nodiscard]] std::string take() { return std::move(bytes_); }
@@ -62,7 +62,7 @@ class BinaryReader {
     if (n != expected) fail("array of " + std::to_string(n) + " values, expected " + std::to_string(expected));
     need(n * sizeof(T));
     std::vector<T> values(n);
-    std::memcpy(values.data(), bytes_.data() + at_, n * sizeof(T));
+    if (n > 0) std::memcpy(values.data(), bytes_.data() + at_, n * sizeof(T));  // data() may be null when empty
     at_ += n * sizeof(T);
     return values;
   }
