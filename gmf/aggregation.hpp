@@ -15,6 +15,14 @@ namespace hisnegs::gmf {
 
 enum class Aggregation { kSum, kSoftmax };
 
+// How a mixture's value at a point is formed: which terms count (m <= cutoff, the
+// Mahalanobis support δ) and how they combine (sum, or softmax at beta).
+struct MixtureModel {
+  Aggregation aggregation = Aggregation::kSum;
+  double beta = 1.0;     // softmax only, > 0
+  double cutoff = 16.0;  // δ
+};
+
 // The online softmax of some terms: m = max β g so far, S = Σ e^{β g − m},
 // W = Σ e^{β g − m} g; the value is W / S (0 when there is no term, S = 0).
 template <class T>
@@ -69,6 +77,21 @@ HISNEGS_HD void softmax_merge(SoftMaxState<T>& a, const SoftMaxState<T>& b) {
 template <class T>
 HISNEGS_HD T softmax_value(const SoftMaxState<T>& st) {
   return st.S > T(0) ? st.W / st.S : T(0);
+}
+
+// The terms of Gaussians a computation holds fixed, at one point: their sum and
+// their softmax state (only the one the model uses is read).
+template <class T>
+struct FixedTerms {
+  T sum;
+  SoftMaxState<T> soft;
+};
+template <class T>
+HISNEGS_HD FixedTerms<T> no_fixed_terms() {
+  FixedTerms<T> t;
+  t.sum = T(0);
+  softmax_init(t.soft);
+  return t;
 }
 
 // ∂f_β/∂g_k = w_k (1 + β (g_k − f)), w_k = e^{β g_k − m} / S: the derivative with

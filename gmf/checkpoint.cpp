@@ -25,8 +25,9 @@ constexpr std::string_view kVolumeShape = "volume_shape";
 constexpr std::string_view kSpacing = "spacing_um";
 constexpr std::string_view kAspect = "aspect";
 constexpr std::string_view kNormalization = "normalization";
-constexpr std::array<std::string_view, 5> kKnownKeys = {kFormatVersion, kVolumeShape, kSpacing, kAspect,
-                                                        kNormalization};
+constexpr std::string_view kAggregation = "aggregation";
+constexpr std::array<std::string_view, 6> kKnownKeys = {kFormatVersion, kVolumeShape,   kSpacing,
+                                                        kAspect,        kNormalization, kAggregation};
 
 bool is_known_key(std::string_view key) {
   for (std::string_view k : kKnownKeys) {
@@ -129,6 +130,13 @@ std::vector<std::string> meta_comments(const CheckpointMeta& meta) {
     }
     out.push_back(comment(kNormalization, meta.normalization));
   }
+  if (meta.aggregation == Aggregation::kSoftmax) {
+    if (!(std::isfinite(meta.beta) && meta.beta > 0.0)) {
+      throw std::invalid_argument("checkpoint metadata aggregation softmax: beta " + format_number(meta.beta) +
+                                  " is not a finite positive number");
+    }
+    out.push_back(comment(kAggregation, "softmax " + format_number(meta.beta)));
+  }
   for (const auto& [key, value] : meta.extra) {
     if (!is_token(key) || is_known_key(key)) {
       throw std::invalid_argument("checkpoint metadata extra key '" + key +
@@ -183,7 +191,7 @@ std::array<T, 3> parse3(const fs::path& source, std::string_view key, std::strin
 
 CheckpointMeta parse_meta(const io::PlyTable& table, const fs::path& source) {
   CheckpointMeta meta;
-  bool seen_version = false, seen_norm = false;
+  bool seen_version = false, seen_norm = false, seen_aggregation = false;
   for (const std::string& c : table.comments) {
     std::string_view s = c;
     if (!s.starts_with(kPrefix)) continue;
@@ -228,6 +236,21 @@ CheckpointMeta parse_meta(const io::PlyTable& table, const fs::path& source) {
       once(seen_norm);
       seen_norm = true;
       meta.normalization = std::string(value);
+    } else if (key == kAggregation) {
+      once(seen_aggregation);
+      seen_aggregation = true;
+      const std::vector<std::string_view> tok = split_ws(value);
+      double beta = 0;
+      if (tok.size() == 1 && tok[0] == "sum") {
+        meta.aggregation = Aggregation::kSum;
+      } else if (tok.size() == 2 && tok[0] == "softmax" && parse_number(tok[1], beta) && std::isfinite(beta) &&
+                 beta > 0.0) {
+        meta.aggregation = Aggregation::kSoftmax;
+        meta.beta = beta;
+      } else {
+        io::fail_input(source, "comment hisnegs aggregation: expected 'sum' or 'softmax BETA' (BETA > 0), got '" +
+                                   io::printable(value, 80) + "'");
+      }
     } else {
       meta.extra.emplace_back(std::string(key), std::string(value));
     }
@@ -334,6 +357,14 @@ void save_checkpoint(const fs::path& path, const GaussianMixture& mixture, const
 }
 
 Checkpoint load_checkpoint(const fs::path& path) { return checkpoint_from_ply(io::read_ply(path), path); }
+
+MixtureModel model_of(const CheckpointMeta& meta, double cutoff) {
+  MixtureModel m;
+  m.aggregation = meta.aggregation;
+  m.beta = meta.aggregation == Aggregation::kSoftmax ? meta.beta : 1.0;
+  m.cutoff = cutoff;
+  return m;
+}
 
 std::optional<io::WorldFrame> model_frame(const CheckpointMeta& meta) {
   if (!meta.volume_shape_zyx || !meta.aspect) return std::nullopt;

@@ -12,6 +12,7 @@
 #include <utility>
 #include <vector>
 
+#include "gmf/aggregation.hpp"
 #include "gmf/gaussian_mixture.hpp"
 #include "io/ply.hpp"
 #include "io/volume.hpp"
@@ -29,6 +30,10 @@ struct CheckpointMeta {
   std::optional<std::array<double, 3>> spacing_um;     // "spacing_um sx sy sz", µm, finite > 0
   std::optional<std::array<double, 3>> aspect;         // "aspect ax ay az", world half-extents, finite > 0
   std::string normalization;  // "normalization minmax 0 254": free text after the key, verbatim
+  // How the model's terms combine ("aggregation softmax 64"; no line, and files
+  // without one: a sum, report Eq. 1). Every 3D evaluation of the model uses it.
+  Aggregation aggregation = Aggregation::kSum;
+  double beta = 0.0;  // softmax β, finite > 0 (0 for a sum)
   // Any other "comment hisnegs KEY VALUE" line, in file order. KEY is one token
   // (no whitespace, not a known key); VALUE is the rest of the line after one
   // blank, verbatim (may be empty, no line breaks).
@@ -76,6 +81,10 @@ void save_checkpoint(const std::filesystem::path& path, const GaussianMixture& m
 // same properties). Throws io::InputError naming the file for every problem of
 // io::read_ply and checkpoint_from_ply.
 [[nodiscard]] Checkpoint load_checkpoint(const std::filesystem::path& path);
+
+// The mixture model a checkpoint's 3D value uses: its aggregation and β with the
+// given Mahalanobis cutoff δ.
+[[nodiscard]] MixtureModel model_of(const CheckpointMeta& meta, double cutoff = 16.0);
 
 // The frame of the stack a checkpoint was fitted to, from its `volume_shape` and
 // `aspect` metadata; nullopt when either is missing (e.g. a model made elsewhere).

@@ -47,6 +47,11 @@ Comparison compare_optimizers(const io::Volume& volume, const io::SparseGrid& gr
     o.densify = false;  // same K for everyone: the comparison is of optimizers, not of density control
     o.time_budget_s = options.time_budget_s;
     o.rounds = 1000;  // rounds only rebuild the index here; the budget (or Adam's steps) ends the run
+    // One objective for all: the softmax at the schedule's final β from the start.
+    o.beta_start = o.beta_end;
+    // The global solvers' rounds are index rebuilds: 25 iterations each, as before
+    // (brick LM's sweeps take gmf.brick_iterations per brick).
+    o.iterations_per_round = 25;
     o.max_iterations = optimizer == Optimizer::kAdam ? options.adam_steps : 0;
     o.stop_loss = optimizer != Optimizer::kAdam && options.stop_at_target && comparison.target_loss > 0
                       ? comparison.target_loss

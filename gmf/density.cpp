@@ -1,5 +1,5 @@
 // SPDX-License-Identifier: Apache-2.0
-// adapt_density: per-sample residuals through the brick index, error shares, and
+// adapt_density: per-sample residuals through the block index, error shares, and
 // which Gaussians to split (Eq. 17) and where to add new ones (density_ops.hpp).
 #include "gmf/density.hpp"
 
@@ -7,13 +7,15 @@
 #include <cmath>
 #include <numeric>
 
+#include "gmf/aggregation.hpp"
 #include "gmf/density_ops.hpp"
 #include "gmf/gaussian_math.hpp"
 
 namespace hisnegs::gmf {
 
-DensityChange adapt_density(GaussianMixture& mixture, const SampleSet& samples, const BrickIndex& index,
-                            const io::WorldFrame& frame, const GmfOptions& options) {
+DensityChange adapt_density(GaussianMixture& mixture, const SampleSet& samples, const BlockIndex& index,
+                            const io::WorldFrame& frame, const GmfOptions& options, const MixtureModel& model) {
+  const bool soft = model.aggregation == Aggregation::kSoftmax;
   DensityChange change;
   const std::size_t K = mixture.size();
   std::vector<GaussianFrame<double>> frames(K);
@@ -25,24 +27,33 @@ DensityChange adapt_density(GaussianMixture& mixture, const SampleSet& samples, 
   };
   std::vector<Candidate> under;
   std::vector<double> g;
-  for (std::size_t b = 0; b < samples.bricks(); ++b) {
+  std::vector<std::size_t> reach;
+  for (std::size_t b = 0; b < samples.blocks(); ++b) {
     const auto ids = index.of(b);
     g.resize(ids.size());
-    for (std::uint32_t s = samples.brick_begin[b]; s < samples.brick_begin[b + 1]; ++s) {
+    for (std::uint32_t s = samples.block_begin[b]; s < samples.block_begin[b + 1]; ++s) {
       const double x[3] = {samples.x[s], samples.y[s], samples.z[s]};
-      double f = 0;
+      double sum = 0;
+      SoftMaxState<double> state;
+      softmax_init(state);
+      reach.clear();
       for (std::size_t i = 0; i < ids.size(); ++i) {
         double z[3];
-        g[i] = mahalanobis(frames[ids[i]], x, z) <= options.mahalanobis_cutoff
-                   ? evaluate_gaussian<double>(frames[ids[i]], x, nullptr)
-                   : 0.0;
-        f += g[i];
+        if (mahalanobis(frames[ids[i]], x, z) > model.cutoff) continue;
+        g[i] = evaluate_gaussian<double>(frames[ids[i]], x, nullptr);
+        sum += g[i];
+        softmax_add(state, g[i], model.beta);
+        reach.push_back(i);
       }
+      const double f = soft ? softmax_value(state) : sum;
       const double r = f - samples.value[s];
-      if (f > 0) {
-        for (std::size_t i = 0; i < ids.size(); ++i) error[ids[i]] += g[i] / f * r * r;
+      // Each Gaussian's share of the sample's squared residual: g_k / f for a sum,
+      // its softmax weight for a max-mixture (the dominant Gaussian owns the error).
+      for (std::size_t i : reach) {
+        const double share = soft ? std::exp(model.beta * g[i] - state.m) / state.S : g[i] / sum;
+        error[ids[i]] += share * r * r;
       }
-      if (samples.weight[s] == 1.0 && -r > options.clone_residual) under.push_back({-r, s});
+      if (s < samples.foreground && -r > options.clone_residual) under.push_back({-r, s});
     }
   }
   const int per_call = std::max(1, static_cast<int>(options.densify_fraction * static_cast<double>(K)));
@@ -81,7 +92,10 @@ DensityChange adapt_density(GaussianMixture& mixture, const SampleSet& samples, 
     for (const auto& q : placed) near = near || (q - p).norm() < min_dist;
     if (near) continue;
     placed.push_back(p);
-    const GaussianParams g2 = isotropic_gaussian(p, frame.voxel_size(), c.residual);
+    // A max-mixture shows the brightest term alone: the new Gaussian must reach V by
+    // itself. A sum adds it to what is there: it fills the gap V − f.
+    const double a = soft ? samples.value[c.sample] : c.residual;
+    const GaussianParams g2 = isotropic_gaussian(p, frame.voxel_size(), a);
     added.push_back(g2);
     ++change.cloned;
     --room;

@@ -1,6 +1,8 @@
 // SPDX-License-Identifier: Apache-2.0
-// fit_mixture: Ceres problem assembly per round (parameter blocks per Gaussian,
-// one BrickCost per sample brick), solve under the time budget, prune, measure.
+// fit_mixture: per round, the round's model (β), its trust region and index, one
+// optimizer (the brick sweep, a global Ceres problem, L-BFGS or Adam) under the time
+// budget, pruning, the round's loss and foreground PSNR, density control; the
+// final all-voxel 3D PSNR after the fit.
 #include "gmf/fit.hpp"
 
 #include <ceres/ceres.h>
@@ -15,10 +17,11 @@
 #include <thread>
 
 #include "gmf/adam.hpp"
-#include "gmf/brick_index.hpp"
+#include "gmf/block_index.hpp"
+#include "gmf/brick_solver.hpp"
 #include "gmf/density.hpp"
 #include "gmf/density_ops.hpp"
-#include "gmf/detail/brick_cost.hpp"
+#include "gmf/detail/block_cost.hpp"
 #include "gmf/gaussian_math.hpp"
 #include "gmf/init.hpp"
 #include "gmf/objective.hpp"
@@ -47,13 +50,11 @@ GaussianParams to_float(const Params& p) {
   return from_array(a);
 }
 
-// Wall clock of the fit without the time spent measuring it (the 3D PSNR after
-// each round rasterizes the whole volume), so optimizers that run more rounds are
-// not charged for being measured more often.
+// Wall clock of the fit: every round, its measurement and density control count
+// against gmf.time_budget_s.
 struct FitClock {
   io::Stopwatch watch;
-  double excluded = 0;
-  [[nodiscard]] double now() const { return watch.elapsed() - excluded; }
+  [[nodiscard]] double now() const { return watch.elapsed(); }
 };
 
 // Shared by the solvers: where log lines go and when to stop early.
@@ -76,8 +77,8 @@ struct FitLog {
 // samples no Gaussian reaches add a constant).
 class LogCallback final : public ceres::IterationCallback {
  public:
-  LogCallback(FitLog& log, int round, int iteration0, double constant, int K)
-      : log_(log), round_(round), iteration0_(iteration0), constant_(constant), k_(K) {}
+  LogCallback(FitLog& log, int round, int iteration0, double constant, int K, double beta)
+      : log_(log), round_(round), iteration0_(iteration0), constant_(constant), k_(K), beta_(beta) {}
   ceres::CallbackReturnType operator()(const ceres::IterationSummary& s) override {
     FitIteration it;
     it.round = round_;
@@ -85,6 +86,7 @@ class LogCallback final : public ceres::IterationCallback {
     it.seconds = log_.clock.now();
     it.loss = s.cost + constant_;
     it.gaussians = k_;
+    it.beta = beta_;
     return log_.add(it) ? ceres::SOLVER_TERMINATE_SUCCESSFULLY : ceres::SOLVER_CONTINUE;
   }
 
@@ -93,7 +95,11 @@ class LogCallback final : public ceres::IterationCallback {
   int round_, iteration0_;
   double constant_;
   int k_;
+  double beta_;
 };
+
+// The β a log line records: the round's softmax β, 0 for a sum.
+double log_beta(const MixtureModel& model) { return model.aggregation == Aggregation::kSoftmax ? model.beta : 0.0; }
 
 struct RoundOutcome {
   int iterations = 0;
@@ -103,39 +109,30 @@ struct RoundOutcome {
 };
 
 // One round of a trust-region solver (LM with sparse normal Cholesky or CGNR, Dogleg).
-RoundOutcome solve_least_squares(const SampleSet& samples, const BrickIndex& index, std::vector<Params>& params,
+RoundOutcome solve_least_squares(const SampleSet& samples, const BlockIndex& index, std::vector<Params>& params,
                                  const std::vector<double>& lower, const std::vector<double>& upper,
-                                 ceres::Manifold& quaternion_manifold, const GmfOptions& options, int max_iterations,
-                                 double seconds_left, FitLog& log, int round, int iteration0, int K) {
+                                 ceres::Manifold& manifold, const GmfOptions& options, const MixtureModel& model,
+                                 int max_iterations, double seconds_left, FitLog& log, int round, int iteration0,
+                                 int K) {
   ceres::Problem::Options po;
   po.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   ceres::Problem problem(po);
   for (std::size_t k = 0; k < params.size(); ++k) {
     Params& p = params[k];
-    problem.AddParameterBlock(&p[kMeanX], 3);
-    problem.AddParameterBlock(&p[kLogScale0], 3);
-    problem.AddParameterBlock(&p[kRotW], 4, &quaternion_manifold);
-    problem.AddParameterBlock(&p[kLogit], 1);
-    for (int i = 0; i < 3; ++i) {
-      problem.SetParameterLowerBound(&p[kLogScale0], i, lower[kGaussianParamCount * k + kLogScale0 + i]);
-      problem.SetParameterUpperBound(&p[kLogScale0], i, upper[kGaussianParamCount * k + kLogScale0 + i]);
-      problem.SetParameterLowerBound(&p[kMeanX], i, lower[kGaussianParamCount * k + kMeanX + i]);
-      problem.SetParameterUpperBound(&p[kMeanX], i, upper[kGaussianParamCount * k + kMeanX + i]);
+    problem.AddParameterBlock(p.data(), kGaussianParamCount, &manifold);
+    for (int c : {kMeanX, kMeanY, kMeanZ, kLogScale0, kLogScale1, kLogScale2}) {
+      problem.SetParameterLowerBound(p.data(), c, lower[kGaussianParamCount * k + c]);
+      problem.SetParameterUpperBound(p.data(), c, upper[kGaussianParamCount * k + c]);
     }
   }
   const double constant = unreached_loss(samples, index);
-  for (std::size_t b = 0; b < samples.bricks(); ++b) {
+  for (std::size_t b = 0; b < samples.blocks(); ++b) {
     const auto ids = index.of(b);
     if (ids.empty()) continue;
     std::vector<double*> blocks;
-    blocks.reserve(ids.size() * detail::kBlocksPerGaussian);
-    for (std::uint32_t k : ids) {
-      blocks.push_back(&params[k][kMeanX]);
-      blocks.push_back(&params[k][kLogScale0]);
-      blocks.push_back(&params[k][kRotW]);
-      blocks.push_back(&params[k][kLogit]);
-    }
-    problem.AddResidualBlock(new detail::BrickCost(samples, b, ids, options.mahalanobis_cutoff), nullptr, blocks);
+    blocks.reserve(ids.size());
+    for (std::uint32_t k : ids) blocks.push_back(params[k].data());
+    problem.AddResidualBlock(new detail::BlockCost(samples, b, ids.size(), model), nullptr, blocks);
   }
   ceres::Solver::Options so;
   so.max_num_iterations = max_iterations;
@@ -146,7 +143,7 @@ RoundOutcome solve_least_squares(const SampleSet& samples, const BrickIndex& ind
   so.trust_region_strategy_type = options.optimizer == Optimizer::kDogleg ? ceres::DOGLEG : ceres::LEVENBERG_MARQUARDT;
   so.linear_solver_type =
       options.optimizer == Optimizer::kLevenbergMarquardtCgnr ? ceres::CGNR : ceres::SPARSE_NORMAL_CHOLESKY;
-  LogCallback callback(log, round, iteration0, constant, K);
+  LogCallback callback(log, round, iteration0, constant, K, log_beta(model));
   so.callbacks.push_back(&callback);
   ceres::Solver::Summary summary;
   ceres::Solve(so, &problem, &summary);
@@ -180,14 +177,14 @@ class ObjectiveFunction final : public ceres::FirstOrderFunction {
 // needs none: the loss normalizes it and its gradient is tangent).
 RoundOutcome solve_lbfgs(const FitObjective& objective, double* x, const std::vector<double>& lower,
                          const std::vector<double>& upper, int max_iterations, double seconds_left, FitLog& log,
-                         int round, int iteration0, int K) {
+                         int round, int iteration0, int K, double beta) {
   ceres::GradientProblem problem(new ObjectiveFunction(objective));
   ceres::GradientProblemSolver::Options go;
   go.line_search_direction_type = ceres::LBFGS;
   go.max_num_iterations = max_iterations;
   go.max_solver_time_in_seconds = seconds_left;
   go.logging_type = ceres::SILENT;
-  LogCallback callback(log, round, iteration0, 0.0, K);
+  LogCallback callback(log, round, iteration0, 0.0, K, beta);
   go.callbacks.push_back(&callback);
   ceres::GradientProblemSolver::Summary summary;
   ceres::Solve(go, problem, x, &summary);
@@ -202,21 +199,25 @@ RoundOutcome solve_lbfgs(const FitObjective& objective, double* x, const std::ve
 
 // One round of Adam (the report's PyTorch baseline, gmf/adam.hpp): β1 0.9, β2 0.999,
 // ε 1e-8, step gmf.adam_learning_rate, times the smallest voxel size for means
-// (world units); each step is projected onto the round's box. Moments restart each round.
+// (world units); each step is projected onto the round's box. The moments carry over
+// from the previous round when K did not change (a restart spikes the loss). A step
+// is not started when it would end past the time left.
 RoundOutcome solve_adam(const FitObjective& objective, double* x, const std::vector<double>& lower,
-                        const std::vector<double>& upper, const GmfOptions& options, int max_iterations,
-                        double seconds_left, double min_voxel, FitLog& log, int round, int iteration0, int K) {
+                        const std::vector<double>& upper, const GmfOptions& options, Adam<double>& adam,
+                        int max_iterations, double seconds_left, double min_voxel, FitLog& log, int round,
+                        int iteration0, int K, double beta) {
   const std::size_t n = objective.parameters();
+  if (adam.gaussians() != n / kGaussianParamCount) adam = Adam<double>(AdamOptions{}, n / kGaussianParamCount);
   std::vector<double> g(n);
-  Adam<double> adam(AdamOptions{}, n / kGaussianParamCount);
   const double lr = options.adam_learning_rate;
   const GroupRates rates = {lr * min_voxel, lr, lr, lr};
   const std::span<double> params(x, n);
   io::Stopwatch round_watch;
   RoundOutcome out;
-  double loss = 0;
+  double loss = 0, step_seconds = 0;
   int step = 0;
-  for (; step < max_iterations && round_watch.elapsed() < seconds_left; ++step) {
+  for (; step < max_iterations && round_watch.elapsed() + step_seconds < seconds_left; ++step) {
+    const double t0 = round_watch.elapsed();
     loss = objective.evaluate(x, g.data());
     if (!std::isfinite(loss)) {
       throw std::runtime_error("fit diverged in round " + std::to_string(round) + ", Adam step " +
@@ -232,12 +233,14 @@ RoundOutcome solve_adam(const FitObjective& objective, double* x, const std::vec
     it.seconds = log.clock.now();
     it.loss = loss;
     it.gaussians = K;
+    it.beta = beta;
     if (log.add(it)) break;  // at stop_loss: x is the point that reached it
     adam.step(params, g, rates);
     for (std::size_t i = 0; i < n; ++i) x[i] = std::clamp(x[i], lower[i], upper[i]);
+    step_seconds = round_watch.elapsed() - t0;
   }
   out.iterations = step;
-  out.final_loss = objective.evaluate(x, nullptr);
+  out.final_loss = loss;
   out.message = "Adam: " + std::to_string(step) + " steps";
   return out;
 }
@@ -246,11 +249,11 @@ RoundOutcome solve_adam(const FitObjective& objective, double* x, const std::vec
 
 namespace {
 
-// One round's problem: the parameters in double, the brick index padded to the
+// One round's problem: the parameters in double, the block index padded to the
 // round's trust region, and the box bounds of every parameter.
 struct RoundProblem {
   std::vector<Params> params;
-  BrickIndex index;
+  BlockIndex index;
   std::vector<double> lower, upper;
   [[nodiscard]] double* x() { return params.empty() ? nullptr : params[0].data(); }
 };
@@ -270,7 +273,7 @@ RoundProblem prepare_round(const GaussianMixture& mixture, const SampleSet& samp
   RoundProblem r;
   r.params.resize(mixture.size());
   for (std::size_t k = 0; k < mixture.size(); ++k) r.params[k] = to_double(mixture[k]);
-  r.index = build_brick_index(mixture, samples, frame, options.mahalanobis_cutoff, kScaleGrowth, move);
+  r.index = build_block_index(mixture, samples, frame, options.mahalanobis_cutoff, kScaleGrowth, move);
   const std::size_t n = r.params.size() * kGaussianParamCount;
   r.lower.assign(n, -std::numeric_limits<double>::infinity());
   r.upper.assign(n, std::numeric_limits<double>::infinity());
@@ -290,21 +293,67 @@ RoundProblem prepare_round(const GaussianMixture& mixture, const SampleSet& samp
   return r;
 }
 
-// The configured optimizer on one round's problem.
-RoundOutcome solve_round(RoundProblem& r, const SampleSet& samples, const GmfOptions& options,
-                         ceres::Manifold& quaternion_manifold, double min_voxel, int max_iterations,
-                         double seconds_left, FitLog& log, int round, int iteration0) {
-  const int K = static_cast<int>(r.params.size());
-  if (options.optimizer == Optimizer::kLbfgs || options.optimizer == Optimizer::kAdam) {
-    const FitObjective objective(samples, r.index, r.params.size(), options.mahalanobis_cutoff);
-    return options.optimizer == Optimizer::kLbfgs
-               ? solve_lbfgs(objective, r.x(), r.lower, r.upper, max_iterations, seconds_left, log, round, iteration0,
-                             K)
-               : solve_adam(objective, r.x(), r.lower, r.upper, options, max_iterations, seconds_left, min_voxel, log,
-                            round, iteration0, K);
+// What the optimizers keep between rounds.
+struct SolverState {
+  Adam<double> adam;  // the moments, kept while K does not change
+};
+
+// The brick sweep as one round: the partition of this round's Gaussians and one
+// sweep in which each brick gets gmf.brick_iterations LM iterations.
+RoundOutcome solve_bricks(RoundProblem& r, const SampleSet& samples, const io::WorldFrame& frame,
+                          const GmfOptions& options, const MixtureModel& model, double seconds_left, FitLog& log,
+                          int round, int iteration0) {
+  io::Stopwatch watch;
+  {  // the round's starting loss, as the other solvers log it (their iteration 0)
+    const FitObjective objective(samples, r.index, r.params.size(), model);
+    FitIteration it;
+    it.round = round;
+    it.iteration = iteration0;
+    it.seconds = log.clock.now();
+    it.loss = objective.evaluate(r.x(), nullptr);
+    it.gaussians = static_cast<int>(r.params.size());
+    it.beta = log_beta(model);
+    if (log.add(it)) return RoundOutcome{.message = "reached gmf.stop_loss"};
   }
-  return solve_least_squares(samples, r.index, r.params, r.lower, r.upper, quaternion_manifold, options, max_iterations,
-                             seconds_left, log, round, iteration0, K);
+  const BrickPartition partition =
+      partition_into_bricks(r.params, r.index, frame, options.brick_voxels, options.brick_gaussians);
+  BrickSweepOptions so;
+  so.model = model;
+  so.iterations = options.brick_iterations;
+  so.seconds_left = seconds_left - watch.elapsed();
+  const BrickSweepStats stats = sweep_bricks(samples, r.index, partition, r.params, r.lower, r.upper, so);
+  RoundOutcome out;
+  out.iterations = static_cast<int>(std::min<std::int64_t>(stats.iterations, 1 << 30));
+  out.message = "brick LM: " + std::to_string(partition.gaussians.size()) + " bricks in " +
+                std::to_string(partition.colours.size()) + " colours" +
+                (stats.bricks_skipped > 0 ? ", " + std::to_string(stats.bricks_skipped) + " left for time" : "");
+  return out;
+}
+
+// The configured optimizer on one round's problem.
+RoundOutcome solve_round(RoundProblem& r, const SampleSet& samples, const io::WorldFrame& frame,
+                         const GmfOptions& options, const MixtureModel& model, SolverState& state,
+                         ceres::Manifold& manifold, int max_iterations, double seconds_left, FitLog& log, int round,
+                         int iteration0) {
+  const int K = static_cast<int>(r.params.size());
+  const double min_voxel = frame.voxel_size().minCoeff();
+  switch (options.optimizer) {
+    case Optimizer::kBrickLm:
+      return solve_bricks(r, samples, frame, options, model, seconds_left, log, round, iteration0);
+    case Optimizer::kLbfgs: {
+      const FitObjective objective(samples, r.index, r.params.size(), model);
+      return solve_lbfgs(objective, r.x(), r.lower, r.upper, max_iterations, seconds_left, log, round, iteration0, K,
+                         log_beta(model));
+    }
+    case Optimizer::kAdam: {
+      const FitObjective objective(samples, r.index, r.params.size(), model);
+      return solve_adam(objective, r.x(), r.lower, r.upper, options, state.adam, max_iterations, seconds_left,
+                        min_voxel, log, round, iteration0, K, log_beta(model));
+    }
+    default:
+      return solve_least_squares(samples, r.index, r.params, r.lower, r.upper, manifold, options, model, max_iterations,
+                                 seconds_left, log, round, iteration0, K);
+  }
 }
 
 // Back to float, pruning a < prune_intensity; returns how many were pruned.
@@ -316,19 +365,24 @@ int take_round_result(const RoundProblem& r, const GmfOptions& options, Gaussian
   return pruned;
 }
 
-// The log line that ends a round, with the 3D PSNR (its time is not charged to the fit).
-FitIteration end_of_round(const GaussianMixture& mixture, const io::Volume& volume, const io::WorldFrame& frame,
-                          const GmfOptions& options, FitClock& clock, int round, int iterations, double loss) {
-  FitIteration end;
-  end.round = round;
-  end.iteration = iterations;
-  end.seconds = clock.now();
-  end.loss = loss;
-  io::Stopwatch measuring;
-  end.psnr_3d = psnr(rasterize_mixture(mixture, frame, {.cutoff = options.mahalanobis_cutoff}), volume.voxels);
-  clock.excluded += measuring.elapsed();
-  end.gaussians = static_cast<int>(mixture.size());
-  return end;
+// The loss and the foreground PSNR of `mixture` under `model` (one evaluation of
+// every sample block).
+struct SampleFit {
+  double loss = 0;
+  double psnr_fg = 0;
+};
+SampleFit measure_on_samples(const GaussianMixture& mixture, const SampleSet& samples, const io::WorldFrame& frame,
+                             const MixtureModel& model) {
+  const BlockIndex index = build_block_index(mixture, samples, frame, model.cutoff);
+  const FitObjective objective(samples, index, mixture.size(), model);
+  std::vector<double> x(mixture.size() * kGaussianParamCount);
+  const auto flat = flat_params(mixture);
+  std::copy(flat.begin(), flat.end(), x.begin());
+  double fg = 0;
+  SampleFit out;
+  out.loss = objective.evaluate(x.data(), nullptr, &fg);
+  out.psnr_fg = samples.foreground > 0 ? psnr_from_mse(fg / static_cast<double>(samples.foreground)) : 0.0;
+  return out;
 }
 
 }  // namespace
@@ -341,52 +395,75 @@ FitResult fit_mixture(const io::Volume& volume, const io::SparseGrid& grid, Gaus
   FitLog log{result, clock, on_progress, options.stop_loss};
   const io::WorldFrame frame = grid.frame();
   const SampleSet samples = extract_samples(grid, options.background_weight, options.residual_block_voxels);
-  ceres::QuaternionManifold quaternion_manifold;
+  detail::GaussianManifold manifold;
+  SolverState state;
   int iterations = 0;
+  MixtureModel model = options.model(0);
+  // The round's measurement and density control must fit after its solve: the
+  // solve gets the time left minus what they took last round.
+  double overhead = 0;
   for (int round = 0; round < options.rounds; ++round) {
-    const double left = options.time_budget_s - clock.now();
+    const double left = options.time_budget_s - clock.now() - overhead;
     if (left <= 0) {
       result.stop_reason = "time budget";
       break;
     }
+    model = options.model(round);
     int round_iterations = options.iterations_per_round;
     if (options.max_iterations > 0) round_iterations = std::min(round_iterations, options.max_iterations - iterations);
     RoundProblem problem = prepare_round(mixture, samples, frame, options);
-    const RoundOutcome outcome =
-        solve_round(problem, samples, options, quaternion_manifold, frame.voxel_size().minCoeff(), round_iterations,
-                    left, log, round, iterations);
+    const RoundOutcome outcome = solve_round(problem, samples, frame, options, model, state, manifold, round_iterations,
+                                             left, log, round, iterations);
+    const double solved_at = clock.now();
     iterations += outcome.iterations;
     result.stop_reason = outcome.message;
     FitRound stats;
     stats.round = round;
     stats.pruned = take_round_result(problem, options, mixture);
     result.pruned += stats.pruned;
-    const FitIteration end =
-        end_of_round(mixture, volume, frame, options, clock, round, iterations, outcome.final_loss);
+    const SampleFit fit = measure_on_samples(mixture, samples, frame, model);
+    FitIteration end;
+    end.round = round;
+    end.iteration = iterations;
+    end.seconds = clock.now();
+    end.loss = fit.loss;
+    end.psnr_fg = fit.psnr_fg;
+    end.gaussians = static_cast<int>(mixture.size());
+    end.beta = log_beta(model);
     log.add(end);
-    result.final_psnr_3d = end.psnr_3d;
+    result.final_psnr_fg = fit.psnr_fg;
     const bool last = log.reached_stop_loss || (options.max_iterations > 0 && iterations >= options.max_iterations);
-    if (log.reached_stop_loss)
+    if (log.reached_stop_loss) {
       result.stop_reason = "reached gmf.stop_loss";
-    else if (last)
+    } else if (last) {
       result.stop_reason = "gmf.max_iterations";
+    }
     // Density control for the next round (not after the last one, nor when out of time).
     if (!last && options.densify && round + 1 < options.rounds && clock.now() < options.time_budget_s) {
-      const BrickIndex current = build_brick_index(mixture, samples, frame, options.mahalanobis_cutoff);
-      const DensityChange change = adapt_density(mixture, samples, current, frame, options);
+      const BlockIndex current = build_block_index(mixture, samples, frame, options.mahalanobis_cutoff);
+      const DensityChange change = adapt_density(mixture, samples, current, frame, options, model);
       stats.split = change.split;
       stats.cloned = change.cloned;
     }
+    overhead = clock.now() - solved_at;
     if (!last) stats.gaussians = static_cast<int>(mixture.size());
     result.rounds.push_back(stats);
     if (last) break;
-    if (outcome.converged && round > 0 && stats.split == 0 && stats.cloned == 0) {
+    if (outcome.converged && round > 0 && stats.split == 0 && stats.cloned == 0 &&
+        options.model(round + 1).beta == model.beta) {
       result.stop_reason = "converged: " + outcome.message;
       break;
     }
   }
   result.seconds = clock.now();
-  result.measuring_seconds = clock.excluded;
+  result.final_beta = log_beta(model);
+  io::Stopwatch measuring;
+  result.final_psnr_3d = psnr(rasterize_mixture(mixture, frame, RasterizeOptions::of(model)), volume.voxels);
+  result.measuring_seconds = measuring.elapsed();
+  FitIteration final_line = result.log.empty() ? FitIteration{} : result.log.back();
+  final_line.psnr_3d = result.final_psnr_3d;
+  final_line.gaussians = static_cast<int>(mixture.size());
+  log.add(final_line);
   return result;
 }
 

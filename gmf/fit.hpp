@@ -1,6 +1,6 @@
 // SPDX-License-Identifier: Apache-2.0
 // The GMF fit (report §2.1, §5): least squares of the mixture against the
-// volume's sparse samples with Ceres, in rounds; between rounds the brick index
+// volume's sparse samples with Ceres, in rounds; between rounds the block index
 // is rebuilt, faint Gaussians are pruned and density control splits and clones
 // (gmf/density.hpp). Ceres stays inside fit.cpp.
 #pragma once
@@ -16,14 +16,17 @@
 
 namespace hisnegs::gmf {
 
-// One line of the fit log (one solver iteration, or a round's end when psnr_3d is set).
+// One line of the fit log: one solver iteration, or a round's end (psnr_fg set),
+// or the final measurement (psnr_3d set).
 struct FitIteration {
   int round = 0;
   int iteration = 0;    // cumulative solver iterations
-  double seconds = 0;   // wall clock since the fit started, without measuring (FitResult::measuring_seconds)
-  double loss = 0;      // ½ Σ w² (f − V)² over all samples
+  double seconds = 0;   // wall clock since the fit started (the final measurement excluded)
+  double loss = 0;      // ½ Σ w² (f − V)² over all samples, f at the round's β
+  double psnr_fg = -1;  // over the foreground samples (the sparse grid's foreground and band); < 0 when not computed
   double psnr_3d = -1;  // over all voxels; < 0 when not computed at this line
   int gaussians = 0;    // K
+  double beta = 0;      // the round's softmax β (0 for a sum)
 };
 
 // What density control did at the end of a round.
@@ -36,16 +39,21 @@ struct FitRound {
 struct FitResult {
   std::vector<FitIteration> log;
   std::vector<FitRound> rounds;
-  double seconds = 0;            // wall clock of the fit without measuring_seconds
-  double measuring_seconds = 0;  // spent on the 3D PSNR after each round (not charged to the optimizer)
-  double final_psnr_3d = 0;
+  double seconds = 0;            // wall clock of the fit, within gmf.time_budget_s
+  double measuring_seconds = 0;  // the final all-voxel 3D PSNR, after the fit
+  double final_psnr_3d = 0;      // all voxels, the model's own aggregation at final_beta
+  double final_psnr_fg = 0;      // foreground samples
+  double final_beta = 0;         // β of the last round (0 for a sum)
   int pruned = 0;
   std::string stop_reason;
 };
 
 // Fits `mixture` (modified in place) to `volume` (normalized) using the samples of
-// `grid`. `on_progress` is called for every log line. Optimizers: lm, lm-cgnr,
-// dogleg (Ceres least squares), lbfgs (ceres::GradientProblem) and adam.
+// `grid`, with gmf.aggregation (sum, or softmax along the β schedule). Optimizers:
+// brick-lm (gmf/brick_solver.hpp), lm, lm-cgnr, dogleg (one global Ceres least-
+// squares problem per round), lbfgs (ceres::GradientProblem) and adam. No solver
+// starts work after gmf.time_budget_s; the final 3D PSNR is measured after it.
+// `on_progress` is called for every log line.
 FitResult fit_mixture(const io::Volume& volume, const io::SparseGrid& grid, GaussianMixture& mixture,
                       const GmfOptions& options, const std::function<void(const FitIteration&)>& on_progress = {});
 

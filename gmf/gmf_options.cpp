@@ -1,6 +1,10 @@
 // SPDX-License-Identifier: Apache-2.0
-// GmfOptions::validate.
+// GmfOptions::validate and the round's mixture model.
 #include "gmf/gmf_options.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <string>
 
 namespace hisnegs::gmf {
 
@@ -21,10 +25,27 @@ void GmfOptions::validate() const {
   io::require_in_range(s, "background_fraction", background_fraction, 0.0, 1.0);
   io::require_in_range(s, "background_weight", background_weight, 0.0, 1e9);
   io::require_positive(s, "adam_learning_rate", adam_learning_rate);
+  io::require_in_range(s, "beta_start", beta_start, 1e-6, 1e4);
+  io::require_in_range(s, "beta_end", beta_end, beta_start, 1e4);
+  io::require_in_range(s, "beta_growth", beta_growth, 1.0, 1e3);
+  io::require_in_range(s, "brick_voxels", brick_voxels, 2, 256);
+  if ((brick_voxels & (brick_voxels - 1)) != 0) {
+    io::fail_option(s, "brick_voxels", std::to_string(brick_voxels), "must be a power of two");
+  }
+  io::require_in_range(s, "brick_gaussians", brick_gaussians, 1, 10000);
+  io::require_in_range(s, "brick_iterations", brick_iterations, 1, 1000);
   if (residual_block_voxels != 1 && residual_block_voxels != 2 && residual_block_voxels != 4 &&
       residual_block_voxels != 8) {
     io::fail_option(s, "residual_block_voxels", std::to_string(residual_block_voxels), "must be 1, 2, 4 or 8");
   }
+}
+
+MixtureModel GmfOptions::model(int round) const {
+  MixtureModel m;
+  m.aggregation = aggregation;
+  m.cutoff = mahalanobis_cutoff;
+  m.beta = std::min(beta_end, beta_start * std::pow(beta_growth, round));
+  return m;
 }
 
 }  // namespace hisnegs::gmf

@@ -1,26 +1,46 @@
 // SPDX-License-Identifier: Apache-2.0
-// Options of the GMF stage (config section `gmf`): budget, optimizer choice,
-// stopping, density control. Consumed by the Ceres fit (gmf/fit.*).
+// Options of the GMF stage (config section `gmf`): budget, the mixture's
+// aggregation and β schedule, optimizer choice, stopping, density control.
+// Consumed by the Ceres fit (gmf/fit.*).
 #pragma once
 
 #include <cstdint>
 #include <string>
 
+#include "gmf/aggregation.hpp"
 #include "io/config.hpp"
 
 namespace hisnegs::gmf {
 
-enum class Optimizer { kLevenbergMarquardt, kLevenbergMarquardtCgnr, kDogleg, kLbfgs, kAdam };
+enum class Optimizer { kBrickLm, kLevenbergMarquardt, kLevenbergMarquardtCgnr, kDogleg, kLbfgs, kAdam };
+
+// Where the fit's Gaussians start: one per occupied cell of a regular grid over the
+// foreground, or one per local maximum of the (lightly smoothed) volume.
+enum class FitInit { kGrid, kMaxima };
 
 struct GmfOptions {
   int gaussians = 20000;  // Gaussian budget K for init and density control, [1, 10^7]
-  // lm | lm-cgnr | dogleg | lbfgs | adam. Default lm-cgnr: on the synthetic default
-  // (3000 Gaussians) it took 0.55 s per iteration and reached 43.5 dB 3D PSNR in
-  // 1.6 s, where lm with SPARSE_NORMAL_CHOLESKY took 10-21 s per iteration.
-  Optimizer optimizer = Optimizer::kLevenbergMarquardtCgnr;
-  double time_budget_s = 300.0;      // wall-clock limit of the whole fit, seconds, > 0
-  int rounds = 6;                    // density-control rounds (solve, split/clone/prune), [1, 1000]
-  int iterations_per_round = 25;     // solver iterations per round, [1, 100000]
+  // What the mixture's value is: `softmax` fits f_β = Σ w_k g_k, w = softmax(β g)
+  // (report Eq. 8 in 3D), which tends to max_k g_k, the value every MIP splat shows;
+  // `sum` fits the report's Eq. 1 (density export). docs/user-guide.md says which to
+  // use for what.
+  Aggregation aggregation = Aggregation::kSoftmax;
+  // The softmax β schedule: β of round r is min(beta_end, beta_start · beta_growth^r).
+  double beta_start = 8.0;   // > 0
+  double beta_end = 64.0;    // >= beta_start
+  double beta_growth = 2.0;  // >= 1
+  // adam | brick-lm | lm | lm-cgnr | dogleg | lbfgs. brick-lm: exact LM on small
+  // local problems (gmf/brick_solver.hpp), swept colour by colour; the others solve
+  // one global problem per round. Adam is the default because it fits the softmax
+  // objective best of all of them on the shared stacks (docs/benchmarks.md, issue 17:
+  // the brick LM does not yet reach it).
+  Optimizer optimizer = Optimizer::kAdam;
+  FitInit init = FitInit::kGrid;  // grid | maxima
+  // Wall-clock limit of the whole fit, seconds, > 0: the fit stops before it.
+  double time_budget_s = 240.0;
+  int rounds = 12;  // rounds (solve, then split/clone/prune), [1, 1000]
+  // Iterations per round of the global solvers and Adam (steps), [1, 100000].
+  int iterations_per_round = 40;
   int max_iterations = 0;            // cap on solver iterations over all rounds; 0 = none, [0, 10^9]
   double stop_loss = 0.0;            // stop once the loss is at or below this; 0 = never, >= 0
   double mahalanobis_cutoff = 16.0;  // δ: support of a Gaussian is dᵀΣ⁻¹d <= δ (4σ), > 0
@@ -42,19 +62,33 @@ struct GmfOptions {
   // block)²; 2 was the fastest per exact-LM iteration on the synthetic default
   // with 3000 Gaussians (figures in docs/benchmarks.md).
   int residual_block_voxels = 2;
+  // brick-lm: bricks start as cubes of this many voxels (a power of two, [2, 256])
+  // and are halved while they hold more than brick_gaussians Gaussians, [1, 10^4].
+  int brick_voxels = 32;
+  int brick_gaussians = 32;
+  int brick_iterations = 8;          // brick-lm: LM iterations per brick per round, [1, 1000]
   double adam_learning_rate = 0.01;  // Adam baseline step size, > 0
   std::uint64_t seed = 0;            // init jitter and sampling seed
 
+  // The mixture model of round `round` (its β from the schedule).
+  [[nodiscard]] MixtureModel model(int round) const;
   void validate() const;  // throws InputError("gmf.FIELD = VALUE: rule")
   template <class V>
   void visit(V&& v) {
     v("gaussians", gaussians);
+    v("aggregation", aggregation,
+      io::EnumNames<Aggregation>{{"softmax", Aggregation::kSoftmax}, {"sum", Aggregation::kSum}});
+    v("beta_start", beta_start);
+    v("beta_end", beta_end);
+    v("beta_growth", beta_growth);
     v("optimizer", optimizer,
-      io::EnumNames<Optimizer>{{"lm", Optimizer::kLevenbergMarquardt},
+      io::EnumNames<Optimizer>{{"brick-lm", Optimizer::kBrickLm},
+                               {"lm", Optimizer::kLevenbergMarquardt},
                                {"lm-cgnr", Optimizer::kLevenbergMarquardtCgnr},
                                {"dogleg", Optimizer::kDogleg},
                                {"lbfgs", Optimizer::kLbfgs},
                                {"adam", Optimizer::kAdam}});
+    v("init", init, io::EnumNames<FitInit>{{"grid", FitInit::kGrid}, {"maxima", FitInit::kMaxima}});
     v("time_budget_s", time_budget_s);
     v("rounds", rounds);
     v("iterations_per_round", iterations_per_round);
@@ -70,6 +104,9 @@ struct GmfOptions {
     v("background_fraction", background_fraction);
     v("background_weight", background_weight);
     v("residual_block_voxels", residual_block_voxels);
+    v("brick_voxels", brick_voxels);
+    v("brick_gaussians", brick_gaussians);
+    v("brick_iterations", brick_iterations);
     v("adam_learning_rate", adam_learning_rate);
     v("seed", seed);
   }

@@ -29,7 +29,7 @@ std::uint64_t cell_key(const Eigen::Vector3d& p, const Eigen::Vector3d& corner, 
 }  // namespace
 
 GaussianMixture initialize_on_grid(const io::Volume& volume, const io::WorldFrame& frame, double threshold, int budget,
-                                   InitReport* report) {
+                                   InitReport* report, InitIntensity intensity) {
   std::vector<Eigen::Vector3d> pos;
   std::vector<float> val;
   for (int z = 0; z < volume.nz; ++z)
@@ -85,12 +85,85 @@ GaussianMixture initialize_on_grid(const io::Volume& volume, const io::WorldFram
   for (const auto& [key, c] : sorted) {
     // σ = half a grid step, but never below half a voxel along an axis.
     const Eigen::Vector3d sigma = (0.5 * voxel).cwiseMax(0.5 * cell);
-    const GaussianParams g = isotropic_gaussian(Eigen::Vector3d(c.px, c.py, c.pz) / c.wsum, sigma, c.vsum / c.count);
+    const Eigen::Vector3d centre = Eigen::Vector3d(c.px, c.py, c.pz) / c.wsum;
+    const double a =
+        intensity == InitIntensity::kCellMean ? c.vsum / c.count : io::sample_trilinear(volume, frame, centre);
+    const GaussianParams g = isotropic_gaussian(centre, sigma, a);
     mixture.push_back(g);
   }
   if (report) {
     report->cell_world = cell;
     report->foreground = static_cast<std::int64_t>(pos.size());
+  }
+  return mixture;
+}
+
+GaussianMixture initialize_mixture(const io::Volume& volume, const io::WorldFrame& frame, double threshold,
+                                   const GmfOptions& options, InitReport* report) {
+  if (options.init == FitInit::kMaxima)
+    return initialize_at_maxima(volume, frame, threshold, options.gaussians, report);
+  return initialize_on_grid(
+      volume, frame, threshold, options.gaussians, report,
+      options.aggregation == Aggregation::kSum ? InitIntensity::kCellMean : InitIntensity::kAtCentre);
+}
+
+GaussianMixture initialize_at_maxima(const io::Volume& volume, const io::WorldFrame& frame, double threshold,
+                                     int budget, InitReport* report) {
+  // Local maxima: foreground voxels no 26-neighbour exceeds (ties: the first in
+  // index order wins, so a plateau gives one).
+  struct Peak {
+    float value;
+    std::int64_t index;
+  };
+  std::vector<Peak> peaks;
+  std::int64_t foreground = 0;
+  const auto at = [&](int x, int y, int z) { return volume.at(x, y, z); };
+  for (int z = 0; z < volume.nz; ++z)
+    for (int y = 0; y < volume.ny; ++y)
+      for (int x = 0; x < volume.nx; ++x) {
+        const float v = at(x, y, z);
+        if (!(v > threshold)) continue;
+        ++foreground;
+        bool peak = true;
+        for (int dz = -1; dz <= 1 && peak; ++dz)
+          for (int dy = -1; dy <= 1 && peak; ++dy)
+            for (int dx = -1; dx <= 1 && peak; ++dx) {
+              const int xn = x + dx, yn = y + dy, zn = z + dz;
+              if ((dx == 0 && dy == 0 && dz == 0) || xn < 0 || yn < 0 || zn < 0 || xn >= volume.nx || yn >= volume.ny ||
+                  zn >= volume.nz) {
+                continue;
+              }
+              const float w = at(xn, yn, zn);
+              const bool before = dz < 0 || (dz == 0 && (dy < 0 || (dy == 0 && dx < 0)));
+              if (w > v || (w == v && before)) peak = false;
+            }
+        if (peak) peaks.push_back({v, (static_cast<std::int64_t>(z) * volume.ny + y) * volume.nx + x});
+      }
+  if (foreground == 0) {
+    throw io::InputError(volume.source + ": no voxel above the foreground threshold " + std::to_string(threshold) +
+                         "; lower sparse_grid.threshold");
+  }
+  std::sort(peaks.begin(), peaks.end(), [](const Peak& a, const Peak& b) {
+    return a.value > b.value || (a.value == b.value && a.index < b.index);
+  });
+  if (peaks.size() > static_cast<std::size_t>(budget)) peaks.resize(static_cast<std::size_t>(budget));
+  // σ: half the spacing the peaks would have if spread evenly over the foreground.
+  const Eigen::Vector3d voxel = frame.voxel_size();
+  const double voxel_volume = voxel.prod();
+  const double spacing =
+      std::cbrt(static_cast<double>(foreground) * voxel_volume / std::max<std::size_t>(1, peaks.size()));
+  const Eigen::Vector3d sigma = (0.5 * voxel).cwiseMax(Eigen::Vector3d::Constant(0.5 * spacing));
+  GaussianMixture mixture;
+  mixture.reserve(peaks.size());
+  for (const Peak& p : peaks) {
+    const int x = static_cast<int>(p.index % volume.nx);
+    const int y = static_cast<int>(p.index / volume.nx % volume.ny);
+    const int z = static_cast<int>(p.index / (static_cast<std::int64_t>(volume.nx) * volume.ny));
+    mixture.push_back(isotropic_gaussian(frame.world_from_index(Eigen::Vector3d(x, y, z)), sigma, p.value));
+  }
+  if (report) {
+    report->cell_world = spacing;
+    report->foreground = foreground;
   }
   return mixture;
 }

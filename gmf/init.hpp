@@ -1,12 +1,13 @@
 // SPDX-License-Identifier: Apache-2.0
 // Initial Gaussians for the GMF fit (report §5.1): one per occupied cell of a
-// regular world-space grid over the foreground, the cell size chosen so that
-// the count meets the budget; centres at the cell's intensity-weighted centroid,
-// scales from the grid step, intensities from the local values. Rasterizing a
-// mixture is gmf/rasterize.hpp's.
+// regular world-space grid over the foreground, the cell size chosen so that the
+// count meets the budget (centres at the cell's intensity-weighted centroid, scales
+// from the grid step, intensities from the local values); or one per local maximum
+// of the volume. Rasterizing a mixture is gmf/rasterize.hpp's.
 #pragma once
 
 #include "gmf/gaussian_mixture.hpp"
+#include "gmf/gmf_options.hpp"
 #include "io/volume.hpp"
 
 namespace hisnegs::gmf {
@@ -17,10 +18,28 @@ struct InitReport {
   std::int64_t foreground = 0;  // voxels above the threshold
 };
 
+// Where a grid Gaussian's intensity comes from: the mean of its cell's foreground
+// voxels (right for a sum, whose terms add up) or the volume at its centre (right
+// for a max-mixture, where each term alone must reach the volume).
+enum class InitIntensity { kCellMean, kAtCentre };
+
 // `volume` normalized; foreground = voxels > threshold. Returns at most `budget`
 // Gaussians (as close to it as the grid allows). Throws io::InputError when no
 // voxel is above the threshold.
 GaussianMixture initialize_on_grid(const io::Volume& volume, const io::WorldFrame& frame, double threshold, int budget,
-                                   InitReport* report = nullptr);
+                                   InitReport* report = nullptr, InitIntensity intensity = InitIntensity::kCellMean);
+
+// One Gaussian per local maximum of the foreground (no 26-neighbour brighter), the
+// brightest `budget` of them, each isotropic with a = its voxel's value and σ half
+// the spacing they would have spread evenly over the foreground (at least half a
+// voxel). report->cell_world gets that spacing. Throws as initialize_on_grid.
+GaussianMixture initialize_at_maxima(const io::Volume& volume, const io::WorldFrame& frame, double threshold,
+                                     int budget, InitReport* report = nullptr);
+
+// The fit's start as `options` ask: gmf.init (grid or maxima) with gmf.gaussians,
+// grid intensities by the aggregation (cell mean for a sum, the value at the centre
+// for a softmax).
+GaussianMixture initialize_mixture(const io::Volume& volume, const io::WorldFrame& frame, double threshold,
+                                   const GmfOptions& options, InitReport* report = nullptr);
 
 }  // namespace hisnegs::gmf

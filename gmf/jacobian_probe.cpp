@@ -10,13 +10,13 @@
 #include <random>
 #include <vector>
 
-#include "gmf/detail/brick_cost.hpp"
+#include "gmf/detail/block_cost.hpp"
 
 namespace hisnegs::gmf {
 namespace {
 
 struct ResidualsOnly {
-  const detail::BrickCost* cost;
+  const detail::BlockCost* cost;
   bool operator()(double const* const* p, double* r) const { return cost->Evaluate(p, r, nullptr); }
 };
 
@@ -27,7 +27,7 @@ struct JacobianProbe::Impl {
   std::vector<std::array<double, kGaussianParamCount>> params;
   std::vector<double*> blocks;
   std::vector<std::uint32_t> ids;
-  std::unique_ptr<detail::BrickCost> analytic;
+  std::unique_ptr<detail::BlockCost> analytic;
   std::unique_ptr<ceres::CostFunction> cost;  // the method's; null for kAnalytic
   std::vector<std::vector<double>> J;
   std::vector<double*> jac;
@@ -41,8 +41,8 @@ JacobianProbe::JacobianProbe(int n_samples, int n_gaussians, JacobianMethod meth
   Impl& d = *impl_;
   std::mt19937_64 rng(seed);
   std::uniform_real_distribution<double> u(-1, 1), v(0, 1);
-  d.samples.brick_begin = {0, static_cast<std::uint32_t>(n_samples)};
-  d.samples.brick_origin = {{0, 0, 0}};
+  d.samples.block_begin = {0, static_cast<std::uint32_t>(n_samples)};
+  d.samples.block_origin = {{0, 0, 0}};
   d.samples.block = 4;
   for (int i = 0; i < n_samples; ++i) {
     d.samples.x.push_back(0.02 * u(rng));
@@ -59,13 +59,10 @@ JacobianProbe::JacobianProbe(int n_samples, int n_gaussians, JacobianMethod meth
     p[kLogit] = u(rng);
   }
   for (auto& p : d.params) {
-    d.blocks.push_back(&p[kMeanX]);
-    d.blocks.push_back(&p[kLogScale0]);
-    d.blocks.push_back(&p[kRotW]);
-    d.blocks.push_back(&p[kLogit]);
+    d.blocks.push_back(p.data());
     d.ids.push_back(static_cast<std::uint32_t>(d.ids.size()));
   }
-  d.analytic = std::make_unique<detail::BrickCost>(d.samples, 0, d.ids, 16.0);
+  d.analytic = std::make_unique<detail::BlockCost>(d.samples, 0, d.ids.size(), MixtureModel{});
   if (method == JacobianMethod::kNumericCentral) {
     auto numeric = std::make_unique<ceres::DynamicNumericDiffCostFunction<ResidualsOnly, ceres::CENTRAL>>(
         new ResidualsOnly{d.analytic.get()});
@@ -73,9 +70,9 @@ JacobianProbe::JacobianProbe(int n_samples, int n_gaussians, JacobianMethod meth
     numeric->SetNumResiduals(d.analytic->num_residuals());
     d.cost = std::move(numeric);
   } else if (method == JacobianMethod::kAutoDiff) {
-    auto* functor =
-        new detail::BrickResiduals{&d.samples, 0, static_cast<std::uint32_t>(n_samples), d.params.size(), 16.0};
-    auto autodiff = std::make_unique<ceres::DynamicAutoDiffCostFunction<detail::BrickResiduals, 4>>(functor);
+    auto* functor = new detail::BlockResiduals{
+        &d.samples, 0, static_cast<std::uint32_t>(n_samples), d.params.size(), MixtureModel{}, {}};
+    auto autodiff = std::make_unique<ceres::DynamicAutoDiffCostFunction<detail::BlockResiduals, 4>>(functor);
     for (int size : d.analytic->parameter_block_sizes()) autodiff->AddParameterBlock(size);
     autodiff->SetNumResiduals(d.analytic->num_residuals());
     d.cost = std::move(autodiff);

@@ -1,6 +1,6 @@
 // SPDX-License-Identifier: Apache-2.0
 // One residual block of the stage-1 fit with its Jacobian, evaluated the three ways
-// Ceres offers (the analytic BrickCost, DynamicNumericDiffCostFunction with central
+// Ceres offers (the analytic BlockCost, DynamicNumericDiffCostFunction with central
 // differences, DynamicAutoDiffCostFunction with Jets), on a fixed random block:
 // what `hisnegs bench gmf` times. Ceres stays in the .cpp.
 #pragma once

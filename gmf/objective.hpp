@@ -2,28 +2,30 @@
 // The GMF loss ½ Σ w² (f − V)² over every residual block and its gradient with
 // respect to all parameters (flat: Gaussian k's at kGaussianParamCount × k, in
 // GaussianParam order), for the first-order optimizers (L-BFGS, Adam). Built
-// from the same BrickCost blocks as the least-squares problem. Ceres stays in the .cpp.
+// from the same BlockCost blocks as the least-squares problem. Ceres stays in the .cpp.
 #pragma once
 
 #include <memory>
 
-#include "gmf/brick_index.hpp"
+#include "gmf/aggregation.hpp"
+#include "gmf/block_index.hpp"
 #include "gmf/samples.hpp"
 
 namespace hisnegs::gmf {
 
 class FitObjective {
  public:
-  // Keeps references to `samples` and `index`.
-  FitObjective(const SampleSet& samples, const BrickIndex& index, std::size_t gaussians, double cutoff);
+  // Keeps references to `samples` and `index`; `model` says how terms combine.
+  FitObjective(const SampleSet& samples, const BlockIndex& index, std::size_t gaussians, const MixtureModel& model);
   ~FitObjective();
   FitObjective(const FitObjective&) = delete;
   FitObjective& operator=(const FitObjective&) = delete;
 
   // Loss at `params` (kGaussianParamCount × K values); fills `gradient` (as many)
-  // when not null. TBB-parallel
-  // over fixed chunks of residual blocks, combined in chunk order (deterministic).
-  double evaluate(const double* params, double* gradient) const;
+  // when not null, and `foreground_se` with Σ (f − V)² over the foreground samples
+  // (the sparse grid's foreground and band) when not null. TBB-parallel over fixed
+  // chunks of residual blocks, combined in chunk order (deterministic).
+  double evaluate(const double* params, double* gradient, double* foreground_se = nullptr) const;
   [[nodiscard]] std::size_t parameters() const { return kGaussianParamCount * gaussians_; }
   // ½ Σ (w V)² of the samples no Gaussian reaches (included in evaluate()).
   [[nodiscard]] double constant() const { return constant_; }
@@ -33,6 +35,7 @@ class FitObjective {
   std::unique_ptr<Blocks> blocks_;
   std::size_t gaussians_;
   double constant_ = 0;
+  double unreached_foreground_se_ = 0;  // Σ V² of the foreground samples no Gaussian reaches
 };
 
 }  // namespace hisnegs::gmf

@@ -83,6 +83,7 @@ bool place_support(Support& s, const VoxelLattice& lattice) {
 
 struct BlockRasterizer::Impl {
   VoxelLattice lattice;
+  RasterizeOptions options;
   std::vector<Support> supports;
   std::vector<Pair> pairs;         // sorted: each block lists its Gaussians in mixture order
   std::vector<std::size_t> begin;  // block i holds pairs[begin[i] .. begin[i + 1])
@@ -156,6 +157,7 @@ BlockRasterizer::BlockRasterizer(const GaussianMixture& mixture, const VoxelLatt
     : impl_(std::make_unique<Impl>()) {
   lattice.validate();
   impl_->lattice = lattice;
+  impl_->options = options;
   const double total = impl_->build_supports(mixture, options, model);
   // Each candidate pair costs its 16 bytes plus, at worst, its own block slot. This
   // guards the bookkeeping, which scales with the supports; what a caller keeps per
@@ -185,7 +187,12 @@ void BlockRasterizer::evaluate(std::size_t b, BlockValues& out) const {
   const Eigen::Vector3i origin = block_origin(b);
   const Eigen::Vector3d& vs = d.lattice.voxel_size_world;
   const Eigen::Vector3d& org = d.lattice.origin_world;
+  const bool soft = d.options.aggregation == Aggregation::kSoftmax;
   out.fill(0.0);
+  std::array<SoftMaxState<double>, kRasterBlockVoxels> state;
+  if (soft) {
+    for (auto& st : state) softmax_init(st);
+  }
   for (std::size_t p = d.begin[b]; p < d.begin[b + 1]; ++p) {
     const Support& s = d.supports[d.pairs[p].gaussian];
     int lo[3], hi[3];
@@ -204,10 +211,20 @@ void BlockRasterizer::evaluate(std::size_t b, BlockValues& out) const {
           const double m = mahalanobis(s.f, xw, local);
           if (!(m <= s.m_max)) continue;
           // = evaluate_gaussian(s.f, xw, nullptr), without computing m twice.
-          out[block_offset(x - origin.x(), y - origin.y(), z - origin.z())] += s.f.a * std::exp(-0.5 * m);
+          const double term = s.f.a * std::exp(-0.5 * m);
+          const int at = block_offset(x - origin.x(), y - origin.y(), z - origin.z());
+          if (soft) {
+            softmax_add(state[static_cast<std::size_t>(at)], term, d.options.beta);
+          } else {
+            out[static_cast<std::size_t>(at)] += term;
+          }
         }
       }
     }
+  }
+  if (soft) {
+    for (int i = 0; i < kRasterBlockVoxels; ++i)
+      out[static_cast<std::size_t>(i)] = softmax_value(state[static_cast<std::size_t>(i)]);
   }
 }
 

@@ -1,6 +1,6 @@
 // SPDX-License-Identifier: Apache-2.0
-// The one 3D rasterizer of a mixture: f(x) = Σ_k a_k exp(-½ m_k(x)) (report Eq. 1)
-// at the voxel centres of a lattice, evaluated per 8³ block of voxels that some
+// The one 3D rasterizer of a mixture: f(x), the sum (report Eq. 1) or the softmax
+// (f_β) of the terms a_k exp(-½ m_k(x)), at the voxel centres of a lattice, evaluated per 8³ block of voxels that some
 // Gaussian's support reaches (so work and memory follow the supports, never their
 // bounding box), each voxel summing its Gaussians in mixture order (values do not
 // depend on the thread count). The dense volume, the fit's 3D PSNR, `export volume`
@@ -16,6 +16,7 @@
 #include <string>
 #include <vector>
 
+#include "gmf/aggregation.hpp"
 #include "gmf/gaussian_mixture.hpp"
 #include "io/volume.hpp"
 
@@ -47,12 +48,19 @@ struct VoxelLattice {
   void validate() const;
 };
 
-// Which terms a voxel's value sums: Gaussian k counts at x where m_k(x) <= cutoff
-// (δ, the renderer's support; infinity for none) and a_k exp(-m_k/2) >= tail (0 for
-// none).
+// Which terms a voxel's value combines and how: Gaussian k counts at x where
+// m_k(x) <= cutoff (δ, the renderer's support; infinity for none) and
+// a_k exp(-m_k/2) >= tail (0 for none); the counted terms are summed or combined by
+// the softmax at beta (gmf/aggregation.hpp).
 struct RasterizeOptions {
   double cutoff = std::numeric_limits<double>::infinity();
   double tail = 0.0;
+  Aggregation aggregation = Aggregation::kSum;
+  double beta = 1.0;
+  // The options that evaluate `model`'s f (its cutoff, aggregation and β).
+  [[nodiscard]] static RasterizeOptions of(const MixtureModel& model) {
+    return {model.cutoff, 0.0, model.aggregation, model.beta};
+  }
 };
 
 // Blocks are 8³ voxels (an OpenVDB leaf), aligned to multiples of 8 in index space.

@@ -30,8 +30,8 @@ SampleSet extract_samples(const io::SparseGrid& grid, double background_weight, 
     for (const auto& gr : groups) {
       if (gr.empty()) continue;
       const std::array<int, 3>& c0 = gr.front().index;
-      out.brick_begin.push_back(static_cast<std::uint32_t>(out.size()));
-      out.brick_origin.push_back({o[0] + (c0[0] - o[0]) / block * block, o[1] + (c0[1] - o[1]) / block * block,
+      out.block_begin.push_back(static_cast<std::uint32_t>(out.size()));
+      out.block_origin.push_back({o[0] + (c0[0] - o[0]) / block * block, o[1] + (c0[1] - o[1]) / block * block,
                                   o[2] + (c0[2] - o[2]) / block * block});
       for (const io::ActiveVoxel& v : gr) {
         const Eigen::Vector3d p = frame.world_from_index(Eigen::Vector3d(v.index[0], v.index[1], v.index[2]));
@@ -50,7 +50,7 @@ SampleSet extract_samples(const io::SparseGrid& grid, double background_weight, 
     grid.visit_active_leaves(io::SparseGridPart::kBackground,
                              [&](const auto& o, auto voxels) { add_leaf(o, voxels, bg_weight, out.background); });
   }
-  out.brick_begin.push_back(static_cast<std::uint32_t>(out.size()));
+  out.block_begin.push_back(static_cast<std::uint32_t>(out.size()));
   return out;
 }
 

@@ -15,19 +15,19 @@
 namespace hisnegs::gmf {
 
 struct SampleSet {
-  // Structure of arrays, one entry per sample, bricks stored contiguously.
+  // Structure of arrays, one entry per sample, blocks stored contiguously.
   std::vector<double> x, y, z;  // world position of the voxel centre
   std::vector<double> value;    // normalized intensity (the target)
   std::vector<double> weight;   // residual weight w: the loss is Σ w² (f(x) − value)²
-  // Brick b holds samples [brick_begin[b], brick_begin[b + 1]).
-  std::vector<std::uint32_t> brick_begin;
-  std::vector<std::array<int, 3>> brick_origin;  // index of the block's first voxel (multiples of `block`)
+  // Block b holds samples [block_begin[b], block_begin[b + 1]).
+  std::vector<std::uint32_t> block_begin;
+  std::vector<std::array<int, 3>> block_origin;  // index of the block's first voxel (multiples of `block`)
   int block = 8;                                 // block edge in voxels: 1, 2, 4 or 8
   std::int64_t foreground = 0;                   // samples from `volume` (weight 1)
   std::int64_t background = 0;                   // samples from `background`
 
   [[nodiscard]] std::size_t size() const { return value.size(); }
-  [[nodiscard]] std::size_t bricks() const { return brick_origin.size(); }
+  [[nodiscard]] std::size_t blocks() const { return block_origin.size(); }
 };
 
 // Extracts the samples, grouped in blocks of `block` ∈ {1, 2, 4, 8} voxels.

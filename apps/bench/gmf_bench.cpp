@@ -1,7 +1,7 @@
 // SPDX-License-Identifier: Apache-2.0
 // GMF benchmarks: one residual block (64 samples, 24 Gaussians, the size of a
 // dense 4^3 block) evaluated with its Jacobian three ways (gmf/jacobian_probe.hpp):
-// the analytic BrickCost, Ceres' central numeric differences and automatic
+// the analytic BlockCost, Ceres' central numeric differences and automatic
 // differentiation over the same templated residuals.
 #include <benchmark/benchmark.h>
 

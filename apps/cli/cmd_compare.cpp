@@ -23,7 +23,7 @@ void add_compare_command(CLI::App& app, GlobalOptions& global) {
   cmd->add_option("VOLUME", args->volume, "TIFF stack")->required();
   cmd->add_option("-o,--output", args->out, "output folder")->required();
   cmd->add_option("--optimizers", args->optimizers,
-                  "comma-separated subset of lm,lm-cgnr,dogleg,lbfgs,adam (default all)");
+                  "comma-separated subset of adam,brick-lm,lm-cgnr,lbfgs,lm,dogleg (default the first four)");
   cmd->add_option("--gaussians", args->gaussians, "Gaussian budget (gmf.gaussians)");
   cmd->add_option("--time-budget", args->compare.time_budget_s, "seconds per optimizer (default gmf.time_budget_s)");
   cmd->add_option("--adam-steps", args->compare.adam_steps, "Adam steps that define the target loss")

@@ -14,22 +14,13 @@
 namespace hisnegs::apps {
 namespace {
 
-std::string csv_of(const std::vector<gmf::FitIteration>& log) {
-  std::ostringstream s;
-  s.precision(10);
-  s << "iteration,seconds,loss,psnr_3d,gaussians,round\n";
-  for (const auto& it : log) {
-    s << it.iteration << "," << it.seconds << "," << it.loss << ",";
-    if (it.psnr_3d >= 0) s << it.psnr_3d;
-    s << "," << it.gaussians << "," << it.round << "\n";
-  }
-  return s.str();
-}
-
 void report_iteration(const gmf::FitIteration& it, const Progress& progress) {
   if (it.psnr_3d >= 0) {
-    progress.say("fit: round %d done: loss %.6g, 3D PSNR %.2f dB, K %d, %s", it.round, it.loss, it.psnr_3d,
-                 it.gaussians, format_seconds(it.seconds).c_str());
+    progress.say("fit: final model: 3D PSNR %.2f dB over all voxels, %.2f dB over the foreground, K %d", it.psnr_3d,
+                 it.psnr_fg, it.gaussians);
+  } else if (it.psnr_fg >= 0) {
+    progress.say("fit: round %d done: loss %.6g, foreground PSNR %.2f dB, K %d, beta %g, %s", it.round, it.loss,
+                 it.psnr_fg, it.gaussians, it.beta, format_seconds(it.seconds).c_str());
   } else {
     progress.say("fit: round %d iteration %d: loss %.6g, K %d, %s", it.round, it.iteration, it.loss, it.gaussians,
                  format_seconds(it.seconds).c_str());
@@ -37,6 +28,20 @@ void report_iteration(const gmf::FitIteration& it, const Progress& progress) {
 }
 
 }  // namespace
+
+std::string fit_log_csv_header() { return "iteration,seconds,loss,psnr_fg,psnr_3d,gaussians,round,beta"; }
+
+void append_fit_log_csv(std::ostringstream& s, std::span<const gmf::FitIteration> log, const std::string& prefix) {
+  s.precision(10);
+  for (const auto& it : log) {
+    if (!prefix.empty()) s << prefix << ",";
+    s << it.iteration << "," << it.seconds << "," << it.loss << ",";
+    if (it.psnr_fg >= 0) s << it.psnr_fg;
+    s << ",";
+    if (it.psnr_3d >= 0) s << it.psnr_3d;
+    s << "," << it.gaussians << "," << it.round << "," << it.beta << "\n";
+  }
+}
 
 FitSetup prepare_fit(const std::string& volume_path, const FitConfig& config, const char* label,
                      const Progress& progress) {
@@ -49,12 +54,13 @@ FitSetup prepare_fit(const std::string& volume_path, const FitConfig& config, co
   sparse.background_fraction = gmf.background_fraction;  // the fit's own need (see GmfOptions)
   setup.grid = io::build_sparse_grid(setup.loaded.volume, setup.loaded.frame.aspect(), sparse);
   gmf::InitReport init_report;
-  setup.mixture = gmf::initialize_on_grid(setup.loaded.volume, setup.loaded.frame, sparse_grid.threshold, gmf.gaussians,
-                                          &init_report);
-  progress.say("%s: %s: %lld samples (%lld active voxels), %zu Gaussians on a %.4g grid (budget %d), %s", label,
+  setup.mixture =
+      gmf::initialize_mixture(setup.loaded.volume, setup.loaded.frame, sparse_grid.threshold, gmf, &init_report);
+  progress.say("%s: %s: %lld samples (%lld active voxels), %zu Gaussians %s %.4g (budget %d), %s", label,
                volume_path.c_str(), static_cast<long long>(setup.grid.active_voxels() + setup.grid.background_voxels()),
-               static_cast<long long>(setup.grid.active_voxels()), setup.mixture.size(), init_report.cell_world,
-               gmf.gaussians, format_seconds(watch.elapsed()).c_str());
+               static_cast<long long>(setup.grid.active_voxels()), setup.mixture.size(),
+               gmf.init == gmf::FitInit::kGrid ? "on a grid of step" : "at local maxima, spacing",
+               init_report.cell_world, gmf.gaussians, format_seconds(watch.elapsed()).c_str());
   return setup;
 }
 
@@ -83,9 +89,15 @@ FitOutcome fit_to_checkpoint(const std::string& volume, const FitConfig& config,
     progress.say("fit: round %d density control: %d pruned, %d split, %d cloned -> K %d", r.round, r.pruned, r.split,
                  r.cloned, r.gaussians);
   }
-  gmf::save_checkpoint(out, mixture, checkpoint_meta(setup.loaded, volume));
+  gmf::CheckpointMeta meta = checkpoint_meta(setup.loaded, volume);
+  meta.aggregation = config.get<&AppConfig::gmf>().aggregation;
+  meta.beta = result.final_beta;
+  gmf::save_checkpoint(out, mixture, meta);
   if (!log_csv.empty()) {
-    const std::string csv = csv_of(result.log);
+    std::ostringstream s;
+    s << fit_log_csv_header() << "\n";
+    append_fit_log_csv(s, result.log, "");
+    const std::string csv = s.str();
     io::write_file_atomic(log_csv, csv.data(), csv.size());
   }
   const FitOutcome outcome{mixture.size(), result.final_psnr_3d, watch.elapsed(), result.stop_reason};

@@ -1,15 +1,18 @@
 // SPDX-License-Identifier: Apache-2.0
-// The GMF stage (config sections volume, sparse_grid, gmf): initialization on the
-// foreground grid, the Ceres/Adam fit, the checkpoint and its iteration log.
+// The GMF stage (config sections volume, sparse_grid, gmf): initialization (grid or
+// local maxima), the fit, the checkpoint (with its aggregation) and its log.
 #pragma once
 
 #include <filesystem>
+#include <span>
+#include <sstream>
 #include <string>
 
 #include "apps/pipeline/config_slice.hpp"
 #include "apps/pipeline/progress.hpp"
 #include "apps/pipeline/run_stage.hpp"
 #include "gmf/checkpoint.hpp"
+#include "gmf/fit.hpp"
 #include "gmf/gaussian_mixture.hpp"
 #include "io/load_volume.hpp"
 #include "io/sparse_grid.hpp"
@@ -29,6 +32,13 @@ struct FitSetup {
 // Loads `volume_path` and prepares the fit; one line "LABEL: ...".
 FitSetup prepare_fit(const std::string& volume_path, const FitConfig& config, const char* label,
                      const Progress& progress);
+
+// The fit log as CSV rows: fit_log_csv_header() names the columns
+// (iteration,seconds,loss,psnr_fg,psnr_3d,gaussians,round,beta; a PSNR is empty
+// where it was not measured); each row starts with `prefix` and a comma when
+// `prefix` is not empty (the optimizer comparison's curves).
+std::string fit_log_csv_header();
+void append_fit_log_csv(std::ostringstream& s, std::span<const gmf::FitIteration> log, const std::string& prefix);
 
 // Checkpoint metadata of a model fitted to `loaded` (shape, spacing, aspect, normalization, source).
 gmf::CheckpointMeta checkpoint_meta(const io::LoadedVolume& loaded, const std::string& source);

@@ -37,15 +37,8 @@ std::string results_csv(const gmf::Comparison& c) {
 
 std::string curves_csv(const gmf::Comparison& c) {
   std::ostringstream s;
-  s.precision(10);
-  s << "optimizer,iteration,seconds,loss,psnr_3d,gaussians,round\n";
-  for (const auto& run : c.runs) {
-    for (const auto& it : run.result.log) {
-      s << run.name << "," << it.iteration << "," << it.seconds << "," << it.loss << ",";
-      if (it.psnr_3d >= 0) s << it.psnr_3d;
-      s << "," << it.gaussians << "," << it.round << "\n";
-    }
-  }
+  s << "optimizer," << fit_log_csv_header() << "\n";
+  for (const auto& run : c.runs) append_fit_log_csv(s, run.result.log, run.name);
   return s.str();
 }
 

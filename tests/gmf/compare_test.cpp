@@ -46,6 +46,7 @@ TEST(GmfCompare, AdamDefinesTheTargetAndRunsFirst) {
   GaussianMixture start = scene.truth;
   for (auto& g : start) g.intensity_logit -= 0.8f;
   GmfOptions base;
+  base.aggregation = Aggregation::kSum;  // these tests fit the report's sum
   base.iterations_per_round = 10;
   base.prune_intensity = 0.0;
   CompareOptions o;

@@ -8,7 +8,7 @@
 
 #include <cmath>
 
-#include "gmf/brick_index.hpp"
+#include "gmf/block_index.hpp"
 #include "gmf/gaussian_mixture.hpp"
 #include "gmf/samples.hpp"
 #include "tests/gmf/gmf_test_scenes.hpp"
@@ -25,9 +25,10 @@ TEST(GmfDensity, ClonesWhereAGaussianIsMissing) {
     if (k != 3) m.push_back(scene.truth[k]);
   }
   GmfOptions o;
-  o.densify_fraction = 0.06;  // one clone and one split at most for K = 19
-  const BrickIndex index = build_brick_index(m, samples, scene.frame, o.mahalanobis_cutoff);
-  const DensityChange change = adapt_density(m, samples, index, scene.frame, o);
+  o.aggregation = Aggregation::kSum;  // these tests fit the report's sum
+  o.densify_fraction = 0.06;          // one clone and one split at most for K = 19
+  const BlockIndex index = build_block_index(m, samples, scene.frame, o.mahalanobis_cutoff);
+  const DensityChange change = adapt_density(m, samples, index, scene.frame, o, o.model(0));
   ASSERT_EQ(change.cloned, 1);
   const auto& clone = m[m.size() - 1];
   const auto& missing = scene.truth[3];
@@ -44,9 +45,10 @@ TEST(GmfDensity, SplitsAnOverwideGaussianByEq17) {
   m[0].log_scale[1] += static_cast<float>(std::log(3.0));  // axis 1 three times too wide
   const GaussianParams before = m[0];
   GmfOptions o;
-  o.clone_residual = 0.99;  // splits only
-  const BrickIndex index = build_brick_index(m, samples, scene.frame, o.mahalanobis_cutoff);
-  const DensityChange change = adapt_density(m, samples, index, scene.frame, o);
+  o.aggregation = Aggregation::kSum;  // these tests fit the report's sum
+  o.clone_residual = 0.99;            // splits only
+  const BlockIndex index = build_block_index(m, samples, scene.frame, o.mahalanobis_cutoff);
+  const DensityChange change = adapt_density(m, samples, index, scene.frame, o, o.model(0));
   ASSERT_EQ(change.split, 1);
   ASSERT_EQ(m.size(), scene.truth.size() + 1);
   // Eq. 17: scales × 0.8, means ± 0.5 s_max along the longest axis (column 1 of R).
@@ -76,19 +78,20 @@ TEST(GmfDensity, NeverExceedsTheGaussianBudget) {
   start[0].log_scale[1] += static_cast<float>(std::log(3.0));
   const int K = static_cast<int>(start.size());
   GmfOptions o;
+  o.aggregation = Aggregation::kSum;  // these tests fit the report's sum
   o.densify_fraction = 1.0;
   o.clone_residual = 0.05;
-  const BrickIndex index = build_brick_index(start, samples, scene.frame, o.mahalanobis_cutoff);
+  const BlockIndex index = build_block_index(start, samples, scene.frame, o.mahalanobis_cutoff);
 
   // Unlimited (the default budget): several Gaussians would be added.
   GaussianMixture m = start;
-  const DensityChange free = adapt_density(m, samples, index, scene.frame, o);
+  const DensityChange free = adapt_density(m, samples, index, scene.frame, o, o.model(0));
   ASSERT_GE(free.split + free.cloned, 3);
 
   for (const int budget : {K + 2, K + 1, K, K - 3}) {
     o.gaussians = budget;
     m = start;
-    const DensityChange change = adapt_density(m, samples, index, scene.frame, o);
+    const DensityChange change = adapt_density(m, samples, index, scene.frame, o, o.model(0));
     const int added = std::max(0, budget - K);
     EXPECT_EQ(change.split + change.cloned, added) << "budget " << budget;
     EXPECT_EQ(m.size(), static_cast<std::size_t>(K + added)) << "budget " << budget;

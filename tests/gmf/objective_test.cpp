@@ -12,7 +12,7 @@
 #include <random>
 #include <vector>
 
-#include "gmf/brick_index.hpp"
+#include "gmf/block_index.hpp"
 #include "gmf/gaussian_math.hpp"
 #include "gmf/samples.hpp"
 #include "tests/gmf/gmf_test_scenes.hpp"
@@ -38,8 +38,8 @@ TEST(GmfObjective, GradientMatchesItsValue) {
   const SampleSet samples = extract_samples(grid, 1.0, 2);
   GaussianMixture m = scene.truth;
   for (auto& g : m) g.mean[0] += static_cast<float>(0.3 * scene.frame.voxel_size().x());
-  const BrickIndex index = build_brick_index(m, samples, scene.frame, 1e9);
-  const FitObjective objective(samples, index, m.size(), 1e9);
+  const BlockIndex index = build_block_index(m, samples, scene.frame, 1e9);
+  const FitObjective objective(samples, index, m.size(), MixtureModel{.cutoff = 1e9});
   std::vector<double> x(objective.parameters());
   for (std::size_t k = 0; k < m.size(); ++k) {
     const auto a = to_array(m[k]);
@@ -63,7 +63,7 @@ TEST(GmfObjective, GradientMatchesItsValue) {
 }
 
 // The loss is ½ Σ_j w_j² (f_δ(x_j) − V_j)² with f_δ(x) the sum over ALL Gaussians
-// with m(x) <= δ, summed here sample by sample with no brick index: the index
+// with m(x) <= δ, summed here sample by sample with no block index: the index
 // (cut at the same δ) must list every Gaussian that reaches a sample, and
 // constant() must be the part of the samples no Gaussian reaches.
 TEST(GmfObjective, LossIsHalfTheWeightedSquaredResidualSum) {
@@ -78,16 +78,16 @@ TEST(GmfObjective, LossIsHalfTheWeightedSquaredResidualSum) {
     g.intensity_logit += static_cast<float>(0.3 * n(rng));
   }
   constexpr double kCutoff = 16.0;
-  const BrickIndex index = build_brick_index(m, samples, scene.frame, kCutoff);
-  const FitObjective objective(samples, index, m.size(), kCutoff);
+  const BlockIndex index = build_block_index(m, samples, scene.frame, kCutoff);
+  const FitObjective objective(samples, index, m.size(), MixtureModel{.cutoff = kCutoff});
   const std::vector<double> x = flat_of(m);
   const double loss = objective.evaluate(x.data(), nullptr);
 
   std::vector<GaussianFrame<double>> frames;
   for (const auto& g : m) frames.push_back(frame_of(g));
   double direct = 0, unreached = 0;
-  for (std::size_t b = 0; b < samples.bricks(); ++b) {
-    for (std::uint32_t s = samples.brick_begin[b]; s < samples.brick_begin[b + 1]; ++s) {
+  for (std::size_t b = 0; b < samples.blocks(); ++b) {
+    for (std::uint32_t s = samples.block_begin[b]; s < samples.block_begin[b + 1]; ++s) {
       const double p[3] = {samples.x[s], samples.y[s], samples.z[s]};
       double f = 0;
       for (const auto& fr : frames) {
@@ -100,7 +100,7 @@ TEST(GmfObjective, LossIsHalfTheWeightedSquaredResidualSum) {
     }
   }
   ASSERT_GT(samples.background, 0);
-  EXPECT_GT(objective.constant(), 0.0);  // some background bricks lie beyond every support
+  EXPECT_GT(objective.constant(), 0.0);  // some background blocks lie beyond every support
   EXPECT_NEAR(objective.constant(), unreached, 1e-12 * unreached);
   // Only the summation order differs.
   EXPECT_NEAR(loss, direct, 1e-12 * direct);
@@ -116,8 +116,8 @@ TEST(GmfObjective, ValueAndGradientAreIdenticalForOneAndTwoThreads) {
   const SampleSet samples = extract_samples(grid, 1.0, 2);
   GaussianMixture m = scene.truth;
   for (auto& g : m) g.log_scale[0] += 0.2f;
-  const BrickIndex index = build_brick_index(m, samples, scene.frame, 16.0);
-  const FitObjective objective(samples, index, m.size(), 16.0);
+  const BlockIndex index = build_block_index(m, samples, scene.frame, 16.0);
+  const FitObjective objective(samples, index, m.size(), MixtureModel{});
   const std::vector<double> x = flat_of(m);
   auto run = [&](int threads, std::vector<double>& grad) {
     tbb::global_control limit(tbb::global_control::max_allowed_parallelism, threads);

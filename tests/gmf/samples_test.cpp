@@ -1,7 +1,7 @@
 // SPDX-License-Identifier: Apache-2.0
 // gmf/samples: extract_samples takes every active voxel of both parts of a
 // sparse grid once, at its world position with its value, grouped into
-// contiguous bricks of `block`³ voxels, background samples weighted
+// contiguous blocks of `block`³ voxels, background samples weighted
 // sqrt(background_weight / fraction).
 #include "gmf/samples.hpp"
 
@@ -33,7 +33,7 @@ TEST(Samples, ExtractsForegroundAndWeightedBackground) {
   EXPECT_EQ(s.foreground, 27);
   EXPECT_EQ(s.background, grid.background_voxels());
   EXPECT_EQ(s.size(), static_cast<std::size_t>(s.foreground + s.background));
-  EXPECT_EQ(s.brick_begin.back(), s.size());
+  EXPECT_EQ(s.block_begin.back(), s.size());
   double bright = 0;
   for (std::size_t i = 0; i < s.size(); ++i) {
     if (s.value[i] == 1.0) {
@@ -127,27 +127,27 @@ TEST(Samples, EveryActiveVoxelOnceWithItsWorldPositionAndValue) {
   EXPECT_EQ(seen_bg.size(), bg.size());
 }
 
-// Bricks are contiguous runs of samples, non-empty, in order; every sample lies in
-// its brick's block of `block`³ voxels from brick_origin (a multiple of `block`);
+// Blocks are contiguous runs of samples, non-empty, in order; every sample lies in
+// its block of `block`³ voxels from block_origin (a multiple of `block`);
 // within one part no block appears twice. For every allowed block edge.
-TEST(Samples, BricksAreContiguousBlocksForEveryBlockSize) {
+TEST(Samples, BlocksAreContiguousForEveryBlockSize) {
   const io::SparseGrid grid = small_grid(0.2);
   for (const int block : {1, 2, 4, 8}) {
     const SampleSet s = extract_samples(grid, 1.0, block);
     EXPECT_EQ(s.block, block);
-    ASSERT_EQ(s.brick_begin.size(), s.bricks() + 1) << "block " << block;
-    EXPECT_EQ(s.brick_begin.front(), 0u);
-    EXPECT_EQ(s.brick_begin.back(), s.size());
+    ASSERT_EQ(s.block_begin.size(), s.blocks() + 1) << "block " << block;
+    EXPECT_EQ(s.block_begin.front(), 0u);
+    EXPECT_EQ(s.block_begin.back(), s.size());
     std::set<Index> origins_fg, origins_bg;
-    for (std::size_t b = 0; b < s.bricks(); ++b) {
-      ASSERT_LT(s.brick_begin[b], s.brick_begin[b + 1]) << "empty brick " << b << ", block " << block;
-      const Index& o = s.brick_origin[b];
-      for (int a = 0; a < 3; ++a) EXPECT_EQ(o[a] % block, 0) << "brick " << b << ", block " << block;
-      // A brick holds samples of one part only.
-      const bool is_fg = s.brick_begin[b] < s.foreground;
-      EXPECT_EQ(is_fg, s.brick_begin[b + 1] <= s.foreground) << "brick " << b << " straddles the parts";
-      EXPECT_TRUE((is_fg ? origins_fg : origins_bg).insert(o).second) << "block twice, brick " << b;
-      for (std::uint32_t i = s.brick_begin[b]; i < s.brick_begin[b + 1]; ++i) {
+    for (std::size_t b = 0; b < s.blocks(); ++b) {
+      ASSERT_LT(s.block_begin[b], s.block_begin[b + 1]) << "empty block " << b << ", block " << block;
+      const Index& o = s.block_origin[b];
+      for (int a = 0; a < 3; ++a) EXPECT_EQ(o[a] % block, 0) << "block index " << b << ", block " << block;
+      // A block holds samples of one part only.
+      const bool is_fg = s.block_begin[b] < s.foreground;
+      EXPECT_EQ(is_fg, s.block_begin[b + 1] <= s.foreground) << "block index " << b << " straddles the parts";
+      EXPECT_TRUE((is_fg ? origins_fg : origins_bg).insert(o).second) << "block twice, index " << b;
+      for (std::uint32_t i = s.block_begin[b]; i < s.block_begin[b + 1]; ++i) {
         const Index idx = index_of(grid.frame(), s, i);
         for (int a = 0; a < 3; ++a) {
           EXPECT_GE(idx[a], o[a]) << "sample " << i << ", block " << block;
@@ -156,8 +156,8 @@ TEST(Samples, BricksAreContiguousBlocksForEveryBlockSize) {
       }
     }
     if (block < 8) {
-      // Finer blocks split leaves: more bricks than with block 8.
-      EXPECT_GT(s.bricks(), extract_samples(grid, 1.0, 8).bricks()) << "block " << block;
+      // Finer blocks split leaves: more blocks than with block 8.
+      EXPECT_GT(s.blocks(), extract_samples(grid, 1.0, 8).blocks()) << "block " << block;
     }
   }
 }

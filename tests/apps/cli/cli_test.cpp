@@ -160,7 +160,7 @@ TEST(CliFit, WritesCheckpointAndCsvLog) {
   std::ifstream csv(dir / "fit.csv");
   std::string header;
   std::getline(csv, header);
-  EXPECT_EQ(header, "iteration,seconds,loss,psnr_3d,gaussians,round");
+  EXPECT_EQ(header, "iteration,seconds,loss,psnr_fg,psnr_3d,gaussians,round,beta");
   int rows = 0;
   for (std::string line; std::getline(csv, line);) ++rows;
   EXPECT_GE(rows, 3);

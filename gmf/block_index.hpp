@@ -14,13 +14,13 @@
 
 namespace hisnegs::gmf {
 
-struct BrickIndex {
-  // Brick b is reached by gaussians[begin[b] .. begin[b + 1]) (ascending ids).
+struct BlockIndex {
+  // Block b is reached by gaussians[begin[b] .. begin[b + 1]) (ascending ids).
   std::vector<std::uint32_t> begin;
   std::vector<std::uint32_t> gaussians;
 
-  [[nodiscard]] std::span<const std::uint32_t> of(std::size_t brick) const {
-    return {gaussians.data() + begin[brick], gaussians.data() + begin[brick + 1]};
+  [[nodiscard]] std::span<const std::uint32_t> of(std::size_t block) const {
+    return {gaussians.data() + begin[block], gaussians.data() + begin[block + 1]};
   }
 };
 
@@ -28,11 +28,11 @@ struct BrickIndex {
 // per axis, so that a Gaussian whose scales may grow by `scale_pad` and whose mean
 // may move by `pad_world` within a fit round stays in every block it can reach.
 // TBB-parallel over Gaussians.
-BrickIndex build_brick_index(const GaussianMixture& mixture, const SampleSet& samples, const io::WorldFrame& frame,
+BlockIndex build_block_index(const GaussianMixture& mixture, const SampleSet& samples, const io::WorldFrame& frame,
                              double cutoff, double scale_pad = 1.0, double pad_world = 0.0);
 
 // ½ Σ (w V)² over the samples of blocks no Gaussian reaches: their residuals are
 // constant, so solvers leave them out and add this to the loss they report.
-double unreached_loss(const SampleSet& samples, const BrickIndex& index);
+double unreached_loss(const SampleSet& samples, const BlockIndex& index);
 
 }  // namespace hisnegs::gmf

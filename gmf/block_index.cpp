@@ -1,6 +1,6 @@
 // SPDX-License-Identifier: Apache-2.0
-// build_brick_index: per-Gaussian support boxes -> (brick, Gaussian) pairs -> CSR.
-#include "gmf/brick_index.hpp"
+// build_block_index: per-Gaussian support boxes -> (block, Gaussian) pairs -> CSR.
+#include "gmf/block_index.hpp"
 
 #include <tbb/combinable.h>
 #include <tbb/parallel_for.h>
@@ -13,23 +13,23 @@
 
 namespace hisnegs::gmf {
 
-BrickIndex build_brick_index(const GaussianMixture& mixture, const SampleSet& samples, const io::WorldFrame& frame,
+BlockIndex build_block_index(const GaussianMixture& mixture, const SampleSet& samples, const io::WorldFrame& frame,
                              double cutoff, double scale_pad, double pad_world) {
   // Dense map from leaf (8^3) coordinates to the sample blocks inside (several
   // blocks per leaf, and a foreground and a background block may coincide): CSR.
   const Eigen::Vector3i n = frame.shape();
   const int nb[3] = {(n.x() + 7) / 8, (n.y() + 7) / 8, (n.z() + 7) / 8};
   const std::size_t cells = static_cast<std::size_t>(nb[0]) * nb[1] * nb[2];
-  std::vector<std::uint32_t> cell_begin(cells + 1, 0), cell_bricks(samples.bricks());
+  std::vector<std::uint32_t> cell_begin(cells + 1, 0), cell_blocks(samples.blocks());
   auto cell_of = [&](const std::array<int, 3>& o) {
     return (static_cast<std::size_t>(o[2] / 8) * nb[1] + o[1] / 8) * nb[0] + o[0] / 8;
   };
-  for (const auto& o : samples.brick_origin) ++cell_begin[cell_of(o) + 1];
+  for (const auto& o : samples.block_origin) ++cell_begin[cell_of(o) + 1];
   for (std::size_t c = 0; c < cells; ++c) cell_begin[c + 1] += cell_begin[c];
   {
     std::vector<std::uint32_t> fill(cell_begin.begin(), cell_begin.end() - 1);
-    for (std::size_t b = 0; b < samples.bricks(); ++b)
-      cell_bricks[fill[cell_of(samples.brick_origin[b])]++] = static_cast<std::uint32_t>(b);
+    for (std::size_t b = 0; b < samples.blocks(); ++b)
+      cell_blocks[fill[cell_of(samples.block_origin[b])]++] = static_cast<std::uint32_t>(b);
   }
 
   tbb::combinable<std::vector<std::pair<std::uint32_t, std::uint32_t>>> pairs;
@@ -45,7 +45,7 @@ BrickIndex build_brick_index(const GaussianMixture& mixture, const SampleSet& sa
           frame.index_from_world(Eigen::Vector3d(mean[0] - half[0], mean[1] - half[1], mean[2] - half[2]));
       const Eigen::Vector3d hi =
           frame.index_from_world(Eigen::Vector3d(mean[0] + half[0], mean[1] + half[1], mean[2] + half[2]));
-      // Brick b holds voxel centres 8b .. 8b + 7: overlap iff hi >= 8b and lo <= 8b + 7.
+      // Block b holds voxel centres 8b .. 8b + 7: overlap iff hi >= 8b and lo <= 8b + 7.
       int b0[3], b1[3];
       bool empty = false;
       for (int a = 0; a < 3; ++a) {
@@ -60,10 +60,10 @@ BrickIndex build_brick_index(const GaussianMixture& mixture, const SampleSet& sa
             const std::size_t c = (static_cast<std::size_t>(bz) * nb[1] + by) * nb[0] + bx;
             for (std::uint32_t i = cell_begin[c]; i < cell_begin[c + 1]; ++i) {
               // The block's voxel centres: origin .. origin + block - 1 per axis.
-              const auto& o = samples.brick_origin[cell_bricks[i]];
+              const auto& o = samples.block_origin[cell_blocks[i]];
               bool overlap = true;
               for (int a = 0; a < 3; ++a) overlap = overlap && hi[a] >= o[a] && lo[a] <= o[a] + samples.block - 1;
-              if (overlap) local.emplace_back(cell_bricks[i], static_cast<std::uint32_t>(k));
+              if (overlap) local.emplace_back(cell_blocks[i], static_cast<std::uint32_t>(k));
             }
           }
     }
@@ -71,22 +71,22 @@ BrickIndex build_brick_index(const GaussianMixture& mixture, const SampleSet& sa
   std::vector<std::pair<std::uint32_t, std::uint32_t>> all;
   pairs.combine_each([&](const auto& v) { all.insert(all.end(), v.begin(), v.end()); });
   std::sort(all.begin(), all.end());
-  BrickIndex index;
-  index.begin.assign(samples.bricks() + 1, 0);
+  BlockIndex index;
+  index.begin.assign(samples.blocks() + 1, 0);
   index.gaussians.reserve(all.size());
   for (const auto& [b, k] : all) {
     ++index.begin[b + 1];
     index.gaussians.push_back(k);
   }
-  for (std::size_t b = 0; b < samples.bricks(); ++b) index.begin[b + 1] += index.begin[b];
+  for (std::size_t b = 0; b < samples.blocks(); ++b) index.begin[b + 1] += index.begin[b];
   return index;
 }
 
-double unreached_loss(const SampleSet& samples, const BrickIndex& index) {
+double unreached_loss(const SampleSet& samples, const BlockIndex& index) {
   double loss = 0;
-  for (std::size_t b = 0; b < samples.bricks(); ++b) {
+  for (std::size_t b = 0; b < samples.blocks(); ++b) {
     if (!index.of(b).empty()) continue;
-    for (std::uint32_t s = samples.brick_begin[b]; s < samples.brick_begin[b + 1]; ++s) {
+    for (std::uint32_t s = samples.block_begin[b]; s < samples.block_begin[b + 1]; ++s) {
       loss += 0.5 * std::pow(samples.weight[s] * samples.value[s], 2);
     }
   }

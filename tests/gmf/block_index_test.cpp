@@ -1,8 +1,8 @@
 // SPDX-License-Identifier: Apache-2.0
-// gmf/brick_index: which Gaussians reach which sample brick, against a brute
-// force over every voxel centre of every brick (plain and padded supports), the
-// ascending CSR lists, and the loss of the bricks no Gaussian reaches.
-#include "gmf/brick_index.hpp"
+// gmf/block_index: which Gaussians reach which sample block, against a brute
+// force over every voxel centre of every block (plain and padded supports), the
+// ascending CSR lists, and the loss of the blocks no Gaussian reaches.
+#include "gmf/block_index.hpp"
 
 #include <gtest/gtest.h>
 
@@ -18,12 +18,12 @@
 namespace hisnegs::gmf {
 namespace {
 
-TEST(BrickIndex, ListsExactlyTheGaussiansWhoseSupportReachesABrick) {
-  // A 32^3 volume in the unit box; bricks at origins (0,0,0) and (24,24,24).
+TEST(BlockIndex, ListsExactlyTheGaussiansWhoseSupportReachesABlock) {
+  // A 32^3 volume in the unit box; blocks at origins (0,0,0) and (24,24,24).
   const io::WorldFrame frame(32, 32, 32, Eigen::Vector3d::Ones());
   SampleSet s;
-  s.brick_begin = {0, 1, 2};
-  s.brick_origin = {{0, 0, 0}, {24, 24, 24}};
+  s.block_begin = {0, 1, 2};
+  s.block_origin = {{0, 0, 0}, {24, 24, 24}};
   for (int b = 0; b < 2; ++b) {
     const Eigen::Vector3d p = frame.world_from_index(Eigen::Vector3d(b * 24 + 3, b * 24 + 3, b * 24 + 3));
     s.x.push_back(p.x());
@@ -40,34 +40,34 @@ TEST(BrickIndex, ListsExactlyTheGaussiansWhoseSupportReachesABrick) {
     for (int a = 0; a < 3; ++a) g.log_scale[a] = static_cast<float>(std::log(sigma_voxels * frame.voxel_size()[a]));
     mix.push_back(g);
   };
-  add({3, 3, 3}, 1.0);     // inside brick 0
-  add({12, 3, 3}, 1.0);    // 4σ = 4 voxels: reaches x = 8.. -> not brick 0 (centres 0..7)
-  add({10, 3, 3}, 1.0);    // reaches x = 6: touches brick 0
-  add({16, 16, 16}, 3.0);  // 4σ = 12 voxels: reaches 4..28 -> both bricks
-  add({28, 28, 28}, 0.5);  // brick 1 only
-  const BrickIndex index = build_brick_index(mix, s, frame, 16.0);
+  add({3, 3, 3}, 1.0);     // inside block 0
+  add({12, 3, 3}, 1.0);    // 4σ = 4 voxels: reaches x = 8.. -> not block 0 (centres 0..7)
+  add({10, 3, 3}, 1.0);    // reaches x = 6: touches block 0
+  add({16, 16, 16}, 3.0);  // 4σ = 12 voxels: reaches 4..28 -> both blocks
+  add({28, 28, 28}, 0.5);  // block 1 only
+  const BlockIndex index = build_block_index(mix, s, frame, 16.0);
   const auto b0 = index.of(0), b1 = index.of(1);
   EXPECT_EQ(std::vector<std::uint32_t>(b0.begin(), b0.end()), (std::vector<std::uint32_t>{0, 2, 3}));
   EXPECT_EQ(std::vector<std::uint32_t>(b1.begin(), b1.end()), (std::vector<std::uint32_t>{3, 4}));
 }
 
 // A 40 × 24 × 16 stack (voxels of 0.05 world units) with scattered foreground
-// and 10% background samples (weight sqrt(10)), in blocks of 4 voxels: bricks
+// and 10% background samples (weight sqrt(10)), in blocks of 4 voxels: blocks
 // of both parts, some sharing an origin.
-struct Bricks {
+struct Blocks {
   io::WorldFrame frame{40, 24, 16, Eigen::Vector3d(1.0, 0.6, 0.4)};
   io::SparseGrid grid;
   SampleSet samples;
   GaussianMixture mixture;
 };
 
-Bricks make_bricks(std::uint64_t seed, int gaussians) {
-  Bricks s;
+Blocks make_blocks(std::uint64_t seed, int gaussians) {
+  Blocks s;
   io::Volume v;
   v.nx = 40;
   v.ny = 24;
   v.nz = 16;
-  v.source = "bricks";
+  v.source = "blocks";
   v.normalization.method = io::NormalizationMethod::kMinMax;
   std::mt19937_64 rng(seed);
   std::uniform_real_distribution<float> u(0.0f, 1.0f);
@@ -97,11 +97,11 @@ Bricks make_bricks(std::uint64_t seed, int gaussians) {
 }
 
 // Gaussians whose support box (sqrt(δ Σ_ii) · scale_pad + pad_world about μ, from
-// the Eigen covariance) holds a voxel centre of brick b's block of `block`³ voxels.
-std::vector<std::uint32_t> brute_force(const Bricks& s, std::size_t b, double cutoff, double scale_pad,
+// the Eigen covariance) holds a voxel centre of block b's block of `block`³ voxels.
+std::vector<std::uint32_t> brute_force(const Blocks& s, std::size_t b, double cutoff, double scale_pad,
                                        double pad_world) {
   std::vector<std::uint32_t> ids;
-  const auto& o = s.samples.brick_origin[b];
+  const auto& o = s.samples.block_origin[b];
   const int n = s.samples.block;
   for (std::size_t k = 0; k < s.mixture.size(); ++k) {
     const GaussianParams& g = s.mixture[k];
@@ -123,15 +123,15 @@ std::vector<std::uint32_t> brute_force(const Bricks& s, std::size_t b, double cu
   return ids;
 }
 
-void expect_matches_brute_force(const Bricks& s, double cutoff, double scale_pad, double pad_world) {
-  const BrickIndex index = build_brick_index(s.mixture, s.samples, s.frame, cutoff, scale_pad, pad_world);
-  ASSERT_EQ(index.begin.size(), s.samples.bricks() + 1);
+void expect_matches_brute_force(const Blocks& s, double cutoff, double scale_pad, double pad_world) {
+  const BlockIndex index = build_block_index(s.mixture, s.samples, s.frame, cutoff, scale_pad, pad_world);
+  ASSERT_EQ(index.begin.size(), s.samples.blocks() + 1);
   EXPECT_EQ(index.begin.back(), index.gaussians.size());
   std::size_t empty = 0, shared = 0;
-  for (std::size_t b = 0; b < s.samples.bricks(); ++b) {
+  for (std::size_t b = 0; b < s.samples.blocks(); ++b) {
     const auto listed = index.of(b);
     const std::vector<std::uint32_t> expected = brute_force(s, b, cutoff, scale_pad, pad_world);
-    EXPECT_EQ(std::vector<std::uint32_t>(listed.begin(), listed.end()), expected) << "brick " << b;
+    EXPECT_EQ(std::vector<std::uint32_t>(listed.begin(), listed.end()), expected) << "block " << b;
     empty += expected.empty() ? 1 : 0;
     shared += expected.size() >= 2 ? 1 : 0;
   }
@@ -140,56 +140,56 @@ void expect_matches_brute_force(const Bricks& s, double cutoff, double scale_pad
   EXPECT_GT(shared, 10u);
 }
 
-TEST(BrickIndex, ListsTheBricksWhoseVoxelCentresTheSupportBoxHolds) {
-  const Bricks s = make_bricks(71, 40);
+TEST(BlockIndex, ListsTheBlocksWhoseVoxelCentresTheSupportBoxHolds) {
+  const Blocks s = make_blocks(71, 40);
   ASSERT_GT(s.samples.background, 0);
-  ASSERT_GT(s.samples.bricks(), 200u);
+  ASSERT_GT(s.samples.blocks(), 200u);
   expect_matches_brute_force(s, 16.0, 1.0, 0.0);
   expect_matches_brute_force(s, 9.0, 1.0, 0.0);
 }
 
 // The box grown to half · scale_pad + pad_world (pad of 1.5 voxels).
-TEST(BrickIndex, PaddedSupportsListTheBricksThePaddedBoxHolds) {
-  const Bricks s = make_bricks(73, 12);
+TEST(BlockIndex, PaddedSupportsListTheBlocksThePaddedBoxHolds) {
+  const Blocks s = make_blocks(73, 12);
   expect_matches_brute_force(s, 16.0, 1.5, 0.0);
   expect_matches_brute_force(s, 9.0, 1.2, 1.5 * s.frame.voxel_size().x());
-  // Padding only adds bricks.
-  const BrickIndex plain = build_brick_index(s.mixture, s.samples, s.frame, 16.0);
-  const BrickIndex padded = build_brick_index(s.mixture, s.samples, s.frame, 16.0, 1.5, 0.1);
+  // Padding only adds blocks.
+  const BlockIndex plain = build_block_index(s.mixture, s.samples, s.frame, 16.0);
+  const BlockIndex padded = build_block_index(s.mixture, s.samples, s.frame, 16.0, 1.5, 0.1);
   EXPECT_GT(padded.gaussians.size(), plain.gaussians.size());
 }
 
-// Each brick's list is strictly ascending (no duplicates), though pairs are
+// Each block's list is strictly ascending (no duplicates), though pairs are
 // produced in parallel over Gaussians.
-TEST(BrickIndex, IdsAreStrictlyAscending) {
-  const Bricks s = make_bricks(79, 200);
-  const BrickIndex index = build_brick_index(s.mixture, s.samples, s.frame, 16.0, 1.3, 0.05);
+TEST(BlockIndex, IdsAreStrictlyAscending) {
+  const Blocks s = make_blocks(79, 200);
+  const BlockIndex index = build_block_index(s.mixture, s.samples, s.frame, 16.0, 1.3, 0.05);
   std::size_t longest = 0;
-  for (std::size_t b = 0; b < s.samples.bricks(); ++b) {
+  for (std::size_t b = 0; b < s.samples.blocks(); ++b) {
     const auto ids = index.of(b);
     longest = std::max(longest, ids.size());
-    for (std::size_t i = 1; i < ids.size(); ++i) EXPECT_LT(ids[i - 1], ids[i]) << "brick " << b;
+    for (std::size_t i = 1; i < ids.size(); ++i) EXPECT_LT(ids[i - 1], ids[i]) << "block " << b;
   }
   EXPECT_GE(longest, 5u);
 }
 
-// unreached_loss = ½ Σ (w V)² over the samples of the bricks whose list is empty,
-// and 0 when every brick is reached.
-TEST(BrickIndex, UnreachedLossSumsTheBricksNoGaussianReaches) {
-  const Bricks s = make_bricks(83, 8);
-  const BrickIndex index = build_brick_index(s.mixture, s.samples, s.frame, 16.0);
+// unreached_loss = ½ Σ (w V)² over the samples of the blocks whose list is empty,
+// and 0 when every block is reached.
+TEST(BlockIndex, UnreachedLossSumsTheBlocksNoGaussianReaches) {
+  const Blocks s = make_blocks(83, 8);
+  const BlockIndex index = build_block_index(s.mixture, s.samples, s.frame, 16.0);
   double expected = 0, total = 0;
-  for (std::size_t b = 0; b < s.samples.bricks(); ++b) {
-    for (std::uint32_t j = s.samples.brick_begin[b]; j < s.samples.brick_begin[b + 1]; ++j) {
+  for (std::size_t b = 0; b < s.samples.blocks(); ++b) {
+    for (std::uint32_t j = s.samples.block_begin[b]; j < s.samples.block_begin[b + 1]; ++j) {
       const double wv = s.samples.weight[j] * s.samples.value[j];
       total += 0.5 * wv * wv;
       if (index.of(b).empty()) expected += 0.5 * wv * wv;
     }
   }
   ASSERT_GT(expected, 0.0);
-  ASSERT_LT(expected, total);  // some bricks are reached
+  ASSERT_LT(expected, total);  // some blocks are reached
   EXPECT_NEAR(unreached_loss(s.samples, index), expected, 1e-12 * expected);
-  const BrickIndex everywhere = build_brick_index(s.mixture, s.samples, s.frame, 1e9);
+  const BlockIndex everywhere = build_block_index(s.mixture, s.samples, s.frame, 1e9);
   EXPECT_EQ(unreached_loss(s.samples, everywhere), 0.0);
 }
 
