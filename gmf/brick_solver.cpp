@@ -61,22 +61,24 @@ std::vector<std::vector<std::uint32_t>> colour_bricks(const BrickPartition& p, c
 }
 
 // The terms of the Gaussians of `index.of(block)` that are not in brick `b`, at
-// every sample of the block.
+// every sample of the block. `frames` holds every Gaussian's frame as of the start
+// of the colour (the bricks of one colour never reach each other's blocks, so the
+// Gaussians b sees as fixed do not change while the colour is solved).
 void fixed_terms_of_block(const SampleSet& samples, std::uint32_t block, const BlockIndex& index,
-                          const BrickPartition& partition, std::uint32_t b, std::span<const ParamsD> params,
-                          const MixtureModel& model, std::span<FixedTerms<double>> out) {
-  thread_local std::vector<GaussianFrame<double>> frames;
-  frames.clear();
+                          const BrickPartition& partition, std::uint32_t b,
+                          std::span<const GaussianFrame<double>> frames, const MixtureModel& model,
+                          std::span<FixedTerms<double>> out) {
+  thread_local std::vector<const GaussianFrame<double>*> fixed;
+  fixed.clear();
   for (std::uint32_t g : index.of(block)) {
-    if (partition.brick_of[g] == b) continue;
-    frames.emplace_back();
-    prepare_gaussian(params[g].data(), frames.back());
+    if (partition.brick_of[g] != b) fixed.push_back(&frames[g]);
   }
   const std::uint32_t first = samples.block_begin[block];
   for (std::size_t j = 0; j < out.size(); ++j) {
     const double x[3] = {samples.x[first + j], samples.y[first + j], samples.z[first + j]};
     FixedTerms<double> t = no_fixed_terms<double>();
-    for (const GaussianFrame<double>& f : frames) {
+    for (const GaussianFrame<double>* fp : fixed) {
+      const GaussianFrame<double>& f = *fp;
       double z[3];
       const double m = mahalanobis(f, x, z);
       if (m > model.cutoff) continue;
@@ -138,8 +140,8 @@ class BrickCost final : public ceres::CostFunction {
 
 // Exact LM on brick b's Gaussians; returns its iterations, or -1 when skipped.
 int solve_brick(std::uint32_t b, const SampleSet& samples, const BlockIndex& index, const BrickPartition& partition,
-                std::span<ParamsD> params, std::span<const double> lower, std::span<const double> upper,
-                const BrickSweepOptions& options, double seconds_left) {
+                std::span<ParamsD> params, std::span<const GaussianFrame<double>> frames, std::span<const double> lower,
+                std::span<const double> upper, const BrickSweepOptions& options, double seconds_left) {
   static detail::GaussianManifold manifold;  // stateless: shared by every thread
   const std::vector<std::uint32_t>& ids = partition.gaussians[b];
   const std::vector<std::uint32_t>& blocks = partition.blocks[b];
@@ -174,7 +176,7 @@ int solve_brick(std::uint32_t b, const SampleSet& samples, const BlockIndex& ind
     const std::size_t n = samples.block_begin[block + 1] - samples.block_begin[block];
     const std::span<FixedTerms<double>> terms(fixed.data() + offset, n);
     offset += n;
-    fixed_terms_of_block(samples, block, index, partition, b, params, options.model, terms);
+    fixed_terms_of_block(samples, block, index, partition, b, frames, options.model, terms);
     BrickCost::Block c;
     for (std::uint32_t g : index.of(block)) {
       if (partition.brick_of[g] == b) c.gaussians.push_back(static_cast<std::uint32_t>(local_of(g)));
@@ -259,15 +261,24 @@ BrickSweepStats sweep_bricks(const SampleSet& samples, const BlockIndex& index, 
   BrickSweepStats stats;
   std::atomic<int> solved{0}, skipped{0};
   std::atomic<std::int64_t> iterations{0};
+  // Every Gaussian's frame, kept current colour by colour: after a colour, only its
+  // bricks' Gaussians have moved.
+  std::vector<GaussianFrame<double>> frames(params.size());
+  tbb::parallel_for(std::size_t{0}, params.size(),
+                    [&](std::size_t g) { prepare_gaussian(params[g].data(), frames[g]); });
   for (const std::vector<std::uint32_t>& bricks : partition.colours) {
     tbb::parallel_for(std::size_t{0}, bricks.size(), [&](std::size_t i) {
-      const int it = solve_brick(bricks[i], samples, index, partition, params, lower, upper, options, seconds_left());
+      const int it =
+          solve_brick(bricks[i], samples, index, partition, params, frames, lower, upper, options, seconds_left());
       if (it < 0) {
         ++skipped;
       } else {
         ++solved;
         iterations += it;
       }
+    });
+    tbb::parallel_for(std::size_t{0}, bricks.size(), [&](std::size_t i) {
+      for (std::uint32_t g : partition.gaussians[bricks[i]]) prepare_gaussian(params[g].data(), frames[g]);
     });
   }
   stats.bricks_solved = solved;

@@ -6,6 +6,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <cstdlib>
 #include <fstream>
 #include <sstream>
 #include <stdexcept>
@@ -44,6 +45,17 @@ std::string slurp(const fs::path& p) {
 }
 }  // namespace
 
+namespace {
+// The build's path, or the environment's when set (the device bundle moves both).
+fs::path from_env_or(const char* name, const char* built_in) {
+  const char* env = std::getenv(name);
+  return env && *env ? fs::path(env) : fs::path(built_in);
+}
+}  // namespace
+
+fs::path hisnegs_exe() { return from_env_or("HISNEGS_TEST_EXE", HISNEGS_EXE); }
+fs::path source_dir() { return from_env_or("HISNEGS_TEST_SOURCE_DIR", HISNEGS_SOURCE_DIR); }
+
 CommandResult run_hisnegs(const std::vector<std::string>& args) {
   const fs::path tmp =
       fs::temp_directory_path() / ("hisnegs-run-" + std::to_string(::getpid()) + "-" + std::to_string(::rand()));
@@ -52,7 +64,7 @@ CommandResult run_hisnegs(const std::vector<std::string>& args) {
   if (pid < 0) throw std::runtime_error("fork failed");
   if (pid == 0) {
     std::vector<char*> argv;
-    std::string exe = HISNEGS_EXE;
+    std::string exe = hisnegs_exe().string();
     argv.push_back(exe.data());
     std::vector<std::string> copy = args;
     for (auto& a : copy) argv.push_back(a.data());
@@ -73,7 +85,8 @@ CommandResult run_hisnegs(const std::vector<std::string>& args) {
 }
 
 std::optional<fs::path> shared_data(const std::string& name) {
-  const fs::path p = fs::path(HISNEGS_SHARED_DATA_DIR) / name;
+  const char* env = std::getenv("HISNEGS_TEST_SHARED_DATA");
+  const fs::path p = fs::path(env && *env ? env : HISNEGS_SHARED_DATA_DIR) / name;
   if (fs::exists(p)) return p;
   return std::nullopt;
 }

@@ -34,10 +34,17 @@ struct CommandResult {
   std::string err;     // stderr
 };
 
+// The hisnegs executable of this build and the source tree (configs/): the paths
+// CMake compiled in, or $HISNEGS_TEST_EXE / $HISNEGS_TEST_SOURCE_DIR when set (the
+// device bundle, scripts/device-bundle.sh, runs the tests away from the build).
+std::filesystem::path hisnegs_exe();
+std::filesystem::path source_dir();
+
 // Runs the hisnegs executable of this build with `args` (no shell quoting needed).
 CommandResult run_hisnegs(const std::vector<std::string>& args);
 
-// ../shared/data/NAME if it exists (tests on real data skip otherwise).
+// ../shared/data/NAME ($HISNEGS_TEST_SHARED_DATA/NAME when set) if it exists
+// (tests on real data skip otherwise).
 std::optional<std::filesystem::path> shared_data(const std::string& name);
 
 // Writes `text` to `path` (test fixtures).

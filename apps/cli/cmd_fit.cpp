@@ -10,7 +10,7 @@ void add_fit_command(CLI::App& app, GlobalOptions& global) {
   auto* cmd =
       app.add_subcommand("fit", "fit a Gaussian Mixture Field to a stack with Ceres (writes a .ply checkpoint)");
   struct Args {
-    std::string volume, out, optimizer, log;
+    std::string volume, out, optimizer, aggregation, log;
     std::optional<int> gaussians;
     std::optional<double> time_budget;
     VolumeOverrides overrides;
@@ -18,15 +18,20 @@ void add_fit_command(CLI::App& app, GlobalOptions& global) {
   auto args = std::make_shared<Args>();
   cmd->add_option("VOLUME", args->volume, "TIFF stack")->required();
   cmd->add_option("-o,--output", args->out, "output checkpoint (.ply)")->required();
-  cmd->add_option("--optimizer", args->optimizer, "lm | lm-cgnr | dogleg | lbfgs | adam (gmf.optimizer)");
+  cmd->add_option("--optimizer", args->optimizer, "adam | brick-lm | lm | lm-cgnr | dogleg | lbfgs (gmf.optimizer)");
+  cmd->add_option("--aggregation", args->aggregation,
+                  "softmax (f -> max, what MIPs show) | sum (report Eq. 1, density export) (gmf.aggregation)");
   cmd->add_option("--gaussians", args->gaussians, "Gaussian budget (gmf.gaussians)");
   cmd->add_option("--time-budget", args->time_budget, "wall-clock limit in seconds (gmf.time_budget_s)");
-  cmd->add_option("--log", args->log, "CSV of iteration, seconds, loss, 3D PSNR, K");
+  cmd->add_option("--log", args->log, "CSV of iteration, seconds, loss, foreground and 3D PSNR, K, round, beta");
   args->overrides.add_to(cmd);
   cmd->callback([args, &global] {
     AppConfig config = global.config();
     args->overrides.apply(config.volume);
     if (!args->optimizer.empty()) io::set_enum_field(config.gmf, "optimizer", args->optimizer, "--optimizer");
+    if (!args->aggregation.empty()) {
+      io::set_enum_field(config.gmf, "aggregation", args->aggregation, "--aggregation");
+    }
     if (args->gaussians) config.gmf.gaussians = *args->gaussians;
     if (args->time_budget) config.gmf.time_budget_s = *args->time_budget;
     config.gmf.validate();

@@ -3,6 +3,7 @@
 // (pipeline/run_pipeline.hpp): reused stages are skipped; --force redoes everything.
 #include "apps/cli/cli_support.hpp"
 #include "apps/pipeline/run_pipeline.hpp"
+#include "apps/pipeline/train_stage.hpp"
 #include "io/error.hpp"
 
 namespace hisnegs::apps {
@@ -30,6 +31,7 @@ void add_run_command(CLI::App& app, GlobalOptions& global) {
     args->overrides.apply(config.volume);
     io::require_regular_file(args->volume);  // before the back-end notice: a bad path is the one line
     const splat::Backend backend = splat::resolve_backend(splat::parse_backend_request(args->backend));
+    choose_train_schedule(config, backend, global.progress());
     run_pipeline({args->volume, args->out, backend, args->force, args->orbit_frames, args->orbit_elevation}, config,
                  global.progress());
   });

@@ -24,8 +24,9 @@ void add_train_command(CLI::App& app, GlobalOptions& global) {
   cmd->callback([args, &global] {
     AppConfig config = global.config();
     if (args->epochs) config.train.epochs = *args->epochs;
-    train_model({args->init, std::filesystem::path(args->data) / "train", args->out,
-                 splat::resolve_backend(splat::parse_backend_request(args->backend)), args->resume},
+    const splat::Backend backend = splat::resolve_backend(splat::parse_backend_request(args->backend));
+    choose_train_schedule(config, backend, global.progress());
+    train_model({args->init, std::filesystem::path(args->data) / "train", args->out, backend, args->resume},
                 TrainConfig(config), global.progress());
   });
 }

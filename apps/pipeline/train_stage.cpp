@@ -111,6 +111,34 @@ void finish_training(const TrainingSession& s, const fs::path& run) {
 
 }  // namespace
 
+splat::TrainOptions cpu_train_schedule() {
+  splat::TrainOptions t;
+  t.epochs = 400;
+  t.beta_warmup_epochs = 100;
+  t.densify_from = 100;
+  t.densify_until = 300;
+  t.densify_every = 100;
+  t.max_gaussians = 30000;
+  t.save_every = 50;
+  return t;
+}
+
+void choose_train_schedule(AppConfig& config, splat::Backend backend, const Progress& progress) {
+  AppConfig built_in = config;
+  built_in.train = splat::TrainOptions{};
+  const bool default_schedule = dump_app_config(config) == dump_app_config(built_in);
+  if (backend == splat::Backend::kCpu && default_schedule) {
+    config.train = cpu_train_schedule();
+    progress.say(
+        "train: CPU back end: the CPU schedule (%d epochs, as configs/train_cpu.yaml); the default "
+        "%d-epoch schedule is for a GPU. Set any train.* field to choose your own.",
+        config.train.epochs, splat::TrainOptions{}.epochs);
+  } else {
+    progress.say("train: %s back end: %s schedule, %d epochs", std::string(splat::to_string(backend)).c_str(),
+                 default_schedule ? "the default (GPU)" : "the configured", config.train.epochs);
+  }
+}
+
 TrainOutcome train_model(const TrainRequest& request, const TrainConfig& config, const Progress& progress) {
   check_training(request, config);
   TrainingSession s = start_training(request, config);

@@ -27,6 +27,16 @@ struct TrainOutcome {
   double psnr = 0;     // mean training-view PSNR of the last epoch
   double seconds = 0;  // training wall time, earlier sessions of a resumed run included
 };
+// The CPU schedule (configs/train_cpu.yaml's train section): 400 epochs with the
+// β warm-up and density control scaled to them, about 15 min for K = 20k at 256²
+// on a 2-core machine where the default 2000-epoch (GPU) schedule takes hours.
+[[nodiscard]] splat::TrainOptions cpu_train_schedule();
+
+// The schedule a run on `backend` trains with: on the CPU back end, when the
+// config's train section is the built-in one (nothing in it was set), the CPU
+// schedule; otherwise the config's own. Says which in one line.
+void choose_train_schedule(AppConfig& config, splat::Backend backend, const Progress& progress);
+
 // Writes RUN/log.csv, RUN/checkpoints/, RUN/final.ply, RUN/training_curve.png; a line
 // at the start, per epoch and at the end. Throws io::InputError for a RUN holding a
 // run unless `resume`, and for splat.mode other than soft.

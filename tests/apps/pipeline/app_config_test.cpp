@@ -10,6 +10,7 @@
 #include <sstream>
 
 #include "apps/pipeline/demo.hpp"
+#include "apps/pipeline/train_stage.hpp"
 #include "io/error.hpp"
 #include "tests/test_support.hpp"
 
@@ -17,7 +18,7 @@ namespace hisnegs::apps {
 namespace {
 namespace fs = std::filesystem;
 
-const fs::path kConfigs = fs::path(HISNEGS_SOURCE_DIR) / "configs";
+const fs::path kConfigs = testing::source_dir() / "configs";
 
 // Visitor that lists the keys a section's options declare.
 struct KeyLister {
@@ -99,6 +100,37 @@ TEST(AppConfig, ErrorsNameFileSectionAndKey) {
       EXPECT_NE(std::string(e.what()).find("c.yaml"), std::string::npos) << e.what();
     }
   }
+}
+
+// configs/train_cpu.yaml's train section is the schedule a CPU run picks by itself.
+TEST(AppConfig, TrainCpuYamlHoldsTheCpuSchedule) {
+  const AppConfig cpu = load_app_config(kConfigs / "train_cpu.yaml");
+  AppConfig expected = cpu;
+  expected.train = cpu_train_schedule();
+  EXPECT_EQ(dump_app_config(cpu), dump_app_config(expected));
+}
+
+// The built-in schedule becomes the CPU schedule on the CPU back end only; a config
+// that sets any train field keeps its own; the choice is said in one line.
+TEST(AppConfig, TheCpuBackEndTrainsWithTheCpuScheduleUnlessOneIsConfigured) {
+  std::vector<std::string> lines;
+  const Progress progress{.line = [&](std::string_view l) { lines.emplace_back(l); }};
+  AppConfig config;
+  choose_train_schedule(config, splat::Backend::kCpu, progress);
+  EXPECT_EQ(config.train.epochs, cpu_train_schedule().epochs);
+  ASSERT_EQ(lines.size(), 1u);
+  EXPECT_NE(lines[0].find("CPU schedule"), std::string::npos) << lines[0];
+
+  AppConfig gpu;
+  choose_train_schedule(gpu, splat::Backend::kCuda, progress);
+  EXPECT_EQ(gpu.train.epochs, splat::TrainOptions{}.epochs);
+
+  AppConfig own;
+  own.train.lambda_ssim = 0.3;
+  choose_train_schedule(own, splat::Backend::kCpu, progress);
+  EXPECT_EQ(own.train.epochs, splat::TrainOptions{}.epochs);
+  EXPECT_EQ(own.train.lambda_ssim, 0.3);
+  EXPECT_EQ(lines.size(), 3u);
 }
 
 }  // namespace
