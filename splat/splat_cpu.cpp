@@ -23,10 +23,6 @@ namespace {
 
 using detail::kAmplitudeBuckets;
 using gmf::kGaussianParamCount;
-// Binning widens δ by this factor and the ellipse by kBinPad pixels each side, so
-// rounding never drops a tile the kernels' per-pixel test q <= δ would reach.
-constexpr float kBinWiden = 1.0f + 1e-3f;
-constexpr float kBinPad = 0.25f;
 
 class CpuSplatRenderer final : public SplatRenderer {
  public:
@@ -57,9 +53,7 @@ class CpuSplatRenderer final : public SplatRenderer {
       for (int ty = t.ty0; ty <= t.ty1; ++ty) fn(ty, t.tx0[ty - t.ty0], t.tx1[ty - t.ty0]);
       return;
     }
-    for_each_ellipse_band(rows_[k], t.ty0, t.ty1, kTileSize, kBinPad, [&](int ty, int c0, int c1) {
-      if (c1 >= 0) fn(ty, std::max<int>(t.x0, std::max(c0, 0) / kTileSize), std::min<int>(t.x1, c1 / kTileSize));
-    });
+    for_each_tile_run(rows_[k], TileRect{t.x0, t.ty0, t.x1, t.ty1}, fn);
   }
   [[nodiscard]] detail::TileFrame tile_frame(int tile) const;
   [[nodiscard]] detail::TileGaussians tile_gaussians(int tile) const;
@@ -163,23 +157,13 @@ void CpuSplatRenderer::forward(std::span<const float> params, const Intrinsics& 
 // Gaussian k's tiles (GaussianTiles); false when its bounding box misses the image
 // or is not finite.
 bool CpuSplatRenderer::find_tiles(std::size_t k, const Splat2D<float>& s) {
-  // Pixels whose centres can lie in the ellipse's bounding box.
-  // Clamped in float first so huge extents cannot overflow the int conversion.
-  const int W = intrinsics_.width, H = intrinsics_.height;
-  auto pixel = [](float x, int size) { return static_cast<int>(std::clamp(x, -1.0f, static_cast<float>(size))); };
-  const int c0 = std::max(0, pixel(std::ceil(s.u - s.half_w - 0.5f), W) - 1);
-  const int c1 = std::min(W - 1, pixel(std::floor(s.u + s.half_w - 0.5f), W) + 1);
-  const int r0 = std::max(0, pixel(std::ceil(s.v - s.half_h - 0.5f), H) - 1);
-  const int r1 = std::min(H - 1, pixel(std::floor(s.v + s.half_h - 0.5f), H) + 1);
-  if (!std::isfinite(s.u) || !std::isfinite(s.v) || !std::isfinite(s.half_w) || !std::isfinite(s.half_h) || c0 > c1 ||
-      r0 > r1) {
-    return false;
-  }
+  TileRect r;
+  if (!splat_tile_rect(s, intrinsics_.width, intrinsics_.height, &r)) return false;
   GaussianTiles& t = tiles_[k];
-  t.x0 = static_cast<std::int16_t>(c0 / kTileSize);
-  t.x1 = static_cast<std::int16_t>(c1 / kTileSize);
-  t.ty0 = static_cast<std::int16_t>(r0 / kTileSize);
-  t.ty1 = static_cast<std::int16_t>(r1 / kTileSize);
+  t.x0 = static_cast<std::int16_t>(r.x0);
+  t.x1 = static_cast<std::int16_t>(r.x1);
+  t.ty0 = static_cast<std::int16_t>(r.y0);
+  t.ty1 = static_cast<std::int16_t>(r.y1);
   rows_[k] = ellipse_rows(s, settings_.cutoff, kBinWiden);
   return true;
 }

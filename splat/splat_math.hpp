@@ -47,9 +47,9 @@ struct KernelSettings {
   float cutoff = 16.0f;           // δ
   float low_pass = 0.0f;          // pixels², added to Σ2D's diagonal
   float skip_log_weight = 20.0f;  // skip terms with β a_k < m − this; 0 = never (see SplatOptions)
-  // Fill SplatFrameStats::skipped_terms. The CPU back end then counts the pixels of
-  // every skipped ellipse (about 1.5x its soft-MIP time), so it is off by default;
-  // the CUDA back end counts always (free there).
+  // Fill SplatFrameStats::skipped_terms. Both back ends then walk every skipped
+  // Gaussian to the end of each tile's list instead of stopping early (the CPU takes
+  // about 1.5x its soft-MIP time), so it is off by default.
   bool count_skipped = false;
   HISNEGS_HD bool soft() const { return mode == MipMode::kSoft; }
 };
@@ -214,6 +214,54 @@ HISNEGS_HD void for_each_ellipse_band(const EllipseRows<T>& e, int ty0, int ty1,
     }
     top = bottom;
   }
+}
+
+// Binning, the same for both back ends: which tiles a Gaussian is listed in.
+// δ is widened by kBinWiden and the ellipse by kBinPad pixels each side, so
+// rounding never drops a tile the kernels' per-pixel test q <= δ would reach.
+inline constexpr float kBinWiden = 1.0f + 1e-3f;
+inline constexpr float kBinPad = 0.25f;
+
+// Tile rectangle [x0, x1] × [y0, y1] (inclusive, tile units).
+struct TileRect {
+  int x0, y0, x1, y1;
+};
+
+// The tiles of the pixels whose centres can lie in the bounding box of s's ellipse
+// (one pixel of margin), clipped to the image; false when that box misses the image
+// or s is not finite. Extents are clamped in float before the int conversion, so
+// huge ones (e.g. δ = 1e6) cannot overflow.
+HISNEGS_HD bool splat_tile_rect(const Splat2D<float>& s, int width, int height, TileRect* rect) {
+  using std::ceil;
+  using std::floor;
+  using std::isfinite;
+  if (!isfinite(s.u) || !isfinite(s.v) || !isfinite(s.half_w) || !isfinite(s.half_h)) return false;
+  auto pixel = [](float x, int size) {
+    return static_cast<int>(x < -1.0f ? -1.0f : (x > static_cast<float>(size) ? static_cast<float>(size) : x));
+  };
+  auto at_least_0 = [](int v) { return v < 0 ? 0 : v; };
+  auto at_most = [](int v, int hi) { return v > hi ? hi : v; };
+  const int c0 = at_least_0(pixel(ceil(s.u - s.half_w - 0.5f), width) - 1);
+  const int c1 = at_most(pixel(floor(s.u + s.half_w - 0.5f), width) + 1, width - 1);
+  const int r0 = at_least_0(pixel(ceil(s.v - s.half_h - 0.5f), height) - 1);
+  const int r1 = at_most(pixel(floor(s.v + s.half_h - 0.5f), height) + 1, height - 1);
+  if (c0 > c1 || r0 > r1) return false;
+  *rect = {c0 / kTileSize, r0 / kTileSize, c1 / kTileSize, r1 / kTileSize};
+  return true;
+}
+
+// For each tile row ty of `rect` that the ellipse `e` (ellipse_rows(s, δ,
+// kBinWiden)) crosses, calls fn(ty, tx0, tx1) with the run of tile columns it
+// reaches there (within the rectangle; tx0 <= tx1 not guaranteed: an empty run
+// is possible at the image's edge). The CPU back end's SIMD binning
+// (detail::tile_bands) computes the same runs eight rows at a time.
+template <class Fn>
+HISNEGS_HD void for_each_tile_run(const EllipseRows<float>& e, const TileRect& rect, Fn&& fn) {
+  for_each_ellipse_band(e, rect.y0, rect.y1, kTileSize, kBinPad, [&](int ty, int c0, int c1) {
+    if (c1 < 0) return;
+    const int tx0 = (c0 < 0 ? 0 : c0) / kTileSize, tx1 = c1 / kTileSize;
+    fn(ty, tx0 > rect.x0 ? tx0 : rect.x0, tx1 < rect.x1 ? tx1 : rect.x1);
+  });
 }
 
 // The squared 2D Mahalanobis distance of pixel centre (px, py) (Eq. 7's exponent × -2).

@@ -26,7 +26,7 @@ struct SplatFrameStats {
   int visible = 0;                 // Gaussians in front of the camera whose ellipse meets the image
   std::int64_t tile_entries = 0;   // (Gaussian, tile) pairs rasterized
   std::int64_t skipped_terms = 0;  // soft-MIP (pixel, Gaussian) terms skipped by skip_log_weight
-                                   // (CPU: only with SplatSettings::count_skipped, else 0)
+                                   // (only with SplatSettings::count_skipped, else 0)
 };
 
 // World->camera parameters of a view in the kernels' form.

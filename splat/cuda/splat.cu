@@ -110,7 +110,8 @@ struct CudaSplatter::Impl {
   // Device state, grown only when needed (reserve()).
   DeviceBuffer<float> params;                     // 11 K
   DeviceBuffer<Splat2D<float>> splats;            // K
-  DeviceBuffer<kernels::TileRect> rects;          // K
+  DeviceBuffer<TileRect> rects;                   // K
+  DeviceBuffer<EllipseRows<float>> rows;          // K: each ellipse row by row, for the band walk
   DeviceBuffer<std::uint64_t> touched, offsets;   // K + 1: tiles per Gaussian, their exclusive scan
   DeviceBuffer<std::uint64_t> keys[2];            // entries: tile << 32 | amplitude key (sort double buffer)
   DeviceBuffer<std::uint32_t> ids[2];             // entries: Gaussian id
@@ -157,7 +158,8 @@ void CudaSplatter::Impl::bin() {
   sorted_ids = ids[0].data();
   if (entries == 0) return;
   kernels::duplicate_kernel<<<blocks_for(count, kGaussianThreads), kGaussianThreads>>>(
-      splats.data(), rects.data(), offsets.data(), static_cast<int>(count), tiles_x, keys[0].data(), ids[0].data());
+      splats.data(), rects.data(), rows.data(), offsets.data(), static_cast<int>(count), tiles_x, keys[0].data(),
+      ids[0].data());
   HISNEGS_CUDA_CHECK_LAUNCH();
   // Stable LSD radix sort over the amplitude and tile bits: entries written in
   // Gaussian order keep it among equal amplitudes (deterministic lists).
@@ -201,6 +203,7 @@ void CudaSplatter::forward(const float* params, std::size_t count, const ViewPar
   reserve(d.params, kGaussianParamCount * count);
   reserve(d.splats, count);
   reserve(d.rects, count);
+  reserve(d.rows, count);
   reserve(d.touched, count + 1);
   reserve(d.offsets, count + 1);
   reserve(d.ranges, d.tiles);
@@ -220,7 +223,7 @@ void CudaSplatter::forward(const float* params, std::size_t count, const ViewPar
   if (count > 0) {
     kernels::preprocess_kernel<<<blocks_for(count, kGaussianThreads), kGaussianThreads>>>(
         d.params.data(), static_cast<int>(count), view, settings.cutoff, settings.low_pass, d.splats.data(),
-        d.rects.data(), d.touched.data(), d.counters.data());
+        d.rects.data(), d.rows.data(), d.touched.data(), d.counters.data());
     HISNEGS_CUDA_CHECK_LAUNCH();
     std::size_t temp_bytes = 0;
     HISNEGS_CUDA_CHECK(

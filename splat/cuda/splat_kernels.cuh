@@ -1,6 +1,6 @@
 // SPDX-License-Identifier: Apache-2.0
 // Device kernels of the CUDA splatting back end (private to splat/cuda/splat.cu):
-// per-Gaussian projection and tile rectangles, (tile, amplitude) key duplication,
+// per-Gaussian projection and binning (the CPU's band walk), (tile, amplitude) key duplication,
 // tile ranges, the per-tile forward/backward rasterizers and the per-Gaussian
 // projection backward. Host orchestration, buffers and CUB calls live in splat.cu.
 //
@@ -37,19 +37,16 @@ struct FrameCounters {
   unsigned long long skipped;
 };
 
-// Tile rectangle [x0, x1] x [y0, y1] (inclusive, tile units) of a visible Gaussian.
-struct TileRect {
-  int x0, y0, x1, y1;
-};
-
-// 1. One thread per Gaussian: Eq. 2-6 in float, then the tiles whose pixels can
-// lie in the ellipse's bounding box (splat_cpu.cpp's rule, pixel centres, one
-// pixel of margin). `touched` has count + 1 entries; the last is set to 0 so an
-// exclusive scan of it ends in the total.
+// 1. One thread per Gaussian: Eq. 2-6 in float, then the tiles its δ ellipse
+// reaches, band by band (splat_math.hpp's splat_tile_rect and for_each_tile_run,
+// the CPU back end's binning), counted into touched[k]; the ellipse's rows are kept
+// for the duplicate kernel. `touched` has count + 1 entries; the last is set to 0
+// so an exclusive scan of it ends in the total.
 __global__ void __launch_bounds__(256)
     preprocess_kernel(const float* __restrict__ params, int count, ViewParams<float> view, float cutoff, float low_pass,
                       Splat2D<float>* __restrict__ splats, TileRect* __restrict__ rects,
-                      std::uint64_t* __restrict__ touched, FrameCounters* __restrict__ counters) {
+                      EllipseRows<float>* __restrict__ rows, std::uint64_t* __restrict__ touched,
+                      FrameCounters* __restrict__ counters) {
   const int k = blockIdx.x * blockDim.x + threadIdx.x;
   if (k == 0) touched[count] = 0;
   if (k >= count) return;
@@ -57,19 +54,16 @@ __global__ void __launch_bounds__(256)
       project_gaussian(params + static_cast<std::size_t>(gmf::kGaussianParamCount) * k, view, cutoff, low_pass);
   std::uint64_t n = 0;
   if (s.visible) {
-    // Clamped to [-1, size] before the int conversion (same rectangle, no overflow for
-    // huge extents, e.g. δ = 1e6).
-    const float w = static_cast<float>(view.width), h = static_cast<float>(view.height);
-    const int c0 = max(0, static_cast<int>(ceilf(fmaxf(s.u - s.half_w - 0.5f, -1.0f))) - 1);
-    const int c1 = min(view.width - 1, static_cast<int>(floorf(fminf(s.u + s.half_w - 0.5f, w))) + 1);
-    const int r0 = max(0, static_cast<int>(ceilf(fmaxf(s.v - s.half_h - 0.5f, -1.0f))) - 1);
-    const int r1 = min(view.height - 1, static_cast<int>(floorf(fminf(s.v + s.half_h - 0.5f, h))) + 1);
-    if (c0 > c1 || r0 > r1 || !isfinite(s.u) || !isfinite(s.v)) {
+    TileRect r;
+    if (!splat_tile_rect(s, view.width, view.height, &r)) {
       s.visible = false;
     } else {
-      const TileRect r{c0 / kTileSize, r0 / kTileSize, c1 / kTileSize, r1 / kTileSize};
+      const EllipseRows<float> e = ellipse_rows(s, cutoff, kBinWiden);
+      for_each_tile_run(e, r, [&](int, int tx0, int tx1) {
+        if (tx1 >= tx0) n += static_cast<std::uint64_t>(tx1 - tx0 + 1);
+      });
       rects[k] = r;
-      n = static_cast<std::uint64_t>(r.x1 - r.x0 + 1) * static_cast<std::uint64_t>(r.y1 - r.y0 + 1);
+      rows[k] = e;
       atomicAdd(&counters->visible, 1u);
     }
   }
@@ -87,20 +81,20 @@ __device__ __forceinline__ std::uint32_t amplitude_key(float amplitude) { return
 // offsets[k] ...
 __global__ void __launch_bounds__(256)
     duplicate_kernel(const Splat2D<float>* __restrict__ splats, const TileRect* __restrict__ rects,
-                     const std::uint64_t* __restrict__ offsets, int count, int tiles_x,
-                     std::uint64_t* __restrict__ keys, std::uint32_t* __restrict__ ids) {
+                     const EllipseRows<float>* __restrict__ rows, const std::uint64_t* __restrict__ offsets,
+                     int count, int tiles_x, std::uint64_t* __restrict__ keys, std::uint32_t* __restrict__ ids) {
   const int k = blockIdx.x * blockDim.x + threadIdx.x;
   if (k >= count || !splats[k].visible) return;
-  const TileRect r = rects[k];
   const std::uint64_t low = amplitude_key(splats[k].amplitude);
   std::uint64_t at = offsets[k];
-  for (int ty = r.y0; ty <= r.y1; ++ty) {
-    for (int tx = r.x0; tx <= r.x1; ++tx) {
+  // The same runs the preprocess counted (same inputs, same code: same count).
+  for_each_tile_run(rows[k], rects[k], [&](int ty, int tx0, int tx1) {
+    for (int tx = tx0; tx <= tx1; ++tx) {
       keys[at] = (static_cast<std::uint64_t>(ty * tiles_x + tx) << 32) | low;
       ids[at] = static_cast<std::uint32_t>(k);
       ++at;
     }
-  }
+  });
 }
 
 // 3. One thread per sorted entry: each tile's [begin, end) in the sorted list
@@ -157,13 +151,19 @@ __device__ __forceinline__ unsigned long long warp_sum(unsigned long long x) {
   return x;
 }
 
-// 4. One 16x16 block per tile, one thread per pixel. Soft: the online softmax of
-// report §9.3 (gmf::softmax_add: one exp per term), skipping a term when even its
-// largest possible value β a_k is e^-skip below the pixel's running m — as the
-// CPU's forward_tile, but decided per pixel rather than per SIMD chunk. Hard: the
-// running max; a Gaussian with a_k <= m cannot raise it, and since the list is
-// amplitude-descending neither can any later one, so a block whose pixels are all
-// settled stops. Writes m, S, I per pixel (hard: m = I = max g, S = 1 where touched).
+// 4. One 16x16 block per tile, one thread per pixel, in the CPU's two passes
+// (splat/detail/splat_cpu_tiles.cpp, ForwardTile):
+//   pass 1, both modes: lm = ln of the largest g = a e^{-q/2} over the terms with
+//     q <= δ, exact in the log domain (ln g = ln a − q/2). The list is amplitude-
+//     descending, so once ln a <= lm no later Gaussian can raise the pixel, and a
+//     block whose pixels are all settled stops.
+//   pass 2, soft only: with every pixel's final M = β e^{lm} known, S = Σ e^{βg − M}
+//     and W = Σ e^{βg − M} g need no rescaling (report §9.3 without the running max),
+//     skipping a term when even its largest possible value β a_k is e^-skip below M
+//     (with the final M the skip rule culls as much as it ever can), and stopping
+//     once that holds for every later Gaussian of every pixel.
+// Writes m, S, I per pixel (soft: m = M, I = W / S; hard: m = I = e^{lm}, S = 1
+// where touched; m = −∞ where nothing reaches the pixel).
 template <bool kSoft>
 __global__ void __launch_bounds__(kBlock)
     forward_kernel(const uint2* __restrict__ ranges, const std::uint32_t* __restrict__ ids,
@@ -177,9 +177,8 @@ __global__ void __launch_bounds__(kBlock)
   const float px = static_cast<float>(col) + 0.5f, py = static_cast<float>(row) + 0.5f;
   const uint2 range = ranges[tile];
 
-  gmf::SoftMaxState<float> st;
-  gmf::softmax_init(st);  // hard mode keeps its max in st.m
-  unsigned long long skipped = 0;
+  // Pass 1: the log max.
+  float lm = -INFINITY;
   bool done = !inside;
   for (std::uint32_t begin = range.x; begin < range.y; begin += kBatch) {
     const int n = static_cast<int>(min(static_cast<std::uint32_t>(kBatch), range.y - begin));
@@ -188,44 +187,62 @@ __global__ void __launch_bounds__(kBlock)
     __syncthreads();
     if (!done) {
       for (int j = 0; j < n; ++j) {
-        const Splat2D<float> s = batch.splat(j);
-        if constexpr (!kSoft) {
-          if (s.amplitude <= st.m) break;  // neither it nor any later one can raise the max
-        }
-        const float q = splat_distance(s, px, py);
-        if (!(q <= tp.k.cutoff)) continue;
-        if constexpr (kSoft) {
-          if (tp.k.skip_log_weight > 0.0f && tp.k.beta * s.amplitude + tp.k.skip_log_weight < st.m) {
-            ++skipped;
+        const float ln_a = logf(batch.amplitude[j]);
+        if (ln_a <= lm) break;  // neither it nor any later one can raise the max
+        const float q = splat_distance(batch.splat(j), px, py);
+        if (q <= tp.k.cutoff) lm = fmaxf(lm, ln_a - 0.5f * q);
+      }
+      done = lm >= logf(batch.amplitude[n - 1]);  // every later a_k <= this batch's last one
+    }
+    if (__syncthreads_and(done)) break;
+  }
+  const bool touched = lm > -INFINITY;
+
+  if constexpr (!kSoft) {
+    if (inside) {
+      const std::size_t at = static_cast<std::size_t>(row) * tp.width + col;
+      const float g = touched ? expf(lm) : 0.0f;
+      m_out[at] = touched ? g : -INFINITY;
+      S_out[at] = touched ? 1.0f : 0.0f;
+      I_out[at] = g;
+    }
+  } else {
+    // Pass 2: the softmax sums against the final M (+∞ where untouched: nothing to add).
+    const float M = touched ? tp.k.beta * expf(lm) : INFINITY;
+    const bool skipping = tp.k.skip_log_weight > 0.0f;
+    float S = 0.0f, W = 0.0f;
+    unsigned long long skipped = 0;
+    done = !inside || !touched;
+    for (std::uint32_t begin = range.x; begin < range.y; begin += kBatch) {
+      const int n = static_cast<int>(min(static_cast<std::uint32_t>(kBatch), range.y - begin));
+      __syncthreads();
+      batch.load(ids, splats, begin, n);
+      __syncthreads();
+      if (!done) {
+        for (int j = 0; j < n; ++j) {
+          const Splat2D<float> s = batch.splat(j);
+          const float q = splat_distance(s, px, py);
+          if (!(q <= tp.k.cutoff)) continue;
+          if (skipping && tp.k.beta * s.amplitude + tp.k.skip_log_weight < M) {
+            if (tp.k.count_skipped) ++skipped;
             continue;
           }
-          gmf::softmax_add(st, s.amplitude * expf(-0.5f * q), tp.k.beta);
-        } else {
-          st.m = fmaxf(st.m, s.amplitude * expf(-0.5f * q));
+          const float g = s.amplitude * expf(-0.5f * q);
+          const float e = expf(tp.k.beta * g - M);
+          S += e;
+          W += e * g;
         }
+        // Every later term would be skipped: stop, unless they are being counted.
+        done = skipping && !tp.k.count_skipped && tp.k.beta * batch.amplitude[n - 1] + tp.k.skip_log_weight < M;
       }
-      // Hard: every later a_k <= this batch's last one.
-      if constexpr (!kSoft) done = st.m >= batch.amplitude[n - 1];
-    }
-    if constexpr (!kSoft) {
       if (__syncthreads_and(done)) break;
     }
-  }
-
-  if (inside) {
-    const std::size_t at = static_cast<std::size_t>(row) * tp.width + col;
-    if constexpr (kSoft) {
-      m_out[at] = st.m;
-      S_out[at] = st.S;
-      I_out[at] = gmf::softmax_value(st);
-    } else {
-      const bool touched = st.m > -INFINITY;
-      m_out[at] = st.m;
-      S_out[at] = touched ? 1.0f : 0.0f;
-      I_out[at] = touched ? st.m : 0.0f;
+    if (inside) {
+      const std::size_t at = static_cast<std::size_t>(row) * tp.width + col;
+      m_out[at] = touched ? M : -INFINITY;
+      S_out[at] = S;
+      I_out[at] = S > 0.0f ? W / S : 0.0f;
     }
-  }
-  if constexpr (kSoft) {
     // Block reduction of the skipped terms, one atomic per block.
     __shared__ unsigned long long warp_skipped[kWarps];
     const int t = threadIdx.y * kTileSize + threadIdx.x;

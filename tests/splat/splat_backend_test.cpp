@@ -164,8 +164,8 @@ TEST_P(SplatBackend, LargeGaussiansOverManyTilesMatchReference) {
 
 // The skip rule drops only terms whose weight is below e^-skip of the pixel's running
 // max, so the image moves by less than (Gaussians: 60) e^-skip; with count_skipped the
-// dropped terms are counted (the CPU counts only then, CUDA always). Without counting
-// (the CPU's default, with its faster culling) the image obeys the same bound.
+// dropped terms are counted (both back ends count only then). Without counting
+// (the default, with its earlier stop) the image obeys the same bound.
 TEST_P(SplatBackend, SkippedTermsAreCountedAndNegligible) {
   for (std::uint64_t seed : {24u, 76u}) {
     const auto scene = testing::bright_over_dim_scene(seed);

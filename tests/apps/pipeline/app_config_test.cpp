@@ -114,7 +114,8 @@ TEST(AppConfig, TrainCpuYamlHoldsTheCpuSchedule) {
 // that sets any train field keeps its own; the choice is said in one line.
 TEST(AppConfig, TheCpuBackEndTrainsWithTheCpuScheduleUnlessOneIsConfigured) {
   std::vector<std::string> lines;
-  const Progress progress{.line = [&](std::string_view l) { lines.emplace_back(l); }};
+  Progress progress;
+  progress.line = [&](std::string_view l) { lines.emplace_back(l); };
   AppConfig config;
   choose_train_schedule(config, splat::Backend::kCpu, progress);
   EXPECT_EQ(config.train.epochs, cpu_train_schedule().epochs);
