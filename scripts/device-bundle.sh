@@ -116,8 +116,8 @@ cp scripts/device-check.sh "$out/device-check.sh"
 chmod +x "$out/hisnegs" "$out/run-tests" "$out/device-check.sh"
 
 size=$(du -sb "$out" | cut -f1)
-printf 'device-bundle: %s: %.1f MiB (limit 64 MiB); unpacked %.1f MiB\n' "$out" "$(echo "$size / 1048576" | bc -l)" \
-  "$(echo "$(du -sb "$stage" | cut -f1) / 1048576" | bc -l)"
+awk -v out="$out" -v s="$size" -v u="$(du -sb "$stage" | cut -f1)" \
+  'BEGIN {printf "device-bundle: %s: %.1f MiB (limit 64 MiB); unpacked %.1f MiB\n", out, s / 1048576, u / 1048576}'
 if ((size >= limit)); then
   echo "device-bundle: $out is over 64 MiB: leave the data out (HISNEGS_BUNDLE_DATA=0)" >&2
   exit 1
