@@ -157,13 +157,8 @@ int solve_brick(std::uint32_t b, const SampleSet& samples, const BlockIndex& ind
   po.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   ceres::Problem problem(po);
   for (std::size_t i = 0; i < ids.size(); ++i) {
-    ParamsD& p = local[i];
-    problem.AddParameterBlock(p.data(), kGaussianParamCount, &manifold);
     const std::size_t at = static_cast<std::size_t>(ids[i]) * kGaussianParamCount;
-    for (int c : {kMeanX, kMeanY, kMeanZ, kLogScale0, kLogScale1, kLogScale2}) {
-      problem.SetParameterLowerBound(p.data(), c, lower[at + c]);
-      problem.SetParameterUpperBound(p.data(), c, upper[at + c]);
-    }
+    detail::add_gaussian_block(problem, local[i].data(), &manifold, &lower[at], &upper[at]);
   }
   // The fixed terms live as long as the problem (its costs keep spans into them).
   std::size_t total = 0;

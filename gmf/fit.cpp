@@ -118,12 +118,8 @@ RoundOutcome solve_least_squares(const SampleSet& samples, const BlockIndex& ind
   po.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   ceres::Problem problem(po);
   for (std::size_t k = 0; k < params.size(); ++k) {
-    Params& p = params[k];
-    problem.AddParameterBlock(p.data(), kGaussianParamCount, &manifold);
-    for (int c : {kMeanX, kMeanY, kMeanZ, kLogScale0, kLogScale1, kLogScale2}) {
-      problem.SetParameterLowerBound(p.data(), c, lower[kGaussianParamCount * k + c]);
-      problem.SetParameterUpperBound(p.data(), c, upper[kGaussianParamCount * k + c]);
-    }
+    const std::size_t at = kGaussianParamCount * k;
+    detail::add_gaussian_block(problem, params[k].data(), &manifold, &lower[at], &upper[at]);
   }
   const double constant = unreached_loss(samples, index);
   for (std::size_t b = 0; b < samples.blocks(); ++b) {

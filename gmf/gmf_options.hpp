@@ -37,7 +37,7 @@ struct GmfOptions {
   Optimizer optimizer = Optimizer::kAdam;
   FitInit init = FitInit::kGrid;  // grid | maxima
   // Wall-clock limit of the whole fit, seconds, > 0: the fit stops before it.
-  double time_budget_s = 240.0;
+  double time_budget_s = 290.0;
   int rounds = 12;  // rounds (solve, then split/clone/prune), [1, 1000]
   // Iterations per round of the global solvers and Adam (steps), [1, 100000].
   int iterations_per_round = 40;

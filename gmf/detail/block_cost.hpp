@@ -34,6 +34,18 @@ inline constexpr int kBlockSizes[kBlocksPerGaussian] = {kGaussianParamCount};
 using GaussianManifold =
     ceres::ProductManifold<ceres::EuclideanManifold<6>, ceres::QuaternionManifold, ceres::EuclideanManifold<1>>;
 
+// Adds one Gaussian's parameter block `p` to `problem` on `manifold`, its mean and
+// log-scales boxed to [lower, upper] (kGaussianParamCount entries each, GaussianParam
+// order; the quaternion and logit are not bounded).
+inline void add_gaussian_block(ceres::Problem& problem, double* p, ceres::Manifold* manifold, const double* lower,
+                               const double* upper) {
+  problem.AddParameterBlock(p, kGaussianParamCount, manifold);
+  for (int c : {kMeanX, kMeanY, kMeanZ, kLogScale0, kLogScale1, kLogScale2}) {
+    problem.SetParameterLowerBound(p, c, lower[c]);
+    problem.SetParameterUpperBound(p, c, upper[c]);
+  }
+}
+
 class BlockCost final : public ceres::CostFunction {
  public:
   // Keeps references to `samples` and `fixed`; `gaussians` (free) only fixes the
