@@ -158,14 +158,14 @@ void CudaSplatter::Impl::bin() {
   sorted_ids = ids[0].data();
   if (entries == 0) return;
   kernels::duplicate_kernel<<<blocks_for(count, kGaussianThreads), kGaussianThreads>>>(
-      splats.data(), rects.data(), rows.data(), offsets.data(), static_cast<int>(count), tiles_x, keys[0].data(),
-      ids[0].data());
+      splats.data(), rects.data(), rows.data(), offsets.data(), static_cast<int>(count), tiles_x,
+      static_cast<std::uint32_t>(tiles), keys[0].data(), ids[0].data());
   HISNEGS_CUDA_CHECK_LAUNCH();
   // Stable LSD radix sort over the amplitude and tile bits: entries written in
   // Gaussian order keep it among equal amplitudes (deterministic lists).
   cub::DoubleBuffer<std::uint64_t> key_buffers(keys[0].data(), keys[1].data());
   cub::DoubleBuffer<std::uint32_t> id_buffers(ids[0].data(), ids[1].data());
-  const int end_bit = 32 + tile_bits(tiles);
+  const int end_bit = 32 + tile_bits(tiles + 1);  // + 1: the duplicate kernel's "no tile" index
   std::size_t temp_bytes = 0;
   HISNEGS_CUDA_CHECK(
       cub::DeviceRadixSort::SortPairs(nullptr, temp_bytes, key_buffers, id_buffers, entries, 0, end_bit));
@@ -206,7 +206,7 @@ void CudaSplatter::forward(const float* params, std::size_t count, const ViewPar
   reserve(d.rows, count);
   reserve(d.touched, count + 1);
   reserve(d.offsets, count + 1);
-  reserve(d.ranges, d.tiles);
+  reserve(d.ranges, d.tiles + 1);  // + 1: where the "no tile" entries land (never read)
   reserve(d.m, d.pixels);
   reserve(d.S, d.pixels);
   reserve(d.I, d.pixels);
@@ -219,7 +219,7 @@ void CudaSplatter::forward(const float* params, std::size_t count, const ViewPar
   // 1. Projection and tile counts, their exclusive scan.
   d.start.record();
   HISNEGS_CUDA_CHECK(cudaMemset(d.counters.data(), 0, sizeof(kernels::FrameCounters)));
-  HISNEGS_CUDA_CHECK(cudaMemset(d.ranges.data(), 0, d.tiles * sizeof(uint2)));
+  HISNEGS_CUDA_CHECK(cudaMemset(d.ranges.data(), 0, (d.tiles + 1) * sizeof(uint2)));
   if (count > 0) {
     kernels::preprocess_kernel<<<blocks_for(count, kGaussianThreads), kGaussianThreads>>>(
         d.params.data(), static_cast<int>(count), view, settings.cutoff, settings.low_pass, d.splats.data(),

@@ -82,19 +82,27 @@ __device__ __forceinline__ std::uint32_t amplitude_key(float amplitude) { return
 __global__ void __launch_bounds__(256)
     duplicate_kernel(const Splat2D<float>* __restrict__ splats, const TileRect* __restrict__ rects,
                      const EllipseRows<float>* __restrict__ rows, const std::uint64_t* __restrict__ offsets,
-                     int count, int tiles_x, std::uint64_t* __restrict__ keys, std::uint32_t* __restrict__ ids) {
+                     int count, int tiles_x, std::uint32_t tiles, std::uint64_t* __restrict__ keys,
+                     std::uint32_t* __restrict__ ids) {
   const int k = blockIdx.x * blockDim.x + threadIdx.x;
   if (k >= count || !splats[k].visible) return;
   const std::uint64_t low = amplitude_key(splats[k].amplitude);
   std::uint64_t at = offsets[k];
-  // The same runs the preprocess counted (same inputs, same code: same count).
+  const std::uint64_t end = offsets[k + 1];
+  // The same runs the preprocess counted (same inputs, same code, so the same
+  // count). Defensively, never past this Gaussian's slots, and any slot left over is
+  // given the tile index `tiles`, which sorts last and which no rasterizer block reads.
   for_each_tile_run(rows[k], rects[k], [&](int ty, int tx0, int tx1) {
-    for (int tx = tx0; tx <= tx1; ++tx) {
+    for (int tx = tx0; tx <= tx1 && at < end; ++tx) {
       keys[at] = (static_cast<std::uint64_t>(ty * tiles_x + tx) << 32) | low;
       ids[at] = static_cast<std::uint32_t>(k);
       ++at;
     }
   });
+  for (; at < end; ++at) {
+    keys[at] = (static_cast<std::uint64_t>(tiles) << 32) | low;
+    ids[at] = static_cast<std::uint32_t>(k);
+  }
 }
 
 // 3. One thread per sorted entry: each tile's [begin, end) in the sorted list
