@@ -79,19 +79,34 @@ HISNEGS_HD T softmax_value(const SoftMaxState<T>& st) {
   return st.S > T(0) ? st.W / st.S : T(0);
 }
 
-// The terms of Gaussians a computation holds fixed, at one point: their sum and
-// their softmax state (only the one the model uses is read).
+// The terms reaching one point, combined as a MixtureModel says: their sum, or
+// their online softmax (only the one the model uses is kept up to date, the other
+// stays at its empty value). Also what a computation holds fixed: the brick
+// solver's neighbours, as one PointTerms per sample that the free terms add to.
 template <class T>
-struct FixedTerms {
+struct PointTerms {
   T sum;
   SoftMaxState<T> soft;
 };
 template <class T>
-HISNEGS_HD FixedTerms<T> no_fixed_terms() {
-  FixedTerms<T> t;
+HISNEGS_HD PointTerms<T> no_terms() {
+  PointTerms<T> t;
   t.sum = T(0);
   softmax_init(t.soft);
   return t;
+}
+template <class T>
+HISNEGS_HD void add_term(PointTerms<T>& t, T g, const MixtureModel& model) {
+  if (model.aggregation == Aggregation::kSum) {
+    t.sum += g;
+  } else {
+    softmax_add(t.soft, g, T(model.beta));
+  }
+}
+// f at the point: the sum, or the softmax-weighted mean W / S (0 with no term).
+template <class T>
+HISNEGS_HD T terms_value(const PointTerms<T>& t, const MixtureModel& model) {
+  return model.aggregation == Aggregation::kSum ? t.sum : softmax_value(t.soft);
 }
 
 // ∂f_β/∂g_k = w_k (1 + β (g_k − f)), w_k = e^{β g_k − m} / S: the derivative with

@@ -10,7 +10,7 @@
 namespace hisnegs::gmf::detail {
 
 BlockCost::BlockCost(const SampleSet& samples, std::size_t block, std::size_t gaussians, const MixtureModel& model,
-                     std::span<const FixedTerms<double>> fixed)
+                     std::span<const PointTerms<double>> fixed)
     : samples_(samples),
       first_(samples.block_begin[block]),
       count_(samples.block_begin[block + 1] - samples.block_begin[block]),
@@ -43,27 +43,21 @@ bool BlockCost::Evaluate(double const* const* parameters, double* residuals, dou
     const std::size_t s = first_ + j;
     const double x[3] = {samples_.x[s], samples_.y[s], samples_.z[s]};
     const double w = samples_.weight[s];
-    const FixedTerms<double> fixed = fixed_.empty() ? no_fixed_terms<double>() : fixed_[j];
-    double sum = fixed.sum;
-    SoftMaxState<double> state = fixed.soft;
+    PointTerms<double> all = fixed_.empty() ? no_terms<double>() : fixed_[j];  // the fixed terms, then the free
     std::size_t n = 0;
     for (std::size_t g = 0; g < gaussians_; ++g) {
       double z[3];
       if (mahalanobis(frames[g], x, z) > model_.cutoff) continue;  // outside the support: contributes nothing
       const double term = evaluate_gaussian(frames[g], x, jacobians ? &grads[n * kGaussianParamCount] : nullptr);
-      if (soft) {
-        softmax_add(state, term, model_.beta);
-      } else {
-        sum += term;
-      }
+      add_term(all, term, model_);
       reach[n] = static_cast<std::uint32_t>(g);
       terms[n++] = term;
     }
-    const double f = soft ? softmax_value(state) : sum;
+    const double f = terms_value(all, model_);
     residuals[j] = w * (f - samples_.value[s]);
     if (!jacobians) continue;
     for (std::size_t i = 0; i < n; ++i) {
-      const double df_dg = soft ? softmax_dvalue_dterm(terms[i], model_.beta, state.m, state.S, f) : 1.0;
+      const double df_dg = soft ? softmax_dvalue_dterm(terms[i], model_.beta, all.soft.m, all.soft.S, f) : 1.0;
       const double* grad = &grads[i * kGaussianParamCount];
       double* J = jacobians[reach[i]];
       if (!J) continue;

@@ -67,7 +67,7 @@ std::vector<std::vector<std::uint32_t>> colour_bricks(const BrickPartition& p, c
 void fixed_terms_of_block(const SampleSet& samples, std::uint32_t block, const BlockIndex& index,
                           const BrickPartition& partition, std::uint32_t b,
                           std::span<const GaussianFrame<double>> frames, const MixtureModel& model,
-                          std::span<FixedTerms<double>> out) {
+                          std::span<PointTerms<double>> out) {
   thread_local std::vector<const GaussianFrame<double>*> fixed;
   fixed.clear();
   for (std::uint32_t g : index.of(block)) {
@@ -76,15 +76,14 @@ void fixed_terms_of_block(const SampleSet& samples, std::uint32_t block, const B
   const std::uint32_t first = samples.block_begin[block];
   for (std::size_t j = 0; j < out.size(); ++j) {
     const double x[3] = {samples.x[first + j], samples.y[first + j], samples.z[first + j]};
-    FixedTerms<double> t = no_fixed_terms<double>();
+    PointTerms<double> t = no_terms<double>();
     for (const GaussianFrame<double>* fp : fixed) {
       const GaussianFrame<double>& f = *fp;
       double z[3];
       const double m = mahalanobis(f, x, z);
       if (m > model.cutoff) continue;
       const double term = f.a * std::exp(-0.5 * m);
-      t.sum += term;
-      softmax_add(t.soft, term, model.beta);
+      add_term(t, term, model);
     }
     out[j] = t;
   }
@@ -163,13 +162,13 @@ int solve_brick(std::uint32_t b, const SampleSet& samples, const BlockIndex& ind
   // The fixed terms live as long as the problem (its costs keep spans into them).
   std::size_t total = 0;
   for (std::uint32_t block : blocks) total += samples.block_begin[block + 1] - samples.block_begin[block];
-  std::vector<FixedTerms<double>> fixed(total);
+  std::vector<PointTerms<double>> fixed(total);
   std::size_t offset = 0;
   std::vector<BrickCost::Block> costs;
   costs.reserve(blocks.size());
   for (std::uint32_t block : blocks) {
     const std::size_t n = samples.block_begin[block + 1] - samples.block_begin[block];
-    const std::span<FixedTerms<double>> terms(fixed.data() + offset, n);
+    const std::span<PointTerms<double>> terms(fixed.data() + offset, n);
     offset += n;
     fixed_terms_of_block(samples, block, index, partition, b, frames, options.model, terms);
     BrickCost::Block c;

@@ -33,24 +33,21 @@ DensityChange adapt_density(GaussianMixture& mixture, const SampleSet& samples, 
     g.resize(ids.size());
     for (std::uint32_t s = samples.block_begin[b]; s < samples.block_begin[b + 1]; ++s) {
       const double x[3] = {samples.x[s], samples.y[s], samples.z[s]};
-      double sum = 0;
-      SoftMaxState<double> state;
-      softmax_init(state);
+      PointTerms<double> all = no_terms<double>();
       reach.clear();
       for (std::size_t i = 0; i < ids.size(); ++i) {
         double z[3];
         if (mahalanobis(frames[ids[i]], x, z) > model.cutoff) continue;
         g[i] = evaluate_gaussian<double>(frames[ids[i]], x, nullptr);
-        sum += g[i];
-        softmax_add(state, g[i], model.beta);
+        add_term(all, g[i], model);
         reach.push_back(i);
       }
-      const double f = soft ? softmax_value(state) : sum;
+      const double f = terms_value(all, model);
       const double r = f - samples.value[s];
       // Each Gaussian's share of the sample's squared residual: g_k / f for a sum,
       // its softmax weight for a max-mixture (the dominant Gaussian owns the error).
       for (std::size_t i : reach) {
-        const double share = soft ? std::exp(model.beta * g[i] - state.m) / state.S : g[i] / sum;
+        const double share = soft ? std::exp(model.beta * g[i] - all.soft.m) / all.soft.S : g[i] / all.sum;
         error[ids[i]] += share * r * r;
       }
       if (s < samples.foreground && -r > options.clone_residual) under.push_back({-r, s});

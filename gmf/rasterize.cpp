@@ -187,12 +187,9 @@ void BlockRasterizer::evaluate(std::size_t b, BlockValues& out) const {
   const Eigen::Vector3i origin = block_origin(b);
   const Eigen::Vector3d& vs = d.lattice.voxel_size_world;
   const Eigen::Vector3d& org = d.lattice.origin_world;
-  const bool soft = d.options.aggregation == Aggregation::kSoftmax;
-  out.fill(0.0);
-  std::array<SoftMaxState<double>, kRasterBlockVoxels> state;
-  if (soft) {
-    for (auto& st : state) softmax_init(st);
-  }
+  const MixtureModel model{d.options.aggregation, d.options.beta, d.options.cutoff};
+  std::array<PointTerms<double>, kRasterBlockVoxels> terms;
+  terms.fill(no_terms<double>());
   for (std::size_t p = d.begin[b]; p < d.begin[b + 1]; ++p) {
     const Support& s = d.supports[d.pairs[p].gaussian];
     int lo[3], hi[3];
@@ -212,20 +209,13 @@ void BlockRasterizer::evaluate(std::size_t b, BlockValues& out) const {
           if (!(m <= s.m_max)) continue;
           // = evaluate_gaussian(s.f, xw, nullptr), without computing m twice.
           const double term = s.f.a * std::exp(-0.5 * m);
-          const int at = block_offset(x - origin.x(), y - origin.y(), z - origin.z());
-          if (soft) {
-            softmax_add(state[static_cast<std::size_t>(at)], term, d.options.beta);
-          } else {
-            out[static_cast<std::size_t>(at)] += term;
-          }
+          add_term(terms[static_cast<std::size_t>(block_offset(x - origin.x(), y - origin.y(), z - origin.z()))], term,
+                   model);
         }
       }
     }
   }
-  if (soft) {
-    for (int i = 0; i < kRasterBlockVoxels; ++i)
-      out[static_cast<std::size_t>(i)] = softmax_value(state[static_cast<std::size_t>(i)]);
-  }
+  for (std::size_t i = 0; i < terms.size(); ++i) out[i] = terms_value(terms[i], model);
 }
 
 std::vector<float> rasterize_mixture(const GaussianMixture& mixture, const io::WorldFrame& frame,

@@ -51,7 +51,7 @@ class BlockCost final : public ceres::CostFunction {
   // Keeps references to `samples` and `fixed`; `gaussians` (free) only fixes the
   // block count. `fixed`, when not empty, holds one entry per sample of the block.
   BlockCost(const SampleSet& samples, std::size_t block, std::size_t gaussians, const MixtureModel& model,
-            std::span<const FixedTerms<double>> fixed = {});
+            std::span<const PointTerms<double>> fixed = {});
 
   bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override;
 
@@ -62,7 +62,7 @@ class BlockCost final : public ceres::CostFunction {
   std::uint32_t first_, count_;
   std::size_t gaussians_;
   MixtureModel model_;
-  std::span<const FixedTerms<double>> fixed_;
+  std::span<const PointTerms<double>> fixed_;
 };
 
 // The same residuals as BlockCost as a templated functor, for Ceres' automatic
@@ -73,7 +73,7 @@ struct BlockResiduals {
   std::uint32_t first, count;
   std::size_t gaussians;
   MixtureModel model;
-  std::span<const FixedTerms<double>> fixed;
+  std::span<const PointTerms<double>> fixed;
 
   template <class T>
   bool operator()(T const* const* parameters, T* residuals) const {
@@ -84,17 +84,15 @@ struct BlockResiduals {
     for (std::uint32_t j = 0; j < count; ++j) {
       const std::size_t s = first + j;
       const T x[3] = {T(samples->x[s]), T(samples->y[s]), T(samples->z[s])};
-      const FixedTerms<double> fx = fixed.empty() ? no_fixed_terms<double>() : fixed[j];
-      T sum(fx.sum);
-      SoftMaxState<T> soft{T(fx.soft.m), T(fx.soft.S), T(fx.soft.W)};
+      const PointTerms<double> fx = fixed.empty() ? no_terms<double>() : fixed[j];
+      PointTerms<T> all{T(fx.sum), {T(fx.soft.m), T(fx.soft.S), T(fx.soft.W)}};
       for (std::size_t g = 0; g < gaussians; ++g) {
         T z[3];
         if (mahalanobis(frames[g], x, z) > T(model.cutoff)) continue;
         const T term = evaluate_gaussian<T>(frames[g], x, nullptr);
-        sum += term;
-        softmax_add(soft, term, T(model.beta));
+        add_term(all, term, model);
       }
-      const T f = model.aggregation == Aggregation::kSum ? sum : softmax_value(soft);
+      const T f = terms_value(all, model);
       residuals[j] = T(samples->weight[s]) * (f - T(samples->value[s]));
     }
     return true;

@@ -63,11 +63,11 @@ std::vector<double*> blocks_of(Mixture& m) {
 
 // Fixed terms at each sample, as the brick solver forms them: the sum and the
 // online softmax of the terms of `k` random Gaussians that are not free.
-std::vector<FixedTerms<double>> random_fixed_terms(std::mt19937_64& rng, int samples, double beta) {
+std::vector<PointTerms<double>> random_fixed_terms(std::mt19937_64& rng, int samples, double beta) {
   std::uniform_real_distribution<double> v(0, 0.8);
-  std::vector<FixedTerms<double>> out;
+  std::vector<PointTerms<double>> out;
   for (int j = 0; j < samples; ++j) {
-    FixedTerms<double> t = no_fixed_terms<double>();
+    PointTerms<double> t = no_terms<double>();
     for (int i = 0; i < j % 4; ++i) {  // 0 to 3 fixed terms: also samples with none
       const double g = v(rng);
       t.sum += g;
@@ -88,7 +88,7 @@ struct ResidualsOnly {
 // `model` is the aggregation (sum or softmax at β); `fixed`, when not empty, the
 // terms of Gaussians held fixed at each sample.
 double worst_jacobian_error(const SampleSet& s, Mixture& m, const MixtureModel& model,
-                            std::span<const FixedTerms<double>> fixed = {}) {
+                            std::span<const PointTerms<double>> fixed = {}) {
   const detail::BlockCost cost(s, 0, m.params.size(), model, fixed);
   ceres::NumericDiffOptions nd;
   nd.ridders_relative_initial_step_size = 1e-3;
@@ -158,14 +158,14 @@ TEST(BlockCost, SumJacobianWithFixedTermsMatchesRidders) {
   const double centre[3] = {0.0, 0.0, 0.0};
   const SampleSet s = one_block(rng, centre, 0.05, 40);
   Mixture m = random_mixture(rng, 4, -3.2, -2.2, 0.05);
-  const std::vector<FixedTerms<double>> fixed = random_fixed_terms(rng, 40, 1.0);
+  const std::vector<PointTerms<double>> fixed = random_fixed_terms(rng, 40, 1.0);
   EXPECT_LT(worst_jacobian_error(s, m, MixtureModel{.cutoff = 1e300}, fixed), 1e-6);
 }
 
 // Automatic differentiation (Jets) is exact up to rounding, so the analytic
 // Jacobian must agree with it to ~1e-12 relative to the Jacobian's scale.
 void expect_matches_autodiff(const SampleSet& s, Mixture& m, const MixtureModel& model,
-                             std::span<const FixedTerms<double>> fixed, const char* what) {
+                             std::span<const PointTerms<double>> fixed, const char* what) {
   const int n = static_cast<int>(s.x.size());
   const detail::BlockCost cost(s, 0, m.params.size(), model, fixed);
   ceres::DynamicAutoDiffCostFunction<detail::BlockResiduals, 4> autodiff(
@@ -202,7 +202,7 @@ TEST(BlockCost, JacobianMatchesCeresAutomaticDifferentiation) {
     for (int a = 0; a < 3; ++a) p[kMeanX + a] += centre[a];
   }
   expect_matches_autodiff(s, m, MixtureModel{}, {}, "sum");
-  const std::vector<FixedTerms<double>> fixed = random_fixed_terms(rng, 30, 32.0);
+  const std::vector<PointTerms<double>> fixed = random_fixed_terms(rng, 30, 32.0);
   expect_matches_autodiff(s, m, MixtureModel{.aggregation = Aggregation::kSoftmax, .beta = 32.0}, {}, "softmax");
   expect_matches_autodiff(s, m, MixtureModel{.aggregation = Aggregation::kSoftmax, .beta = 32.0}, fixed,
                           "softmax with fixed terms");
@@ -211,7 +211,7 @@ TEST(BlockCost, JacobianMatchesCeresAutomaticDifferentiation) {
 // Worst |analytic − central difference| over the Jacobian, relative to its largest
 // entry; the difference steps each parameter by h (absolute).
 double worst_central_difference_error(const SampleSet& s, Mixture& m, const MixtureModel& model,
-                                      std::span<const FixedTerms<double>> fixed, double h) {
+                                      std::span<const PointTerms<double>> fixed, double h) {
   const detail::BlockCost cost(s, 0, m.params.size(), model, fixed);
   const int nr = cost.num_residuals();
   std::vector<double*> blocks = blocks_of(m);
@@ -262,8 +262,8 @@ TEST(BlockCost, SoftmaxJacobianMatchesAutomaticAndNumericDifferentiation) {
           const double centre[3] = {0.0, 0.0, 0.0};
           const SampleSet s = one_block(rng, centre, 0.05, 40);
           Mixture m = random_mixture(rng, 4, c.ls_lo, c.ls_hi, c.spread);
-          const std::vector<FixedTerms<double>> fixed =
-              with_fixed ? random_fixed_terms(rng, 40, beta) : std::vector<FixedTerms<double>>{};
+          const std::vector<PointTerms<double>> fixed =
+              with_fixed ? random_fixed_terms(rng, 40, beta) : std::vector<PointTerms<double>>{};
           const MixtureModel model{.aggregation = Aggregation::kSoftmax, .beta = beta, .cutoff = 1e300};
           const std::string what =
               std::string(c.name) + " beta " + std::to_string(beta) + (with_fixed ? " with fixed terms" : "");
