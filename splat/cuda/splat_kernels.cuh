@@ -149,6 +149,21 @@ struct SharedBatch {
   }
 };
 
+// Walks a tile's list [range.x, range.y) kBatch Gaussians at a time: loads each
+// batch into shared memory (every thread takes part) and calls fn(n), n the batch's
+// size; stops after a batch for which fn returned true in every thread of the block.
+template <class Fn>
+__device__ void for_each_batch(SharedBatch& batch, const std::uint32_t* ids, const Splat2D<float>* splats,
+                               uint2 range, Fn&& fn) {
+  for (std::uint32_t begin = range.x; begin < range.y; begin += kBatch) {
+    const int n = static_cast<int>(min(static_cast<std::uint32_t>(kBatch), range.y - begin));
+    __syncthreads();
+    batch.load(ids, splats, begin, n);
+    __syncthreads();
+    if (__syncthreads_and(fn(n))) break;
+  }
+}
+
 __device__ __forceinline__ float warp_sum(float x) {
   for (int offset = 16; offset > 0; offset >>= 1) x += __shfl_down_sync(kFullMask, x, offset);
   return x;
@@ -188,11 +203,7 @@ __global__ void __launch_bounds__(kBlock)
   // Pass 1: the log max.
   float lm = -INFINITY;
   bool done = !inside;
-  for (std::uint32_t begin = range.x; begin < range.y; begin += kBatch) {
-    const int n = static_cast<int>(min(static_cast<std::uint32_t>(kBatch), range.y - begin));
-    __syncthreads();
-    batch.load(ids, splats, begin, n);
-    __syncthreads();
+  for_each_batch(batch, ids, splats, range, [&](int n) {
     if (!done) {
       for (int j = 0; j < n; ++j) {
         const float ln_a = logf(batch.amplitude[j]);
@@ -202,8 +213,8 @@ __global__ void __launch_bounds__(kBlock)
       }
       done = lm >= logf(batch.amplitude[n - 1]);  // every later a_k <= this batch's last one
     }
-    if (__syncthreads_and(done)) break;
-  }
+    return done;
+  });
   const bool touched = lm > -INFINITY;
 
   if constexpr (!kSoft) {
@@ -221,11 +232,7 @@ __global__ void __launch_bounds__(kBlock)
     float S = 0.0f, W = 0.0f;
     unsigned long long skipped = 0;
     done = !inside || !touched;
-    for (std::uint32_t begin = range.x; begin < range.y; begin += kBatch) {
-      const int n = static_cast<int>(min(static_cast<std::uint32_t>(kBatch), range.y - begin));
-      __syncthreads();
-      batch.load(ids, splats, begin, n);
-      __syncthreads();
+    for_each_batch(batch, ids, splats, range, [&](int n) {
       if (!done) {
         for (int j = 0; j < n; ++j) {
           const Splat2D<float> s = batch.splat(j);
@@ -243,8 +250,8 @@ __global__ void __launch_bounds__(kBlock)
         // Every later term would be skipped: stop, unless they are being counted.
         done = skipping && !tp.k.count_skipped && tp.k.beta * batch.amplitude[n - 1] + tp.k.skip_log_weight < M;
       }
-      if (__syncthreads_and(done)) break;
-    }
+      return done;
+    });
     if (inside) {
       const std::size_t at = static_cast<std::size_t>(row) * tp.width + col;
       m_out[at] = touched ? M : -INFINITY;
@@ -299,11 +306,7 @@ __global__ void __launch_bounds__(kBlock)
   if (!__syncthreads_or(active)) return;
   const uint2 range = ranges[tile];
 
-  for (std::uint32_t begin = range.x; begin < range.y; begin += kBatch) {
-    const int n = static_cast<int>(min(static_cast<std::uint32_t>(kBatch), range.y - begin));
-    __syncthreads();
-    batch.load(ids, splats, begin, n);
-    __syncthreads();
+  for_each_batch(batch, ids, splats, range, [&](int n) {
     for (int chunk = 0; chunk < n; chunk += kGradChunk) {
       const int chunk_n = min(kGradChunk, n - chunk);
       for (int jj = 0; jj < chunk_n; ++jj) {
@@ -338,7 +341,8 @@ __global__ void __launch_bounds__(kBlock)
       }
       __syncthreads();
     }
-  }
+    return false;  // every batch: the gradient needs every term
+  });
 }
 
 // 6. One thread per Gaussian: the 2D gradient sums through the projection to the 11
