@@ -362,14 +362,13 @@ int take_round_result(const RoundProblem& r, const GmfOptions& options, Gaussian
 }
 
 // The loss and the foreground PSNR of `mixture` under `model` (one evaluation of
-// every sample block).
+// every sample block of `index`, the mixture's own block index).
 struct SampleFit {
   double loss = 0;
   double psnr_fg = 0;
 };
-SampleFit measure_on_samples(const GaussianMixture& mixture, const SampleSet& samples, const io::WorldFrame& frame,
+SampleFit measure_on_samples(const GaussianMixture& mixture, const SampleSet& samples, const BlockIndex& index,
                              const MixtureModel& model) {
-  const BlockIndex index = build_block_index(mixture, samples, frame, model.cutoff);
   const FitObjective objective(samples, index, mixture.size(), model);
   std::vector<double> x(mixture.size() * kGaussianParamCount);
   const auto flat = flat_params(mixture);
@@ -417,7 +416,9 @@ FitResult fit_mixture(const io::Volume& volume, const io::SparseGrid& grid, Gaus
     stats.round = round;
     stats.pruned = take_round_result(problem, options, mixture);
     result.pruned += stats.pruned;
-    const SampleFit fit = measure_on_samples(mixture, samples, frame, model);
+    // The round's result's block index: for its measurement and its density control.
+    const BlockIndex current = build_block_index(mixture, samples, frame, model.cutoff);
+    const SampleFit fit = measure_on_samples(mixture, samples, current, model);
     FitIteration end;
     end.round = round;
     end.iteration = iterations;
@@ -436,7 +437,6 @@ FitResult fit_mixture(const io::Volume& volume, const io::SparseGrid& grid, Gaus
     }
     // Density control for the next round (not after the last one, nor when out of time).
     if (!last && options.densify && round + 1 < options.rounds && clock.now() < options.time_budget_s) {
-      const BlockIndex current = build_block_index(mixture, samples, frame, options.mahalanobis_cutoff);
       const DensityChange change = adapt_density(mixture, samples, current, frame, options, model);
       stats.split = change.split;
       stats.cloned = change.cloned;
