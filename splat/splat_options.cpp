@@ -68,6 +68,8 @@ void TrainOptions::validate() const {
   io::require_in_range(s, "save_every", save_every, 1, 1e9);
   io::require_in_range(s, "views_per_step", views_per_step, 1, 1e6);
   io::require_in_range(s, "crop_size", crop_size, 0, 16384);
+  io::require_in_range(s, "lambda_3d", lambda_3d, 0.0, 1e6);
+  io::require_in_range(s, "volume_blocks", volume_blocks, 1, 1e6);
 }
 
 }  // namespace hisnegs::splat

@@ -114,6 +114,13 @@ struct TrainOptions {
   int views_per_step = 1;                 // mini-batch of views per optimizer step, >= 1
   int crop_size = 0;                      // random square crop edge, pixels (0 = whole image)
   std::uint64_t seed = 0;                 // view shuffling, crops, density control
+  // The 3D term (used when training is given the volume, as `run` always is):
+  // lambda_3d × the mean squared stage-1 residual (w (f − V))² of the model's own 3D
+  // value f on volume_blocks sample blocks drawn afresh each step, added to the loss
+  // (0 turns it off). With the volume, pruning also drops Gaussians whose centre is
+  // outside the foreground and its band.
+  double lambda_3d = 0.1;  // >= 0
+  int volume_blocks = 4;   // sample blocks (8^3 voxels) per step, [1, 10^6]
 
   void validate() const;
   template <class V>
@@ -149,6 +156,8 @@ struct TrainOptions {
     v("views_per_step", views_per_step);
     v("crop_size", crop_size);
     v("seed", seed);
+    v("lambda_3d", lambda_3d);
+    v("volume_blocks", volume_blocks);
   }
 };
 

@@ -118,6 +118,13 @@ Trainer::StepSums Trainer::train_step(std::span<const int> view_indices) {
   const double reg = options_.lambda_scale * scale_regularizer(std::span<const float>(params_), options_.scale_min,
                                                                options_.scale_max, options_.lambda_scale, grad_);
   sums.loss += static_cast<double>(view_indices.size()) * reg;
+  if (volume_ && options_.lambda_3d > 0) {
+    volume_batch_.resize(static_cast<std::size_t>(options_.volume_blocks));
+    std::uniform_int_distribution<std::uint32_t> pick(0, static_cast<std::uint32_t>(volume_->blocks() - 1));
+    for (std::uint32_t& b : volume_batch_) b = pick(rng_);
+    sums.loss_3d = volume_->add(params_, volume_batch_, options_.lambda_3d, grad_);
+    sums.loss += static_cast<double>(view_indices.size()) * sums.loss_3d;
+  }
   if (!std::isfinite(sums.loss)) {
     throw std::runtime_error("training diverged: the loss is not finite in epoch " + std::to_string(epoch_ + 1) +
                              ", step " + std::to_string(adam_.steps() + 1));
@@ -175,15 +182,19 @@ EpochReport Trainer::run_epoch() {
   std::iota(order.begin(), order.end(), 0);
   std::shuffle(order.begin(), order.end(), rng_);
   const std::size_t B = static_cast<std::size_t>(options_.views_per_step);
+  int steps = 0;
   for (std::size_t start = 0; start < order.size(); start += B) {
     const std::size_t n = std::min(B, order.size() - start);
     io::fault_point("train_step");
     const StepSums sums = train_step(std::span<const int>(order).subspan(start, n));
     report.loss += sums.loss;
     report.psnr += sums.psnr;
+    report.loss_3d += sums.loss_3d;
+    ++steps;
   }
   report.loss /= static_cast<double>(order.size());
   report.psnr /= static_cast<double>(order.size());
+  report.loss_3d /= static_cast<double>(steps);
   ++epoch_;
   report.epoch = epoch_;
   if (epoch_ >= options_.densify_from && epoch_ <= options_.densify_until && epoch_ % options_.densify_every == 0) {
@@ -191,7 +202,11 @@ EpochReport Trainer::run_epoch() {
     report.split = change.split;
     report.cloned = change.cloned;
   }
-  if (epoch_ % options_.prune_every == 0) report.pruned = prune();
+  if (epoch_ % options_.prune_every == 0) {
+    const Pruned pruned = prune();
+    report.pruned = pruned.total;
+    report.pruned_empty = pruned.empty;
+  }
   report.gaussians = gaussians();
   report.seconds = watch.elapsed();
   return report;

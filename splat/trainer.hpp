@@ -19,6 +19,7 @@
 #include "splat/splat_options.hpp"
 #include "splat/splat_renderer.hpp"
 #include "splat/training_data.hpp"
+#include "splat/volume_term.hpp"
 
 namespace hisnegs::splat {
 
@@ -33,13 +34,15 @@ namespace hisnegs::splat {
 // What one epoch did (means over the training views seen in it).
 struct EpochReport {
   int epoch = 0;                          // 1-based number of the epoch just finished
-  double loss = 0;                        // mean per-view Eq. 16 loss (image terms + L_reg of its step)
+  double loss = 0;                        // mean per-view loss (Eq. 16 image terms + L_reg + the 3D term of its step)
+  double loss_3d = 0;                     // mean per-step 3D term (0 without a volume)
   double psnr = 0;                        // mean per-view PSNR, dB (of the crop when crop_size > 0)
   double beta = 0;                        // β it was trained at
   double lr = 0;                          // base learning rate it was trained at
   double seconds = 0;                     // wall time of the epoch incl. density control
   int gaussians = 0;                      // K after density control
   int split = 0, cloned = 0, pruned = 0;  // density control at its end
+  int pruned_empty = 0;                   // of `pruned`: centre in empty space
 };
 
 struct DensifyChange {
@@ -74,6 +77,12 @@ class Trainer {
   Trainer(Trainer&&) noexcept = default;
   Trainer& operator=(Trainer&&) noexcept = default;
 
+  // Trains against the volume as well (see TrainOptions::lambda_3d): from the next
+  // step on, each step adds the term on volume_blocks blocks drawn with the trainer's
+  // RNG, and prune() also removes Gaussians whose centre `term` says is in empty space.
+  void attach_volume(std::shared_ptr<const VolumeTerm> term) { volume_ = std::move(term); }
+  [[nodiscard]] bool has_volume() const { return volume_ != nullptr; }
+
   // Runs epoch epoch()+1 and its density control. Precondition: !finished().
   EpochReport run_epoch();
   [[nodiscard]] bool finished() const { return epoch_ >= options_.epochs; }
@@ -103,10 +112,15 @@ class Trainer {
   // split_scale, same intensity — a MIP takes the max, so intensity is not shared),
   // else cloned (an identical copy appended; the original keeps its moments, so the
   // two separate). Children of a split and clones start with zero Adam moments.
-  // Resets the statistics. prune(): removes a_k < prune_intensity, compacting every
-  // per-Gaussian array in order. Returns the number removed.
+  // Resets the statistics. prune(): removes a_k < prune_intensity and, with a volume
+  // attached, Gaussians whose centre is in empty space, compacting every per-Gaussian
+  // array in order. Returns the numbers removed (all, and of them for empty space).
   DensifyChange densify();
-  int prune();
+  struct Pruned {
+    int total = 0;
+    int empty = 0;
+  };
+  Pruned prune();
 
   [[nodiscard]] int gaussians() const { return static_cast<int>(params_.size() / gmf::kGaussianParamCount); }
   [[nodiscard]] std::span<const float> params() const { return params_; }
@@ -134,6 +148,7 @@ class Trainer {
   struct StepSums {
     double loss = 0;  // Σ over the step's views of their loss
     double psnr = 0;  // Σ over the step's views of their PSNR
+    double loss_3d = 0;  // the step's 3D term
   };
   StepSums train_step(std::span<const int> view_indices);
   void adam_update(std::span<const float> grad, double lr);
@@ -146,6 +161,8 @@ class Trainer {
   std::unique_ptr<SplatRenderer> renderer_;
   double scene_scale_ = 1.0;
   ImageLossWeights weights_;
+  std::shared_ptr<const VolumeTerm> volume_;
+  std::vector<std::uint32_t> volume_batch_;
 
   gmf::Adam<float> adam_{gmf::AdamOptions{.epsilon = 1e-15}};
   std::vector<double> grad_accum_;

@@ -52,14 +52,23 @@ DensifyChange Trainer::densify() {
   return change;
 }
 
-int Trainer::prune() {
+Trainer::Pruned Trainer::prune() {
   const std::size_t K = params_.size() / gmf::kGaussianParamCount;
-  const std::vector<std::uint32_t> kept = gmf::bright_gaussians(params_, options_.prune_intensity);
+  std::vector<std::uint32_t> kept = gmf::bright_gaussians(params_, options_.prune_intensity);
+  Pruned pruned;
+  if (volume_) {
+    const std::size_t bright = kept.size();
+    std::erase_if(kept, [&](std::uint32_t k) {
+      return volume_->centre_in_empty_space(params_.data() + gmf::kGaussianParamCount * k);
+    });
+    pruned.empty = static_cast<int>(bright - kept.size());
+  }
   gmf::keep_rows(params_, kept, gmf::kGaussianParamCount);
   adam_.keep(kept);
   gmf::keep_rows(grad_accum_, kept);
   gmf::keep_rows(grad_count_, kept);
-  return static_cast<int>(K - kept.size());
+  pruned.total = static_cast<int>(K - kept.size());
+  return pruned;
 }
 
 }  // namespace hisnegs::splat

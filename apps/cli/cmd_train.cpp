@@ -1,5 +1,5 @@
 // SPDX-License-Identifier: Apache-2.0
-// `hisnegs train --init gmf.ply --data GTDIR -o RUNDIR`: options of the training
+// `hisnegs train --init gmf.ply --data GTDIR [--volume V.tif] -o RUNDIR`: options of the training
 // stage (pipeline/train_stage.hpp) on GTDIR/train; --resume continues.
 #include "apps/cli/cli_support.hpp"
 #include "apps/pipeline/train_stage.hpp"
@@ -9,7 +9,7 @@ namespace hisnegs::apps {
 void add_train_command(CLI::App& app, GlobalOptions& global) {
   auto* cmd = app.add_subcommand("train", "train Gaussians on ground-truth MIPs by soft-MIP splatting (report §6)");
   struct Args {
-    std::string init, data, out, backend = "auto";
+    std::string init, data, out, volume, backend = "auto";
     bool resume = false;
     std::optional<int> epochs;
   };
@@ -18,6 +18,9 @@ void add_train_command(CLI::App& app, GlobalOptions& global) {
   cmd->add_option("--data", args->data, "ground-truth folder of `hisnegs gt` (uses GTDIR/train)")->required();
   cmd->add_option("-o,--output", args->out, "run folder (log.csv, checkpoints/, final.ply, training_curve.png)")
       ->required();
+  cmd->add_option("--volume", args->volume,
+                  "the stack the model was fitted to: adds the 3D term (train.lambda_3d) and prunes Gaussians "
+                  "in empty space (default: the views only)");
   cmd->add_option("--backend", args->backend, "auto | cpu | cuda");
   cmd->add_flag("--resume", args->resume, "continue from RUNDIR/checkpoints/latest");
   cmd->add_option("--epochs", args->epochs, "number of epochs (train.epochs)");
@@ -26,7 +29,8 @@ void add_train_command(CLI::App& app, GlobalOptions& global) {
     if (args->epochs) config.train.epochs = *args->epochs;
     const splat::Backend backend = splat::resolve_backend(splat::parse_backend_request(args->backend));
     choose_train_schedule(config, backend, global.progress());
-    train_model({args->init, std::filesystem::path(args->data) / "train", args->out, backend, args->resume},
+    train_model({args->init, std::filesystem::path(args->data) / "train", args->out, backend, args->resume,
+                 args->volume},
                 TrainConfig(config), global.progress());
   });
 }

@@ -7,6 +7,7 @@
 
 #include "apps/pipeline/format.hpp"
 #include "apps/pipeline/training_log.hpp"
+#include "apps/pipeline/training_volume.hpp"
 #include "gmf/checkpoint.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
@@ -51,7 +52,7 @@ void check_training(const TrainRequest& request, const TrainConfig& config) {
 
 // The trainer on the initial model and the ground truth, moved on to the latest
 // checkpoint when resuming.
-TrainingSession start_training(const TrainRequest& request, const TrainConfig& config) {
+TrainingSession start_training(const TrainRequest& request, const TrainConfig& config, const Progress& progress) {
   TrainingSession s;
   splat::TrainingData data = splat::load_training_data(request.data);
   const gmf::Checkpoint init = gmf::load_checkpoint(request.init.string());
@@ -65,6 +66,13 @@ TrainingSession start_training(const TrainRequest& request, const TrainConfig& c
   s.trainer.emplace(config.get<&AppConfig::train>(), splat::SplatSettings::from(config.get<&AppConfig::splat>()),
                     std::move(data), std::vector<float>(flat.begin(), flat.end()),
                     splat::make_splat_renderer(request.backend), scene_scale);
+  if (!request.volume.empty()) {
+    s.trainer->attach_volume(make_training_volume(request.volume, config.get<&AppConfig::volume>(),
+                                                  config.get<&AppConfig::sparse_grid>(), config.get<&AppConfig::gmf>(),
+                                                  init.meta, progress));
+  } else {
+    progress.say("train: no volume given: training on the views alone (no 3D term, no empty-space pruning)");
+  }
   s.meta = init.meta;
   std::erase_if(s.meta.extra, [](const auto& kv) { return kv.first == "init"; });
   s.meta.extra.emplace_back("init", io::printable(request.init.string(), 200));
@@ -94,8 +102,11 @@ void run_epochs(TrainingSession& s, const fs::path& run, int epochs, const Progr
         strf("train: epoch %d/%d: loss %.6g, PSNR %.2f dB, K %d, beta %.4g, lr %.3g, %s/epoch, ETA %s", r.epoch, epochs,
              r.loss, r.psnr, r.gaussians, r.beta, r.lr, format_seconds(r.seconds).c_str(),
              format_seconds(per_epoch * (epochs - trainer.epoch())).c_str());
-    if (r.split + r.cloned + r.pruned > 0)
-      line += strf(" (%d split, %d cloned, %d pruned)", r.split, r.cloned, r.pruned);
+    if (trainer.has_volume()) line += strf(", 3D term %.4g", r.loss_3d);
+    if (r.split + r.cloned + r.pruned > 0) {
+      line += strf(" (%d split, %d cloned, %d pruned", r.split, r.cloned, r.pruned);
+      line += r.pruned_empty > 0 ? strf(", %d of them in empty space)", r.pruned_empty) : std::string(")");
+    }
     progress.line(line);
   }
 }
@@ -141,7 +152,7 @@ void choose_train_schedule(AppConfig& config, splat::Backend backend, const Prog
 
 TrainOutcome train_model(const TrainRequest& request, const TrainConfig& config, const Progress& progress) {
   check_training(request, config);
-  TrainingSession s = start_training(request, config);
+  TrainingSession s = start_training(request, config, progress);
   const int epochs = config.get<&AppConfig::train>().epochs;
   progress.say("train: %d views of %dx%d, K %d, %d epochs%s, %s back end", s.views, s.width, s.height,
                s.trainer->gaussians(), epochs,
@@ -160,8 +171,8 @@ nlohmann::ordered_json TrainStage::run(const RunRequest& request, const Config& 
                                        const Progress& progress) {
   const fs::path train = request.dir / "train";
   if (!resume) fs::remove_all(train);  // a stale or different run: start over
-  train_model({request.dir / "gmf.ply", request.dir / "gt" / "train", train, request.backend, resume}, config,
-              progress);
+  train_model({request.dir / "gmf.ply", request.dir / "gt" / "train", train, request.backend, resume, request.volume},
+              config, progress);
   return nullptr;
 }
 

@@ -12,7 +12,9 @@
 
 namespace hisnegs::apps {
 
-using TrainConfig = ConfigSlice<&AppConfig::train, &AppConfig::splat>;
+// train and splat; volume, sparse_grid and gmf say how the 3D term samples the stack.
+using TrainConfig =
+    ConfigSlice<&AppConfig::volume, &AppConfig::sparse_grid, &AppConfig::gmf, &AppConfig::train, &AppConfig::splat>;
 
 struct TrainRequest {
   std::filesystem::path init;  // initial checkpoint (.ply)
@@ -20,6 +22,9 @@ struct TrainRequest {
   std::filesystem::path run;
   splat::Backend backend = splat::Backend::kCpu;
   bool resume = false;
+  // The stack the model was fitted to: enables the 3D term (train.lambda_3d) and
+  // empty-space pruning. Empty: training sees the views only.
+  std::filesystem::path volume;
 };
 struct TrainOutcome {
   int epochs = 0;
@@ -42,14 +47,14 @@ void choose_train_schedule(AppConfig& config, splat::Backend backend, const Prog
 // run unless `resume`, and for splat.mode other than soft.
 TrainOutcome train_model(const TrainRequest& request, const TrainConfig& config, const Progress& progress);
 
-// In a run folder: DIR/train from DIR/gmf.ply on DIR/gt/train. A training that was
+// In a run folder: DIR/train from DIR/gmf.ply on DIR/gt/train, with the run's volume. A training that was
 // started with the same inputs and left a checkpoint resumes; otherwise DIR/train
 // is cleared first.
 struct TrainStage {
   using Config = TrainConfig;
   static constexpr const char* kName = "train";
   static constexpr const char* kTitle = "soft-MIP splatting training (stage 2)";
-  static constexpr std::array<const char*, 2> kUpstream{"fit", "ground_truth"};
+  static constexpr std::array<const char*, 3> kUpstream{"volume", "fit", "ground_truth"};
   static constexpr std::array<const char*, 1> kOutputs{"train/final.ply"};
   static constexpr const char* kResumeMarker = "train/checkpoints/latest";
   static std::string request_inputs(const RunRequest&) { return {}; }

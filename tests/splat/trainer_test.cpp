@@ -184,7 +184,7 @@ TEST(Trainer, PruneKeepsSurvivorsAndTheirMomentsAligned) {
   const double accum2 = trainer.grad_accum()[2];
   const std::uint32_t count2 = trainer.grad_count()[2];
   ASSERT_NE(m2, std::vector<float>(kP, 0.0f));  // moments are non-trivial, so the check below means something
-  EXPECT_EQ(trainer.prune(), 1);
+  EXPECT_EQ(trainer.prune().total, 1);
   ASSERT_EQ(trainer.gaussians(), 4);
   EXPECT_EQ(trainer.params().size(), 4 * kP);
   EXPECT_EQ(trainer.adam_m().size(), 4 * kP);

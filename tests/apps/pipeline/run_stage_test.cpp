@@ -147,7 +147,8 @@ TEST(StageDeclarations, SectionsUpstreamAndOutputs) {
   EXPECT_EQ(sections.at("volume"), (V{"volume", "sparse_grid"}));
   EXPECT_EQ(sections.at("ground_truth"), (V{"volume", "camera", "raymarch"}));
   EXPECT_EQ(sections.at("fit"), (V{"volume", "sparse_grid", "gmf"}));  // gmf.background_fraction, gmf.gaussians
-  EXPECT_EQ(sections.at("train"), (V{"splat", "train"}));
+  // The 3D term samples the volume as the fit does (volume, sparse_grid, gmf).
+  EXPECT_EQ(sections.at("train"), (V{"volume", "sparse_grid", "splat", "train", "gmf"}));
   EXPECT_EQ(sections.at("eval"), (V{"splat"}));
   EXPECT_EQ(sections.at("orbit"), (V{"camera", "splat"}));
   EXPECT_EQ(PipelineStages::kCount, 6);
