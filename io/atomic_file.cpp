@@ -4,6 +4,8 @@
 #include "io/atomic_file.hpp"
 
 #include <fcntl.h>
+#include <signal.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <atomic>
@@ -11,6 +13,8 @@
 #include <cstdio>
 #include <cstring>
 #include <fstream>
+#include <mutex>
+#include <set>
 #include <sstream>
 #include <stdexcept>
 #include <string>
@@ -39,20 +43,103 @@ std::string number_text(double v) {
 namespace {
 std::atomic<unsigned> g_temp_counter{0};
 
-void fsync_path(const fs::path& path) {
-  const int fd = ::open(path.c_str(), O_RDONLY);
-  if (fd < 0) return;  // best effort: the rename below still makes the write atomic
-  ::fsync(fd);
-  ::close(fd);
+// 0 or the errno of a failing open/fsync/close.
+int fsync_path(const fs::path& path) {
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) return errno;
+  int err = ::fsync(fd) == 0 ? 0 : errno;
+  if (::close(fd) != 0 && err == 0) err = errno;
+  return err;
 }
 }  // namespace
 
-AtomicFile::AtomicFile(fs::path target) : target_(std::move(target)) {
+void fail_write(const fs::path& target, int err) {
+  throw WriteError(target.string() + ": cannot write: " + (err ? std::strerror(err) : "write failed"));
+}
+
+namespace {
+// The temporaries of live AtomicFiles, for the signal handler: fixed slots of
+// pointers into the owners' own path strings (no allocation, lock-free).
+constexpr int kTempSlots = 256;
+std::atomic<const char*> g_live_temps[kTempSlots];
+
+int register_temp(const char* path) {
+  for (int i = 0; i < kTempSlots; ++i) {
+    const char* expected = nullptr;
+    if (g_live_temps[i].compare_exchange_strong(expected, path)) return i;
+  }
+  return -1;  // more than kTempSlots writes at once: this one is not cleaned on a signal
+}
+
+void unregister_temp(int slot) {
+  if (slot >= 0) g_live_temps[slot].store(nullptr);
+}
+
+extern "C" void remove_temporaries_and_exit(int sig) {
+  for (auto& slot : g_live_temps) {
+    if (const char* p = slot.load()) ::unlink(p);
+  }
+  const char* name = sig == SIGINT ? "SIGINT" : sig == SIGTERM ? "SIGTERM" : "SIGHUP";
+  const char head[] = "hisnegs: interrupted by ";
+  const char tail[] = "; unfinished outputs removed\n";
+  (void)!::write(STDERR_FILENO, head, sizeof head - 1);
+  (void)!::write(STDERR_FILENO, name, std::strlen(name));
+  (void)!::write(STDERR_FILENO, tail, sizeof tail - 1);
+  ::_exit(128 + sig);
+}
+
+std::mutex g_inputs_mutex;
+std::set<std::pair<dev_t, ino_t>> g_inputs;  // protect_input()
+}  // namespace
+
+void install_interrupt_cleanup() {
+  struct sigaction action {};
+  action.sa_handler = remove_temporaries_and_exit;
+  sigemptyset(&action.sa_mask);
+  for (int sig : {SIGINT, SIGTERM, SIGHUP}) ::sigaction(sig, &action, nullptr);
+  ::signal(SIGXFSZ, SIG_IGN);
+}
+
+void protect_input(const fs::path& path) {
+  struct stat st {};
+  if (::stat(path.c_str(), &st) != 0 || !S_ISREG(st.st_mode)) return;
+  const std::lock_guard lock(g_inputs_mutex);
+  g_inputs.emplace(st.st_dev, st.st_ino);
+}
+
+bool same_file(const fs::path& a, const fs::path& b) {
+  struct stat sa {}, sb {};
+  return ::stat(a.c_str(), &sa) == 0 && ::stat(b.c_str(), &sb) == 0 && sa.st_dev == sb.st_dev &&
+         sa.st_ino == sb.st_ino;
+}
+
+fs::path require_replaceable_output(const fs::path& target) {
+  struct stat link {};
+  if (::lstat(target.c_str(), &link) != 0) return target;  // nothing there yet
+  fs::path path = target;
+  struct stat st = link;
+  if (S_ISLNK(link.st_mode)) {
+    if (::stat(target.c_str(), &st) != 0) fail_input(target, "is a symlink to nothing; refusing to replace it");
+    std::error_code ec;
+    path = fs::canonical(target, ec);
+    if (ec) fail_input(target, "cannot resolve the symlink: " + ec.message());
+  }
+  if (S_ISDIR(st.st_mode)) fail_input(target, "output path is a directory");
+  if (!S_ISREG(st.st_mode)) {
+    fail_input(target, "exists and is not a regular file (a device, FIFO or socket); refusing to replace it");
+  }
+  const std::lock_guard lock(g_inputs_mutex);
+  if (g_inputs.count({st.st_dev, st.st_ino}) != 0) {
+    fail_input(target, "is also an input of this command; refusing to overwrite it (choose another output)");
+  }
+  return path;
+}
+
+AtomicFile::AtomicFile(fs::path target) : target_(require_replaceable_output(target)) {
   const fs::path parent = target_.has_parent_path() ? target_.parent_path() : fs::path(".");
   std::error_code ec;
   fs::create_directories(parent, ec);
   if (ec) fail_input(parent, "cannot create output folder: " + ec.message());
-  if (fs::is_directory(target_)) fail_input(target_, "output path is a directory");
   // Built with += (GCC 12 raises a false -Wrestrict on "." + std::string).
   std::string name(".");
   name += target_.filename().string();
@@ -61,9 +148,11 @@ AtomicFile::AtomicFile(fs::path target) : target_(std::move(target)) {
   name += "-";
   name += std::to_string(g_temp_counter.fetch_add(1));
   temp_ = parent / name;
+  slot_ = register_temp(temp_.c_str());
 }
 
 AtomicFile::~AtomicFile() {
+  unregister_temp(slot_);
   if (!committed_) {
     std::error_code ec;
     fs::remove(temp_, ec);
@@ -74,36 +163,66 @@ void AtomicFile::commit() {
   if (!fs::exists(temp_)) {
     throw std::runtime_error(target_.string() + ": internal error: nothing was written to commit");
   }
-  fsync_path(temp_);
+  if (const int err = fsync_path(temp_); err != 0) fail_write(target_, err);
   fault_point("atomic_commit");  // written in full, not yet renamed
   std::error_code ec;
   fs::rename(temp_, target_, ec);
   if (ec) throw std::runtime_error(target_.string() + ": cannot rename temporary file: " + ec.message());
   committed_ = true;
-  fsync_path(target_.has_parent_path() ? target_.parent_path() : fs::path("."));
+  unregister_temp(slot_);  // the name is the target's now: a signal must not remove it
+  slot_ = -1;
+  // The folder's entry: best effort (some file systems refuse fsync on a directory).
+  (void)fsync_path(target_.has_parent_path() ? target_.parent_path() : fs::path("."));
 }
 
 void write_file_atomic(const fs::path& target, const void* bytes, std::size_t size) {
   AtomicFile file(target);
   std::FILE* f = std::fopen(file.temp_path().c_str(), "wb");
   if (!f) fail_input(target, std::string("cannot open for writing: ") + std::strerror(errno));
+  errno = 0;
   const std::size_t written = size ? std::fwrite(bytes, 1, size, f) : 0;
-  const bool ok = written == size && std::fclose(f) == 0;
-  if (!ok) throw std::runtime_error(target.string() + ": write failed: " + std::strerror(errno));
+  int err = written == size && std::fflush(f) == 0 ? 0 : (errno ? errno : EIO);
+  if (std::fclose(f) != 0 && err == 0) err = errno ? errno : EIO;
+  if (err != 0) fail_write(target, err);
   file.commit();
 }
 
-int remove_stale_temporaries(const fs::path& dir) {
+namespace {
+// The PID of an AtomicFile temporary name ".NAME.tmp-PID-N"; 0 when it is not one.
+pid_t temporary_owner(const std::string& name) {
+  if (name.size() < 2 || name[0] != '.') return 0;
+  const std::size_t at = name.rfind(".tmp-");
+  if (at == std::string::npos || at == 0) return 0;
+  const std::size_t dash = name.find('-', at + 5);
+  if (dash == std::string::npos) return 0;
+  try {
+    const long pid = std::stol(name.substr(at + 5, dash - at - 5));
+    return pid > 0 ? static_cast<pid_t>(pid) : 0;
+  } catch (const std::exception&) {
+    return 0;
+  }
+}
+
+bool process_exists(pid_t pid) { return ::kill(pid, 0) == 0 || errno != ESRCH; }
+
+int remove_stale_in(const fs::path& dir, bool recursive) {
   int removed = 0;
   std::error_code ec;
   for (const auto& entry : fs::directory_iterator(dir, ec)) {
-    const std::string name = entry.path().filename().string();
-    if (name.size() > 1 && name[0] == '.' && name.find(".tmp-") != std::string::npos && entry.is_regular_file(ec)) {
-      removed += fs::remove(entry.path(), ec) ? 1 : 0;
+    if (entry.is_symlink(ec)) continue;
+    if (recursive && entry.is_directory(ec)) {
+      removed += remove_stale_in(entry.path(), true);
+      continue;
     }
+    const pid_t owner = temporary_owner(entry.path().filename().string());
+    if (owner == 0 || !entry.is_regular_file(ec) || process_exists(owner)) continue;
+    removed += fs::remove(entry.path(), ec) ? 1 : 0;
   }
   return removed;
 }
+}  // namespace
+
+int remove_stale_temporaries(const fs::path& dir, bool recursive) { return remove_stale_in(dir, recursive); }
 
 std::string read_file(const fs::path& path) {
   require_regular_file(path);

@@ -18,6 +18,13 @@ class InputError : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
+// An output could not be written (full disk, I/O error, file size limit): not a
+// bug and not bad input; the CLI says "error: PATH: cannot write: REASON", exit 1.
+class WriteError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
 // "PATH: message" with the path as the user typed it.
 [[nodiscard]] inline std::string describe(const std::filesystem::path& path, const std::string& message) {
   return path.string() + ": " + message;

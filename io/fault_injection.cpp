@@ -16,6 +16,7 @@ namespace {
 struct Fault {
   std::string name;  // empty: no fault armed
   long at = 0;
+  int signal = SIGKILL;
   std::atomic<long> seen{0};
 };
 
@@ -25,11 +26,18 @@ Fault& armed_fault() {
   std::call_once(once, [] {
     const char* env = std::getenv("HISNEGS_FAULT");
     if (!env) return;
-    const char* colon = std::strrchr(env, ':');
+    const char* colon = std::strchr(env, ':');
     if (!colon) return;
     char* end = nullptr;
     const long at = std::strtol(colon + 1, &end, 10);
-    if (end == colon + 1 || *end != '\0' || at < 1) return;
+    if (end == colon + 1 || at < 1) return;
+    if (std::strcmp(end, ":INT") == 0) {
+      fault.signal = SIGINT;
+    } else if (std::strcmp(end, ":TERM") == 0) {
+      fault.signal = SIGTERM;
+    } else if (*end != '\0') {
+      return;
+    }
     fault.name.assign(env, colon);
     fault.at = at;
   });
@@ -41,7 +49,7 @@ Fault& armed_fault() {
 void fault_point(const char* name) {
   Fault& f = armed_fault();
   if (f.name.empty() || f.name != name) return;
-  if (f.seen.fetch_add(1) + 1 == f.at) std::raise(SIGKILL);
+  if (f.seen.fetch_add(1) + 1 == f.at) std::raise(f.signal);
 }
 
 }  // namespace hisnegs::io

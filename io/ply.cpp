@@ -575,15 +575,12 @@ void write_ply(const fs::path& path, const PlyTable& table) {
   header += "end_header\n";
 
   auto write = [&](const void* data, std::size_t size) {
-    if (size && std::fwrite(data, 1, size, file.get()) != size) {
-      throw std::runtime_error(path.string() + ": write failed: " + std::strerror(errno));
-    }
+    if (size && std::fwrite(data, 1, size, file.get()) != size) fail_write(path, errno);
   };
   write(header.data(), header.size());
   for (const PlyElement& e : table.elements) write(e.bytes().data(), e.bytes().size());
-  if (std::fclose(file.release()) != 0) {
-    throw std::runtime_error(path.string() + ": write failed: " + std::strerror(errno));
-  }
+  if (std::fflush(file.get()) != 0) fail_write(path, errno);
+  if (std::fclose(file.release()) != 0) fail_write(path, errno);
   out.commit();
 }
 

@@ -10,7 +10,9 @@
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
+#include <cerrno>
 #include <cmath>
+#include <fstream>
 #include <mutex>
 #include <random>
 #include <sstream>
@@ -40,16 +42,37 @@ void ensure_openvdb_initialized() {
   std::call_once(once, [] { openvdb::initialize(); });
 }
 
+namespace {
+// io::File::write writes through its own std::ofstream and never looks at the
+// stream's state afterwards, so a full disk went unnoticed. This archive writes the
+// same seekable .vdb layout (Archive::write, as File::write does) into a stream we
+// own and check.
+class CheckedVdbArchive final : public openvdb::io::Archive {
+ public:
+  openvdb::io::Archive::Ptr copy() const override { return std::make_shared<CheckedVdbArchive>(*this); }
+  void write_to(std::ostream& os, const openvdb::GridPtrVec& grids) const {
+    openvdb::io::Archive::write(os, grids, /*seekable=*/true);
+  }
+};
+}  // namespace
+
 void write_vdb_file(const std::filesystem::path& path, const openvdb::GridPtrVec& grids) {
   AtomicFile out(path);
+  std::ofstream os(out.temp_path(), std::ios::binary | std::ios::trunc);
+  if (!os) fail_write(path, errno);
+  errno = 0;  // a failing write(2) inside the stream leaves its errno (ENOSPC, EIO, EFBIG)
   try {
-    openvdb::io::File file(out.temp_path().string());
-    file.setCompression(openvdb::io::COMPRESS_BLOSC);
-    file.write(grids);
-    file.close();
+    CheckedVdbArchive archive;
+    archive.setCompression(openvdb::io::COMPRESS_BLOSC);
+    archive.write_to(os, grids);
   } catch (const openvdb::Exception& e) {
     throw std::runtime_error(path.string() + ": cannot write VDB: " + printable(e.what()));
   }
+  if (!os) fail_write(path, errno);
+  os.flush();
+  if (!os) fail_write(path, errno);
+  os.close();
+  if (!os) fail_write(path, errno);
   out.commit();
 }
 

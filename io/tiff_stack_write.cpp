@@ -178,7 +178,7 @@ void write_tiff_stack(const fs::path& path, std::span<const float> voxels, int n
   TIFF* tif = handle.get();
   if (!tif) fail_input(path, "cannot create TIFF file" + handle.detail());
   auto fail_write = [&](const std::string& what) {
-    throw std::runtime_error(describe(path, "cannot write " + what + handle.detail()));
+    throw WriteError(describe(path, "cannot write " + what + handle.detail()));
   };
   std::vector<unsigned char> strip(rows_per_strip * row_bytes);
   for (int z = 0; z < nz; ++z) {

@@ -8,6 +8,7 @@
 #include <sstream>
 
 #include "apps/cli/console_progress.hpp"
+#include "io/atomic_file.hpp"
 #include "io/error.hpp"
 
 namespace hisnegs::apps {
@@ -39,7 +40,57 @@ void VolumeOverrides::apply(io::VolumeOptions& options) const {
   options.validate();
 }
 
+namespace {
+
+// Before a command does any work: its outputs (-o, --log) must not be an existing
+// device, FIFO, socket or dangling symlink, nor the same file as any other value on
+// its command line; every other value naming a regular file is protected for the
+// run (io::protect_input), so no write can replace an input under another name.
+void guard_outputs(const CLI::App& cmd) {
+  std::vector<const CLI::Option*> outputs;
+  for (const char* name : {"--output", "--log"}) {
+    const CLI::Option* o = cmd.get_option_no_throw(name);
+    if (o && o->count() > 0) outputs.push_back(o);
+  }
+  for (const CLI::Option* out : outputs) {
+    for (const std::string& value : out->results()) {
+      if (value.empty()) throw io::InputError(out->get_name() + ": empty path");
+      std::error_code ec;
+      const auto link = std::filesystem::symlink_status(value, ec);
+      if (ec || !std::filesystem::exists(link)) continue;
+      const auto target = std::filesystem::status(value, ec);
+      if (!std::filesystem::exists(target)) io::fail_input(value, "is a symlink to nothing; refusing to replace it");
+      if (!std::filesystem::is_regular_file(target) && !std::filesystem::is_directory(target)) {
+        io::fail_input(value, "exists and is not a regular file (a device, FIFO or socket); refusing to replace it");
+      }
+    }
+  }
+  for (const CLI::Option* opt : cmd.get_options()) {
+    if (std::find(outputs.begin(), outputs.end(), opt) != outputs.end()) continue;
+    for (const std::string& value : opt->results()) {
+      for (const CLI::Option* out : outputs) {
+        for (const std::string& o : out->results()) {
+          if (io::same_file(value, o)) {
+            io::fail_input(o, "is also an input (" + opt->get_name() + "); refusing to overwrite it");
+          }
+        }
+      }
+      io::protect_input(value);
+    }
+  }
+}
+
+void guard_all_outputs(CLI::App& app) {
+  for (CLI::App* sub : app.get_subcommands([](const CLI::App*) { return true; })) {
+    sub->parse_complete_callback([sub] { guard_outputs(*sub); });
+    guard_all_outputs(*sub);
+  }
+}
+
+}  // namespace
+
 int run_cli(int argc, char** argv) {
+  io::install_interrupt_cleanup();
   CLI::App app{"hisnegs: Gaussian Mixture Field fitting and soft-MIP Gaussian splatting of microscopy volumes",
                "hisnegs"};
   app.set_version_flag("--version", std::string("hisnegs ") + HISNEGS_VERSION);
@@ -62,6 +113,7 @@ int run_cli(int argc, char** argv) {
   add_import_command(app, global);
   add_config_command(app, global);
   add_bench_command(app, global);
+  guard_all_outputs(app);
   // CLI11 would only say "a subcommand is required" for a misspelt command: name it.
   for (int i = 1; i < argc; ++i) {
     const std::string arg = argv[i];
@@ -88,6 +140,9 @@ int run_cli(int argc, char** argv) {
   } catch (const io::InputError& e) {
     std::cerr << "hisnegs: error: " << io::printable(e.what()) << "\n";
     return 2;
+  } catch (const io::WriteError& e) {
+    std::cerr << "hisnegs: error: " << io::printable(e.what()) << "\n";
+    return 1;
   } catch (const std::bad_alloc&) {
     std::cerr << "hisnegs: error: out of memory\n";
     return 1;

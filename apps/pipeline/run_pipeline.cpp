@@ -9,6 +9,7 @@
 #include "apps/pipeline/run_report.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
+#include "io/folder_lock.hpp"
 #include "io/timer.hpp"
 
 namespace hisnegs::apps {
@@ -53,7 +54,7 @@ class StageRunner {
     io::Stopwatch watch;
     Json facts = S::run(request_, slice, resume, progress_);
     if (!facts.is_null()) state_.set_field(S::kName, std::move(facts));
-    finish(S::kName, fingerprint, before + watch.elapsed());
+    finish(S::kName, fingerprint, before + watch.elapsed(), output_identities(outputs_of<S>()));
   }
 
   [[nodiscard]] const std::vector<StageTiming>& timings() const { return timings_; }
@@ -66,15 +67,28 @@ class StageRunner {
     return paths;
   }
 
-  // A stage that finished with this fingerprint and left its outputs is reused.
+  // The identity (size, modification time, inode) of each output, by its name in DIR.
+  Json output_identities(const std::vector<fs::path>& outputs) const {
+    Json ids = Json::object();
+    for (const fs::path& p : outputs) {
+      ids[p.lexically_relative(request_.dir).string()] = fs::exists(p) ? file_content_identity(p) : "";
+    }
+    return ids;
+  }
+
+  // A stage that finished with this fingerprint and left the very outputs it
+  // recorded (not files another process wrote since) is reused.
   bool reuse(const std::string& name, const std::string& title, const std::string& fingerprint,
              const std::vector<fs::path>& outputs) {
     const Json previous = state_.stage(name);
-    bool outputs_exist = true;
-    for (const fs::path& p : outputs) outputs_exist = outputs_exist && fs::exists(p);
     if (request_.force || previous.value("fingerprint", "") != fingerprint || previous.value("state", "") != "done" ||
-        !outputs_exist) {
+        !previous.contains("outputs") || !previous["outputs"].is_object()) {
       return false;
+    }
+    const Json recorded = previous["outputs"];
+    const Json current = output_identities(outputs);
+    for (const auto& [name, identity] : current.items()) {  // key order does not matter
+      if (identity.get<std::string>().empty() || !recorded.contains(name) || recorded[name] != identity) return false;
     }
     const double seconds = previous.value("seconds", 0.0);
     timings_.push_back({name, seconds, true});
@@ -98,8 +112,9 @@ class StageRunner {
     return before;
   }
 
-  void finish(const std::string& name, const std::string& fingerprint, double seconds) {
-    state_.set(name, Json{{"fingerprint", fingerprint}, {"state", "done"}, {"seconds", seconds}});
+  void finish(const std::string& name, const std::string& fingerprint, double seconds, Json outputs) {
+    state_.set(name, Json{{"fingerprint", fingerprint}, {"state", "done"}, {"seconds", seconds},
+                          {"outputs", std::move(outputs)}});
     timings_.push_back({name, seconds, false});
   }
 
@@ -121,6 +136,10 @@ void run_stages(StageList<Stages...>, StageRunner& runner, const AppConfig& conf
 RunSummary run_pipeline(const RunRequest& request, AppConfig config, const Progress& progress) {
   check_request(request, config);
   io::Stopwatch total;
+  const io::FolderLock lock(request.dir);  // one writer per run folder, for the whole run
+  if (const int stale = io::remove_stale_temporaries(request.dir, true); stale > 0) {
+    progress.say("run: removed %d temporary file(s) of an interrupted earlier run", stale);
+  }
   RunState state = open_run_folder(request, config);
   StageRunner runner(request, state, progress, PipelineStages::kCount);
   run_stages(PipelineStages{}, runner, config);

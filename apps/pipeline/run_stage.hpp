@@ -55,14 +55,18 @@ concept RunStage = requires(const RunRequest& request, const typename S::Config&
   { S::run(request, config, resume, progress) } -> std::same_as<nlohmann::ordered_json>;
 };
 
-// The fingerprint of stage S's inputs: the generations of its upstream stages, what
-// it reads of the request and the YAML of its config slice.
+// The fingerprint of stage S's inputs: the generations of its upstream stages and
+// the identities of the outputs they recorded (so files another process wrote
+// in between never pass for them), what it reads of the request and the YAML of
+// its config slice.
 template <RunStage S>
 [[nodiscard]] std::string stage_fingerprint(const typename S::Config& config, const RunRequest& request,
                                             const RunState& state) {
   std::string text = std::string(S::kName) + "\n";
   for (const char* upstream : S::kUpstream) {
-    text += std::string(upstream) + "@" + std::to_string(state.generation(upstream)) + "\n";
+    text += std::string(upstream) + "@" + std::to_string(state.generation(upstream)) + " " +
+            nlohmann::json(state.stage(upstream).value("outputs", nlohmann::ordered_json::object())).dump() +
+            "\n";  // nlohmann::json sorts the keys: the text does not depend on their order in run.json
   }
   text += S::request_inputs(request);
   text += config.text();

@@ -2,6 +2,11 @@
 // RunState (DIR/run.json), hash_hex and file_identity.
 #include "apps/pipeline/run_state.hpp"
 
+#include <sys/stat.h>
+
+#include <cerrno>
+#include <system_error>
+
 #include "apps/pipeline/format.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
@@ -55,10 +60,18 @@ std::string hash_hex(const std::string& text) {
   return strf("%016llx", static_cast<unsigned long long>(io::fnv1a64(text)));
 }
 
+std::string file_content_identity(const fs::path& path) {
+  struct stat st {};
+  if (::stat(path.c_str(), &st) != 0) {
+    throw fs::filesystem_error("cannot stat", path, std::error_code(errno, std::generic_category()));
+  }
+  const long long mtime_ns = static_cast<long long>(st.st_mtim.tv_sec) * 1000000000LL + st.st_mtim.tv_nsec;
+  return std::to_string(st.st_size) + "|" + std::to_string(mtime_ns) + "|" + std::to_string(st.st_dev) + ":" +
+         std::to_string(st.st_ino);
+}
+
 std::string file_identity(const fs::path& path) {
-  const auto size = fs::file_size(path);
-  const auto mtime = fs::last_write_time(path).time_since_epoch().count();
-  return fs::absolute(path).lexically_normal().string() + "|" + std::to_string(size) + "|" + std::to_string(mtime);
+  return fs::absolute(path).lexically_normal().string() + "|" + file_content_identity(path);
 }
 
 }  // namespace hisnegs::apps

@@ -41,8 +41,11 @@ class RunState {
 // 64-bit FNV-1a of `text` as 16 hex digits (a stage's fingerprint of its inputs).
 [[nodiscard]] std::string hash_hex(const std::string& text);
 
-// Absolute path, size and modification time of a file: a changed or replaced input
-// file gets a new identity. Throws std::filesystem::filesystem_error if it is missing.
+// Absolute path, size, modification time and device:inode of a file: a changed or
+// replaced input file gets a new identity. Throws std::filesystem::filesystem_error if it is missing.
 [[nodiscard]] std::string file_identity(const std::filesystem::path& path);
+// Size, modification time (ns) and device:inode of a file, without its path: every
+// atomic rewrite (a new inode) or change gives a new value; moving the folder does not.
+[[nodiscard]] std::string file_content_identity(const std::filesystem::path& path);
 
 }  // namespace hisnegs::apps

@@ -11,6 +11,7 @@
 #include "gmf/checkpoint.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
+#include "io/folder_lock.hpp"
 #include "io/timer.hpp"
 #include "splat/trainer.hpp"
 #include "splat/training_checkpoint.hpp"
@@ -153,6 +154,8 @@ void choose_train_schedule(AppConfig& config, splat::Backend backend, const Prog
 TrainOutcome train_model(const TrainRequest& request, const TrainConfig& config, const Progress& progress) {
   check_training(request, config);
   TrainingSession s = start_training(request, config, progress);
+  const io::FolderLock lock(request.run);  // one training per folder, before anything is written there
+  check_training(request, config);         // again, now that no other process can start one here
   const int epochs = config.get<&AppConfig::train>().epochs;
   progress.say("train: %d views of %dx%d, K %d, %d epochs%s, %s back end", s.views, s.width, s.height,
                s.trainer->gaussians(), epochs,
