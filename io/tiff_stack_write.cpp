@@ -178,8 +178,11 @@ void write_tiff_stack(const fs::path& path, std::span<const float> voxels, int n
   TIFF* tif = handle.get();
   if (!tif) fail_input(path, "cannot create TIFF file" + handle.detail());
   auto fail_write = [&](const std::string& what) {
-    throw WriteError(describe(path, "cannot write " + what + handle.detail()));
+    const int err = errno;  // of the failing write(2): ENOSPC, EIO, EFBIG
+    throw WriteError(describe(path, "cannot write " + what + (err ? std::string(": ") + std::strerror(err) : "") +
+                                        handle.detail()));
   };
+  errno = 0;
   std::vector<unsigned char> strip(rows_per_strip * row_bytes);
   for (int z = 0; z < nz; ++z) {
     set_page_tags(tif, nx, ny, rows_per_strip, options, z == 0 ? &description : nullptr);

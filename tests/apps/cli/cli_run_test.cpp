@@ -128,6 +128,20 @@ TEST_F(CliRun, WritesEveryOutputThenReusesFinishedStages) {
   EXPECT_EQ(reused_stages(r.out), 0) << r.out;
 }
 
+// A stage output that another process rewrote (same bytes, a new file: what any
+// atomic write leaves) is not the one the stage recorded: the stage and everything
+// after it run again; the stages before it are reused.
+TEST_F(CliRun, AnOutputWrittenByAnotherProcessIsNotReused) {
+  ASSERT_EQ(run().exit_code, 0);
+  const fs::path gmf = dir_ / "run" / "gmf.ply";
+  fs::copy_file(gmf, dir_ / "copy.ply");
+  fs::rename(dir_ / "copy.ply", gmf);
+  const auto r = run();
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(reused_stages(r.out), 2) << r.out;  // volume and ground truth
+  EXPECT_NE(r.out.find("run: [3/6] GMF fit (stage 1)\n"), std::string::npos) << r.out;
+}
+
 TEST_F(CliRun, ResumesAnInterruptedTraining) {
   ASSERT_EQ(run().exit_code, 0);
   // As if training had been killed after its last checkpoint: the record says

@@ -1,0 +1,192 @@
+// SPDX-License-Identifier: Apache-2.0
+// Issue 19's data-loss cases through the real executable: a full disk is an error
+// and leaves nothing, a run folder has one writer, outputs never replace special
+// files or inputs, a signal removes unfinished outputs, and a folder another
+// process wrote into is not reused.
+#include <gtest/gtest.h>
+#include <sys/mount.h>
+#include <sys/stat.h>
+#include <sys/sysmacros.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include "gmf/checkpoint.hpp"
+#include "io/atomic_file.hpp"
+#include "io/folder_lock.hpp"
+#include "tests/test_support.hpp"
+
+namespace hisnegs {
+namespace {
+namespace fs = std::filesystem;
+using testing::CommandResult;
+using testing::run_hisnegs;
+
+std::string bytes_of(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  std::ostringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
+// Files whose name marks an AtomicFile temporary, anywhere under `dir`.
+int temporaries_under(const fs::path& dir) {
+  int n = 0;
+  for (const auto& e : fs::recursive_directory_iterator(dir)) {
+    n += e.path().filename().string().find(".tmp-") != std::string::npos ? 1 : 0;
+  }
+  return n;
+}
+
+class Reliability : public ::testing::Test {
+ protected:
+  testing::ScratchDir dir_;
+
+  void SetUp() override {
+    ASSERT_EQ(run_hisnegs({"-q", "synth", "-o", dir_ / "v.tif", "--shape", "16,40,40"}).exit_code, 0);
+    gmf::GaussianMixture mixture;
+    for (int k = 0; k < 20; ++k) {
+      gmf::GaussianParams g;
+      g.mean = {0.05f * k - 0.5f, 0.02f * k, -0.1f};
+      g.log_scale = {-3.0f, -2.5f, -2.8f};
+      g.intensity_logit = 0.5f;
+      mixture.push_back(g);
+    }
+    gmf::CheckpointMeta meta;
+    meta.volume_shape_zyx = std::array<int, 3>{40, 64, 64};
+    meta.aspect = std::array<double, 3>{1.0, 1.0, 0.625};
+    gmf::save_checkpoint(dir_ / "m.ply", mixture, meta);
+  }
+
+  // Expects exit `code`, one stderr line containing `needle`.
+  static void expect_refused(const CommandResult& r, int code, const std::string& needle) {
+    EXPECT_EQ(r.exit_code, code) << r.err;
+    EXPECT_EQ(testing::count_lines(r.err), 1) << r.err;
+    EXPECT_NE(r.err.find(needle), std::string::npos) << r.err;
+  }
+};
+
+// A 16 KiB tmpfs (needs root or CAP_SYS_ADMIN, as CI has; skipped otherwise):
+// every writer fails with the file and the errno, and leaves nothing there.
+TEST_F(Reliability, FullDiskIsAnErrorAndLeavesNothing) {
+  const fs::path full = dir_ / "full";
+  fs::create_directories(full);
+  if (::mount("tmpfs", full.c_str(), "tmpfs", 0, "size=16k") != 0) GTEST_SKIP() << "cannot mount a tmpfs here";
+  struct Unmount {
+    fs::path p;
+    ~Unmount() { ::umount(p.c_str()); }
+  } unmount{full};
+  const std::vector<std::vector<std::string>> commands = {
+      {"vdb", dir_ / "v.tif", "-o", full / "a.vdb"},
+      {"export", "vdb", "--points", "--model", dir_ / "m.ply", "-o", full / "p.vdb"},
+      {"export", "volume", "--model", dir_ / "m.ply", "-o", full / "v.tif"},
+      {"fit", dir_ / "v.tif", "-o", full / "f.ply", "--time-budget", "1"},
+  };
+  // The checkpoint itself is small: fill the disk first so that it cannot fit either.
+  {
+    std::ofstream filler(full / "filler", std::ios::binary);
+    const std::string block(4096, 'x');
+    for (int i = 0; i < 3; ++i) filler << block;
+  }
+  for (const auto& args : commands) {
+    const CommandResult r = run_hisnegs(args);
+    SCOPED_TRACE(args[0] + " " + args[1]);
+    expect_refused(r, 1, "No space left on device");
+    EXPECT_NE(r.err.find(full.string()), std::string::npos) << r.err;
+    for (const auto& e : fs::directory_iterator(full)) {
+      EXPECT_EQ(e.path().filename(), "filler") << "left behind: " << e.path();
+    }
+  }
+}
+
+TEST_F(Reliability, ARunFolderHasOneWriter) {
+  const io::FolderLock held(dir_ / "run");  // as another hisnegs would hold it
+  const std::string pid = "(pid " + std::to_string(::getpid()) + ")";
+  expect_refused(run_hisnegs({"run", dir_ / "v.tif", "-o", dir_ / "run", "--backend", "cpu"}), 2, pid);
+  EXPECT_FALSE(fs::exists(dir_ / "run" / "run.json"));
+  const io::FolderLock train(dir_ / "t");
+  // train checks its inputs first; give it ground truth so that it reaches the lock.
+  ASSERT_EQ(run_hisnegs({"-q", "gt", dir_ / "v.tif", "-o", dir_ / "gt", "--orbit", "both", "--size", "16"}).exit_code,
+            0);
+  expect_refused(run_hisnegs({"train", "--init", dir_ / "m.ply", "--data", dir_ / "gt", "-o", dir_ / "t",
+                              "--backend", "cpu", "--epochs", "1"}),
+                 2, "in use by another hisnegs " + pid);
+  EXPECT_FALSE(fs::exists(dir_ / "t" / "log.csv"));
+}
+
+TEST_F(Reliability, OutputsNeverReplaceSpecialFilesOrInputs) {
+  const std::string model = bytes_of(dir_ / "m.ply");
+  ASSERT_EQ(::mkfifo((dir_ / "fifo").c_str(), 0644), 0);
+  expect_refused(run_hisnegs({"export", "splat-ply", "--model", dir_ / "m.ply", "-o", dir_ / "fifo"}), 2,
+                 "not a regular file");
+  EXPECT_TRUE(fs::is_fifo(dir_ / "fifo"));
+  if (::mknod((dir_ / "null").c_str(), S_IFCHR | 0666, makedev(1, 3)) == 0) {  // root only
+    expect_refused(run_hisnegs({"export", "splat-ply", "--model", dir_ / "m.ply", "-o", dir_ / "null"}), 2,
+                   "not a regular file");
+    EXPECT_TRUE(fs::is_character_file(dir_ / "null"));
+  }
+  fs::create_symlink(dir_ / "nowhere", dir_ / "dangling");
+  expect_refused(run_hisnegs({"export", "splat-ply", "--model", dir_ / "m.ply", "-o", dir_ / "dangling"}), 2,
+                 "symlink to nothing");
+  // The same file under its own name, a hard link or a symlink: refused, untouched.
+  fs::create_hard_link(dir_ / "m.ply", dir_ / "hard.ply");
+  fs::create_symlink(dir_ / "m.ply", dir_ / "soft.ply");
+  for (const char* out : {"m.ply", "hard.ply", "soft.ply"}) {
+    expect_refused(run_hisnegs({"export", "splat-ply", "--model", dir_ / "m.ply", "-o", dir_ / out}), 2,
+                   "is also an input (--model)");
+  }
+  expect_refused(run_hisnegs({"export", "volume", "--model", dir_ / "m.ply", "-o", dir_ / "hard.ply"}), 2,
+                 "is also an input");
+  const std::string stack = bytes_of(dir_ / "v.tif");
+  expect_refused(run_hisnegs({"vdb", dir_ / "v.tif", "-o", dir_ / "v.tif"}), 2, "is also an input (VOLUME)");
+  expect_refused(run_hisnegs({"fit", dir_ / "v.tif", "-o", dir_ / "f.ply", "--log", dir_ / "v.tif"}), 2,
+                 "is also an input");
+  EXPECT_EQ(bytes_of(dir_ / "m.ply"), model);
+  EXPECT_EQ(bytes_of(dir_ / "v.tif"), stack);
+  EXPECT_FALSE(fs::exists(dir_ / "f.ply"));
+  // A symlink to another regular file is followed: that file is replaced, the link stays.
+  testing::write_text(dir_ / "old.ply", "old");
+  fs::create_symlink(dir_ / "old.ply", dir_ / "link.ply");
+  ASSERT_EQ(run_hisnegs({"-q", "export", "splat-ply", "--model", dir_ / "m.ply", "-o", dir_ / "link.ply"}).exit_code,
+            0);
+  EXPECT_TRUE(fs::is_symlink(dir_ / "link.ply"));
+  EXPECT_NE(bytes_of(dir_ / "old.ply"), "old");
+}
+
+TEST_F(Reliability, ASignalRemovesUnfinishedOutputs) {
+  for (const auto& [fault, code] : {std::pair{"atomic_commit:1:INT", 130}, std::pair{"atomic_commit:1:TERM", 143}}) {
+    ::setenv("HISNEGS_FAULT", fault, 1);
+    const CommandResult r = run_hisnegs({"export", "splat-ply", "--model", dir_ / "m.ply", "-o", dir_ / "out" / "s.ply"});
+    ::unsetenv("HISNEGS_FAULT");
+    expect_refused(r, code, "interrupted by SIG");
+    EXPECT_FALSE(fs::exists(dir_ / "out" / "s.ply"));
+    EXPECT_EQ(temporaries_under(dir_ / "out"), 0);
+  }
+}
+
+// Stale temporaries: those of dead processes go, those of live ones stay.
+TEST(StaleTemporaries, OnlyThoseOfDeadProcessesAreRemoved) {
+  testing::ScratchDir dir;
+  const pid_t child = ::fork();
+  if (child == 0) ::_exit(0);
+  ASSERT_GT(child, 0);
+  ::waitpid(child, nullptr, 0);  // its pid now names no process
+  fs::create_directories(dir / "sub");
+  const std::string dead = ".a.tif.tmp-" + std::to_string(child) + "-0";
+  const std::string mine = ".b.tif.tmp-" + std::to_string(::getpid()) + "-3";
+  for (const fs::path& p : {dir / dead, dir / mine, dir / "sub" / dead, dir / "keep.tmp-1"}) testing::write_text(p, "x");
+  EXPECT_EQ(io::remove_stale_temporaries(dir.path()), 1);
+  EXPECT_FALSE(fs::exists(dir / dead));
+  EXPECT_TRUE(fs::exists(dir / mine));
+  EXPECT_TRUE(fs::exists(dir / "sub" / dead));
+  EXPECT_TRUE(fs::exists(dir / "keep.tmp-1"));  // not a hidden AtomicFile name
+  EXPECT_EQ(io::remove_stale_temporaries(dir.path(), true), 1);
+  EXPECT_FALSE(fs::exists(dir / "sub" / dead));
+}
+
+}  // namespace
+}  // namespace hisnegs
