@@ -70,16 +70,38 @@ std::string key_text(const std::string& origin, const YAML::Node& key, const cha
   return key.Scalar();
 }
 
+// yaml-cpp keeps the first of two equal keys and drops the second without a word;
+// a config must not say two things, so a repeated key anywhere is an error.
+void reject_duplicate_keys(const std::string& origin, const YAML::Node& node) {
+  if (node.IsMap()) {
+    std::set<std::string> seen;
+    for (const auto& kv : node) {
+      if (kv.first.IsScalar() && !seen.insert(kv.first.Scalar()).second) {
+        throw InputError(at_line(origin, kv.first) + ": duplicate key '" + printable(kv.first.Scalar(), 80) +
+                         "' (each key may appear once)");
+      }
+      reject_duplicate_keys(origin, kv.second);
+    }
+  } else if (node.IsSequence()) {
+    for (const auto& item : node) reject_duplicate_keys(origin, item);
+  }
+}
+
 }  // namespace
 
 ConfigFile ConfigFile::parse(const std::string& text, const std::string& origin) {
   auto impl = std::make_shared<Impl>();
   impl->origin = origin;
   try {
-    impl->root = YAML::Load(text);
+    std::vector<YAML::Node> documents = YAML::LoadAll(text);
+    if (documents.size() > 1) {
+      throw InputError(at_line(origin, documents[1]) + ": a second YAML document ('---'); a config is one document");
+    }
+    impl->root = documents.empty() ? YAML::Node() : documents.front();
   } catch (const YAML::Exception& e) {
     throw InputError(origin + ":" + std::to_string(e.mark.line + 1) + ": invalid YAML: " + printable(e.msg));
   }
+  reject_duplicate_keys(origin, impl->root);
   if (impl->root.IsNull()) impl->root = YAML::Node(YAML::NodeType::Map);
   if (!impl->root.IsMap()) throw InputError(origin + ": expected a map of sections at the top level");
   ConfigFile f;

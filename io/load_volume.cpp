@@ -2,6 +2,7 @@
 // load_volume: read_tiff_stack + normalize + aspect_scales, per VolumeOptions.
 #include "io/load_volume.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <sstream>
 
@@ -17,6 +18,11 @@ void VolumeOptions::validate() const {
       fail_option("volume", "spacing_um", std::to_string(spacing_um.size()) + " values", "expected [] or 3 values");
     }
     for (double s : spacing_um) require_positive("volume", "spacing_um", s);
+    const auto [lo, hi] = std::minmax_element(spacing_um.begin(), spacing_um.end());
+    if (*hi / *lo > kMaxSpacingRatio) {
+      fail_option("volume", "spacing_um", number_text(*lo) + "," + number_text(*hi),
+                  "voxel sizes may differ by a factor of at most " + number_text(kMaxSpacingRatio));
+    }
   }
   if (channel < -1) fail_option("volume", "channel", std::to_string(channel), "must be -1 (none) or >= 0");
   require_in_range("volume", "foreground_threshold", foreground_threshold, 1e-9, 1.0 - 1e-9);
@@ -37,7 +43,14 @@ LoadedVolume load_volume(const std::filesystem::path& path, const VolumeOptions&
   out.volume = read_tiff_stack(path, tiff_read_options(options));
   normalize(out.volume, options.normalization);
   const Volume& v = out.volume;
-  out.frame = WorldFrame(v.nx, v.ny, v.nz, aspect_scales(v.nx, v.ny, v.nz, v.spacing, options.aspect));
+  const Eigen::Vector3d aspect = aspect_scales(v.nx, v.ny, v.nz, v.spacing, options.aspect);
+  if (!aspect.allFinite() || !(aspect.minCoeff() * kMaxSpacingRatio >= 1.0)) {
+    fail_input(path, "voxel size " + number_text(v.spacing.um[0]) + " x " + number_text(v.spacing.um[1]) + " x " +
+                         number_text(v.spacing.um[2]) + " um makes the stack's box " +
+                         number_text(1.0 / aspect.minCoeff()) + " times thinner than it is long (at most " +
+                         number_text(kMaxSpacingRatio) + "); give --spacing or --aspect shape");
+  }
+  out.frame = WorldFrame(v.nx, v.ny, v.nz, aspect);
   return out;
 }
 

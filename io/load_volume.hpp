@@ -43,8 +43,14 @@ struct LoadedVolume {
   WorldFrame frame;  // CONVENTIONS index <-> world map with the aspect scales
 };
 
+// The largest ratio of voxel sizes (and of the box's edge lengths) hisnegs takes:
+// beyond it the world frame is degenerate in float and OpenVDB's transforms singular.
+inline constexpr double kMaxSpacingRatio = 1e4;
+
 // Reads the TIFF stack at `path`, normalizes it and computes its world frame.
-// Throws InputError naming the file for any bad input.
+// Throws InputError naming the file for any bad input (also a voxel size or box
+// whose edges differ by more than kMaxSpacingRatio).
+
 LoadedVolume load_volume(const std::filesystem::path& path, const VolumeOptions& options);
 
 }  // namespace hisnegs::io

@@ -157,7 +157,7 @@ class JsonReader {
   explicit JsonReader(std::filesystem::path path) : path_(std::move(path)) {}
   // `where` and `what` may quote the file (keys, values): printable() keeps the message one line.
   [[noreturn]] void fail(const std::string& where, const std::string& what) const {
-    io::fail_input(path_, io::printable(where + ": " + what));
+    io::fail_input(path_, io::printable(where.empty() ? what : where + ": " + what));
   }
   double number(const Json& obj, const std::string& key, const std::string& where) const {
     const auto it = obj.find(key);

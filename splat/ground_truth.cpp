@@ -4,6 +4,7 @@
 
 #include <memory>
 
+#include "io/memory_limit.hpp"
 #include "io/timer.hpp"
 #include "splat/raymarch.hpp"
 #if HISNEGS_HAVE_CUDA
@@ -22,6 +23,9 @@ MipStack render_ground_truth(const io::Volume& volume, const io::WorldFrame& fra
   out.height = K.height;
   out.views = static_cast<int>(cameras.views.size());
   out.backend = backend;
+  io::check_allocation("camera", 4.0 * K.width * K.height * static_cast<double>(out.views),
+                       std::to_string(out.views) + " float32 views of " + std::to_string(K.width) + "x" +
+                           std::to_string(K.height));
   out.pixels.resize(static_cast<std::size_t>(out.views) * K.width * K.height);
   const std::size_t frame_px = static_cast<std::size_t>(K.width) * K.height;
 #if HISNEGS_HAVE_CUDA

@@ -2,6 +2,7 @@
 // validate() of the splat-layer option structs.
 #include "splat/splat_options.hpp"
 
+#include "io/error.hpp"
 #include "splat/camera.hpp"
 
 namespace hisnegs::splat {
@@ -24,9 +25,23 @@ void RaymarchOptions::validate() const {
   if (!(t_far > t_near)) io::fail_option(s, "t_far", std::to_string(t_far), "must be greater than raymarch.t_near");
 }
 
+namespace {
+// β in (lower, kMaxSoftMipBeta] (lower = 0: any positive β), one line naming it.
+void require_soft_mip_beta(const char* section, const char* name, double beta, double lower) {
+  if (!(beta > 0) || !(beta <= kMaxSoftMipBeta) || beta < lower) {
+    io::fail_option(section, name, io::number_text(beta),
+                    std::string("must be in (0, ") + io::number_text(kMaxSoftMipBeta) + "]" +
+                        (lower > 0 ? " and at least " + std::string(section) + ".beta_start (" +
+                                         io::number_text(lower) + ")"
+                                   : std::string()) +
+                        "; for the exact maximum use the hard MIP (splat.mode hard, --mode hard)");
+  }
+}
+}  // namespace
+
 void SplatOptions::validate() const {
   constexpr const char* s = "splat";
-  io::require_positive(s, "beta", beta);
+  require_soft_mip_beta(s, "beta", beta, 0.0);
   io::require_positive(s, "mahalanobis_cutoff", mahalanobis_cutoff);
   io::require_in_range(s, "low_pass", low_pass, 0.0, 100.0);
   io::require_in_range(s, "skip_log_weight", skip_log_weight, 0.0, 100.0);
@@ -41,8 +56,8 @@ void TrainOptions::validate() const {
                              std::pair{"lr_rotation", lr_rotation}, std::pair{"lr_intensity", lr_intensity}}) {
     io::require_positive(s, name, value);
   }
-  io::require_positive(s, "beta_start", beta_start);
-  io::require_in_range(s, "beta_end", beta_end, beta_start, 1e9);
+  require_soft_mip_beta(s, "beta_start", beta_start, 0.0);
+  require_soft_mip_beta(s, "beta_end", beta_end, beta_start);
   // A warm-up longer than the run is allowed (β then never reaches beta_end), so
   // `--epochs` can shorten a run without editing the schedule.
   io::require_in_range(s, "beta_warmup_epochs", beta_warmup_epochs, 0, 1e7);
@@ -68,6 +83,11 @@ void TrainOptions::validate() const {
   io::require_in_range(s, "save_every", save_every, 1, 1e9);
   io::require_in_range(s, "views_per_step", views_per_step, 1, 1e6);
   io::require_in_range(s, "crop_size", crop_size, 0, 16384);
+  if (crop_size != 0 && crop_size < kMinImageEdge) {
+    io::fail_option(s, "crop_size", std::to_string(crop_size),
+                    "must be 0 (whole images) or at least " + std::to_string(kMinImageEdge) +
+                        " (the SSIM window)");
+  }
   io::require_in_range(s, "lambda_3d", lambda_3d, 0.0, 1e6);
   io::require_in_range(s, "volume_blocks", volume_blocks, 1, 1e6);
 }

@@ -12,6 +12,13 @@
 
 namespace hisnegs::splat {
 
+// The largest soft-MIP β: the renderers are exact in float up to it (β g − M keeps
+// its error below 1e-3 there; at 1e9 pixels went negative). Beyond it, the hard
+// MIP (its β → ∞ limit) is the exact answer.
+inline constexpr double kMaxSoftMipBeta = 1e4;
+// The smallest image edge the losses take (the SSIM window, losses.hpp).
+inline constexpr int kMinImageEdge = 11;
+
 // Pinhole camera and orbit (CONVENTIONS "Cameras").
 struct CameraOptions {
   int width = 256;            // image width, pixels, [8, 16384]
@@ -57,7 +64,7 @@ struct RaymarchOptions {
 // Soft/hard-MIP splatting (report Eq. 2-8, §9.3).
 struct SplatOptions {
   MipMode mode = MipMode::kSoft;     // soft | hard
-  double beta = 50.0;                // soft-MIP sharpness β, > 0
+  double beta = 50.0;                // soft-MIP sharpness β, (0, kMaxSoftMipBeta]
   double mahalanobis_cutoff = 16.0;  // δ: a Gaussian touches pixels with dᵀΣ⁻¹d <= δ, > 0
   double low_pass = 0.0;             // 2D dilation added to Σ_2D diagonal, pixels², >= 0 (report: none)
   // Soft-MIP terms whose softmax weight is below e^-skip_log_weight of the pixel's
@@ -88,8 +95,8 @@ struct TrainOptions {
   double lr_log_scales = 1.0;      // log-scales, > 0
   double lr_rotation = 1.0;        // raw quaternions, > 0
   double lr_intensity = 1.0;       // intensity logits, > 0
-  double beta_start = 10.0;        // β at epoch 0, > 0
-  double beta_end = 50.0;          // β after warm-up, >= beta_start
+  double beta_start = 10.0;        // β at epoch 0, (0, kMaxSoftMipBeta]
+  double beta_end = 50.0;          // β after warm-up, [beta_start, kMaxSoftMipBeta]
   int beta_warmup_epochs = 500;    // linear β warm-up length, epochs, [0, 10^7] (may exceed epochs)
   double foreground_weight = 5.0;  // w_fg of the weighted MSE (Eq. 11), >= 1
   double lambda_ssim = 0.2;        // weight of 1 - SSIM (Eq. 12), >= 0

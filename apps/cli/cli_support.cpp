@@ -3,6 +3,7 @@
 #include "apps/cli/cli_support.hpp"
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <iostream>
 #include <sstream>
@@ -38,6 +39,20 @@ void VolumeOverrides::apply(io::VolumeOptions& options) const {
     throw io::InputError("--spacing: expected 3 values x,y,z, got " + std::to_string(spacing_um.size()));
   }
   options.validate();
+}
+
+CLI::Validator finite_number() {
+  return CLI::Validator(
+      [](std::string& text) -> std::string {
+        try {
+          std::size_t used = 0;
+          const double v = std::stod(text, &used);
+          if (used == text.size() && std::isfinite(v)) return {};
+        } catch (const std::exception&) {
+        }
+        return "'" + io::printable(text, 40) + "' is not a finite number";
+      },
+      "FINITE");
 }
 
 namespace {

@@ -60,4 +60,8 @@ void add_bench_command(CLI::App& app, GlobalOptions& global);
 // prints them as one line "hisnegs: error: ...".
 int run_cli(int argc, char** argv);
 
+// A CLI11 check that a value is a finite number (CLI::Range lets NaN through:
+// every comparison with NaN is false).
+CLI::Validator finite_number();
+
 }  // namespace hisnegs::apps

@@ -13,6 +13,7 @@
 #include "gmf/export_vdb.hpp"
 #include "gmf/psnr.hpp"
 #include "io/error.hpp"
+#include "io/memory_limit.hpp"
 #include "io/load_volume.hpp"
 #include "io/tiff_stack.hpp"
 #include "io/timer.hpp"
@@ -139,6 +140,10 @@ void run_export_volume(const VolumeArgs& args, GlobalOptions& global) {
   } else {
     frame = native_frame(checkpoint, args.model, "--match-volume VOLUME");
     if (checkpoint.meta.spacing_um) tiff.spacing_um = *checkpoint.meta.spacing_um;
+    const Eigen::Vector3i& shape = frame.shape();
+    io::check_allocation(args.model, 4.0 * shape.cast<double>().prod(),
+                         "a float32 volume of its volume_shape " + std::to_string(shape.z()) + " x " +
+                             std::to_string(shape.y()) + " x " + std::to_string(shape.x()));
   }
   const double t_load = watch.lap();
   const std::vector<float> f = gmf::rasterize_dense(checkpoint.mixture, frame, args.tail);

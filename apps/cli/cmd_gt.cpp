@@ -2,6 +2,7 @@
 // `hisnegs gt VOLUME -o DIR`: options of the ground-truth stage
 // (pipeline/ground_truth_stage.hpp): which orbits or cameras file, image size, mode.
 #include "apps/cli/cli_support.hpp"
+#include "io/memory_limit.hpp"
 #include "apps/pipeline/ground_truth_stage.hpp"
 #include "io/config.hpp"
 #include "io/error.hpp"
@@ -31,9 +32,13 @@ void add_gt_command(CLI::App& app, GlobalOptions& global) {
   cmd->add_option("--size", args->size, "image width = height in pixels (default from config)");
   cmd->add_option("--backend", args->backend, "auto | cpu | cuda");
   cmd->add_option("--elevations", args->elevations, "custom orbit: elevations in degrees, e.g. -30,0,30")
+      ->check(finite_number() & CLI::Range(-90.0, 90.0))
       ->delimiter(',');
-  cmd->add_option("--azimuths", args->azimuths, "custom orbit: azimuths in degrees, e.g. 0,90,180")->delimiter(',');
-  cmd->add_option("--ring-views", args->ring_views, "custom orbit: N azimuths evenly spaced instead of --azimuths");
+  cmd->add_option("--azimuths", args->azimuths, "custom orbit: azimuths in degrees, e.g. 0,90,180")
+      ->delimiter(',')
+      ->check(finite_number() & CLI::Range(-3600.0, 3600.0));
+  cmd->add_option("--ring-views", args->ring_views, "custom orbit: N azimuths evenly spaced instead of --azimuths")
+      ->check(CLI::Range(1, 3600));
   cmd->add_option("--radius", args->radius, "orbit radius (world units; default camera.orbit_radius)");
   cmd->add_option("--fov", args->fov, "horizontal field of view in degrees (default camera.fov_deg)");
   args->overrides.add_to(cmd);
@@ -69,6 +74,13 @@ void add_gt_command(CLI::App& app, GlobalOptions& global) {
       sets.push_back(GroundTruthSet{"custom", splat::custom_orbit(config.camera, args->elevations, azimuths)});
     } else {
       throw io::InputError("--orbit = '" + args->orbit + "': expected train|eval|both|custom");
+    }
+    for (const GroundTruthSet& set : sets) {  // before anything else is said or done
+      const splat::Intrinsics& K = set.cameras.intrinsics;
+      const auto views = static_cast<double>(set.cameras.views.size());
+      io::check_allocation("camera", 4.0 * K.width * K.height * views,
+                           std::to_string(set.cameras.views.size()) + " float32 views of " + std::to_string(K.width) +
+                               "x" + std::to_string(K.height));
     }
     const splat::Backend backend = splat::resolve_backend(splat::parse_backend_request(args->backend));
     write_ground_truth_sets(args->out, args->volume, sets, GroundTruthSetsConfig(config), backend, global.progress());

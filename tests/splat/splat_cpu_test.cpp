@@ -101,3 +101,31 @@ TEST(SplatCpu, SkippedTermsAreCountedOnlyWhenAsked) {
 
 }  // namespace
 }  // namespace hisnegs::splat
+
+namespace hisnegs::splat {
+namespace {
+
+// At the largest β the options allow, the soft MIP is still exact in float: no
+// pixel below 0 or above the hard MIP, and within the softmax's own bound
+// (n − 1)/(e β) of it (at 1e9, before the bound, pixels went to −0.27).
+TEST(SplatCpu, SoftMipAtTheLargestBetaStaysBetweenZeroAndTheHardMip) {
+  const testing::SplatScene scene = testing::make_splat_scene(60, 17, 48, 40);
+  auto renderer = make_splat_renderer(Backend::kCpu);
+  SplatSettings soft;
+  soft.mode = MipMode::kSoft;
+  soft.beta = static_cast<float>(kMaxSoftMipBeta);
+  SplatSettings hard = soft;
+  hard.mode = MipMode::kHard;
+  const std::vector<float> s = testing::render(*renderer, scene, soft);
+  const std::vector<float> h = testing::render(*renderer, scene, hard);
+  const double bound = 59.0 / (std::exp(1.0) * kMaxSoftMipBeta) + 1e-5;
+  for (std::size_t i = 0; i < s.size(); ++i) {
+    ASSERT_GE(s[i], 0.0f) << "pixel " << i;
+    ASSERT_LE(s[i], h[i] + 1e-5f) << "pixel " << i;
+    ASSERT_NEAR(s[i], h[i], bound) << "pixel " << i;
+  }
+  EXPECT_GT(*std::max_element(h.begin(), h.end()), 0.3f);  // the scene is in view
+}
+
+}  // namespace
+}  // namespace hisnegs::splat

@@ -198,6 +198,49 @@ TEST_F(BadInput, ConfigUnknownKeyAndWrongType) {
   EXPECT_TRUE(fs::exists(out()));
 }
 
+// Issue 19: hostile values that used to give wrong output, an internal error or
+// an unexplained out-of-memory.
+TEST_F(BadInput, HostileValuesAreRefusedUpFront) {
+  std::vector<float> v(16 * 16 * 4, 0.0f);
+  v[100] = 1.0f;
+  write_stack(in("ok.tif"), v, 16, 16, 4);
+  const std::string gt = (dir_.path() / "out" / "gt").string();
+  // β beyond where the soft MIP is exact in float; the message says what to use instead.
+  testing::write_text(in("beta.yaml"), "splat:\n  beta: 1e9\n");
+  expect_rejected({"--config", in("beta.yaml"), "vdb", in("ok.tif"), "-o", out()}, {"splat.beta = 1e+09", "hard"});
+  testing::write_text(in("beta_end.yaml"), "train:\n  beta_start: 1e20\n  beta_end: 1e20\n");
+  expect_rejected({"--config", in("beta_end.yaml"), "vdb", in("ok.tif"), "-o", out()},
+                  {"train.beta_start = 1e+20", "(0, 10000]"});
+  // A crop smaller than the SSIM window.
+  testing::write_text(in("crop.yaml"), "train:\n  crop_size: 5\n");
+  expect_rejected({"--config", in("crop.yaml"), "vdb", in("ok.tif"), "-o", out()}, {"train.crop_size = 5", "SSIM"});
+  // Degenerate spacing, on the command line and through the box it makes.
+  expect_rejected({"vdb", in("ok.tif"), "--spacing", "1e-20,1,1", "-o", out()}, {"volume.spacing_um", "factor"});
+  expect_rejected({"gt", in("ok.tif"), "--spacing", "1e-20,1,1", "-o", gt}, {"spacing_um"});
+  // NaN and absurd camera values, sizes that cannot fit.
+  expect_rejected({"gt", in("ok.tif"), "--orbit", "custom", "--elevations", "nan", "--ring-views", "4", "-o", gt},
+                  {"--elevations"});
+  expect_rejected({"gt", in("ok.tif"), "--orbit", "custom", "--elevations", "10", "--azimuths", "nan", "-o", gt},
+                  {"--azimuths"});
+  expect_rejected({"gt", in("ok.tif"), "--orbit", "custom", "--elevations", "10", "--ring-views", "2000000000",
+                   "-o", gt},
+                  {"--ring-views"});
+  ::setenv("HISNEGS_MAX_ALLOC_GB", "1", 1);
+  expect_rejected({"gt", in("ok.tif"), "--size", "16384", "--orbit", "train", "-o", gt},
+                  {"106 float32 views of 16384x16384", "limit is 1.00 GiB"});
+  ::unsetenv("HISNEGS_MAX_ALLOC_GB");
+  // YAML that says two things, or more than one document.
+  testing::write_text(in("dup.yaml"), "splat:\n  beta: 10\n  beta: 20\n");
+  expect_rejected({"--config", in("dup.yaml"), "vdb", in("ok.tif"), "-o", out()}, {"dup.yaml:3", "duplicate key 'beta'"});
+  testing::write_text(in("two.yaml"), "splat:\n  beta: 10\n---\nsplat:\n  beta: 20\n");
+  expect_rejected({"--config", in("two.yaml"), "vdb", in("ok.tif"), "-o", out()}, {"two.yaml", "second YAML document"});
+  expect_rejected({"vdb", in("ok.tif"), "-o", ""}, {"--output", "empty path"});
+  // A cameras file without a key: the file and the key, no stray separator.
+  testing::write_text(in("cams.json"), R"({"width": 32, "height": 32, "fy": 40, "cx": 16, "cy": 16, "near": 0.1,
+      "far": 10, "views": [{"R": [1,0,0,0,1,0,0,0,1], "T": [0,0,3]}]})");
+  expect_rejected({"gt", in("ok.tif"), "--cameras", in("cams.json"), "-o", gt}, {"cams.json: missing key 'fx'"});
+}
+
 TEST_F(BadInput, BadCommandLineValues) {
   expect_rejected({"vdb", in("x.tif")}, {"--output"});
   expect_rejected({"nosuchcommand"}, {"nosuchcommand"});
