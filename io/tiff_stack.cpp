@@ -375,6 +375,39 @@ void convert(SampleType type, const unsigned char* src, std::size_t stride, std:
   }
 }
 
+// The current page's strips or tiles must lie inside the file (`file_size` bytes),
+// and an uncompressed page must hold all its pixels: checked before anything is
+// allocated or decoded for it, so a tiny file claiming huge pages costs nothing.
+void check_page_data(TIFF* tif, const fs::path& path, int page, const StackLayout& s, std::uint64_t file_size) {
+  const bool tiled = TIFFIsTiled(tif) != 0;
+  const char* unit = tiled ? "tile" : "strip";
+  const std::uint32_t n = tiled ? TIFFNumberOfTiles(tif) : TIFFNumberOfStrips(tif);
+  std::uint64_t* counts = nullptr;
+  std::uint64_t* offsets = nullptr;
+  if (n == 0 || !TIFFGetField(tif, tiled ? TIFFTAG_TILEBYTECOUNTS : TIFFTAG_STRIPBYTECOUNTS, &counts) ||
+      !TIFFGetField(tif, tiled ? TIFFTAG_TILEOFFSETS : TIFFTAG_STRIPOFFSETS, &offsets) || !counts || !offsets) {
+    fail_input(path, "page " + std::to_string(page) + " has no " + unit + " table (damaged)");
+  }
+  std::uint64_t total = 0;
+  for (std::uint32_t i = 0; i < n; ++i) {
+    if (offsets[i] > file_size || counts[i] > file_size - offsets[i]) {
+      fail_input(path, "page " + std::to_string(page) + ": " + unit + " " + std::to_string(i) + " (bytes " +
+                           std::to_string(offsets[i]) + " + " + std::to_string(counts[i]) +
+                           ") lies beyond the end of the file (" + std::to_string(file_size) +
+                           " bytes); truncated or damaged");
+    }
+    total += counts[i];
+  }
+  std::uint16_t compression = COMPRESSION_NONE;
+  TIFFGetFieldDefaulted(tif, TIFFTAG_COMPRESSION, &compression);
+  const double need = static_cast<double>(s.format.width) * s.format.height * s.format.samples * bytes_of(s.type);
+  if (compression == COMPRESSION_NONE && static_cast<double>(total) < need) {
+    fail_input(path, "page " + std::to_string(page) + " holds " + std::to_string(total) +
+                         " bytes of uncompressed pixel data but " + format_text(s.format) + " needs " +
+                         number_text(need) + "; truncated or damaged");
+  }
+}
+
 // A growable byte buffer reused for every strip/tile of the whole read.
 class DecodeBuffer {
  public:
@@ -509,6 +542,18 @@ Volume read_tiff_stack(const fs::path& path, const TiffReadOptions& options) {
   const int sample = channel % s.format.samples;
 
   const int nx = static_cast<int>(s.format.width), ny = static_cast<int>(s.format.height);
+  std::error_code size_error;
+  const std::uint64_t file_size = fs::file_size(path, size_error);
+  if (size_error) fail_input(path, "cannot read its size: " + size_error.message());
+  check_page_data(tif, path, 0, s, file_size);  // before anything is allocated
+  if (s.compression == compression_name(COMPRESSION_NONE)) {
+    const double need = static_cast<double>(nx) * ny * s.format.samples * bytes_of(s.type) * s.nz;
+    if (need > static_cast<double>(file_size)) {
+      fail_input(path, "claims " + std::to_string(s.nz) + " uncompressed pages of " + format_text(s.format) +
+                           " (" + gib_text(need) + ") but the file has " + std::to_string(file_size) +
+                           " bytes; truncated or damaged");
+    }
+  }
   check_allocation(path, 4.0 * nx * ny * s.nz,
                    std::to_string(nx) + "x" + std::to_string(ny) + "x" + std::to_string(s.nz) + " float32 voxels");
 
@@ -545,6 +590,7 @@ Volume read_tiff_stack(const fs::path& path, const TiffReadOptions& options) {
     }
     const int z = z_of_page[static_cast<std::size_t>(page)];
     if (z < 0) continue;
+    check_page_data(tif, path, page, s, file_size);
     float* dst = volume.voxels.data() + static_cast<std::size_t>(z) * page_voxels;
     decode_page(tif, *handle, path, page, s, sample, dst, buffer);
     if (handle->messages().errors > 0) {

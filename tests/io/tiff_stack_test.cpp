@@ -794,10 +794,10 @@ TEST(TiffStackBadInput, VolumeOverTheMemoryLimit) {
   EXPECT_NO_THROW((void)read_tiff_stack(dir / "big.tif"));
 }
 
-TEST(TiffStackBadInput, HostileHeaderIsRefusedBeforeAllocating) {
-  // 60000 x 60000 x 2 pages of 8-bit claimed, a few bytes stored: 26.8 GiB as float32.
-  ScratchDir dir;
-  const fs::path path = dir / "hostile.tif";
+// A few bytes claiming 60000 x 60000 x 2 pages of 8-bit (26.8 GiB as float32).
+// Uncompressed, the strip table itself gives it away before anything is
+// allocated; deflated (any size is possible), the allocation limit refuses it.
+void write_hostile_header(const fs::path& path, std::uint16_t compression) {
   TIFF* tif = TIFFOpen(path.c_str(), "w");
   ASSERT_NE(tif, nullptr);
   for (int page = 0; page < 2; ++page) {
@@ -807,13 +807,22 @@ TEST(TiffStackBadInput, HostileHeaderIsRefusedBeforeAllocating) {
     TIFFSetField(tif, TIFFTAG_SAMPLESPERPIXEL, 1);
     TIFFSetField(tif, TIFFTAG_PHOTOMETRIC, PHOTOMETRIC_MINISBLACK);
     TIFFSetField(tif, TIFFTAG_ROWSPERSTRIP, 60000u);
+    TIFFSetField(tif, TIFFTAG_COMPRESSION, compression);
     unsigned char bytes[16] = {};
     ASSERT_GT(TIFFWriteRawStrip(tif, 0, bytes, sizeof bytes), 0);
     ASSERT_TRUE(TIFFWriteDirectory(tif));
   }
   TIFFClose(tif);
+}
+
+TEST(TiffStackBadInput, HostileHeaderIsRefusedBeforeAllocating) {
+  ScratchDir dir;
   const AllocLimit limit("1");
-  expect_input_error(path, "would need 26.82 GiB for 60000x60000x2 float32 voxels but the limit is 1.00 GiB");
+  write_hostile_header(dir / "plain.tif", COMPRESSION_NONE);
+  expect_input_error(dir / "plain.tif", "truncated or damaged");
+  write_hostile_header(dir / "deflated.tif", COMPRESSION_ADOBE_DEFLATE);
+  expect_input_error(dir / "deflated.tif",
+                     "would need 26.82 GiB for 60000x60000x2 float32 voxels but the limit is 1.00 GiB");
 }
 
 TEST(TiffStackBadInput, MalformedMemoryLimit) {

@@ -241,6 +241,32 @@ TEST_F(BadInput, HostileValuesAreRefusedUpFront) {
   expect_rejected({"gt", in("ok.tif"), "--cameras", in("cams.json"), "-o", gt}, {"cams.json: missing key 'fx'"});
 }
 
+// Issue 19: a few hundred bytes claiming two 8192² pages were decoded into 565 MB
+// before failing. Now the strip table is checked against the file first.
+TEST_F(BadInput, TinyTiffClaimingHugePagesAllocatesNothing) {
+  TIFF* t = TIFFOpen(in("huge.tif").c_str(), "w");
+  ASSERT_NE(t, nullptr);
+  const unsigned char bytes[16] = {};
+  for (int z = 0; z < 2; ++z) {
+    TIFFSetField(t, TIFFTAG_IMAGEWIDTH, 8192);
+    TIFFSetField(t, TIFFTAG_IMAGELENGTH, 8192);
+    TIFFSetField(t, TIFFTAG_SAMPLESPERPIXEL, 1);
+    TIFFSetField(t, TIFFTAG_BITSPERSAMPLE, 16);
+    TIFFSetField(t, TIFFTAG_PHOTOMETRIC, PHOTOMETRIC_MINISBLACK);
+    TIFFSetField(t, TIFFTAG_ROWSPERSTRIP, 8192);
+    TIFFSetField(t, TIFFTAG_SUBFILETYPE, FILETYPE_PAGE);
+    TIFFWriteRawStrip(t, 0, const_cast<unsigned char*>(bytes), sizeof bytes);
+    TIFFWriteDirectory(t);
+  }
+  TIFFClose(t);
+  ASSERT_LT(fs::file_size(in("huge.tif")), 1000u);
+  // With a 0.1 GiB allocation limit: had it allocated first, the limit would be the message.
+  ::setenv("HISNEGS_MAX_ALLOC_GB", "0.1", 1);
+  expect_rejected({"info", in("huge.tif")}, {"huge.tif", "page 0", "truncated or damaged"});
+  expect_rejected({"vdb", in("huge.tif"), "-o", out()}, {"huge.tif", "truncated"});
+  ::unsetenv("HISNEGS_MAX_ALLOC_GB");
+}
+
 TEST_F(BadInput, BadCommandLineValues) {
   expect_rejected({"vdb", in("x.tif")}, {"--output"});
   expect_rejected({"nosuchcommand"}, {"nosuchcommand"});
