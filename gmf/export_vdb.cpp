@@ -256,6 +256,7 @@ Checkpoint import_vdb_points(const fs::path& path) {
   io::require_regular_file(path);
   io::ensure_openvdb_initialized();
   PointDataGrid::Ptr grid;
+  const io::VdbReadGuard guard(path);
   try {
     openvdb::io::File file(path.string());
     file.open(false);
@@ -267,6 +268,9 @@ Checkpoint import_vdb_points(const fs::path& path) {
     file.close();
   } catch (const openvdb::Exception& e) {
     io::fail_input(path, "not a readable OpenVDB file: " + io::printable(e.what()));  // OpenVDB messages can span lines
+  } catch (const std::bad_alloc&) {
+    io::fail_input(path, "damaged: reading it would take more than " + io::gib_text(guard.cap_bytes()) +
+                           " of memory (64x the file, at least 1 GiB)");
   }
   if (!grid) io::fail_input(path, "grid 'gaussians' is not a PointDataGrid");
   const auto header = grid->getMetadata<openvdb::StringMetadata>(kCheckpointMetaKey);

@@ -10,6 +10,9 @@
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
+#include <sys/resource.h>
+#include <unistd.h>
+
 #include <cerrno>
 #include <cmath>
 #include <fstream>
@@ -21,6 +24,7 @@
 #include "io/config.hpp"
 #include "io/detail/vdb_grids.hpp"
 #include "io/error.hpp"
+#include "io/memory_limit.hpp"
 #include "io/vdb_file.hpp"
 
 namespace hisnegs::io {
@@ -40,6 +44,42 @@ void SparseGridOptions::validate() const {
 void ensure_openvdb_initialized() {
   static std::once_flag once;
   std::call_once(once, [] { openvdb::initialize(); });
+}
+
+#if defined(__SANITIZE_ADDRESS__)
+#define HISNEGS_ASAN 1
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer)
+#define HISNEGS_ASAN 1
+#endif
+#endif
+
+VdbReadGuard::VdbReadGuard(const std::filesystem::path& path) {
+  std::error_code ec;
+  const double file_bytes = static_cast<double>(std::filesystem::file_size(path, ec));
+  cap_ = std::min(allocation_limit_bytes(), std::max(double(1u << 30), 64.0 * (ec ? 0.0 : file_bytes)));
+#ifndef HISNEGS_ASAN
+  struct rlimit lim {};
+  if (::getrlimit(RLIMIT_AS, &lim) != 0) return;
+  std::ifstream statm("/proc/self/statm");
+  unsigned long long pages = 0;
+  if (!(statm >> pages)) return;
+  const double used = static_cast<double>(pages) * static_cast<double>(::sysconf(_SC_PAGESIZE));
+  const double wanted = used + cap_;
+  if (lim.rlim_cur != RLIM_INFINITY && static_cast<double>(lim.rlim_cur) <= wanted) return;  // already tighter
+  previous_soft_ = lim.rlim_cur;
+  lim.rlim_cur = static_cast<rlim_t>(wanted);
+  if (lim.rlim_max != RLIM_INFINITY && lim.rlim_cur > lim.rlim_max) return;
+  active_ = ::setrlimit(RLIMIT_AS, &lim) == 0;
+#endif
+}
+
+VdbReadGuard::~VdbReadGuard() {
+  if (!active_) return;
+  struct rlimit lim {};
+  if (::getrlimit(RLIMIT_AS, &lim) != 0) return;
+  lim.rlim_cur = static_cast<rlim_t>(previous_soft_);
+  ::setrlimit(RLIMIT_AS, &lim);
 }
 
 namespace {
@@ -337,6 +377,7 @@ SparseGrid read_vdb(const std::filesystem::path& path) {
   require_regular_file(path);
   ensure_openvdb_initialized();
   auto impl = std::make_shared<SparseGrid::Impl>();
+  const VdbReadGuard guard(path);
   try {
     openvdb::io::File file(path.string());
     file.open(false);
@@ -347,6 +388,9 @@ SparseGrid read_vdb(const std::filesystem::path& path) {
     file.close();
   } catch (const openvdb::Exception& e) {
     fail_input(path, "not a readable OpenVDB file: " + printable(e.what()));  // OpenVDB messages can span lines
+  } catch (const std::bad_alloc&) {
+    fail_input(path, "damaged: reading it would take more than " + gib_text(guard.cap_bytes()) +
+                           " of memory (64x the file, at least 1 GiB)");
   }
   if (!impl->background) {
     impl->background = FloatGrid::create(0.0f);
@@ -377,6 +421,7 @@ std::vector<VdbGridSummary> inspect_vdb(const std::filesystem::path& path) {
   require_regular_file(path);
   ensure_openvdb_initialized();
   std::vector<VdbGridSummary> out;
+  const VdbReadGuard guard(path);
   try {
     openvdb::io::File file(path.string());
     file.open(false);
@@ -402,6 +447,9 @@ std::vector<VdbGridSummary> inspect_vdb(const std::filesystem::path& path) {
     file.close();
   } catch (const openvdb::Exception& e) {
     fail_input(path, "not a readable OpenVDB file: " + printable(e.what()));  // OpenVDB messages can span lines
+  } catch (const std::bad_alloc&) {
+    fail_input(path, "damaged: reading it would take more than " + gib_text(guard.cap_bytes()) +
+                           " of memory (64x the file, at least 1 GiB)");
   }
   return out;
 }

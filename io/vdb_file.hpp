@@ -21,6 +21,26 @@ void ensure_openvdb_initialized();
 openvdb::math::Transform::Ptr make_vdb_transform(const Eigen::Vector3d& voxel_size_world,
                                                  const Eigen::Vector3d& origin_world);
 
+// While alive, caps this process's address space at what it uses now plus
+// min(allocation_limit_bytes(), max(1 GiB, 64 × the file's size)): a damaged .vdb
+// whose header claims huge strings or buffers makes OpenVDB's allocation fail
+// (std::bad_alloc, reported by the readers as a damaged file) instead of taking
+// gigabytes. Restores the previous limit on destruction. No-op under
+// AddressSanitizer (its shadow memory needs the address space).
+class VdbReadGuard {
+ public:
+  explicit VdbReadGuard(const std::filesystem::path& path);
+  ~VdbReadGuard();
+  VdbReadGuard(const VdbReadGuard&) = delete;
+  VdbReadGuard& operator=(const VdbReadGuard&) = delete;
+  [[nodiscard]] double cap_bytes() const { return cap_; }
+
+ private:
+  bool active_ = false;
+  unsigned long long previous_soft_ = 0;
+  double cap_ = 0;
+};
+
 // Writes `grids` to a .vdb file (Blosc) atomically; an OpenVDB failure becomes a
 // std::runtime_error naming `path`, and leaves no file.
 void write_vdb_file(const std::filesystem::path& path, const openvdb::GridPtrVec& grids);
