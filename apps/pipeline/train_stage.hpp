@@ -33,8 +33,9 @@ struct TrainOutcome {
   double seconds = 0;  // training wall time, earlier sessions of a resumed run included
 };
 // The CPU schedule (configs/train_cpu.yaml's train section): 400 epochs with the
-// β warm-up and density control scaled to them, about 15 min for K = 20k at 256²
-// on a 2-core machine where the default 2000-epoch (GPU) schedule takes hours.
+// β warm-up and density control scaled to them: 16 min on op1 (K 20k → 12k with
+// the 3D term, 256² views) on a 2-core machine, where the default 2000-epoch (GPU)
+// schedule takes hours.
 [[nodiscard]] splat::TrainOptions cpu_train_schedule();
 
 // The schedule a run on `backend` trains with: on the CPU back end, when the
