@@ -72,7 +72,14 @@ std::string key_text(const std::string& origin, const YAML::Node& key, const cha
 
 // yaml-cpp keeps the first of two equal keys and drops the second without a word;
 // a config must not say two things, so a repeated key anywhere is an error.
-void reject_duplicate_keys(const std::string& origin, const YAML::Node& node) {
+// Nesting is bounded (a config is two levels deep): an alias inside its own
+// anchor makes the node graph cyclic, and deep nesting would exhaust the stack.
+void reject_duplicate_keys(const std::string& origin, const YAML::Node& node, int depth = 0) {
+  constexpr int kMaxDepth = 32;
+  if (depth > kMaxDepth) {
+    throw InputError(at_line(origin, node) + ": nested more than " + std::to_string(kMaxDepth) +
+                     " levels deep (or an alias inside its own anchor)");
+  }
   if (node.IsMap()) {
     std::set<std::string> seen;
     for (const auto& kv : node) {
@@ -80,10 +87,10 @@ void reject_duplicate_keys(const std::string& origin, const YAML::Node& node) {
         throw InputError(at_line(origin, kv.first) + ": duplicate key '" + printable(kv.first.Scalar(), 80) +
                          "' (each key may appear once)");
       }
-      reject_duplicate_keys(origin, kv.second);
+      reject_duplicate_keys(origin, kv.second, depth + 1);
     }
   } else if (node.IsSequence()) {
-    for (const auto& item : node) reject_duplicate_keys(origin, item);
+    for (const auto& item : node) reject_duplicate_keys(origin, item, depth + 1);
   }
 }
 

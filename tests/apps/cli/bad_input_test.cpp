@@ -235,6 +235,9 @@ TEST_F(BadInput, HostileValuesAreRefusedUpFront) {
   testing::write_text(in("two.yaml"), "splat:\n  beta: 10\n---\nsplat:\n  beta: 20\n");
   expect_rejected({"--config", in("two.yaml"), "vdb", in("ok.tif"), "-o", out()}, {"two.yaml", "second YAML document"});
   expect_rejected({"vdb", in("ok.tif"), "-o", ""}, {"--output", "empty path"});
+  // An alias inside its own anchor (found by the config fuzzer): a cyclic node graph.
+  testing::write_text(in("cycle.yaml"), "camera: &c\n  width: 64\n  more: *c\n");
+  expect_rejected({"--config", in("cycle.yaml"), "vdb", in("ok.tif"), "-o", out()}, {"cycle.yaml", "own anchor"});
   // A cameras file without a key: the file and the key, no stray separator.
   testing::write_text(in("cams.json"), R"({"width": 32, "height": 32, "fy": 40, "cx": 16, "cy": 16, "near": 0.1,
       "far": 10, "views": [{"R": [1,0,0,0,1,0,0,0,1], "T": [0,0,3]}]})");
