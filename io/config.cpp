@@ -72,13 +72,19 @@ std::string key_text(const std::string& origin, const YAML::Node& key, const cha
 
 // yaml-cpp keeps the first of two equal keys and drops the second without a word;
 // a config must not say two things, so a repeated key anywhere is an error.
-// Nesting is bounded (a config is two levels deep): an alias inside its own
-// anchor makes the node graph cyclic, and deep nesting would exhaust the stack.
-void reject_duplicate_keys(const std::string& origin, const YAML::Node& node, int depth = 0) {
+// Nesting and size are bounded (a config is two levels and a few hundred nodes):
+// an alias inside its own anchor makes the node graph cyclic, aliases of aliases
+// expand exponentially ("billion laughs"), and deep nesting would exhaust the stack.
+void reject_duplicate_keys(const std::string& origin, const YAML::Node& node, int depth, long& visited) {
   constexpr int kMaxDepth = 32;
+  constexpr long kMaxNodes = 100000;
   if (depth > kMaxDepth) {
     throw InputError(at_line(origin, node) + ": nested more than " + std::to_string(kMaxDepth) +
                      " levels deep (or an alias inside its own anchor)");
+  }
+  if (++visited > kMaxNodes) {
+    throw InputError(origin + ": more than " + std::to_string(kMaxNodes) +
+                     " YAML nodes once aliases are expanded; a config is far smaller");
   }
   if (node.IsMap()) {
     std::set<std::string> seen;
@@ -87,10 +93,10 @@ void reject_duplicate_keys(const std::string& origin, const YAML::Node& node, in
         throw InputError(at_line(origin, kv.first) + ": duplicate key '" + printable(kv.first.Scalar(), 80) +
                          "' (each key may appear once)");
       }
-      reject_duplicate_keys(origin, kv.second, depth + 1);
+      reject_duplicate_keys(origin, kv.second, depth + 1, visited);
     }
   } else if (node.IsSequence()) {
-    for (const auto& item : node) reject_duplicate_keys(origin, item, depth + 1);
+    for (const auto& item : node) reject_duplicate_keys(origin, item, depth + 1, visited);
   }
 }
 
@@ -108,7 +114,8 @@ ConfigFile ConfigFile::parse(const std::string& text, const std::string& origin)
   } catch (const YAML::Exception& e) {
     throw InputError(origin + ":" + std::to_string(e.mark.line + 1) + ": invalid YAML: " + printable(e.msg));
   }
-  reject_duplicate_keys(origin, impl->root);
+  long visited = 0;
+  reject_duplicate_keys(origin, impl->root, 0, visited);
   if (impl->root.IsNull()) impl->root = YAML::Node(YAML::NodeType::Map);
   if (!impl->root.IsMap()) throw InputError(origin + ": expected a map of sections at the top level");
   ConfigFile f;
