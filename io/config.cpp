@@ -13,6 +13,7 @@
 #include <limits>
 #include <optional>
 #include <set>
+#include <sstream>
 
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
@@ -106,11 +107,22 @@ ConfigFile ConfigFile::parse(const std::string& text, const std::string& origin)
   auto impl = std::make_shared<Impl>();
   impl->origin = origin;
   try {
-    std::vector<YAML::Node> documents = YAML::LoadAll(text);
-    if (documents.size() > 1) {
-      throw InputError(at_line(origin, documents[1]) + ": a second YAML document ('---'); a config is one document");
+    // A second document ('---' after content) would be ignored by YAML::Load.
+    // (Found by text: YAML::LoadAll loops forever on some malformed input.)
+    std::istringstream lines(text);
+    bool content = false;
+    int number = 0;
+    for (std::string line; std::getline(lines, line);) {
+      ++number;
+      const bool marker = line.rfind("---", 0) == 0 && (line.size() == 3 || line[3] == ' ' || line[3] == '\r');
+      if (marker && content) {
+        throw InputError(origin + ":" + std::to_string(number) +
+                         ": a second YAML document ('---'); a config is one document");
+      }
+      const std::size_t first = line.find_first_not_of(" \t\r");
+      if (!marker && first != std::string::npos && line[first] != '#') content = true;
     }
-    impl->root = documents.empty() ? YAML::Node() : documents.front();
+    impl->root = YAML::Load(text);
   } catch (const YAML::Exception& e) {
     throw InputError(origin + ":" + std::to_string(e.mark.line + 1) + ": invalid YAML: " + printable(e.msg));
   }
