@@ -590,7 +590,7 @@ Volume read_tiff_stack(const fs::path& path, const TiffReadOptions& options) {
     }
     const int z = z_of_page[static_cast<std::size_t>(page)];
     if (z < 0) continue;
-    check_page_data(tif, path, page, s, file_size);
+    if (page > 0) check_page_data(tif, path, page, s, file_size);  // page 0: checked before allocating
     float* dst = volume.voxels.data() + static_cast<std::size_t>(z) * page_voxels;
     decode_page(tif, *handle, path, page, s, sample, dst, buffer);
     if (handle->messages().errors > 0) {
