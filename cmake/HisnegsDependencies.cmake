@@ -21,6 +21,10 @@ find_package(yaml-cpp CONFIG REQUIRED)
 find_package(nlohmann_json 3 CONFIG REQUIRED)
 find_package(hwy CONFIG REQUIRED)
 find_package(benchmark CONFIG REQUIRED)
+# zstd (libzstd-dev) for the compact checkpoint; Debian's package ships a
+# pkg-config file on every release, its CMake config only on newer ones.
+find_package(PkgConfig REQUIRED)
+pkg_check_modules(ZSTD REQUIRED IMPORTED_TARGET libzstd)
 if(BUILD_TESTING)
   find_package(GTest CONFIG REQUIRED)
 endif()

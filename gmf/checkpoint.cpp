@@ -1,16 +1,19 @@
 // SPDX-License-Identifier: Apache-2.0
 // Checkpoint <-> PLY table mapping (parameters, `comment hisnegs` metadata) and
-// save / load on top of io::read_ply / io::write_ply. No PLY parsing here.
+// save / load on top of io::read_ply / io::write_ply; load_checkpoint hands compact
+// files to gmf/compact_checkpoint. No PLY parsing here.
 #include "gmf/checkpoint.hpp"
 
 #include <cctype>
 #include <charconv>
 #include <cmath>
 #include <cstring>
+#include <fstream>
 #include <limits>
 #include <stdexcept>
 #include <string_view>
 
+#include "gmf/compact_checkpoint.hpp"
 #include "io/error.hpp"
 
 namespace hisnegs::gmf {
@@ -189,10 +192,10 @@ std::array<T, 3> parse3(const fs::path& source, std::string_view key, std::strin
   return out;
 }
 
-CheckpointMeta parse_meta(const io::PlyTable& table, const fs::path& source) {
+CheckpointMeta parse_meta(const std::vector<std::string>& comments, const fs::path& source) {
   CheckpointMeta meta;
   bool seen_version = false, seen_norm = false, seen_aggregation = false;
-  for (const std::string& c : table.comments) {
+  for (const std::string& c : comments) {
     std::string_view s = c;
     if (!s.starts_with(kPrefix)) continue;
     s.remove_prefix(kPrefix.size());
@@ -260,12 +263,22 @@ CheckpointMeta parse_meta(const io::PlyTable& table, const fs::path& source) {
 
 }  // namespace
 
-io::PlyTable checkpoint_to_ply(const GaussianMixture& mixture, const CheckpointMeta& meta) {
-  io::PlyTable table;
-  table.comments = meta_comments(meta);
+std::vector<std::string> checkpoint_comments(const CheckpointMeta& meta) { return meta_comments(meta); }
+
+void check_checkpoint_mixture(const GaussianMixture& mixture) {
   if (const std::optional<Invalid> bad = first_invalid(mixture)) {
     throw std::invalid_argument("gaussian " + std::to_string(bad->index) + ": " + bad->problem);
   }
+}
+
+CheckpointMeta checkpoint_meta_from_comments(const std::vector<std::string>& comments, const fs::path& source) {
+  return parse_meta(comments, source);
+}
+
+io::PlyTable checkpoint_to_ply(const GaussianMixture& mixture, const CheckpointMeta& meta) {
+  io::PlyTable table;
+  table.comments = meta_comments(meta);
+  check_checkpoint_mixture(mixture);
   std::vector<io::PlyProperty> props;
   for (std::string_view name : kGaussianParamNames) props.push_back({std::string(name), io::PlyType::kFloat32});
   io::PlyElement vertex(std::string(kVertex), static_cast<std::int64_t>(mixture.size()), std::move(props));
@@ -279,7 +292,7 @@ io::PlyTable checkpoint_to_ply(const GaussianMixture& mixture, const CheckpointM
 Checkpoint checkpoint_from_ply(const io::PlyTable& table, const fs::path& source) {
   Checkpoint out;
   // Metadata first: a newer format_version may mean the rows do not follow this layout.
-  out.meta = parse_meta(table, source);
+  out.meta = parse_meta(table.comments, source);
 
   const io::PlyElement* vertex = table.find(kVertex);
   if (!vertex) io::fail_input(source, "no 'vertex' element (not a hisnegs checkpoint)");
@@ -356,7 +369,22 @@ void save_checkpoint(const fs::path& path, const GaussianMixture& mixture, const
   io::write_ply(path, table);
 }
 
-Checkpoint load_checkpoint(const fs::path& path) { return checkpoint_from_ply(io::read_ply(path), path); }
+Checkpoint load_checkpoint(const fs::path& path) {
+  // By content, not by name: a compact file keeps working whatever it is called.
+  // A file that is a cut-short compact magic goes to the compact reader too, which
+  // says "truncated" rather than PLY's "not a PLY file".
+  char head[kCompactMagic.size()] = {};
+  std::size_t got = 0;
+  {
+    std::ifstream in(path, std::ios::binary);
+    if (in) {
+      in.read(head, sizeof head);
+      got = static_cast<std::size_t>(in.gcount());
+    }
+  }
+  if (got > 0 && std::memcmp(head, kCompactMagic.data(), got) == 0) return load_compact_checkpoint(path);
+  return checkpoint_from_ply(io::read_ply(path), path);
+}
 
 MixtureModel model_of(const CheckpointMeta& meta, double cutoff) {
   MixtureModel m;

@@ -71,6 +71,22 @@ struct Checkpoint {
 // or a known key given twice.
 [[nodiscard]] Checkpoint checkpoint_from_ply(const io::PlyTable& table, const std::filesystem::path& source);
 
+// The metadata lines of a checkpoint, each "hisnegs KEY VALUE" (the PLY header's
+// comment lines without "comment "), in checkpoint_to_ply's order. Throws
+// std::invalid_argument for metadata it could not read back, as checkpoint_to_ply.
+// The compact format (gmf/compact_checkpoint.hpp) stores the same lines.
+[[nodiscard]] std::vector<std::string> checkpoint_comments(const CheckpointMeta& meta);
+
+// Throws std::invalid_argument ("gaussian 17: scale_1 is nan") for the first
+// Gaussian no checkpoint may hold: a non-finite parameter or an all-zero quaternion.
+void check_checkpoint_mixture(const GaussianMixture& mixture);
+
+// The inverse of checkpoint_comments: parses the "hisnegs KEY VALUE" lines among
+// `comments` (others are ignored) as checkpoint_from_ply does, with its errors
+// (io::InputError "SOURCE: comment hisnegs volume_shape: ...").
+[[nodiscard]] CheckpointMeta checkpoint_meta_from_comments(const std::vector<std::string>& comments,
+                                                           const std::filesystem::path& source);
+
 // Writes a checkpoint atomically (temp file + rename) as binary little-endian
 // PLY. Throws std::invalid_argument "PATH: ..." as checkpoint_to_ply does
 // (nothing is written then), io::InputError / std::runtime_error if the file
@@ -78,8 +94,10 @@ struct Checkpoint {
 void save_checkpoint(const std::filesystem::path& path, const GaussianMixture& mixture, const CheckpointMeta& meta);
 
 // Reads a checkpoint written by save_checkpoint (or by another tool using the
-// same properties). Throws io::InputError naming the file for every problem of
-// io::read_ply and checkpoint_from_ply.
+// same properties) or by save_compact_checkpoint (gmf/compact_checkpoint.hpp):
+// the file's first bytes decide, not its name. Throws io::InputError naming the
+// file for every problem of io::read_ply and checkpoint_from_ply, or of
+// load_compact_checkpoint.
 [[nodiscard]] Checkpoint load_checkpoint(const std::filesystem::path& path);
 
 // The mixture model a checkpoint's 3D value uses: its aggregation and β with the

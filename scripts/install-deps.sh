@@ -9,7 +9,7 @@ set -euo pipefail
 packages=(
   build-essential cmake ninja-build pkg-config
   libeigen3-dev libceres-dev libopenvdb-dev libboost-iostreams-dev libtbb-dev
-  libtiff-dev libpng-dev libgif-dev libhwy-dev
+  libtiff-dev libpng-dev libgif-dev libhwy-dev libzstd-dev
   libcli11-dev libyaml-cpp-dev nlohmann-json3-dev
   libgtest-dev libgmock-dev libbenchmark-dev
   libopenvdb-tools python3-openvdb
