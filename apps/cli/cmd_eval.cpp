@@ -15,7 +15,7 @@ void add_eval_command(CLI::App& app, GlobalOptions& global) {
     std::optional<double> beta;
   };
   auto args = std::make_shared<Args>();
-  cmd->add_option("--model", args->model, "checkpoint (.ply)")->required();
+  cmd->add_option("--model", args->model, "checkpoint (.ply or .hgs)")->required();
   cmd->add_option("--data", args->data, "ground-truth folder of `hisnegs gt` (uses GTDIR/eval)")->required();
   cmd->add_option("-o,--output", args->out, "output folder")->required();
   cmd->add_option("--mode", args->mode, "soft | hard (default splat.mode)");

@@ -1,20 +1,23 @@
 // SPDX-License-Identifier: Apache-2.0
-// `hisnegs export vdb|splat-ply|volume --model m.ply -o OUT` and `hisnegs import vdb
-// IN.vdb -o m.ply`: checkpoint conversion for OpenVDB tools, Gaussian-splat viewers
-// and image viewers. Options and reporting only; the conversions are gmf/export_*.hpp.
+// `hisnegs export vdb|splat-ply|volume|compact --model m.ply -o OUT` and `hisnegs
+// import vdb IN.vdb -o m.ply`: checkpoint conversion for OpenVDB tools, Gaussian-splat
+// viewers, image viewers and small files. Options and reporting only; the
+// conversions are gmf/export_*.hpp and gmf/compact_checkpoint.hpp.
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
 
 #include "apps/cli/cli_support.hpp"
 #include "apps/pipeline/format.hpp"
 #include "gmf/checkpoint.hpp"
+#include "gmf/compact_checkpoint.hpp"
 #include "gmf/export_formats.hpp"
 #include "gmf/export_vdb.hpp"
 #include "gmf/psnr.hpp"
 #include "io/error.hpp"
-#include "io/memory_limit.hpp"
 #include "io/load_volume.hpp"
+#include "io/memory_limit.hpp"
 #include "io/tiff_stack.hpp"
 #include "io/timer.hpp"
 
@@ -164,10 +167,40 @@ void run_export_volume(const VolumeArgs& args, GlobalOptions& global) {
               format_seconds(t_load).c_str(), format_seconds(t_raster).c_str(), format_seconds(t_write).c_str());
 }
 
+struct CompactArgs {
+  std::string model, out;
+  gmf::CompactOptions options;
+};
+
+void run_export_compact(const CompactArgs& args, GlobalOptions& global) {
+  args.options.validate();
+  io::Stopwatch watch;
+  const gmf::Checkpoint checkpoint = gmf::load_checkpoint(args.model);
+  const double t_load = watch.lap();
+  const gmf::CompactHeader h =
+      gmf::save_compact_checkpoint(args.out, checkpoint.mixture, checkpoint.meta, args.options);
+  const double t_write = watch.lap();
+  if (global.quiet) return;
+  const double k = static_cast<double>(h.count);
+  const auto in_bytes = static_cast<double>(std::filesystem::file_size(args.model));
+  const auto out_bytes = static_cast<double>(h.file_bytes);
+  const gmf::CompactBounds b = gmf::compact_bounds(h);
+  const auto max3 = [](const std::array<double, 3>& v) { return std::max({v[0], v[1], v[2]}); };
+  std::printf(
+      "export compact: wrote %s: %zu Gaussians, %s (%.2f B/Gaussian; %s is %s, %.2f B/Gaussian: %.1fx smaller); "
+      "bits position %d, log-scale %d, rotation %d, intensity %d; largest errors: position %.3g, log-scale %.3g, "
+      "quaternion %.3g, intensity %.3g; load %s, encode and write %s\n",
+      args.out.c_str(), static_cast<std::size_t>(h.count), format_bytes(out_bytes).c_str(), k > 0 ? out_bytes / k : 0.0,
+      args.model.c_str(), format_bytes(in_bytes).c_str(), k > 0 ? in_bytes / k : 0.0, in_bytes / out_bytes,
+      h.bits.position_bits, h.bits.scale_bits, h.bits.rotation_bits, h.bits.intensity_bits, max3(b.position),
+      max3(b.log_scale), b.rotation, b.intensity, format_seconds(t_load).c_str(), format_seconds(t_write).c_str());
+}
+
 }  // namespace
 
 void add_export_command(CLI::App& app, GlobalOptions& global) {
-  auto* cmd = app.add_subcommand("export", "convert a checkpoint: OpenVDB grids, splat-viewer PLY, dense TIFF stack");
+  auto* cmd = app.add_subcommand(
+      "export", "convert a checkpoint: OpenVDB grids, splat-viewer PLY, dense TIFF stack, compact checkpoint");
   cmd->require_subcommand(1);
 
   auto* vdb = cmd->add_subcommand("vdb", "the mixture as a sparse OpenVDB `density` grid (+ `gaussians` points)");
@@ -227,6 +260,29 @@ void add_export_command(CLI::App& app, GlobalOptions& global) {
       ->capture_default_str();
   volume_args->overrides.add_to(volume);
   volume->callback([volume_args, &global] { run_export_volume(*volume_args, global); });
+
+  auto* compact = cmd->add_subcommand(
+      "compact", "a compact checkpoint (.hgs: quantized, zstd) that every command reads like the .ply");
+  auto compact_args = std::make_shared<CompactArgs>();
+  gmf::CompactOptions& o = compact_args->options;
+  compact->add_option("--model", compact_args->model, "checkpoint (.ply or .hgs)")->required();
+  compact->add_option("-o,--output", compact_args->out, "output .hgs")->required();
+  compact->add_option("--position-bits", o.position_bits, "bits per centre coordinate over the model's box")
+      ->check(CLI::Range(8, 21))
+      ->capture_default_str();
+  compact->add_option("--scale-bits", o.scale_bits, "bits per log-scale over its range")
+      ->check(CLI::Range(4, 16))
+      ->capture_default_str();
+  compact->add_option("--rotation-bits", o.rotation_bits, "bits per smallest-three quaternion component")
+      ->check(CLI::Range(4, 15))
+      ->capture_default_str();
+  compact->add_option("--intensity-bits", o.intensity_bits, "bits of the intensity sigmoid(logit)")
+      ->check(CLI::Range(4, 16))
+      ->capture_default_str();
+  compact->add_option("--level", o.zstd_level, "zstd compression level")
+      ->check(CLI::Range(1, 22))
+      ->capture_default_str();
+  compact->callback([compact_args, &global] { run_export_compact(*compact_args, global); });
 }
 
 void add_import_command(CLI::App& app, GlobalOptions& global) {

@@ -1,13 +1,17 @@
 // SPDX-License-Identifier: Apache-2.0
-// `hisnegs info FILE`: what a TIFF stack, .vdb or .ply checkpoint holds.
+// `hisnegs info FILE`: what a TIFF stack, .vdb, .ply or compact .hgs checkpoint holds.
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <fstream>
 #include <iostream>
+#include <string_view>
 
 #include "apps/cli/cli_support.hpp"
 #include "apps/pipeline/format.hpp"
 #include "gmf/checkpoint.hpp"
+#include "gmf/compact_checkpoint.hpp"
+#include "io/atomic_file.hpp"
 #include "io/error.hpp"
 #include "io/load_volume.hpp"
 #include "io/sparse_grid.hpp"
@@ -17,21 +21,23 @@
 namespace hisnegs::apps {
 namespace {
 
-enum class FileKind { kTiff, kVdb, kPly };
+enum class FileKind { kTiff, kVdb, kPly, kCompact };
 
 FileKind detect_kind(const std::filesystem::path& path) {
   io::require_regular_file(path);
   std::ifstream in(path, std::ios::binary);
-  unsigned char magic[4] = {0, 0, 0, 0};
-  in.read(reinterpret_cast<char*>(magic), 4);
+  unsigned char magic[8] = {0, 0, 0, 0, 0, 0, 0, 0};
+  in.read(reinterpret_cast<char*>(magic), 8);
   if ((magic[0] == 'I' && magic[1] == 'I' && (magic[2] == 42 || magic[2] == 43) && magic[3] == 0) ||
       (magic[0] == 'M' && magic[1] == 'M' && magic[2] == 0 && (magic[3] == 42 || magic[3] == 43))) {
     return FileKind::kTiff;
   }
   if (magic[0] == 'p' && magic[1] == 'l' && magic[2] == 'y') return FileKind::kPly;
+  if (gmf::has_compact_magic(std::string_view(reinterpret_cast<const char*>(magic), 8))) return FileKind::kCompact;
   // OpenVDB files start with the int32 magic 0x56444220 (" BDV" little-endian).
   if (magic[0] == 0x20 && magic[1] == 0x42 && magic[2] == 0x44 && magic[3] == 0x56) return FileKind::kVdb;
-  io::fail_input(path, "unrecognized file type (expected a TIFF stack, an OpenVDB .vdb or a .ply checkpoint)");
+  io::fail_input(
+      path, "unrecognized file type (expected a TIFF stack, an OpenVDB .vdb, a .ply or a compact .hgs checkpoint)");
 }
 
 void print_row(const char* key, const std::string& value) { std::printf("%-12s %s\n", key, value.c_str()); }
@@ -107,11 +113,28 @@ void info_vdb(const std::filesystem::path& path) {
   }
 }
 
-void info_ply(const std::filesystem::path& path) {
+void info_checkpoint(const std::filesystem::path& path, bool compact) {
   const gmf::Checkpoint ckpt = gmf::load_checkpoint(path);
   const gmf::MixtureStats st = gmf::compute_stats(ckpt.mixture);
   print_row("file", path.string());
-  print_row("format", "hisnegs checkpoint (PLY), format version " + std::to_string(ckpt.meta.format_version));
+  if (compact) {
+    // load_checkpoint has read and checked the whole file; this reads its header again.
+    const gmf::CompactHeader h = gmf::read_compact_header(io::read_file(path), path);
+    const gmf::CompactBounds b = gmf::compact_bounds(h);
+    char line[512];
+    std::snprintf(line, sizeof line,
+                  "compact (.hgs) version %u: %s, %.2f B/Gaussian; bits position %d, log-scale %d, rotation %d, "
+                  "intensity %d; largest errors position %.3g, log-scale %.3g, quaternion %.3g, intensity %.3g",
+                  h.version, format_bytes(static_cast<double>(h.file_bytes)).c_str(),
+                  h.count ? static_cast<double>(h.file_bytes) / static_cast<double>(h.count) : 0.0,
+                  h.bits.position_bits, h.bits.scale_bits, h.bits.rotation_bits, h.bits.intensity_bits,
+                  std::max({b.position[0], b.position[1], b.position[2]}),
+                  std::max({b.log_scale[0], b.log_scale[1], b.log_scale[2]}), b.rotation, b.intensity);
+    print_row("format",
+              "hisnegs " + std::string(line) + "; metadata format version " + std::to_string(ckpt.meta.format_version));
+  } else {
+    print_row("format", "hisnegs checkpoint (PLY), format version " + std::to_string(ckpt.meta.format_version));
+  }
   print_row("gaussians", std::to_string(st.count) + " (" +
                              format_bytes(static_cast<double>(st.count) * gmf::kGaussianParamCount * 4.0) +
                              " of parameters)");
@@ -143,13 +166,14 @@ void info_ply(const std::filesystem::path& path) {
 }  // namespace
 
 void add_info_command(CLI::App& app, GlobalOptions& global) {
-  auto* cmd = app.add_subcommand("info", "describe a TIFF stack, an OpenVDB file or a .ply checkpoint");
+  auto* cmd = app.add_subcommand("info", "describe a TIFF stack, an OpenVDB file or a checkpoint (.ply, .hgs)");
   auto path = std::make_shared<std::string>();
   auto overrides = std::make_shared<VolumeOverrides>();
-  cmd->add_option("FILE", *path, "TIFF stack, .vdb or .ply")->required();
+  cmd->add_option("FILE", *path, "TIFF stack, .vdb, .ply or .hgs")->required();
   overrides->add_to(cmd);
   cmd->callback([path, overrides, &global] {
-    switch (detect_kind(*path)) {
+    const FileKind kind = detect_kind(*path);
+    switch (kind) {
       case FileKind::kTiff:
         info_tiff(*path, global, *overrides);
         break;
@@ -157,7 +181,8 @@ void add_info_command(CLI::App& app, GlobalOptions& global) {
         info_vdb(*path);
         break;
       case FileKind::kPly:
-        info_ply(*path);
+      case FileKind::kCompact:
+        info_checkpoint(*path, kind == FileKind::kCompact);
         break;
     }
   });

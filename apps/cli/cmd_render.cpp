@@ -18,7 +18,7 @@ void add_render_command(CLI::App& app, GlobalOptions& global) {
     int delay_ms = 50;
   };
   auto args = std::make_shared<Args>();
-  cmd->add_option("--model", args->model, "checkpoint (.ply)")->required();
+  cmd->add_option("--model", args->model, "checkpoint (.ply or .hgs)")->required();
   cmd->add_option("--cameras", args->cameras, "cameras.json whose views to render (e.g. GTDIR/eval/cameras.json)");
   cmd->add_option("-o,--output", args->out, "output folder")->required();
   cmd->add_option("--mode", args->mode, "soft | hard (default splat.mode)");

@@ -14,7 +14,7 @@ void add_train_command(CLI::App& app, GlobalOptions& global) {
     std::optional<int> epochs;
   };
   auto args = std::make_shared<Args>();
-  cmd->add_option("--init", args->init, "initial model (.ply, e.g. from `hisnegs fit`)")->required();
+  cmd->add_option("--init", args->init, "initial model (.ply or .hgs, e.g. from `hisnegs fit`)")->required();
   cmd->add_option("--data", args->data, "ground-truth folder of `hisnegs gt` (uses GTDIR/train)")->required();
   cmd->add_option("-o,--output", args->out, "run folder (log.csv, checkpoints/, final.ply, training_curve.png)")
       ->required();

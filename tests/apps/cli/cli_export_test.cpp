@@ -1,8 +1,8 @@
 // SPDX-License-Identifier: Apache-2.0
 // The `export` and `import` commands through the real binary on a small generated
 // checkpoint: OpenVDB's own tools (vdb_print, the pyopenvdb binding) read the .vdb,
-// the points round trip gives the same checkpoint file, the splat PLY and TIFF
-// exports, and bad input (one line, exit 2, no file left behind).
+// the points round trip gives the same checkpoint file, the splat PLY, TIFF and
+// compact exports, and bad input (one line, exit 2, no file left behind).
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -242,6 +242,53 @@ TEST_F(CliExport, VolumeIsTheResampledMixtureWithItsPsnr) {
   ASSERT_EQ(native.exit_code, 0) << native.err;
   EXPECT_EQ(native.out.find("PSNR"), std::string::npos) << native.out;
   EXPECT_EQ(slurp(dir_ / "n.tif"), slurp(dir_ / "f.tif")) << "the same voxels and spacing";
+}
+
+TEST_F(CliExport, CompactIsSmallerAndEveryCommandReadsIt) {
+  const auto r = run_hisnegs({"export", "compact", "--model", model(), "-o", dir_ / "m.hgs"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("30 Gaussians"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("B/Gaussian"), std::string::npos) << r.out;
+  EXPECT_LT(fs::file_size(dir_ / "m.hgs"), fs::file_size(model()) / 2);
+  EXPECT_EQ(gmf::load_checkpoint(dir_ / "m.hgs").meta, gmf::load_checkpoint(model()).meta);
+
+  const auto info = run_hisnegs({"info", dir_ / "m.hgs"});
+  ASSERT_EQ(info.exit_code, 0) << info.err;
+  EXPECT_NE(info.out.find("compact (.hgs) version 1"), std::string::npos) << info.out;
+  EXPECT_NE(info.out.find("gaussians    30 "), std::string::npos) << info.out;
+  EXPECT_NE(info.out.find("normalized   minmax 0 1"), std::string::npos) << info.out;
+
+  // Another command, by content: the resampled volumes of both files agree to what
+  // the default bit depths allow (intensity within 1/512 per Gaussian, sizes 0.3 %).
+  ASSERT_EQ(run_hisnegs({"-q", "export", "volume", "--model", dir_ / "m.hgs", "-o", dir_ / "c.tif"}).exit_code, 0);
+  ASSERT_EQ(run_hisnegs({"-q", "export", "volume", "--model", model(), "-o", dir_ / "p.tif"}).exit_code, 0);
+  const io::Volume c = io::read_tiff_stack(dir_ / "c.tif"), p = io::read_tiff_stack(dir_ / "p.tif");
+  ASSERT_EQ(c.size(), p.size());
+  double max_diff = 0, max_value = 0;
+  for (std::size_t i = 0; i < c.size(); ++i) {
+    max_diff = std::max(max_diff, std::abs(static_cast<double>(c.voxels[i]) - p.voxels[i]));
+    max_value = std::max(max_value, static_cast<double>(p.voxels[i]));
+  }
+  EXPECT_GT(max_value, 0.3);
+  EXPECT_LT(max_diff, 0.01);
+  EXPECT_GT(max_diff, 0.0) << "the compact file is quantized";
+
+  // Bad input: one line, exit 2, nothing written.
+  fs::create_directories(dir_ / "out");
+  const std::string bytes = slurp(dir_ / "m.hgs");
+  testing::write_text(dir_ / "cut.hgs", bytes.substr(0, bytes.size() - 7));
+  const auto rejected = [&](const std::vector<std::string>& args, const std::string& needle) {
+    const auto bad = run_hisnegs(args);
+    EXPECT_EQ(bad.exit_code, 2) << needle << "\n" << bad.err;
+    EXPECT_EQ(testing::count_lines(bad.err), 1) << bad.err;
+    EXPECT_NE(bad.err.find(needle), std::string::npos) << bad.err;
+    EXPECT_TRUE(fs::is_empty(dir_ / "out")) << needle << ": output left behind";
+  };
+  rejected({"export", "volume", "--model", dir_ / "cut.hgs", "-o", dir_ / "out" / "v.tif"},
+           "cut.hgs: compact checkpoint: truncated");
+  rejected({"export", "compact", "--model", dir_ / "cut.hgs", "-o", dir_ / "out" / "m.hgs"}, "truncated");
+  rejected({"export", "compact", "--model", model(), "-o", dir_ / "out" / "m.hgs", "--position-bits", "40"},
+           "--position-bits");
 }
 
 TEST_F(CliExport, BadInputIsOneLineAndLeavesNoFile) {
