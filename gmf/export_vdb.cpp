@@ -256,6 +256,7 @@ Checkpoint import_vdb_points(const fs::path& path) {
   io::require_regular_file(path);
   io::ensure_openvdb_initialized();
   PointDataGrid::Ptr grid;
+  io::check_vdb_structure(path);
   const io::VdbReadGuard guard(path);
   try {
     openvdb::io::File file(path.string());

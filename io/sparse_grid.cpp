@@ -25,6 +25,7 @@
 #include "io/detail/vdb_grids.hpp"
 #include "io/error.hpp"
 #include "io/memory_limit.hpp"
+#include "io/vdb_validate.hpp"
 #include "io/vdb_file.hpp"
 
 namespace hisnegs::io {
@@ -44,6 +45,11 @@ void SparseGridOptions::validate() const {
 void ensure_openvdb_initialized() {
   static std::once_flag once;
   std::call_once(once, [] { openvdb::initialize(); });
+}
+
+void check_vdb_structure(const std::filesystem::path& path) {
+  ensure_openvdb_initialized();
+  validate_vdb_file(path, [](const std::string& type) { return openvdb::Metadata::isRegisteredType(type); });
 }
 
 #if defined(__SANITIZE_ADDRESS__)
@@ -377,6 +383,7 @@ SparseGrid read_vdb(const std::filesystem::path& path) {
   require_regular_file(path);
   ensure_openvdb_initialized();
   auto impl = std::make_shared<SparseGrid::Impl>();
+  check_vdb_structure(path);
   const VdbReadGuard guard(path);
   try {
     openvdb::io::File file(path.string());
@@ -421,6 +428,7 @@ std::vector<VdbGridSummary> inspect_vdb(const std::filesystem::path& path) {
   require_regular_file(path);
   ensure_openvdb_initialized();
   std::vector<VdbGridSummary> out;
+  check_vdb_structure(path);
   const VdbReadGuard guard(path);
   try {
     openvdb::io::File file(path.string());

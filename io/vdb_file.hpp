@@ -21,6 +21,12 @@ void ensure_openvdb_initialized();
 openvdb::math::Transform::Ptr make_vdb_transform(const Eigen::Vector3d& voxel_size_world,
                                                  const Eigen::Vector3d& origin_world);
 
+// Walks the file as OpenVDB would read it (io/vdb_validate.hpp) and throws
+// io::InputError naming it for any length, count or chunk size the file cannot hold.
+// Call it before handing the file to openvdb::io::File, with a VdbReadGuard alive
+// for the read itself (the walk cannot check what OpenVDB's point attributes hold).
+void check_vdb_structure(const std::filesystem::path& path);
+
 // While alive, caps this process's address space at what it uses now plus
 // min(allocation_limit_bytes(), max(1 GiB, 64 × the file's size)): a damaged .vdb
 // whose header claims huge strings or buffers makes OpenVDB's allocation fail

@@ -1,0 +1,441 @@
+// SPDX-License-Identifier: Apache-2.0
+#include "io/vdb_validate.hpp"
+
+#include <algorithm>
+#include <array>
+#include <cctype>
+#include <cstring>
+#include <fstream>
+#include <map>
+#include <optional>
+#include <sstream>
+#include <tuple>
+
+#include "io/error.hpp"
+
+namespace hisnegs::io {
+namespace {
+
+// OpenVDB's file format numbers (openvdb/version.h, OPENVDB_FILE_VERSION_*).
+constexpr std::uint32_t kMinVersion = 222;  // NODE_MASK_COMPRESSION: per-grid compression, node metadata
+constexpr std::uint32_t kMaxVersion = 224;  // MULTIPASS_IO, written by OpenVDB 6 to 11
+constexpr std::int64_t kMagic = 0x56444220;  // "VDB " little-endian
+constexpr std::uint32_t kCompressZip = 0x1, kCompressActiveMask = 0x2, kCompressBlosc = 0x4;
+constexpr int kMaxMapNesting = 4;  // a frustum map holds a second map; nothing nests deeper
+
+// Sequential little-endian reads from the file with every length checked against
+// what is left of it. Failures throw InputError "PATH: damaged .vdb: WHAT at byte N".
+class Walker {
+ public:
+  explicit Walker(const std::filesystem::path& path) : path_(path), in_(path, std::ios::binary) {
+    if (!in_) fail_input(path, "cannot open");
+    std::error_code ec;
+    size_ = static_cast<std::int64_t>(std::filesystem::file_size(path, ec));
+    if (ec) fail_input(path, "cannot read its size: " + ec.message());
+  }
+
+  [[nodiscard]] std::int64_t pos() const { return pos_; }
+  [[nodiscard]] std::int64_t size() const { return size_; }
+  [[nodiscard]] std::int64_t left() const { return size_ - pos_; }
+  [[nodiscard]] const std::filesystem::path& path() const { return path_; }
+
+  [[noreturn]] void fail(const std::string& what) const {
+    fail_input(path_, "damaged .vdb: " + what + " at byte " + std::to_string(pos_));
+  }
+
+  void need(std::int64_t bytes, const char* what) const {
+    if (bytes < 0 || bytes > left())
+      fail(std::string(what) + " needs " + std::to_string(bytes) + " bytes, the file has " +
+           std::to_string(std::max<std::int64_t>(left(), 0)) + " left");
+  }
+
+  void read_bytes(void* out, std::int64_t bytes, const char* what) {
+    need(bytes, what);
+    if (!in_.read(static_cast<char*>(out), bytes)) fail(std::string("cannot read ") + what);
+    pos_ += bytes;
+  }
+
+  template <class T>
+  T read(const char* what) {
+    T v{};
+    read_bytes(&v, sizeof(T), what);
+    return v;
+  }
+
+  void skip(std::int64_t bytes, const char* what) {
+    need(bytes, what);
+    pos_ += bytes;
+    in_.seekg(pos_);
+  }
+
+  void seek(std::int64_t to, const char* what) {
+    if (to < 0 || to > size_) fail(std::string(what) + " " + std::to_string(to) + " is outside the file");
+    pos_ = to;
+    in_.clear();
+    in_.seekg(pos_);
+  }
+
+  // OpenVDB's readString: a uint32 length and that many bytes. `max_keep` bytes are
+  // returned (names and type names are short); longer strings are skipped over.
+  std::string read_string(const char* what, std::size_t max_keep = 256) {
+    const auto n = read<std::uint32_t>(what);
+    need(n, what);
+    std::string s(std::min<std::size_t>(n, max_keep), '\0');
+    read_bytes(s.data(), static_cast<std::int64_t>(s.size()), what);
+    if (n > s.size()) skip(static_cast<std::int64_t>(n - s.size()), what);
+    return s;
+  }
+
+ private:
+  std::filesystem::path path_;
+  std::ifstream in_;
+  std::int64_t size_ = 0;
+  std::int64_t pos_ = 0;
+};
+
+// The fixed sizes of the metadata types OpenVDB registers (openvdb.cc), whose
+// readValue reads sizeof(T) whatever size the file states.
+std::optional<std::int64_t> fixed_metadata_size(const std::string& type) {
+  static const std::map<std::string, std::int64_t> sizes = {
+      {"bool", 1},   {"int32", 4},  {"int64", 8},  {"float", 4},  {"double", 8}, {"vec2i", 8},
+      {"vec2s", 8},  {"vec2d", 16}, {"vec3i", 12}, {"vec3s", 12}, {"vec3d", 24}, {"vec4i", 16},
+      {"vec4s", 16}, {"vec4d", 32}, {"mat4s", 64}, {"mat4d", 128}};
+  const auto it = sizes.find(type);
+  return it == sizes.end() ? std::nullopt : std::optional<std::int64_t>(it->second);
+}
+
+// io::DelayedLoadMetadata::readValue: a per-leaf byte mask and optional int64
+// compressed sizes, each stored raw or as one Blosc chunk whose header states its
+// decompressed size. OpenVDB reserves and resizes to what the file states.
+void check_blosc_header(Walker& w, std::int64_t chunk_bytes, std::int64_t min_bytes, std::int64_t max_bytes,
+                        const char* what);
+
+void walk_delayed_load(Walker& w, std::int64_t num_bytes) {
+  if (num_bytes == 0) return;
+  const std::int64_t end = w.pos() + num_bytes;
+  const auto count = w.read<std::uint32_t>("delayed-load count");
+  // One mask byte per leaf: a leaf's topology alone takes 64 bytes of this file.
+  if (static_cast<std::int64_t>(count) > w.size() / 64 + 1)
+    w.fail("delayed-load metadata claims " + std::to_string(count) + " leaves");
+  auto table = [&](std::int64_t elem, bool optional, const char* what) {
+    const auto bytes = w.read<std::uint32_t>(what);
+    if (optional && bytes == 0xFFFFFFFFu) return;  // no compressed sizes stored
+    if (bytes > 0) {
+      // OpenVDB writes its padded tables: up to one padding block more than `count`.
+      check_blosc_header(w, bytes, elem * count, elem * count + 4096, what);
+    } else {
+      w.skip(elem * count, what);
+    }
+  };
+  table(1, false, "delayed-load mask");
+  table(8, true, "delayed-load sizes");
+  if (w.pos() > end) w.fail("delayed-load metadata is longer than its stated " + std::to_string(num_bytes) + " bytes");
+  w.seek(end, "end of delayed-load metadata");
+}
+
+// MetaMap::readMeta.
+void walk_metadata(Walker& w, const std::function<bool(const std::string&)>& is_registered, const char* where) {
+  const auto count = w.read<std::uint32_t>(where);
+  // Each entry takes at least its two string lengths and its size: 12 bytes.
+  if (static_cast<std::int64_t>(count) * 12 > w.left())
+    w.fail(std::string(where) + " claims " + std::to_string(count) + " entries");
+  for (std::uint32_t i = 0; i < count; ++i) {
+    const std::string name = w.read_string("metadata name");
+    const std::string type = w.read_string("metadata type");
+    const auto num_bytes = static_cast<std::int64_t>(w.read<std::uint32_t>("metadata size"));
+    w.need(num_bytes, "metadata value");
+    if (type == "__delayedload") {
+      walk_delayed_load(w, num_bytes);
+    } else if (const auto fixed = fixed_metadata_size(type)) {
+      if (num_bytes != *fixed)
+        w.fail("metadata '" + printable(name, 64) + "' of type " + type + " states " + std::to_string(num_bytes) +
+               " bytes, not " + std::to_string(*fixed));
+      w.skip(num_bytes, "metadata value");
+    } else if (type == "string" || !is_registered || !is_registered(type)) {
+      w.skip(num_bytes, "metadata value");  // read verbatim: a string, or an unknown type kept as bytes
+    } else {
+      w.fail("metadata '" + printable(name, 64) + "' has type '" + printable(type, 64) +
+             "', which this reader cannot check");
+    }
+  }
+}
+
+// Transform::read: the map's type name, then the map (math/Maps.h read()).
+void walk_map(Walker& w, int depth) {
+  const std::string type = w.read_string("transform type");
+  static const std::map<std::string, std::int64_t> sizes = {
+      {"AffineMap", 128},         {"UnitaryMap", 128},        {"ScaleMap", 120},
+      {"UniformScaleMap", 120},   {"TranslationMap", 24},     {"ScaleTranslateMap", 144},
+      {"UniformScaleTranslateMap", 144}};
+  if (const auto it = sizes.find(type); it != sizes.end()) {
+    w.skip(it->second, "transform");
+  } else if (type == "NonlinearFrustumMap" && depth < kMaxMapNesting) {
+    w.skip(48 + 8 + 8, "frustum map");  // bounding box, taper, depth
+    walk_map(w, depth + 1);
+  } else {
+    w.fail("unknown transform type '" + printable(type, 64) + "'");
+  }
+}
+
+// The value type and node sizes of a "Tree_<type>_<log2dim>_..._<leaf log2dim>" grid.
+struct TreeLayout {
+  std::int64_t value_bytes = 0;       // sizeof(ValueType)
+  std::int64_t half_value_bytes = 0;  // its half-float size (real types), else value_bytes
+  std::vector<int> log2dims;          // root's child first, leaf last
+  bool standard_leaf = false;         // LeafNode<T>: buffers walked chunk by chunk
+};
+
+std::optional<TreeLayout> tree_layout(const std::string& grid_type) {
+  // sizeof(ValueType), its half size, and whether its leaves use LeafNode<T>'s IO.
+  static const std::map<std::string, std::tuple<int, int, bool>> types = {
+      {"float", {4, 2, true}},  {"double", {8, 2, true}},  {"int32", {4, 4, true}},
+      {"int64", {8, 8, true}},  {"vec3s", {12, 6, true}},  {"vec3d", {24, 6, true}},
+      {"vec3i", {12, 12, true}}, {"bool", {1, 1, false}},  {"mask", {1, 1, false}},
+      {"ptdataidx32", {4, 4, false}}, {"ptdataidx64", {8, 8, false}},
+      {"ptidx32", {4, 4, false}},     {"ptidx64", {8, 8, false}}};
+  if (grid_type.rfind("Tree_", 0) != 0) return std::nullopt;
+  std::vector<std::string> parts;
+  std::stringstream ss(grid_type.substr(5));
+  for (std::string part; std::getline(ss, part, '_');) parts.push_back(part);
+  if (parts.size() < 2) return std::nullopt;
+  const auto it = types.find(parts.front());
+  if (it == types.end()) return std::nullopt;
+  TreeLayout t;
+  std::tie(t.value_bytes, t.half_value_bytes, t.standard_leaf) = it->second;
+  for (std::size_t i = 1; i < parts.size(); ++i) {
+    if (parts[i].size() != 1 || parts[i][0] < '1' || parts[i][0] > '7') return std::nullopt;
+    t.log2dims.push_back(parts[i][0] - '0');
+  }
+  return t;
+}
+
+// NodeMask<L>: 2^(3L) bits (NodeMask<1> is one byte, the others whole 64-bit words).
+std::int64_t mask_bytes(int log2dim) { return (std::int64_t{1} << (3 * log2dim)) / 8; }
+
+std::int64_t popcount_bytes(const std::vector<std::uint8_t>& bytes, std::int64_t bits) {
+  std::int64_t n = 0;
+  for (std::int64_t i = 0; i < bits; ++i) n += (bytes[i / 8] >> (i % 8)) & 1;
+  return n;
+}
+
+// A Blosc chunk of `chunk_bytes` whose header must state that many compressed bytes
+// and [min_bytes, max_bytes] decompressed ones.
+void check_blosc_header(Walker& w, std::int64_t chunk_bytes, std::int64_t min_bytes, std::int64_t max_bytes,
+                        const char* what) {
+  w.need(chunk_bytes, what);
+  if (chunk_bytes < 16) w.fail(std::string(what) + ": a Blosc chunk of " + std::to_string(chunk_bytes) + " bytes");
+  std::array<std::uint8_t, 16> h{};
+  const std::int64_t start = w.pos();
+  w.read_bytes(h.data(), 16, what);
+  std::uint32_t nbytes = 0, cbytes = 0;
+  std::memcpy(&nbytes, h.data() + 4, 4);
+  std::memcpy(&cbytes, h.data() + 12, 4);
+  if (nbytes < min_bytes || nbytes > max_bytes)
+    w.fail(std::string(what) + ": a Blosc chunk of " + std::to_string(nbytes) + " bytes where " +
+           std::to_string(min_bytes) + (max_bytes > min_bytes ? " to " + std::to_string(max_bytes) : std::string()) +
+           " are expected");
+  if (cbytes != chunk_bytes)
+    w.fail(std::string(what) + ": a Blosc chunk stating " + std::to_string(cbytes) + " compressed bytes in " +
+           std::to_string(chunk_bytes));
+  w.seek(start + chunk_bytes, what);
+}
+
+// io::readData<T>: `bytes` of values, stored raw or as one Blosc / zlib chunk.
+void walk_data(Walker& w, std::uint32_t compression, std::int64_t bytes) {
+  if (compression & (kCompressBlosc | kCompressZip)) {
+    const auto n = w.read<std::int64_t>("chunk size");
+    if (n <= 0) {
+      if (-n != bytes)
+        w.fail("an uncompressed chunk of " + std::to_string(-n) + " bytes where " + std::to_string(bytes) +
+               " are expected");
+      w.skip(bytes, "chunk");
+    } else if (compression & kCompressBlosc) {
+      check_blosc_header(w, n, bytes, bytes, "chunk");
+    } else {
+      w.skip(n, "zip chunk");  // zlib inflates into the caller's buffer of `bytes`
+    }
+  } else {
+    w.skip(bytes, "values");
+  }
+}
+
+// io::readCompressedValues for `count` values under a node value mask with `active`
+// bits set.
+void walk_compressed_values(Walker& w, const TreeLayout& t, bool half, std::uint32_t compression,
+                            std::int64_t count, std::int64_t active, int log2dim) {
+  const auto meta = w.read<std::int8_t>("node compression flag");
+  if (meta < 0 || meta > 6) w.fail("node compression flag " + std::to_string(meta));
+  if (meta == 2 || meta == 4 || meta == 5) w.skip(t.value_bytes * (meta == 5 ? 2 : 1), "inactive values");
+  if (meta == 3 || meta == 4 || meta == 5) w.skip(mask_bytes(log2dim), "selection mask");
+  const bool mask_compressed = (compression & kCompressActiveMask) != 0 && meta != 6;
+  const std::int64_t n = mask_compressed ? active : count;
+  if (half) {
+    if (n < 1) return;  // HalfReader reads nothing for no values
+    walk_data(w, compression, n * t.half_value_bytes);
+  } else {
+    walk_data(w, compression, n * t.value_bytes);
+  }
+}
+
+struct GridWalk {
+  const TreeLayout& tree;
+  bool half;
+  std::uint32_t compression;
+  bool buffers;                         // walk leaf buffers too
+  std::vector<std::int64_t> leaf_active;  // per leaf in file order, its active voxels
+};
+
+// InternalNode::readTopology / LeafNode::readTopology, depth-first.
+void walk_node_topology(Walker& w, GridWalk& g, std::size_t level) {
+  const int l = g.tree.log2dims[level];
+  const std::int64_t bytes = mask_bytes(l);
+  const std::int64_t bits = std::int64_t{1} << (3 * l);
+  if (level + 1 == g.tree.log2dims.size()) {  // a leaf: its value mask
+    std::vector<std::uint8_t> mask(static_cast<std::size_t>(bytes));
+    w.read_bytes(mask.data(), bytes, "leaf value mask");
+    g.leaf_active.push_back(popcount_bytes(mask, bits));
+    return;
+  }
+  // Children take at least their own masks: bound the count before recursing.
+  std::vector<std::uint8_t> child_mask(static_cast<std::size_t>(bytes)), value_mask(child_mask.size());
+  w.read_bytes(child_mask.data(), bytes, "child mask");
+  w.read_bytes(value_mask.data(), bytes, "value mask");
+  walk_compressed_values(w, g.tree, g.half, g.compression, bits, popcount_bytes(value_mask, bits), l);
+  const std::int64_t children = popcount_bytes(child_mask, bits);
+  if (children * mask_bytes(g.tree.log2dims[level + 1]) > w.left())
+    w.fail("a node claims " + std::to_string(children) + " children");
+  for (std::int64_t i = 0; i < children; ++i) walk_node_topology(w, g, level + 1);
+}
+
+// RootNode::readTopology (current format) and Tree::readTopology's buffer count.
+void walk_topology(Walker& w, GridWalk& g) {
+  const auto buffer_count = w.read<std::int32_t>("buffer count");
+  if (buffer_count != 1) w.fail("buffer count " + std::to_string(buffer_count) + " (must be 1)");
+  w.skip(g.tree.value_bytes, "background value");
+  const auto tiles = static_cast<std::int64_t>(w.read<std::uint32_t>("root tile count"));
+  const auto children = static_cast<std::int64_t>(w.read<std::uint32_t>("root child count"));
+  const std::int64_t tile_bytes = 12 + g.tree.value_bytes + 1;
+  const std::int64_t child_bytes = 12 + 2 * mask_bytes(g.tree.log2dims.front());
+  if (tiles * tile_bytes + children * child_bytes > w.left())
+    w.fail("the root claims " + std::to_string(tiles) + " tiles and " + std::to_string(children) + " children");
+  // OpenVDB keys root entries by origin in a std::map and reads the children's
+  // buffers in that map's order: origins must be distinct, and children must come
+  // in increasing order for their buffers to follow the topology.
+  int total_log2 = 0;
+  for (int l : g.tree.log2dims) total_log2 += l;
+  const std::int32_t align = static_cast<std::int32_t>((std::int64_t{1} << total_log2) - 1);
+  std::vector<std::array<std::int32_t, 3>> origins;
+  origins.reserve(static_cast<std::size_t>(tiles + children));
+  auto read_origin = [&](const char* what) {
+    std::array<std::int32_t, 3> o{};
+    w.read_bytes(o.data(), 12, what);
+    for (std::int32_t c : o)
+      if (c & align) w.fail(std::string(what) + " " + std::to_string(c) + " is not on the root's grid");
+    return o;
+  };
+  for (std::int64_t i = 0; i < tiles; ++i) {
+    origins.push_back(read_origin("root tile origin"));
+    w.skip(g.tree.value_bytes + 1, "root tile value");
+  }
+  std::optional<std::array<std::int32_t, 3>> previous;
+  for (std::int64_t i = 0; i < children; ++i) {
+    const auto o = read_origin("root child origin");
+    if (previous && !(*previous < o)) w.fail("root children are not in increasing order");
+    previous = o;
+    origins.push_back(o);
+    walk_node_topology(w, g, 0);
+  }
+  std::sort(origins.begin(), origins.end());
+  if (std::adjacent_find(origins.begin(), origins.end()) != origins.end())
+    w.fail("two root entries share an origin");
+}
+
+// LeafNode::readBuffers for every leaf, in the topology's order.
+void walk_buffers(Walker& w, const GridWalk& g) {
+  const int l = g.tree.log2dims.back();
+  for (const std::int64_t active : g.leaf_active) {
+    w.skip(mask_bytes(l), "leaf value mask");
+    walk_compressed_values(w, g.tree, g.half, g.compression, std::int64_t{1} << (3 * l), active, l);
+  }
+}
+
+void walk_grid(Walker& w, VdbGridCheck& grid, std::int64_t grid_pos, std::int64_t block_pos, std::int64_t end_pos,
+               const std::function<bool(const std::string&)>& is_registered) {
+  w.seek(grid_pos, "grid position");
+  const auto compression = w.read<std::uint32_t>("grid compression");
+  if (compression & ~(kCompressZip | kCompressActiveMask | kCompressBlosc))
+    w.fail("grid compression flags " + std::to_string(compression));
+  walk_metadata(w, is_registered, "grid metadata");
+  walk_map(w, 0);
+  if (grid.instance) {
+    if (w.pos() > end_pos) w.fail("grid '" + printable(grid.name, 64) + "' runs past its stated end");
+    return;
+  }
+  const std::optional<TreeLayout> tree = tree_layout(grid.grid_type);
+  if (!tree) return;  // a tree configuration this walk does not know: header checks only
+  GridWalk g{*tree, grid.half_float, compression, tree->standard_leaf, {}};
+  walk_topology(w, g);
+  grid.depth = VdbGridCheck::Depth::kTopology;
+  grid.leaves = static_cast<std::int64_t>(g.leaf_active.size());
+  if (w.pos() != block_pos)
+    w.fail("grid '" + printable(grid.name, 64) + "' topology ends at byte " + std::to_string(w.pos()) +
+           ", its descriptor says " + std::to_string(block_pos));
+  if (!g.buffers) return;
+  walk_buffers(w, g);
+  grid.depth = VdbGridCheck::Depth::kBuffers;
+  if (w.pos() != end_pos)
+    w.fail("grid '" + printable(grid.name, 64) + "' data ends at byte " + std::to_string(w.pos()) +
+           ", its descriptor says " + std::to_string(end_pos));
+}
+
+}  // namespace
+
+VdbFileCheck validate_vdb_file(const std::filesystem::path& path,
+                               const std::function<bool(const std::string&)>& is_registered_metadata) {
+  Walker w(path);
+  VdbFileCheck out;
+  if (w.size() < 8 || w.read<std::int64_t>("magic number") != kMagic) fail_input(path, "not a .vdb file (no VDB magic number)");
+  out.file_version = w.read<std::uint32_t>("file version");
+  if (out.file_version < kMinVersion || out.file_version > kMaxVersion)
+    fail_input(path, "unsupported .vdb file format version " + std::to_string(out.file_version) + " (this reader takes " +
+                         std::to_string(kMinVersion) + " to " + std::to_string(kMaxVersion) + ")");
+  w.skip(8, "library version");
+  if (w.read<std::uint8_t>("grid offsets flag") == 0)
+    fail_input(path, "unsupported .vdb: written as a stream without grid offsets");
+  std::array<char, 36> uuid{};
+  w.read_bytes(uuid.data(), 36, "uuid");
+  for (std::size_t i = 0; i < uuid.size(); ++i) {
+    const bool dash = i == 8 || i == 13 || i == 18 || i == 23;
+    const char c = uuid[i];
+    if (dash ? c != '-' : !std::isxdigit(static_cast<unsigned char>(c))) w.fail("the uuid is not 36 characters of hex");
+  }
+  walk_metadata(w, is_registered_metadata, "file metadata");
+  const auto grids = w.read<std::int32_t>("grid count");
+  // A descriptor takes at least three string lengths and three offsets.
+  if (grids < 0 || std::int64_t{grids} * 36 > w.left()) w.fail("grid count " + std::to_string(grids));
+  for (std::int32_t i = 0; i < grids; ++i) {
+    VdbGridCheck grid;
+    grid.name = w.read_string("grid name");
+    grid.grid_type = w.read_string("grid type");
+    constexpr std::string_view kHalf = "_HalfFloat";
+    if (grid.grid_type.size() > kHalf.size() && grid.grid_type.ends_with(kHalf)) {
+      grid.half_float = true;
+      grid.grid_type.resize(grid.grid_type.size() - kHalf.size());
+    }
+    grid.instance = !w.read_string("instance parent name").empty();
+    const auto grid_pos = w.read<std::int64_t>("grid position");
+    const auto block_pos = w.read<std::int64_t>("block position");
+    const auto end_pos = w.read<std::int64_t>("end position");
+    // An instance has no tree of its own and no block position (0).
+    const bool blocks_ok = grid.instance ? block_pos == 0 : grid_pos <= block_pos && block_pos <= end_pos;
+    if (!(w.pos() <= grid_pos && grid_pos <= end_pos && blocks_ok && end_pos <= w.size()))
+      w.fail("grid '" + printable(grid.name, 64) + "' has positions " + std::to_string(grid_pos) + ", " +
+             std::to_string(block_pos) + ", " + std::to_string(end_pos) + " outside its place in the file");
+    walk_grid(w, grid, grid_pos, block_pos, end_pos, is_registered_metadata);
+    w.seek(end_pos, "end position");  // the next descriptor follows this grid
+    out.grids.push_back(std::move(grid));
+  }
+  return out;
+}
+
+}  // namespace hisnegs::io
