@@ -1,18 +1,18 @@
 #!/usr/bin/env bash
 # SPDX-License-Identifier: Apache-2.0
-# Fuzzes the four file readers with libFuzzer: builds the `fuzz` preset (clang 14,
+# Fuzzes the five file readers with libFuzzer: builds the `fuzz` preset (clang 14,
 # ASan + UBSan; installs clang and libclang-rt-14-dev if missing), writes the seed
 # corpora (scripts/make-fuzz-corpus.sh) and runs each target RUNS executions
 # (default 2000) on a scratch copy of its seeds, so runs never grow the repo.
 # Exits non-zero if any target finds a crash, leak, sanitizer report or broken
 # promise; the input is kept in build/fuzz/artifacts/. CI runs this with the default.
-#   scripts/fuzz.sh [RUNS] [TARGET...]     TARGET: tiff ply cameras config (default all)
+#   scripts/fuzz.sh [RUNS] [TARGET...]     TARGET: tiff ply cameras config vdb (default all)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 runs="${1:-2000}"
 shift || true
 targets=("$@")
-[ ${#targets[@]} -gt 0 ] || targets=(tiff ply cameras config)
+[ ${#targets[@]} -gt 0 ] || targets=(tiff ply cameras config vdb)
 
 bash scripts/install-deps.sh
 missing=()
@@ -47,6 +47,7 @@ for t in "${targets[@]}"; do
   # input taking over 25 s is a finding (a hang); -rss_limit_mb: so is using over
   # 2 GiB (the readers cap what hostile headers may allocate).
   status=0
+  LSAN_OPTIONS="suppressions=$PWD/fuzz/lsan.supp:print_suppressions=0" \
   "build/fuzz/fuzz/fuzz_$t" -runs="$runs" -seed=1 -dict="fuzz/$t.dict" -timeout=25 -rss_limit_mb=2048 \
     -print_final_stats=1 -artifact_prefix="build/fuzz/artifacts/$t-" "$work" >"$log" 2>&1 || status=$?
   ms=$(( ($(date +%s%N) - start) / 1000000 ))
