@@ -275,7 +275,7 @@ TEST(ExportVdb, ImportRejectsFilesWithoutHisnegsPoints) {
   };
   expect_error(dir / "density_only.vdb", "no grid named 'gaussians'");
   testing::write_text(dir / "text.vdb", "not a vdb\n");
-  expect_error(dir / "text.vdb", "not a readable OpenVDB file");
+  expect_error(dir / "text.vdb", "not a .vdb file");
   expect_error(dir / "missing.vdb", "no such file");
 }
 

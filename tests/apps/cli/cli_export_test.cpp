@@ -318,7 +318,7 @@ TEST_F(CliExport, BadInputIsOneLineAndLeavesNoFile) {
   rejected({"export", "volume", "--model", dir_ / "bare.ply", "-o", dir_ / "out" / "x.tif"}, "--match-volume");
   rejected({"export", "splat-ply", "--model", model(), "-o", dir_ / "out" / "x.ply", "--colormap", "jet"}, "'jet'");
   rejected({"import", "vdb", dir_ / "no_points.vdb", "-o", dir_ / "out" / "m.ply"}, "no grid named 'gaussians'");
-  rejected({"import", "vdb", model(), "-o", dir_ / "out" / "m.ply"}, "not a readable OpenVDB file");
+  rejected({"import", "vdb", model(), "-o", dir_ / "out" / "m.ply"}, "not a .vdb file");
 }
 
 }  // namespace
