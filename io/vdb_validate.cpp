@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <array>
+#include <bit>
 #include <cctype>
 #include <cstring>
 #include <fstream>
@@ -214,7 +215,7 @@ std::int64_t mask_bytes(int log2dim) { return (std::int64_t{1} << (3 * log2dim))
 
 std::int64_t popcount_bytes(const std::vector<std::uint8_t>& bytes, std::int64_t bits) {
   std::int64_t n = 0;
-  for (std::int64_t i = 0; i < bits; ++i) n += (bytes[i / 8] >> (i % 8)) & 1;
+  for (std::int64_t i = 0; i < bits / 8; ++i) n += std::popcount(bytes[static_cast<std::size_t>(i)]);
   return n;
 }
 
