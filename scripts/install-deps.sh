@@ -13,6 +13,7 @@ packages=(
   libcli11-dev libyaml-cpp-dev nlohmann-json3-dev
   libgtest-dev libgmock-dev libbenchmark-dev
   libopenvdb-tools python3-openvdb
+  chromium  # tests/apps/cli/cli_viewer_test.cpp renders `export html` pages headless
   xz-utils  # scripts/device-bundle.sh packs the GPU bundle with xz
 )
 

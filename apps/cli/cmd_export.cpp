@@ -1,8 +1,8 @@
 // SPDX-License-Identifier: Apache-2.0
-// `hisnegs export vdb|splat-ply|volume|compact --model m.ply -o OUT` and `hisnegs
+// `hisnegs export vdb|splat-ply|volume|compact|html --model m.ply -o OUT` and `hisnegs
 // import vdb IN.vdb -o m.ply`: checkpoint conversion for OpenVDB tools, Gaussian-splat
-// viewers, image viewers and small files. Options and reporting only; the
-// conversions are gmf/export_*.hpp and gmf/compact_checkpoint.hpp.
+// viewers, image viewers, small files and browsers. Options and reporting only; the
+// conversions are gmf/export_*.hpp, gmf/compact_checkpoint.hpp and apps/viewer.
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -10,16 +10,19 @@
 
 #include "apps/cli/cli_support.hpp"
 #include "apps/pipeline/format.hpp"
+#include "apps/viewer/viewer_page.hpp"
 #include "gmf/checkpoint.hpp"
 #include "gmf/compact_checkpoint.hpp"
 #include "gmf/export_formats.hpp"
 #include "gmf/export_vdb.hpp"
 #include "gmf/psnr.hpp"
+#include "io/atomic_file.hpp"
 #include "io/error.hpp"
 #include "io/load_volume.hpp"
 #include "io/memory_limit.hpp"
 #include "io/tiff_stack.hpp"
 #include "io/timer.hpp"
+#include "splat/camera.hpp"
 
 namespace hisnegs::apps {
 namespace {
@@ -196,11 +199,41 @@ void run_export_compact(const CompactArgs& args, GlobalOptions& global) {
       max3(b.log_scale), b.rotation, b.intensity, format_seconds(t_load).c_str(), format_seconds(t_write).c_str());
 }
 
+struct HtmlArgs {
+  std::string model, cameras, out;
+};
+
+// Without --cameras the page gets the evaluation orbit of the `camera` config section,
+// so #view=N still names a definite camera.
+void run_export_html(const HtmlArgs& args, GlobalOptions& global) {
+  io::Stopwatch watch;
+  const AppConfig& config = global.config();
+  const gmf::Checkpoint checkpoint = gmf::load_checkpoint(args.model);
+  const splat::CameraSet cameras =
+      args.cameras.empty() ? splat::evaluation_orbit(config.camera) : splat::read_cameras_json(args.cameras);
+  ViewerPageSettings settings;
+  settings.cutoff = config.splat.mahalanobis_cutoff;
+  settings.low_pass = config.splat.low_pass;
+  const std::string html = viewer_html(checkpoint.mixture, cameras, settings);
+  io::write_file_atomic(args.out, html.data(), html.size());
+  if (global.quiet) return;
+  const auto model_bytes = static_cast<double>(std::filesystem::file_size(args.model));
+  const double k = static_cast<double>(checkpoint.mixture.size());
+  std::printf(
+      "export html: wrote %s: %s (%zu Gaussians, %.1f B/Gaussian; %s is %s), %zu views of %dx%d from %s; "
+      "hard MIP, cutoff %g, low-pass %g px^2; open it with #view=N&ui=0 for view N; %s\n",
+      args.out.c_str(), format_bytes(static_cast<double>(html.size())).c_str(), checkpoint.mixture.size(),
+      k > 0 ? static_cast<double>(html.size()) / k : 0.0, args.model.c_str(), format_bytes(model_bytes).c_str(),
+      cameras.views.size(), cameras.intrinsics.width, cameras.intrinsics.height,
+      args.cameras.empty() ? "the evaluation orbit" : args.cameras.c_str(), settings.cutoff, settings.low_pass,
+      format_seconds(watch.elapsed()).c_str());
+}
+
 }  // namespace
 
 void add_export_command(CLI::App& app, GlobalOptions& global) {
   auto* cmd = app.add_subcommand(
-      "export", "convert a checkpoint: OpenVDB grids, splat-viewer PLY, dense TIFF stack, compact checkpoint");
+      "export", "convert a checkpoint: OpenVDB grids, splat-viewer PLY, dense TIFF stack, compact checkpoint, HTML viewer");
   cmd->require_subcommand(1);
 
   auto* vdb = cmd->add_subcommand("vdb", "the mixture as a sparse OpenVDB `density` grid (+ `gaussians` points)");
@@ -283,6 +316,14 @@ void add_export_command(CLI::App& app, GlobalOptions& global) {
       ->check(CLI::Range(1, 22))
       ->capture_default_str();
   compact->callback([compact_args, &global] { run_export_compact(*compact_args, global); });
+
+  auto* html = cmd->add_subcommand(
+      "html", "one self-contained HTML file: a WebGL2 hard-MIP viewer with the model and cameras inside");
+  auto html_args = std::make_shared<HtmlArgs>();
+  html->add_option("--model", html_args->model, "checkpoint (.ply or .hgs)")->required();
+  html->add_option("--cameras", html_args->cameras, "cameras.json whose views #view=N shows (default: eval orbit)");
+  html->add_option("-o,--output", html_args->out, "output .html")->required();
+  html->callback([html_args, &global] { run_export_html(*html_args, global); });
 }
 
 void add_import_command(CLI::App& app, GlobalOptions& global) {

@@ -1,0 +1,128 @@
+// SPDX-License-Identifier: Apache-2.0
+// Assembles the self-contained viewer page from the embedded template and script,
+// the packed model (base64) and the cameras (JSON). No rendering here.
+#include "apps/viewer/viewer_page.hpp"
+
+#include <bit>
+#include <cmath>
+#include <nlohmann/json.hpp>
+#include <stdexcept>
+
+#include "apps/viewer/viewer_assets.hpp"
+
+namespace hisnegs::apps {
+namespace {
+
+constexpr std::string_view kDataMarker = "<!--HISNEGS_DATA-->";
+
+// JSON text safe inside a <script> element: "</" cannot close it.
+std::string script_safe(std::string json) {
+  for (std::size_t at = 0; (at = json.find("</", at)) != std::string::npos; at += 3) json.replace(at, 2, "<\\/");
+  return json;
+}
+
+nlohmann::ordered_json cameras_json(const splat::CameraSet& cameras) {
+  const splat::Intrinsics& k = cameras.intrinsics;
+  nlohmann::ordered_json j;
+  j["width"] = k.width;
+  j["height"] = k.height;
+  j["fx"] = k.fx;
+  j["fy"] = k.fy;
+  j["cx"] = k.cx;
+  j["cy"] = k.cy;
+  j["near"] = k.near;
+  j["far"] = k.far;
+  j["views"] = nlohmann::ordered_json::array();
+  for (const splat::CameraView& v : cameras.views) {
+    nlohmann::ordered_json jv;
+    jv["name"] = v.name;
+    jv["R"] = nlohmann::ordered_json::array();
+    for (int r = 0; r < 3; ++r) {
+      jv["R"].push_back({v.R_cam_from_world(r, 0), v.R_cam_from_world(r, 1), v.R_cam_from_world(r, 2)});
+    }
+    jv["T"] = {v.t_cam_from_world.x(), v.t_cam_from_world.y(), v.t_cam_from_world.z()};
+    j["views"].push_back(std::move(jv));
+  }
+  return j;
+}
+
+}  // namespace
+
+std::string_view viewer_page_template() {
+  return {reinterpret_cast<const char*>(detail::kViewerHtml), detail::kViewerHtmlSize};
+}
+
+std::string_view viewer_script() { return {reinterpret_cast<const char*>(detail::kViewerJs), detail::kViewerJsSize}; }
+
+std::vector<float> pack_viewer_model(const gmf::GaussianMixture& mixture) {
+  std::vector<float> out;
+  out.reserve(kViewerFloatsPerGaussian * mixture.size());
+  for (const gmf::GaussianParams& g : mixture) {
+    const Eigen::Matrix3d sigma = gmf::covariance<double>(g);
+    for (float m : g.mean) out.push_back(m);
+    for (const auto& [r, c] : {std::pair{0, 0}, {0, 1}, {0, 2}, {1, 1}, {1, 2}, {2, 2}}) {
+      out.push_back(static_cast<float>(sigma(r, c)));
+    }
+    out.push_back(gmf::intensity<float>(g));
+  }
+  return out;
+}
+
+std::string base64_encode(const void* bytes, std::size_t size) {
+  static constexpr char kAlphabet[] = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+  const auto* p = static_cast<const unsigned char*>(bytes);
+  std::string out;
+  out.reserve((size + 2) / 3 * 4);
+  std::size_t i = 0;
+  for (; i + 3 <= size; i += 3) {
+    const unsigned v = (p[i] << 16) | (p[i + 1] << 8) | p[i + 2];
+    for (int s = 18; s >= 0; s -= 6) out.push_back(kAlphabet[(v >> s) & 63]);
+  }
+  if (const std::size_t rest = size - i; rest > 0) {
+    const unsigned v = (p[i] << 16) | (rest == 2 ? p[i + 1] << 8 : 0);
+    out.push_back(kAlphabet[(v >> 18) & 63]);
+    out.push_back(kAlphabet[(v >> 12) & 63]);
+    out.push_back(rest == 2 ? kAlphabet[(v >> 6) & 63] : '=');
+    out.push_back('=');
+  }
+  return out;
+}
+
+std::string viewer_html(const gmf::GaussianMixture& mixture, const splat::CameraSet& cameras,
+                        const ViewerPageSettings& settings) {
+  if (!(std::isfinite(settings.cutoff) && settings.cutoff > 0.0)) {
+    throw std::invalid_argument("viewer: cutoff must be a finite number > 0");
+  }
+  if (!(std::isfinite(settings.low_pass) && settings.low_pass >= 0.0)) {
+    throw std::invalid_argument("viewer: low_pass must be a finite number >= 0");
+  }
+  if (cameras.views.empty()) throw std::invalid_argument("viewer: the camera set has no views");
+  static_assert(std::endian::native == std::endian::little, "the page's model block is little-endian float32");
+  const std::vector<float> packed = pack_viewer_model(mixture);
+
+  nlohmann::ordered_json meta;
+  meta["count"] = mixture.size();
+  meta["floats_per_gaussian"] = kViewerFloatsPerGaussian;
+  meta["cutoff"] = settings.cutoff;
+  meta["low_pass"] = settings.low_pass;
+  meta["cameras"] = cameras_json(cameras);
+
+  std::string data;
+  data += "<script id=\"hisnegs-meta\" type=\"application/json\">";
+  data += script_safe(meta.dump());
+  data += "</script>\n<script id=\"hisnegs-model\" type=\"application/octet-stream\">";
+  data += base64_encode(packed.data(), packed.size() * sizeof(float));
+  data += "</script>\n<script>\n";
+  data += viewer_script();
+  data += "</script>";
+
+  const std::string_view page = viewer_page_template();
+  const std::size_t at = page.find(kDataMarker);
+  if (at == std::string_view::npos) throw std::logic_error("viewer.html lacks its <!--HISNEGS_DATA--> marker");
+  std::string html;
+  html.reserve(page.size() + data.size());
+  html.append(page.substr(0, at)).append(data).append(page.substr(at + kDataMarker.size()));
+  return html;
+}
+
+}  // namespace hisnegs::apps

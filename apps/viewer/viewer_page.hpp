@@ -1,0 +1,46 @@
+// SPDX-License-Identifier: Apache-2.0
+// The WebGL2 hard-MIP viewer page (apps/viewer/viewer.html + viewer.js, embedded at
+// build time) and the one self-contained HTML file a model and cameras make of it
+// (`hisnegs export html`). The projection itself lives in viewer.js; not a server.
+#pragma once
+
+#include <cstddef>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "gmf/gaussian_mixture.hpp"
+#include "splat/camera.hpp"
+
+namespace hisnegs::apps {
+
+// Floats per Gaussian in the page's model block: mean x y z (world), Σ xx xy xz yy yz zz
+// (world units²), amplitude a = sigmoid(logit).
+inline constexpr int kViewerFloatsPerGaussian = 10;
+
+// What the page renders with besides the model and cameras (the CPU renderer's
+// SplatOptions of the same names, so the page draws what `render --mode hard` does).
+struct ViewerPageSettings {
+  double cutoff = 16.0;   // δ: a Gaussian touches the pixels with q <= δ, > 0
+  double low_pass = 0.0;  // pixels², added to Σ2D's diagonal, >= 0
+};
+
+// The page template (with its <!--HISNEGS_DATA--> marker) and script, as embedded.
+[[nodiscard]] std::string_view viewer_page_template();
+[[nodiscard]] std::string_view viewer_script();
+
+// The model block of the page: size() = kViewerFloatsPerGaussian × mixture.size()
+// (Σ computed in double from log-scales and the normalized quaternion, then rounded).
+[[nodiscard]] std::vector<float> pack_viewer_model(const gmf::GaussianMixture& mixture);
+
+// RFC 4648 base64 of `bytes` (with padding).
+[[nodiscard]] std::string base64_encode(const void* bytes, std::size_t size);
+
+// The self-contained page: template + meta JSON (count, cutoff, low_pass, cameras as
+// cameras.json) + base64 of the little-endian float32 model block + the script.
+// Opens from file:// with no server. Throws std::invalid_argument for settings out of
+// range or a camera set with no views.
+[[nodiscard]] std::string viewer_html(const gmf::GaussianMixture& mixture, const splat::CameraSet& cameras,
+                                      const ViewerPageSettings& settings);
+
+}  // namespace hisnegs::apps

@@ -1,0 +1,250 @@
+// SPDX-License-Identifier: Apache-2.0
+// `hisnegs export html` through the real binary, and the page it writes rendered by
+// headless Chromium (Debian's `chromium`, software GL via SwiftShader): its
+// screenshot of `#view=N&ui=0` must match the CPU hard-MIP render of that view
+// (`hisnegs render --mode hard`) to >= 35 dB PSNR; a JS or shader error fails.
+// Skips the browser part when /usr/bin/chromium is absent (a failure in CI).
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <fstream>
+#include <random>
+#include <sstream>
+#include <string>
+
+#include "apps/viewer/viewer_page.hpp"
+#include "gmf/checkpoint.hpp"
+#include "gmf/psnr.hpp"
+#include "io/png.hpp"
+#include "io/tiff_stack.hpp"
+#include "splat/camera.hpp"
+#include "tests/test_support.hpp"
+
+namespace hisnegs {
+namespace {
+namespace fs = std::filesystem;
+using testing::run_hisnegs;
+
+constexpr const char* kChromium = "/usr/bin/chromium";
+// Debian's Chromium 156 in headless mode lays pages out in a viewport at least 500 px
+// wide and about 143 px shorter than --window-size (measured: window 500x400 gives
+// innerWidth x innerHeight = 500 x 257), while --screenshot captures the window size.
+// So the window is made larger than the view by these margins and the screenshot's
+// top-left W x H is compared (the page puts its W x H canvas at (0, 0)).
+constexpr int kMinWindowWidth = 500;
+constexpr int kWindowExtraHeight = 200;
+// A hung browser fails the test instead of the suite's timeout.
+constexpr int kChromiumTimeoutSeconds = 60;
+// The bar for the page against the CPU renderer (8-bit screenshot vs float).
+constexpr double kMinPsnrDb = 35.0;
+
+struct Shell {
+  int status = -1;
+  std::string out;  // stdout and stderr
+};
+
+Shell shell(const std::string& command) {
+  Shell r;
+  FILE* pipe = ::popen((command + " 2>&1").c_str(), "r");
+  if (!pipe) return r;
+  char buf[4096];
+  for (std::size_t n; (n = std::fread(buf, 1, sizeof buf, pipe)) > 0;) r.out.append(buf, n);
+  r.status = ::pclose(pipe);
+  return r;
+}
+
+std::string quoted(const std::string& s) { return "'" + s + "'"; }
+
+std::string slurp(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  std::stringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
+// One camera file of the test: intrinsics of its own (non-square, FOV, principal point).
+struct CameraCase {
+  int width, height;
+  double fov_deg, cx_shift, fy_ratio;
+};
+
+class CliViewer : public ::testing::Test {
+ protected:
+  testing::ScratchDir dir_;
+  gmf::GaussianMixture mixture_;
+
+  fs::path model() const { return dir_ / "m.ply"; }
+
+  // 40 Gaussians in the unit box: elongated, rotated, intensities 0.1-0.95, a few
+  // large enough to overlap (so MAX blending matters).
+  void SetUp() override {
+    std::mt19937 rng(20);
+    std::uniform_real_distribution<float> u(-0.6f, 0.6f), log_scale(std::log(0.02f), std::log(0.15f)),
+        logit(-2.f, 3.f);
+    std::normal_distribution<float> quat(0.0f, 1.0f);
+    for (int k = 0; k < 40; ++k) {
+      gmf::GaussianParams g;
+      for (float& v : g.mean) v = u(rng);
+      for (float& v : g.log_scale) v = log_scale(rng);
+      for (float& v : g.rotation) v = quat(rng);
+      g.intensity_logit = logit(rng);
+      mixture_.push_back(g);
+    }
+    gmf::CheckpointMeta meta;
+    meta.aspect = std::array<double, 3>{1.0, 1.0, 1.0};
+    gmf::save_checkpoint(model(), mixture_, meta);
+  }
+
+  // Three orbit views with the intrinsics of `c`, written as cameras.json.
+  fs::path write_cameras(const std::string& name, const CameraCase& c) const {
+    splat::CameraOptions o;
+    o.width = c.width;
+    o.height = c.height;
+    o.fov_deg = c.fov_deg;
+    splat::CameraSet set = splat::custom_orbit(o, {-20.0, 35.0}, {15.0, 130.0});
+    set.views.resize(3);
+    set.intrinsics.cx += c.cx_shift;
+    set.intrinsics.fy *= c.fy_ratio;
+    const fs::path path = dir_ / name;
+    splat::write_cameras_json(path, set);
+    return path;
+  }
+};
+
+TEST_F(CliViewer, ExportHtmlIsSelfContainedAndReportsItsSize) {
+  const fs::path cams = write_cameras("c.json", {96, 64, 45.0, 0.0, 1.0});
+  const auto r = run_hisnegs({"export", "html", "--model", model(), "--cameras", cams, "-o", dir_ / "v.html"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const std::string html = slurp(dir_ / "v.html");
+  EXPECT_NE(r.out.find("export html: wrote"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("40 Gaussians"), std::string::npos) << r.out;
+  // The model block is base64 of 40 x 10 float32 = 1600 bytes -> 2136 characters.
+  const std::string open = "<script id=\"hisnegs-model\" type=\"application/octet-stream\">";
+  const std::size_t at = html.find(open);
+  ASSERT_NE(at, std::string::npos);
+  const std::size_t end = html.find("</script>", at);
+  const std::vector<float> packed = apps::pack_viewer_model(mixture_);
+  EXPECT_EQ(html.substr(at + open.size(), end - at - open.size()),
+            apps::base64_encode(packed.data(), packed.size() * sizeof(float)));
+  EXPECT_EQ(end - at - open.size(), 2136u);
+  // Nothing is fetched: no src=, href= or fetch( in the page.
+  for (const char* needle : {"src=", "href=", "fetch(", "<!--HISNEGS_DATA-->"}) {
+    EXPECT_EQ(html.find(needle), std::string::npos) << needle;
+  }
+  EXPECT_NE(html.find("\"width\":96"), std::string::npos);
+}
+
+TEST_F(CliViewer, ExportHtmlRefusesBadInputInOneLine) {
+  const auto r = run_hisnegs({"export", "html", "--model", dir_ / "missing.ply", "-o", dir_ / "v.html"});
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.err.find("missing.ply"), std::string::npos) << r.err;
+  EXPECT_FALSE(fs::exists(dir_ / "v.html"));
+  testing::write_text(dir_ / "bad.json", "{\"width\": 4}");
+  const auto c = run_hisnegs({"export", "html", "--model", model(), "--cameras", dir_ / "bad.json", "-o",
+                              dir_ / "v.html"});
+  EXPECT_NE(c.exit_code, 0);
+  EXPECT_NE(c.err.find("bad.json"), std::string::npos) << c.err;
+  EXPECT_FALSE(fs::exists(dir_ / "v.html"));
+}
+
+TEST(ViewerPage, Base64MatchesRfc4648) {
+  EXPECT_EQ(apps::base64_encode("", 0), "");
+  EXPECT_EQ(apps::base64_encode("f", 1), "Zg==");
+  EXPECT_EQ(apps::base64_encode("fo", 2), "Zm8=");
+  EXPECT_EQ(apps::base64_encode("foo", 3), "Zm9v");
+  EXPECT_EQ(apps::base64_encode("foobar", 6), "Zm9vYmFy");
+}
+
+TEST(ViewerPage, PackedCovarianceIsTheModelsSigma) {
+  gmf::GaussianParams g;
+  g.mean = {0.1f, -0.2f, 0.3f};
+  g.log_scale = {std::log(0.1f), std::log(0.2f), std::log(0.05f)};
+  g.rotation = {2.0f, 0.0f, 0.0f, 0.0f};  // identity after normalization
+  g.intensity_logit = 0.0f;
+  gmf::GaussianMixture mixture;
+  mixture.push_back(g);
+  const std::vector<float> p = apps::pack_viewer_model(mixture);
+  ASSERT_EQ(p.size(), 10u);
+  EXPECT_FLOAT_EQ(p[1], -0.2f);
+  EXPECT_NEAR(p[3], 0.01, 1e-7);   // xx = 0.1²
+  EXPECT_NEAR(p[4], 0.0, 1e-9);    // xy
+  EXPECT_NEAR(p[6], 0.04, 1e-7);   // yy = 0.2²
+  EXPECT_NEAR(p[8], 0.0025, 1e-8); // zz = 0.05²
+  EXPECT_FLOAT_EQ(p[9], 0.5f);     // sigmoid(0)
+}
+
+// Chromium's screenshot of each `#view=N&ui=0` against `render --mode hard` of view N.
+TEST_F(CliViewer, ChromiumScreenshotMatchesCpuHardMip) {
+  if (!fs::exists(kChromium)) {
+    if (std::getenv("CI")) FAIL() << kChromium << " is missing; scripts/install-deps.sh installs it";
+    GTEST_SKIP() << kChromium << " is not installed";
+  }
+  // Landscape narrow FOV with an off-centre principal point; portrait wide FOV with
+  // fy != fx; a wider landscape at the default FOV.
+  const CameraCase cases[] = {{160, 112, 35.0, 7.5, 1.0}, {96, 144, 70.0, 0.0, 1.2}, {200, 120, 50.0, -5.0, 0.9}};
+  for (int n = 0; n < 3; ++n) {
+    SCOPED_TRACE("camera case " + std::to_string(n) + ", #view=" + std::to_string(n));
+    const CameraCase& c = cases[n];
+    const std::string tag = std::to_string(n);
+    const fs::path cams = write_cameras("c" + tag + ".json", c);
+    const fs::path html = dir_ / ("v" + tag + ".html");
+    const auto e = run_hisnegs({"export", "html", "--model", model(), "--cameras", cams, "-o", html});
+    ASSERT_EQ(e.exit_code, 0) << e.err;
+    const auto r = run_hisnegs(
+        {"render", "--model", model(), "--cameras", cams, "-o", dir_ / ("r" + tag), "--mode", "hard", "--backend", "cpu"});
+    ASSERT_EQ(r.exit_code, 0) << r.err;
+    const io::Volume cpu = io::read_tiff_stack(dir_ / ("r" + tag) / "render.tif");
+    ASSERT_EQ(cpu.nx, c.width);
+    ASSERT_EQ(cpu.ny, c.height);
+
+    const fs::path png = dir_ / ("s" + tag + ".png");
+    const std::string url = "file://" + html.string() + "#view=" + tag + "&ui=0";
+    const int window_w = std::max(c.width, kMinWindowWidth), window_h = c.height + kWindowExtraHeight;
+    const std::string command = "timeout " + std::to_string(kChromiumTimeoutSeconds) + " " + kChromium +
+                                " --headless --no-sandbox --disable-gpu --use-angle=swiftshader"
+                                " --enable-unsafe-swiftshader --force-device-scale-factor=1 --hide-scrollbars"
+                                " --force-color-profile=srgb --no-first-run --disable-extensions"
+                                " --user-data-dir=" + quoted((dir_ / ("profile" + tag)).string()) +
+                                " --window-size=" + std::to_string(window_w) + "," + std::to_string(window_h) +
+                                " --virtual-time-budget=10000 --enable-logging=stderr --v=0"
+                                " --screenshot=" + quoted(png.string()) + " " + quoted(url);
+    const auto t0 = std::chrono::steady_clock::now();
+    const Shell s = shell(command);
+    const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    ASSERT_EQ(s.status, 0) << s.out;
+    EXPECT_EQ(s.out.find("hisnegs-viewer error"), std::string::npos) << s.out;
+    EXPECT_EQ(s.out.find("Uncaught"), std::string::npos) << s.out;
+    EXPECT_NE(s.out.find("hisnegs-viewer ready: view " + tag + " drawn"), std::string::npos) << s.out;
+
+    const io::Image8 shot = io::read_png(png);
+    ASSERT_EQ(shot.width, window_w);
+    ASSERT_EQ(shot.height, window_h);
+    const std::size_t plane = static_cast<std::size_t>(c.width) * c.height;
+    std::vector<float> page(plane);
+    for (int y = 0; y < c.height; ++y) {
+      for (int x = 0; x < c.width; ++x) {
+        const std::size_t at = (static_cast<std::size_t>(y) * shot.width + x) * shot.channels;
+        page[static_cast<std::size_t>(y) * c.width + x] = shot.pixels[at] / 255.0f;
+      }
+    }
+    const std::span<const float> view(cpu.voxels.data() + n * plane, plane);
+    const double db = gmf::psnr(std::span<const float>(page.data(), plane), view);
+    float peak = 0.0f;
+    for (float v : view) peak = std::max(peak, v);
+    EXPECT_GT(peak, 0.2f) << "the view must show the model";
+    EXPECT_GE(db, kMinPsnrDb);
+    // The comparison discriminates: the same screenshot against another view's render is far off.
+    const std::span<const float> other(cpu.voxels.data() + ((n + 1) % 3) * plane, plane);
+    EXPECT_LT(gmf::psnr(std::span<const float>(page.data(), plane), other), kMinPsnrDb - 10.0);
+    std::printf("view %d: %dx%d, PSNR %.2f dB vs CPU hard MIP, chromium %.2f s, html %zu bytes\n", n, c.width,
+                c.height, db, seconds, static_cast<std::size_t>(fs::file_size(html)));
+    std::fflush(stdout);  // before the next popen forks a copy of the buffer
+  }
+}
+
+}  // namespace
+}  // namespace hisnegs
