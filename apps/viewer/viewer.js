@@ -263,7 +263,6 @@ void main() {
     const ms = performance.now() - t0;
     el("stats").textContent = meta.count + " Gaussians, " + W + "×" + H + ", " + ms.toFixed(1) + " ms/frame (" +
                               (float32 ? "32" : "16") + "-bit float target)";
-    console.log("hisnegs-viewer frame " + ms.toFixed(1) + " ms");
   }
 
   // --- views, hash, UI ---------------------------------------------------------------
@@ -316,6 +315,19 @@ void main() {
   }, { passive: false });
 
   applyHash();
+  // #bench=N: N more frames of the same view, timed to a readPixels that waits for each (real time only when
+  // the browser runs without a virtual time budget), logged as one console line.
+  const benchFrames = parseInt(new URLSearchParams(location.hash.replace(/^#/, "")).get("bench") || "0", 10);
+  if (benchFrames > 0) {
+    const t0 = performance.now();
+    const pixel = new Uint8Array(4);
+    for (let i = 0; i < benchFrames; ++i) {
+      draw();
+      gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, pixel);  // waits for the frame, unlike finish()
+    }
+    console.log("hisnegs-viewer bench: " + ((performance.now() - t0) / benchFrames).toFixed(2) + " ms/frame over " +
+                benchFrames + " frames, " + meta.count + " Gaussians, " + W + "x" + H);
+  }
   document.body.dataset.ready = "1";
   // The same signal for tools that read the console rather than the DOM.
   console.log("hisnegs-viewer ready: view " + select.value + " drawn");
