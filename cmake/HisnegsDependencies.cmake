@@ -25,6 +25,8 @@ find_package(benchmark CONFIG REQUIRED)
 # pkg-config file on every release, its CMake config only on newer ones.
 find_package(PkgConfig REQUIRED)
 pkg_check_modules(ZSTD REQUIRED IMPORTED_TARGET libzstd)
+# cpp-httplib (libcpp-httplib-dev; Debian builds it as a shared library) for `hisnegs view`.
+pkg_check_modules(HTTPLIB REQUIRED IMPORTED_TARGET cpp-httplib)
 if(BUILD_TESTING)
   find_package(GTest CONFIG REQUIRED)
 endif()

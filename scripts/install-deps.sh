@@ -10,7 +10,7 @@ packages=(
   build-essential cmake ninja-build pkg-config
   libeigen3-dev libceres-dev libopenvdb-dev libboost-iostreams-dev libtbb-dev
   libtiff-dev libpng-dev libgif-dev libhwy-dev libzstd-dev
-  libcli11-dev libyaml-cpp-dev nlohmann-json3-dev
+  libcli11-dev libyaml-cpp-dev nlohmann-json3-dev libcpp-httplib-dev
   libgtest-dev libgmock-dev libbenchmark-dev
   libopenvdb-tools python3-openvdb
   chromium  # tests/apps/cli/cli_viewer_test.cpp renders `export html` pages headless

@@ -125,6 +125,7 @@ int run_cli(int argc, char** argv) {
   add_train_command(app, global);
   add_run_command(app, global);
   add_export_command(app, global);
+  add_view_command(app, global);
   add_import_command(app, global);
   add_config_command(app, global);
   add_bench_command(app, global);

@@ -3,8 +3,13 @@
 // headless Chromium (Debian's `chromium`, software GL via SwiftShader): its
 // screenshot of `#view=N&ui=0` must match the CPU hard-MIP render of that view
 // (`hisnegs render --mode hard`) to >= 35 dB PSNR; a JS or shader error fails.
-// Skips the browser part when /usr/bin/chromium is absent (a failure in CI).
+// Skips the browser part when /usr/bin/chromium is absent (a failure in CI). Also
+// `hisnegs view`: loopback, only "/" served, clean stop on SIGINT, the same page.
 #include <gtest/gtest.h>
+#include <poll.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <chrono>
@@ -23,6 +28,9 @@
 #include "io/tiff_stack.hpp"
 #include "splat/camera.hpp"
 #include "tests/test_support.hpp"
+
+// Last: OpenSSL headers it pulls in define macros that break Eigen when included before it.
+#include <httplib.h>
 
 namespace hisnegs {
 namespace {
@@ -244,6 +252,155 @@ TEST_F(CliViewer, ChromiumScreenshotMatchesCpuHardMip) {
                 c.height, db, seconds, static_cast<std::size_t>(fs::file_size(html)));
     std::fflush(stdout);  // before the next popen forks a copy of the buffer
   }
+}
+
+// `hisnegs view ...` as a child process whose stdout is a pipe; SIGKILLed if still alive.
+class ViewProcess {
+ public:
+  explicit ViewProcess(const std::vector<std::string>& args) {
+    int fds[2];
+    if (::pipe(fds) != 0) return;
+    pid_ = ::fork();
+    if (pid_ == 0) {
+      ::dup2(fds[1], 1);
+      ::close(fds[0]);
+      ::close(fds[1]);
+      std::vector<std::string> all = {HISNEGS_EXE};
+      all.insert(all.end(), args.begin(), args.end());
+      std::vector<char*> argv;
+      for (std::string& a : all) argv.push_back(a.data());
+      argv.push_back(nullptr);
+      ::execv(argv[0], argv.data());
+      ::_exit(127);
+    }
+    ::close(fds[1]);
+    out_ = fds[0];
+  }
+  ~ViewProcess() {
+    if (pid_ > 0 && !reaped_) {
+      ::kill(pid_, SIGKILL);
+      ::waitpid(pid_, nullptr, 0);
+    }
+    if (out_ >= 0) ::close(out_);
+  }
+  // Stdout up to the first line containing `needle`, waiting at most `seconds`.
+  std::string read_until(const std::string& needle, double seconds) {
+    const auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(seconds);
+    while (text_.find(needle) == std::string::npos && std::chrono::steady_clock::now() < end) {
+      pollfd p{out_, POLLIN, 0};
+      if (::poll(&p, 1, 100) <= 0) continue;
+      char buf[1024];
+      const ssize_t n = ::read(out_, buf, sizeof buf);
+      if (n <= 0) break;
+      text_.append(buf, static_cast<std::size_t>(n));
+    }
+    return text_;
+  }
+  // Sends `sig` and waits up to `seconds` for the exit; the exit status, or -1 on timeout.
+  int stop(int sig, double seconds) {
+    ::kill(pid_, sig);
+    const auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(seconds);
+    while (std::chrono::steady_clock::now() < end) {
+      int status = 0;
+      if (::waitpid(pid_, &status, WNOHANG) == pid_) {
+        reaped_ = true;
+        return WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+      }
+      ::usleep(20000);
+    }
+    return -1;
+  }
+
+ private:
+  pid_t pid_ = -1;
+  int out_ = -1;
+  bool reaped_ = false;
+  std::string text_;
+};
+
+TEST_F(CliViewer, ViewServesOnlyThePageOnLoopbackAndStopsOnCtrlC) {
+  const fs::path cams = write_cameras("c.json", {96, 64, 45.0, 0.0, 1.0});
+  ViewProcess view({"view", "--model", model().string(), "--cameras", cams.string(), "--port", "0", "--no-browser"});
+  const std::string out = view.read_until("Ctrl-C stops", 20.0);
+  const std::string prefix = "at http://127.0.0.1:";  // bound to loopback by default
+  const std::size_t at = out.find(prefix);
+  ASSERT_NE(at, std::string::npos) << out;
+  const int port = std::stoi(out.substr(at + prefix.size()));
+  ASSERT_GT(port, 0);
+
+  httplib::Client client("127.0.0.1", port);
+  const auto page = client.Get("/");
+  ASSERT_TRUE(page) << httplib::to_string(page.error());
+  EXPECT_EQ(page->status, 200);
+  const std::vector<float> packed = apps::pack_viewer_model(mixture_);
+  EXPECT_NE(page->body.find(apps::base64_encode(packed.data(), packed.size() * sizeof(float))), std::string::npos);
+  EXPECT_NE(page->body.find("\"width\":96"), std::string::npos);
+  // Traversal, encoded traversal, absolute and unknown paths: refused, nothing leaks.
+  for (const char* path : {"/../etc/passwd", "/%2e%2e/%2e%2e/etc/passwd", "//etc/passwd", "/index.html/../../x",
+                           "/viewer.js", "/m.ply"}) {
+    const auto r = client.Get(path);
+    ASSERT_TRUE(r) << path;
+    EXPECT_EQ(r->status, 404) << path;
+    EXPECT_EQ(r->body.find("root:"), std::string::npos) << path;
+    EXPECT_EQ(r->body.find("hisnegs-model"), std::string::npos) << path;
+  }
+  const auto post = client.Post("/", "x", "text/plain");
+  ASSERT_TRUE(post);
+  EXPECT_GE(post->status, 400);
+  EXPECT_EQ(view.stop(SIGINT, 10.0), 0);
+  EXPECT_NE(view.read_until("stopped", 2.0).find("view: stopped (Ctrl-C)"), std::string::npos);
+}
+
+TEST_F(CliViewer, ViewRefusesABadModelInOneLine) {
+  const auto r = run_hisnegs({"view", "--model", dir_ / "missing.ply", "--port", "0", "--no-browser"});
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("missing.ply"), std::string::npos) << r.err;
+  EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
+}
+
+// The served page is the exported one: Chromium's screenshot of it over HTTP matches
+// the CPU hard MIP as the file:// page does.
+TEST_F(CliViewer, ViewPageInChromiumMatchesCpuHardMip) {
+  if (!fs::exists(kChromium)) {
+    if (std::getenv("CI")) FAIL() << kChromium << " is missing; scripts/install-deps.sh installs it";
+    GTEST_SKIP() << kChromium << " is not installed";
+  }
+  const CameraCase c{120, 90, 60.0, 3.0, 1.1};
+  const fs::path cams = write_cameras("c.json", c);
+  const auto r = run_hisnegs(
+      {"render", "--model", model(), "--cameras", cams, "-o", dir_ / "r", "--mode", "hard", "--backend", "cpu"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const io::Volume cpu = io::read_tiff_stack(dir_ / "r" / "render.tif");
+  ViewProcess view({"view", "--model", model().string(), "--cameras", cams.string(), "--port", "0", "--no-browser"});
+  const std::string out = view.read_until("Ctrl-C stops", 20.0);
+  const std::size_t at = out.find("at http://");
+  ASSERT_NE(at, std::string::npos) << out;
+  const std::string url = out.substr(at + 3, out.find(' ', at + 3) - at - 3) + "#view=2&ui=0";
+  const int window_w = std::max(c.width, kMinWindowWidth), window_h = c.height + kWindowExtraHeight;
+  const fs::path png = dir_ / "s.png";
+  const Shell s = shell("timeout " + std::to_string(kChromiumTimeoutSeconds) + " " + kChromium +
+                        " --headless --no-sandbox --disable-gpu --use-angle=swiftshader --enable-unsafe-swiftshader"
+                        " --force-device-scale-factor=1 --hide-scrollbars --force-color-profile=srgb --no-first-run"
+                        " --user-data-dir=" + quoted((dir_ / "profile").string()) + " --window-size=" +
+                        std::to_string(window_w) + "," + std::to_string(window_h) +
+                        " --virtual-time-budget=10000 --enable-logging=stderr --v=0 --screenshot=" +
+                        quoted(png.string()) + " " + quoted(url));
+  ASSERT_EQ(s.status, 0) << s.out;
+  EXPECT_EQ(s.out.find("hisnegs-viewer error"), std::string::npos) << s.out;
+  EXPECT_NE(s.out.find("hisnegs-viewer ready: view 2 drawn"), std::string::npos) << s.out;
+  const io::Image8 shot = io::read_png(png);
+  ASSERT_EQ(shot.width, window_w);
+  const std::size_t plane = static_cast<std::size_t>(c.width) * c.height;
+  std::vector<float> page(plane);
+  for (int y = 0; y < c.height; ++y) {
+    for (int x = 0; x < c.width; ++x) {
+      page[static_cast<std::size_t>(y) * c.width + x] =
+          shot.pixels[(static_cast<std::size_t>(y) * shot.width + x) * shot.channels] / 255.0f;
+    }
+  }
+  const std::span<const float> ref(cpu.voxels.data() + 2 * plane, plane);
+  EXPECT_GE(gmf::psnr(std::span<const float>(page.data(), plane), ref), kMinPsnrDb);
+  EXPECT_EQ(view.stop(SIGINT, 10.0), 0);
 }
 
 }  // namespace

@@ -1,0 +1,79 @@
+// SPDX-License-Identifier: Apache-2.0
+// `hisnegs view --model m.ply [--cameras cams.json] [--port 8080] [--host 127.0.0.1]
+// [--no-browser]`: the `export html` page served over local HTTP until Ctrl-C.
+// Options and reporting only; the page is apps/viewer/viewer_page, the server
+// apps/viewer/viewer_server.
+#include <spawn.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <cstdio>
+#include <filesystem>
+
+#include "apps/cli/cli_support.hpp"
+#include "apps/viewer/viewer_page.hpp"
+#include "apps/viewer/viewer_server.hpp"
+#include "gmf/checkpoint.hpp"
+#include "io/error.hpp"
+#include "splat/camera.hpp"
+
+extern char** environ;
+
+namespace hisnegs::apps {
+namespace {
+
+constexpr const char* kOpener = "/usr/bin/xdg-open";
+
+// Starts the desktop's browser on `url` without waiting for it; false when there is none.
+bool open_browser(const std::string& url) {
+  if (!std::filesystem::exists(kOpener)) return false;
+  std::string opener = kOpener;
+  std::string target = url;
+  char* argv[] = {opener.data(), target.data(), nullptr};
+  pid_t pid = 0;
+  return posix_spawn(&pid, kOpener, nullptr, nullptr, argv, environ) == 0;
+}
+
+}  // namespace
+
+void add_view_command(CLI::App& app, GlobalOptions& global) {
+  auto* cmd = app.add_subcommand("view", "serve the WebGL2 hard-MIP viewer of a checkpoint on local HTTP until Ctrl-C");
+  struct Args {
+    std::string model, cameras;
+    ViewerServerOptions server;
+    bool no_browser = false;
+  };
+  auto args = std::make_shared<Args>();
+  cmd->add_option("--model", args->model, "checkpoint (.ply or .hgs)")->required();
+  cmd->add_option("--cameras", args->cameras, "cameras.json whose views #view=N shows (default: eval orbit)");
+  cmd->add_option("--port", args->server.port, "TCP port; 0 = any free port")->capture_default_str();
+  cmd->add_option("--host", args->server.host, "address to bind (not loopback: reachable from the network)")
+      ->capture_default_str();
+  cmd->add_flag("--no-browser", args->no_browser, "do not open a browser");
+  cmd->callback([args, &global] {
+    const AppConfig& config = global.config();
+    const gmf::Checkpoint checkpoint = gmf::load_checkpoint(args->model);
+    const splat::CameraSet cameras =
+        args->cameras.empty() ? splat::evaluation_orbit(config.camera) : splat::read_cameras_json(args->cameras);
+    ViewerPageSettings settings;
+    settings.cutoff = config.splat.mahalanobis_cutoff;
+    settings.low_pass = config.splat.low_pass;
+    const std::string page = viewer_html(checkpoint.mixture, cameras, settings);
+    if (!is_loopback_host(args->server.host)) {
+      std::fprintf(stderr, "view: warning: --host %s is not loopback: anyone who can reach it sees the model\n",
+                   args->server.host.c_str());
+    }
+    const int sig = serve_viewer(page, args->server, [&](const std::string& url) {
+      std::printf("view: serving %s (%zu Gaussians, %zu views) at %s ; %s#view=N&ui=0 shows view N; Ctrl-C stops\n",
+                  args->model.c_str(), checkpoint.mixture.size(), cameras.views.size(), url.c_str(), url.c_str());
+      std::fflush(stdout);
+      if (!args->no_browser && !open_browser(url)) {
+        std::printf("view: no %s here; open the URL in a browser\n", kOpener);
+        std::fflush(stdout);
+      }
+    });
+    if (!global.quiet) std::printf("view: stopped (%s)\n", sig == SIGINT ? "Ctrl-C" : "signal");
+  });
+}
+
+}  // namespace hisnegs::apps
