@@ -146,6 +146,15 @@ TEST_F(CliViewer, ExportHtmlIsSelfContainedAndReportsItsSize) {
   EXPECT_NE(html.find("\"width\":96"), std::string::npos);
 }
 
+TEST_F(CliViewer, ExportHtmlWithoutCamerasHoldsTheEvaluationOrbit) {
+  const auto r = run_hisnegs({"export", "html", "--model", model(), "-o", dir_ / "v.html"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("30 views of 256x256 from the evaluation orbit"), std::string::npos) << r.out;
+  const std::string html = slurp(dir_ / "v.html");
+  EXPECT_NE(html.find("\"name\":\"eval_029\""), std::string::npos);
+  EXPECT_EQ(html.find("\"name\":\"eval_030\""), std::string::npos);
+}
+
 TEST_F(CliViewer, ExportHtmlRefusesBadInputInOneLine) {
   const auto r = run_hisnegs({"export", "html", "--model", dir_ / "missing.ply", "-o", dir_ / "v.html"});
   EXPECT_NE(r.exit_code, 0);
