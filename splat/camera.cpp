@@ -113,7 +113,7 @@ Eigen::Vector3d ray_direction(const Intrinsics& K, const CameraView& view, doubl
   return (view.R_cam_from_world.transpose() * d_cam).normalized();
 }
 
-void write_cameras_json(const std::filesystem::path& path, const CameraSet& cameras) {
+std::string cameras_json_text(const CameraSet& cameras) {
   nlohmann::ordered_json j;
   const Intrinsics& K = cameras.intrinsics;
   j["width"] = K.width;
@@ -136,7 +136,11 @@ void write_cameras_json(const std::filesystem::path& path, const CameraSet& came
     j["views"].push_back(std::move(jv));
   }
   // nlohmann writes doubles with max_digits10: the file round-trips bit-exactly.
-  const std::string text = j.dump(1) + "\n";
+  return j.dump(1) + "\n";
+}
+
+void write_cameras_json(const std::filesystem::path& path, const CameraSet& cameras) {
+  const std::string text = cameras_json_text(cameras);
   io::write_file_atomic(path, text.data(), text.size());
 }
 

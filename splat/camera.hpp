@@ -66,6 +66,10 @@ struct CameraSet {
 
 // cameras.json (CONVENTIONS "Files"): {"width","height","fx","fy","cx","cy","near","far",
 // "views":[{"name","R":[[3],[3],[3]],"T":[3]}]}. Written atomically with full double precision.
+// The cameras.json document of `cameras` (CONVENTIONS "cameras.json"), as
+// write_cameras_json writes it: doubles in max_digits10, so it reads back bit-exactly.
+[[nodiscard]] std::string cameras_json_text(const CameraSet& cameras);
+
 void write_cameras_json(const std::filesystem::path& path, const CameraSet& cameras);
 // Throws io::InputError naming the file and key for: invalid JSON, unknown or missing keys,
 // wrong types, non-positive sizes/focals, near >= far, R not orthonormal with det +1

@@ -21,31 +21,6 @@ std::string script_safe(std::string json) {
   return json;
 }
 
-nlohmann::ordered_json cameras_json(const splat::CameraSet& cameras) {
-  const splat::Intrinsics& k = cameras.intrinsics;
-  nlohmann::ordered_json j;
-  j["width"] = k.width;
-  j["height"] = k.height;
-  j["fx"] = k.fx;
-  j["fy"] = k.fy;
-  j["cx"] = k.cx;
-  j["cy"] = k.cy;
-  j["near"] = k.near;
-  j["far"] = k.far;
-  j["views"] = nlohmann::ordered_json::array();
-  for (const splat::CameraView& v : cameras.views) {
-    nlohmann::ordered_json jv;
-    jv["name"] = v.name;
-    jv["R"] = nlohmann::ordered_json::array();
-    for (int r = 0; r < 3; ++r) {
-      jv["R"].push_back({v.R_cam_from_world(r, 0), v.R_cam_from_world(r, 1), v.R_cam_from_world(r, 2)});
-    }
-    jv["T"] = {v.t_cam_from_world.x(), v.t_cam_from_world.y(), v.t_cam_from_world.z()};
-    j["views"].push_back(std::move(jv));
-  }
-  return j;
-}
-
 }  // namespace
 
 std::string_view viewer_page_template() {
@@ -105,7 +80,7 @@ std::string viewer_html(const gmf::GaussianMixture& mixture, const splat::Camera
   meta["floats_per_gaussian"] = kViewerFloatsPerGaussian;
   meta["cutoff"] = settings.cutoff;
   meta["low_pass"] = settings.low_pass;
-  meta["cameras"] = cameras_json(cameras);
+  meta["cameras"] = nlohmann::ordered_json::parse(splat::cameras_json_text(cameras));
 
   std::string data;
   data += "<script id=\"hisnegs-meta\" type=\"application/json\">";
