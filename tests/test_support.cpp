@@ -6,6 +6,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <cstdio>
 #include <cstdlib>
 #include <fstream>
 #include <sstream>
@@ -36,14 +37,32 @@ std::vector<std::string> ScratchDir::entries() const {
   return names;
 }
 
-namespace {
-std::string slurp(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
+std::string read_bytes(const fs::path& path) {
+  std::ifstream in(path, std::ios::binary);
   std::stringstream ss;
   ss << in.rdbuf();
   return ss.str();
 }
-}  // namespace
+
+int csv_data_rows(const fs::path& path) {
+  std::ifstream in(path);
+  if (!in) return -1;
+  int rows = -1;  // the header
+  for (std::string line; std::getline(in, line);) ++rows;
+  return rows;
+}
+
+ShellResult run_shell(const std::string& command) {
+  ShellResult r;
+  FILE* pipe = ::popen((command + " 2>&1").c_str(), "r");
+  if (!pipe) return r;
+  char buf[4096];
+  for (std::size_t n; (n = std::fread(buf, 1, sizeof buf, pipe)) > 0;) r.out.append(buf, n);
+  r.status = ::pclose(pipe);
+  return r;
+}
+
+std::string shell_quoted(const fs::path& path) { return "'" + path.string() + "'"; }
 
 namespace {
 // The build's path, or the environment's when set (the device bundle moves both).
@@ -77,8 +96,8 @@ CommandResult run_hisnegs(const std::vector<std::string>& args) {
   ::waitpid(pid, &status, 0);
   CommandResult r;
   r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
-  r.out = slurp(out_path);
-  r.err = slurp(err_path);
+  r.out = read_bytes(out_path);
+  r.err = read_bytes(err_path);
   fs::remove(out_path);
   fs::remove(err_path);
   return r;

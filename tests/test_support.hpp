@@ -47,6 +47,23 @@ CommandResult run_hisnegs(const std::vector<std::string>& args);
 // (tests on real data skip otherwise).
 std::optional<std::filesystem::path> shared_data(const std::string& name);
 
+// The whole file at `path` as bytes ("" when it cannot be read).
+std::string read_bytes(const std::filesystem::path& path);
+
+// Data rows of a CSV file (its lines less the header; -1 when it cannot be read).
+int csv_data_rows(const std::filesystem::path& path);
+
+struct ShellResult {
+  int status = -1;  // pclose's wait status
+  std::string out;  // stdout and stderr together
+};
+
+// Runs `command` through /bin/sh (the caller quotes its arguments: shell_quoted).
+ShellResult run_shell(const std::string& command);
+
+// `path` in single quotes for /bin/sh (scratch paths hold no single quote).
+std::string shell_quoted(const std::filesystem::path& path);
+
 // Writes `text` to `path` (test fixtures).
 void write_text(const std::filesystem::path& path, const std::string& text);
 

@@ -72,7 +72,7 @@ CompactOptions random_options(std::mt19937& rng) {
   return o;
 }
 
-CheckpointMeta full_meta() {
+CheckpointMeta full_compact_meta() {
   CheckpointMeta meta;
   meta.volume_shape_zyx = std::array<int, 3>{60, 512, 512};
   meta.spacing_um = std::array<double, 3>{0.32964851672062956, 0.32964851672062956, 0.9988};
@@ -190,7 +190,7 @@ TEST(CompactCheckpoint, RoundTripStaysWithinTheBoundsOverRandomModels) {
 
 TEST(CompactCheckpoint, MetadataRoundTripsExactly) {
   std::mt19937 rng(1);
-  const CheckpointMeta meta = full_meta();
+  const CheckpointMeta meta = full_compact_meta();
   const Checkpoint out = decode_compact_checkpoint(encode_compact_checkpoint(random_model(5, rng), meta), "m.hgs");
   EXPECT_EQ(out.meta, meta);
   EXPECT_EQ(out.meta.beta, 1.0 / 3.0);  // bit for bit
@@ -200,10 +200,10 @@ TEST(CompactCheckpoint, MetadataRoundTripsExactly) {
 }
 
 TEST(CompactCheckpoint, EmptyModelRoundTrips) {
-  const std::string bytes = encode_compact_checkpoint(GaussianMixture{}, full_meta());
+  const std::string bytes = encode_compact_checkpoint(GaussianMixture{}, full_compact_meta());
   const Checkpoint out = decode_compact_checkpoint(bytes, "m.hgs");
   EXPECT_TRUE(out.mixture.empty());
-  EXPECT_EQ(out.meta, full_meta());
+  EXPECT_EQ(out.meta, full_compact_meta());
   EXPECT_EQ(read_compact_header(bytes, "m.hgs").count, 0u);
 }
 
@@ -255,7 +255,7 @@ TEST(CompactCheckpoint, HeaderRecordsCountBitsSizeAndBox) {
   CompactOptions o;
   o.position_bits = 18;
   o.intensity_bits = 11;
-  const std::string bytes = encode_compact_checkpoint(m, full_meta(), o);
+  const std::string bytes = encode_compact_checkpoint(m, full_compact_meta(), o);
   const CompactHeader h = read_compact_header(bytes, "m.hgs");
   EXPECT_EQ(h.version, kCompactFormatVersion);
   EXPECT_EQ(h.count, 50u);
@@ -284,7 +284,7 @@ TEST(CompactCheckpoint, IsSmallerThanThePly) {
     const float t = static_cast<float>(i) / 1000.0f;
     m[i].mean = {std::cos(6 * t) + jitter(rng), std::sin(6 * t) + jitter(rng), 0.3f * t + jitter(rng)};
   }
-  const std::string bytes = encode_compact_checkpoint(m, full_meta());
+  const std::string bytes = encode_compact_checkpoint(m, full_compact_meta());
   EXPECT_LT(static_cast<double>(bytes.size()) / 1000.0, 16.0) << bytes.size();
 }
 
@@ -292,7 +292,7 @@ TEST(CompactCheckpoint, IsSmallerThanThePly) {
 
 TEST(CompactCheckpoint, CutShortFileIsRefusedAtEveryLength) {
   std::mt19937 rng(6);
-  const std::string bytes = encode_compact_checkpoint(random_model(20, rng), full_meta());
+  const std::string bytes = encode_compact_checkpoint(random_model(20, rng), full_compact_meta());
   ASSERT_NO_THROW((void)decode_compact_checkpoint(bytes, "m.hgs"));
   for (std::size_t n = 0; n < bytes.size(); ++n) {
     SCOPED_TRACE("length " + std::to_string(n) + " of " + std::to_string(bytes.size()));
@@ -323,7 +323,7 @@ class CompactBadHeader : public ::testing::TestWithParam<HeaderCorruption> {};
 
 TEST_P(CompactBadHeader, IsRefusedWithOneLine) {
   std::mt19937 rng(8);
-  CheckpointMeta meta = full_meta();
+  CheckpointMeta meta = full_compact_meta();
   std::string bytes = encode_compact_checkpoint(random_model(30, rng), meta);
   GetParam().corrupt(bytes);
   expect_decode_refused(bytes, GetParam().expected);
@@ -469,7 +469,7 @@ TEST(CompactCheckpoint, LoadCheckpointChoosesTheReaderByContentNotName) {
   ScratchDir dir;
   std::mt19937 rng(11);
   const GaussianMixture m = random_model(40, rng);
-  const CheckpointMeta meta = full_meta();
+  const CheckpointMeta meta = full_compact_meta();
   // A compact file named .ply and a PLY named .hgs both load.
   const CompactHeader h = save_compact_checkpoint(dir / "compact.ply", m, meta);
   EXPECT_EQ(h.file_bytes, fs::file_size(dir / "compact.ply"));

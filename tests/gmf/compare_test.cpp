@@ -13,15 +13,15 @@
 namespace hisnegs::gmf {
 namespace {
 
-struct Scene {
+struct CompareScene {
   io::Volume volume;
   io::WorldFrame frame;
   GaussianMixture truth;
 };
 
 // Six Gaussians on a line in a 32x24x16 volume.
-Scene make_scene() {
-  Scene s;
+CompareScene make_compare_scene() {
+  CompareScene s;
   s.volume.nx = 32;
   s.volume.ny = 24;
   s.volume.nz = 16;
@@ -39,7 +39,7 @@ Scene make_scene() {
 }
 
 TEST(GmfCompare, AdamDefinesTheTargetAndRunsFirst) {
-  const Scene scene = make_scene();
+  const CompareScene scene = make_compare_scene();
   io::SparseGridOptions so;
   so.threshold = 0.05;
   const io::SparseGrid grid = io::build_sparse_grid(scene.volume, Eigen::Vector3d(1.0, 1.0, 1.0), so);
@@ -83,7 +83,7 @@ TEST(GmfCompare, OptimizerNamesMatchTheConfig) {
 }
 
 TEST(GmfCompare, EmptyListIsAnError) {
-  const Scene scene = make_scene();
+  const CompareScene scene = make_compare_scene();
   const io::SparseGrid grid = io::build_sparse_grid(scene.volume, Eigen::Vector3d(1.0, 1.0, 1.0), {});
   CompareOptions o;
   o.optimizers.clear();

@@ -8,10 +8,8 @@
 #include "io/vdb_validate.hpp"
 
 #include <gtest/gtest.h>
-#include <openvdb/io/File.h>
-#include <openvdb/openvdb.h>
-#include <openvdb/points/PointConversion.h>
 
+#include <algorithm>
 #include <cstring>
 #include <fstream>
 #include <iterator>
@@ -20,15 +18,16 @@
 
 #include "io/error.hpp"
 #include "io/sparse_grid.hpp"
-#include "io/vdb_file.hpp"
+#include "tests/io/vdb_fixtures.hpp"
 #include "tests/test_support.hpp"
 
 namespace hisnegs::io {
 namespace {
 
 using Depth = VdbGridCheck::Depth;
+using testing::vdb_metadata_registered;
 
-bool registered(const std::string& type) { return openvdb::Metadata::isRegisteredType(type); }
+bool registered(const std::string& type) { return vdb_metadata_registered(type); }
 
 std::vector<char> read_all(const std::filesystem::path& p) {
   std::ifstream in(p, std::ios::binary);
@@ -46,74 +45,23 @@ std::ptrdiff_t find(const std::vector<char>& bytes, const std::string& text) {
   return it == bytes.end() ? -1 : it - bytes.begin();
 }
 
-template <class GridT>
-typename GridT::Ptr sphere_of(typename GridT::ValueType value, int radius = 12) {
-  auto g = GridT::create();
-  auto acc = g->getAccessor();
-  for (int x = -radius; x <= radius; ++x)
-    for (int y = -radius; y <= radius; ++y)
-      for (int z = -radius; z <= radius; z += 2)
-        if (x * x + y * y + z * z <= radius * radius) acc.setValue(openvdb::Coord(x + 3, y, z), value);
-  return g;
-}
-
-void write_file(const std::filesystem::path& p, const openvdb::GridPtrVec& grids, std::uint32_t compression,
-                const openvdb::MetaMap& file_meta = {}) {
-  openvdb::io::File f(p.string());
-  f.setCompression(compression);
-  f.write(grids, file_meta);
-  f.close();
-}
-
 class VdbValidate : public ::testing::Test {
  protected:
-  void SetUp() override { ensure_openvdb_initialized(); }
   testing::ScratchDir dir_;
 };
 
 TEST_F(VdbValidate, EveryValueTypeMapAndCompressionWalksToItsEnd) {
-  using namespace openvdb;
-  auto f = sphere_of<FloatGrid>(0.5f);
-  f->setName("float");
-  f->setTransform(math::Transform::createLinearTransform(0.25));
-  auto d = sphere_of<DoubleGrid>(2.0);
-  d->setName("double");
-  d->setTransform(math::Transform::createLinearTransform(math::Mat4d::identity()));
-  d->transform().postRotate(0.3, math::Y_AXIS);  // an affine map
-  auto v = sphere_of<Vec3SGrid>(Vec3s(1, 2, 3));
-  v->setName("vec3s");
-  v->setTransform(math::Transform::Ptr(new math::Transform(
-      math::MapBase::Ptr(new math::ScaleTranslateMap(Vec3d(1, 2, 3), Vec3d(0.5, 0, -1))))));
-  auto i = sphere_of<Int32Grid>(7);
-  i->setName("int32");
-  i->setTransform(math::Transform::Ptr(new math::Transform(math::MapBase::Ptr(new math::TranslationMap(Vec3d(1, 2, 3))))));
-  auto b = sphere_of<BoolGrid>(true);
-  b->setName("bool");
-  auto m = MaskGrid::create();
-  m->topologyUnion(*f);
-  m->setName("mask");
-  auto h = sphere_of<FloatGrid>(0.25f, 9);
-  h->setName("half");
-  h->setSaveFloatAsHalf(true);
-  h->setTransform(math::Transform::createFrustumTransform(BBoxd(Vec3d(0), Vec3d(10)), 0.5, 2.0, 0.1));
-  auto inst = f->copyGrid();  // shares f's tree: written as an instance
-  inst->setName("instance");
-  MetaMap file_meta;
-  file_meta.insertMeta("note", StringMetadata("a file-level string"));
-  file_meta.insertMeta("count", Int64Metadata(3));
-  file_meta.insertMeta("origin", Vec3DMetadata(Vec3d(1, 2, 3)));
-  file_meta.insertMeta("m", Mat4DMetadata(math::Mat4d::identity()));
-  const GridPtrVec grids{f, d, v, i, b, m, h, inst};
-  for (const std::uint32_t c : std::initializer_list<std::uint32_t>{openvdb::io::COMPRESS_BLOSC | openvdb::io::COMPRESS_ACTIVE_MASK, openvdb::io::COMPRESS_ZIP | openvdb::io::COMPRESS_ACTIVE_MASK,
-                                openvdb::io::COMPRESS_ACTIVE_MASK, openvdb::io::COMPRESS_NONE, openvdb::io::COMPRESS_BLOSC}) {
+  for (const std::uint32_t c : testing::vdb_compressions()) {
     SCOPED_TRACE("compression " + std::to_string(c));
     const auto path = dir_ / ("all" + std::to_string(c) + ".vdb");
-    write_file(path, grids, c, file_meta);
+    const testing::EveryKindFile written = testing::write_every_kind_vdb(path, c);
     const VdbFileCheck check = validate_vdb_file(path, registered);
-    EXPECT_EQ(check.file_version, std::uint32_t{OPENVDB_FILE_VERSION});
-    ASSERT_EQ(check.grids.size(), grids.size());
-    for (const VdbGridCheck& g : check.grids) {
+    EXPECT_EQ(check.file_version, testing::openvdb_file_version());
+    ASSERT_EQ(check.grids.size(), written.names.size());
+    for (std::size_t k = 0; k < check.grids.size(); ++k) {
+      const VdbGridCheck& g = check.grids[k];
       SCOPED_TRACE(g.name);
+      EXPECT_EQ(g.name, written.names[k]);
       if (g.name == "bool" || g.name == "mask") {
         EXPECT_EQ(g.depth, Depth::kTopology);
       } else if (g.name == "instance") {
@@ -121,10 +69,12 @@ TEST_F(VdbValidate, EveryValueTypeMapAndCompressionWalksToItsEnd) {
       } else {
         EXPECT_EQ(g.depth, Depth::kBuffers);
       }
-      if (!g.instance) EXPECT_GT(g.leaves, 0);
+      if (!g.instance) {
+        EXPECT_GT(g.leaves, 0);
+      }
     }
     EXPECT_TRUE(check.grids[6].half_float);
-    EXPECT_EQ(check.grids[0].leaves, static_cast<std::int64_t>(f->tree().leafCount()));
+    EXPECT_EQ(check.grids[0].leaves, written.float_leaves);
   }
 }
 
@@ -147,17 +97,12 @@ TEST_F(VdbValidate, HisnegsGridsAndPointsPass) {
   EXPECT_EQ(check.grids[0].depth, Depth::kBuffers);
   EXPECT_EQ(check.grids[1].name, "background");
 
-  using namespace openvdb;
-  const std::vector<Vec3R> positions{{0, 0, 0}, {1.5, 2, 3}, {-4, 8, 1}, {30, 1, -7}};
-  const auto xform = math::Transform::createLinearTransform(0.5);
-  auto points = points::createPointDataGrid<points::NullCodec, points::PointDataGrid>(positions, *xform);
-  points->setName("points");
   const auto ppath = dir_ / "points.vdb";
-  write_file(ppath, GridPtrVec{points}, openvdb::io::COMPRESS_BLOSC | openvdb::io::COMPRESS_ACTIVE_MASK);
+  const std::int64_t point_leaves = testing::write_points_vdb(ppath);
   const VdbFileCheck pcheck = validate_vdb_file(ppath, registered);
   ASSERT_EQ(pcheck.grids.size(), 1u);
   EXPECT_EQ(pcheck.grids[0].depth, Depth::kTopology);  // attribute buffers are OpenVDB's own format
-  EXPECT_EQ(pcheck.grids[0].leaves, static_cast<std::int64_t>(points->tree().leafCount()));
+  EXPECT_EQ(pcheck.grids[0].leaves, point_leaves);
 }
 
 // A small hisnegs .vdb and its bytes, for the corruption tests.
@@ -167,11 +112,8 @@ struct Sample {
 };
 
 Sample small_file(const testing::ScratchDir& dir) {
-  auto g = sphere_of<openvdb::FloatGrid>(0.75f, 6);
-  g->setName("volume");
-  g->insertMeta("source", openvdb::StringMetadata("a.tif"));
   Sample s{dir / "small.vdb", {}};
-  write_vdb_file(s.path, openvdb::GridPtrVec{g});
+  testing::write_small_vdb(s.path);
   s.bytes = read_all(s.path);
   return s;
 }

@@ -44,8 +44,8 @@ std::vector<double> perturbed(const std::vector<double>& render, double amplitud
   return out;
 }
 
-std::vector<float> to_float(const std::vector<double>& v) { return {v.begin(), v.end()}; }
-std::vector<double> to_double(const std::vector<float>& v) { return {v.begin(), v.end()}; }
+std::vector<float> to_floats(const std::vector<double>& v) { return {v.begin(), v.end()}; }
+std::vector<double> to_doubles(const std::vector<float>& v) { return {v.begin(), v.end()}; }
 
 // Compares `grad` with Ridders central differences of `loss` at every pixel of
 // `render` (borders included). The analytic gradient is exact, and Ridders is good to
@@ -145,9 +145,9 @@ TEST(LossSsim, MatchesBruteForceDefinition) {
     EXPECT_LT(expected, 0.95);
     EXPECT_NEAR(1.0 - ssim_loss(x, y, width, height, 1.0, {}, ws), expected, 1e-12);
     // The float overload on the same (float-rounded) pixels: it accumulates in double too.
-    const auto xf = to_float(x), yf = to_float(y);
+    const auto xf = to_floats(x), yf = to_floats(y);
     EXPECT_NEAR(1.0 - ssim_loss(xf, yf, width, height, 1.0, {}, ws),
-                brute_force_mean_ssim(to_double(xf), to_double(yf), width, height), 1e-6);
+                brute_force_mean_ssim(to_doubles(xf), to_doubles(yf), width, height), 1e-6);
   }
 }
 
@@ -376,7 +376,7 @@ TEST(LossScaleRegularizer, GradientMatchesFiniteDifferences) {
 // ------------------------------------------------------------------ Eq. 16
 
 TEST(LossCombined, SumsTheWeightedTermsAndTheirGradients) {
-  const auto render = to_float(random_image(kW, kH, 27)), target = to_float(random_image(kW, kH, 28));
+  const auto render = to_floats(random_image(kW, kH, 27)), target = to_floats(random_image(kW, kH, 28));
   TrainOptions train;
   train.lambda_intensity = 0.5;  // big enough that a missing term would show
   const ImageLossWeights w = image_loss_weights(train);
@@ -413,15 +413,15 @@ TEST(LossCombined, TermsOfWeightZeroAreNotEvaluated) {
 // final rounding of each gradient to float differs: 1e-6 of the largest component.
 TEST(LossCombined, FloatMatchesDoubleReference) {
   constexpr int kSide = 64;
-  const auto render = to_float(random_image(kSide, kSide, 31));
-  const auto target = to_float(perturbed(to_double(render), 0.2, 32));
+  const auto render = to_floats(random_image(kSide, kSide, 31));
+  const auto target = to_floats(perturbed(to_doubles(render), 0.2, 32));
   TrainOptions train;
   const ImageLossWeights w = image_loss_weights(train);
   LossWorkspace ws;
   std::vector<float> grad_f(render.size(), 0.0f);
   std::vector<double> grad_d(render.size(), 0.0);
   const ImageLossTerms tf = combined_image_loss(render, target, kSide, kSide, w, grad_f, ws);
-  const ImageLossTerms td = combined_image_loss(to_double(render), to_double(target), kSide, kSide, w, grad_d, ws);
+  const ImageLossTerms td = combined_image_loss(to_doubles(render), to_doubles(target), kSide, kSide, w, grad_d, ws);
   EXPECT_DOUBLE_EQ(tf.total, td.total);
   double max_grad = 0;
   for (double g : grad_d) max_grad = std::max(max_grad, std::abs(g));
@@ -432,8 +432,8 @@ TEST(LossCombined, FloatMatchesDoubleReference) {
 // bits. 200 x 70 spans several row blocks (8 rows) and pixel blocks (4096 pixels).
 TEST(LossCombined, SameBitsWhateverTheThreadCount) {
   constexpr int kWide = 200, kTall = 70;
-  const auto render = to_float(random_image(kWide, kTall, 36));
-  const auto target = to_float(perturbed(to_double(render), 0.3, 37));
+  const auto render = to_floats(random_image(kWide, kTall, 36));
+  const auto target = to_floats(perturbed(to_doubles(render), 0.3, 37));
   TrainOptions train;
   const ImageLossWeights w = image_loss_weights(train);
   auto run = [&](std::vector<float>& grad) {

@@ -18,18 +18,18 @@
 namespace hisnegs::splat {
 namespace {
 
-constexpr std::size_t kP = gmf::kGaussianParamCount;
+constexpr std::size_t kParams = gmf::kGaussianParamCount;
 
 // Three overlapping Gaussians near the origin and one far away (reaching no sample).
 std::vector<float> model_params() {
   std::vector<float> p;
-  const float rows[4][kP] = {
+  const float rows[4][kParams] = {
       {0.05f, -0.02f, 0.01f, std::log(0.12f), std::log(0.08f), std::log(0.1f), 0.9f, 0.2f, -0.3f, 0.1f, 0.8f},
       {-0.06f, 0.04f, -0.03f, std::log(0.09f), std::log(0.14f), std::log(0.07f), 0.5f, -0.4f, 0.6f, 0.3f, -0.2f},
       {0.0f, 0.07f, 0.05f, std::log(0.06f), std::log(0.06f), std::log(0.11f), 1.0f, 0.0f, 0.0f, 0.0f, 0.4f},
       {5.0f, 5.0f, 5.0f, std::log(0.05f), std::log(0.05f), std::log(0.05f), 1.0f, 0.0f, 0.0f, 0.0f, 0.0f},
   };
-  for (const auto& row : rows) p.insert(p.end(), row, row + kP);
+  for (const auto& row : rows) p.insert(p.end(), row, row + kParams);
   return p;
 }
 
@@ -74,9 +74,9 @@ double direct_value(const std::vector<float>& params, const VolumeSamples& s, co
     for (std::uint32_t j = s.block_begin[b]; j < s.block_begin[b + 1]; ++j) {
       const double x[3] = {s.x[j], s.y[j], s.z[j]};
       gmf::PointTerms<double> t = gmf::no_terms<double>();
-      for (std::size_t k = 0; k * kP < params.size(); ++k) {
-        double p[kP];
-        std::copy_n(params.data() + kP * k, kP, p);
+      for (std::size_t k = 0; k * kParams < params.size(); ++k) {
+        double p[kParams];
+        std::copy_n(params.data() + kParams * k, kParams, p);
         gmf::GaussianFrame<double> f;
         gmf::prepare_gaussian(p, f);
         double z[3];
@@ -130,7 +130,7 @@ TEST_P(VolumeTermGradient, MatchesCentralDifferences) {
     EXPECT_NEAR(grad[i], fd, 2e-3 * std::max(1.0, std::abs(fd))) << "parameter " << i;
   }
   // The far Gaussian reaches no sample: its gradient is exactly zero.
-  for (std::size_t c = 0; c < kP; ++c) EXPECT_EQ(grad[3 * kP + c], 0.0f);
+  for (std::size_t c = 0; c < kParams; ++c) EXPECT_EQ(grad[3 * kParams + c], 0.0f);
 }
 
 INSTANTIATE_TEST_SUITE_P(Models, VolumeTermGradient,
@@ -203,7 +203,7 @@ TEST(VolumeTerm, TrainerPrunesEmptySpaceAndFollowsTheVolume) {
   EXPECT_EQ(pruned.empty, 1);
   EXPECT_EQ(pruned.total, 1);
   EXPECT_EQ(trainer.gaussians(), 3);
-  for (int k = 0; k < 3; ++k) EXPECT_LT(trainer.params()[kP * k + gmf::kMeanX], 1.0f);
+  for (int k = 0; k < 3; ++k) EXPECT_LT(trainer.params()[kParams * k + gmf::kMeanX], 1.0f);
 }
 
 }  // namespace

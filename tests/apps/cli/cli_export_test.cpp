@@ -30,32 +30,6 @@ using testing::run_hisnegs;
 constexpr const char* kVdbPrint = "/usr/bin/vdb_print";
 constexpr const char* kPython = "/usr/bin/python3";
 
-struct Shell {
-  int status = -1;
-  std::string out;  // stdout and stderr
-};
-
-// Runs `command` through /bin/sh. Arguments are quoted by the caller (scratch
-// paths hold no single quote).
-Shell shell(const std::string& command) {
-  Shell r;
-  FILE* pipe = ::popen((command + " 2>&1").c_str(), "r");
-  if (!pipe) return r;
-  char buf[4096];
-  for (std::size_t n; (n = std::fread(buf, 1, sizeof buf, pipe)) > 0;) r.out.append(buf, n);
-  r.status = ::pclose(pipe);
-  return r;
-}
-
-std::string quoted(const fs::path& p) { return "'" + p.string() + "'"; }
-
-std::string slurp(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::stringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
-
 class CliExport : public ::testing::Test {
  protected:
   testing::ScratchDir dir_;
@@ -118,12 +92,12 @@ TEST_F(CliExport, VdbIsReadByOpenVdbsOwnTools) {
 
   require_installed(fs::exists(kVdbPrint), kVdbPrint);
   if (IsSkipped() || HasFatalFailure()) return;
-  const Shell listing = shell(std::string(kVdbPrint) + " -l " + quoted(dir_ / "m.vdb"));
+  const testing::ShellResult listing = testing::run_shell(std::string(kVdbPrint) + " -l " + testing::shell_quoted(dir_ / "m.vdb"));
   ASSERT_EQ(listing.status, 0) << listing.out;
   EXPECT_NE(listing.out.find("density"), std::string::npos) << listing.out;
   EXPECT_NE(listing.out.find("gaussians"), std::string::npos) << listing.out;
 
-  const bool binding = fs::exists(kPython) && shell(std::string(kPython) + " -c 'import pyopenvdb'").status == 0;
+  const bool binding = fs::exists(kPython) && testing::run_shell(std::string(kPython) + " -c 'import pyopenvdb'").status == 0;
   require_installed(binding, "pyopenvdb (python3-openvdb)");
   if (IsSkipped() || HasFatalFailure()) return;
   // Every 17th active voxel: index, world position by the grid's own transform, value.
@@ -136,7 +110,7 @@ TEST_F(CliExport, VdbIsReadByOpenVdbsOwnTools) {
       "        w = g.transform.indexToWorld(it.min)\n"
       "        print(*it.min, repr(w[0]), repr(w[1]), repr(w[2]), repr(it.value))\n";
   testing::write_text(dir_ / "read.py", script);
-  const Shell py = shell(std::string(kPython) + " " + quoted(dir_ / "read.py") + " " + quoted(dir_ / "m.vdb"));
+  const testing::ShellResult py = testing::run_shell(std::string(kPython) + " " + testing::shell_quoted(dir_ / "read.py") + " " + testing::shell_quoted(dir_ / "m.vdb"));
   ASSERT_EQ(py.status, 0) << py.out;
   std::istringstream lines(py.out);
   std::string word;
@@ -163,7 +137,7 @@ TEST_F(CliExport, ImportGivesBackTheSameCheckpointFile) {
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_NE(r.out.find("30 Gaussians"), std::string::npos) << r.out;
   // Same parameters bit for bit and the same metadata, hence the same bytes.
-  EXPECT_EQ(slurp(dir_ / "back.ply"), slurp(model()));
+  EXPECT_EQ(testing::read_bytes(dir_ / "back.ply"), testing::read_bytes(model()));
 }
 
 TEST_F(CliExport, MatchVolumeAndVoxelSizeSetTheLattice) {
@@ -241,7 +215,7 @@ TEST_F(CliExport, VolumeIsTheResampledMixtureWithItsPsnr) {
   const auto native = run_hisnegs({"export", "volume", "--model", model(), "-o", dir_ / "n.tif"});
   ASSERT_EQ(native.exit_code, 0) << native.err;
   EXPECT_EQ(native.out.find("PSNR"), std::string::npos) << native.out;
-  EXPECT_EQ(slurp(dir_ / "n.tif"), slurp(dir_ / "f.tif")) << "the same voxels and spacing";
+  EXPECT_EQ(testing::read_bytes(dir_ / "n.tif"), testing::read_bytes(dir_ / "f.tif")) << "the same voxels and spacing";
 }
 
 TEST_F(CliExport, CompactIsSmallerAndEveryCommandReadsIt) {
@@ -275,7 +249,7 @@ TEST_F(CliExport, CompactIsSmallerAndEveryCommandReadsIt) {
 
   // Bad input: one line, exit 2, nothing written.
   fs::create_directories(dir_ / "out");
-  const std::string bytes = slurp(dir_ / "m.hgs");
+  const std::string bytes = testing::read_bytes(dir_ / "m.hgs");
   testing::write_text(dir_ / "cut.hgs", bytes.substr(0, bytes.size() - 7));
   const auto rejected = [&](const std::vector<std::string>& args, const std::string& needle) {
     const auto bad = run_hisnegs(args);

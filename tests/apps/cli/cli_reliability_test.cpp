@@ -26,13 +26,6 @@ namespace fs = std::filesystem;
 using testing::CommandResult;
 using testing::run_hisnegs;
 
-std::string bytes_of(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::ostringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
-
 // Files whose name marks an AtomicFile temporary, anywhere under `dir`.
 int temporaries_under(const fs::path& dir) {
   int n = 0;
@@ -119,7 +112,7 @@ TEST_F(Reliability, ARunFolderHasOneWriter) {
 }
 
 TEST_F(Reliability, OutputsNeverReplaceSpecialFilesOrInputs) {
-  const std::string model = bytes_of(dir_ / "m.ply");
+  const std::string model = testing::read_bytes(dir_ / "m.ply");
   ASSERT_EQ(::mkfifo((dir_ / "fifo").c_str(), 0644), 0);
   expect_refused(run_hisnegs({"export", "splat-ply", "--model", dir_ / "m.ply", "-o", dir_ / "fifo"}), 2,
                  "not a regular file");
@@ -141,12 +134,12 @@ TEST_F(Reliability, OutputsNeverReplaceSpecialFilesOrInputs) {
   }
   expect_refused(run_hisnegs({"export", "volume", "--model", dir_ / "m.ply", "-o", dir_ / "hard.ply"}), 2,
                  "is also an input");
-  const std::string stack = bytes_of(dir_ / "v.tif");
+  const std::string stack = testing::read_bytes(dir_ / "v.tif");
   expect_refused(run_hisnegs({"vdb", dir_ / "v.tif", "-o", dir_ / "v.tif"}), 2, "is also an input (VOLUME)");
   expect_refused(run_hisnegs({"fit", dir_ / "v.tif", "-o", dir_ / "f.ply", "--log", dir_ / "v.tif"}), 2,
                  "is also an input");
-  EXPECT_EQ(bytes_of(dir_ / "m.ply"), model);
-  EXPECT_EQ(bytes_of(dir_ / "v.tif"), stack);
+  EXPECT_EQ(testing::read_bytes(dir_ / "m.ply"), model);
+  EXPECT_EQ(testing::read_bytes(dir_ / "v.tif"), stack);
   EXPECT_FALSE(fs::exists(dir_ / "f.ply"));
   // A symlink to another regular file is followed: that file is replaced, the link stays.
   testing::write_text(dir_ / "old.ply", "old");
@@ -154,7 +147,7 @@ TEST_F(Reliability, OutputsNeverReplaceSpecialFilesOrInputs) {
   ASSERT_EQ(run_hisnegs({"-q", "export", "splat-ply", "--model", dir_ / "m.ply", "-o", dir_ / "link.ply"}).exit_code,
             0);
   EXPECT_TRUE(fs::is_symlink(dir_ / "link.ply"));
-  EXPECT_NE(bytes_of(dir_ / "old.ply"), "old");
+  EXPECT_NE(testing::read_bytes(dir_ / "old.ply"), "old");
 }
 
 TEST_F(Reliability, ASignalRemovesUnfinishedOutputs) {

@@ -43,13 +43,6 @@ train:
   save_every: 1
 )";
 
-int csv_rows(const fs::path& path) {
-  std::ifstream in(path);
-  int rows = -1;  // header
-  for (std::string line; std::getline(in, line);) ++rows;
-  return rows;
-}
-
 Json read_json(const fs::path& path) {
   std::ifstream in(path);
   return Json::parse(in);
@@ -88,8 +81,8 @@ TEST_F(CliRun, WritesEveryOutputThenReusesFinishedStages) {
     EXPECT_TRUE(fs::is_regular_file(out / f)) << f;
   }
   EXPECT_EQ(reused_stages(r.out), 0) << r.out;
-  EXPECT_EQ(csv_rows(out / "train" / "log.csv"), 3);
-  EXPECT_EQ(csv_rows(out / "eval" / "metrics.csv"), 30);
+  EXPECT_EQ(testing::csv_data_rows(out / "train" / "log.csv"), 3);
+  EXPECT_EQ(testing::csv_data_rows(out / "eval" / "metrics.csv"), 30);
   const Json metrics = read_json(out / "eval" / "metrics.json");
   const double psnr = metrics["psnr"]["mean"].get<double>();
   // A 3-epoch model of a 40x40x16 stack at 32x32 is coarse, but far from noise.
@@ -120,7 +113,7 @@ TEST_F(CliRun, WritesEveryOutputThenReusesFinishedStages) {
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_EQ(reused_stages(r.out), 3) << r.out;  // volume, ground truth, fit
   EXPECT_EQ(fs::last_write_time(out / "gmf.ply"), fit_time);
-  EXPECT_EQ(csv_rows(out / "train" / "log.csv"), 4);
+  EXPECT_EQ(testing::csv_data_rows(out / "train" / "log.csv"), 4);
 
   // --force redoes everything.
   r = run({"--force"}, "longer.yaml");
@@ -159,7 +152,7 @@ TEST_F(CliRun, ResumesAnInterruptedTraining) {
   EXPECT_NE(r.out.find("resuming after epoch 3"), std::string::npos) << r.out;
   EXPECT_EQ(reused_stages(r.out), 3) << r.out;  // volume, ground truth, fit; eval and orbit follow the new model
   EXPECT_TRUE(fs::is_regular_file(run_dir / "train" / "final.ply"));
-  EXPECT_EQ(csv_rows(run_dir / "train" / "log.csv"), 3);
+  EXPECT_EQ(testing::csv_data_rows(run_dir / "train" / "log.csv"), 3);
 }
 
 TEST_F(CliRun, BadInputGetsOneLineErrors) {
@@ -200,11 +193,11 @@ TEST(CliBench, ReportWritesEveryTableWithTinySizes) {
        "--gaussians",  "300,600", "--betas",      "1,50",    "--orbit-frames",     "4",           "--views",   "2",
        "--min-frames", "2",       "--max-frames", "4",       "--seconds-per-case", "0.1",         "--backend", "cpu"});
   ASSERT_EQ(r.exit_code, 0) << r.err << r.out;
-  EXPECT_EQ(csv_rows(dir / "b" / "table7.csv"), 2);
-  EXPECT_EQ(csv_rows(dir / "b" / "table9.csv"), 2);
-  EXPECT_EQ(csv_rows(dir / "b" / "table10.csv"), 8);  // the frame-time statistics
-  EXPECT_EQ(csv_rows(dir / "b" / "table11.csv"), 2);
-  EXPECT_GE(csv_rows(dir / "b" / "table12.csv"), 2);
+  EXPECT_EQ(testing::csv_data_rows(dir / "b" / "table7.csv"), 2);
+  EXPECT_EQ(testing::csv_data_rows(dir / "b" / "table9.csv"), 2);
+  EXPECT_EQ(testing::csv_data_rows(dir / "b" / "table10.csv"), 8);  // the frame-time statistics
+  EXPECT_EQ(testing::csv_data_rows(dir / "b" / "table11.csv"), 2);
+  EXPECT_GE(testing::csv_data_rows(dir / "b" / "table12.csv"), 2);
   std::ifstream in(dir / "b" / "report.md");
   const std::string report{std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
   for (const char* t : {"Machine:", "Table 7", "Table 9", "Table 10", "Table 11", "Table 12"}) {

@@ -50,30 +50,6 @@ constexpr int kChromiumTimeoutSeconds = 60;
 // The bar for the page against the CPU renderer (8-bit screenshot vs float).
 constexpr double kMinPsnrDb = 35.0;
 
-struct Shell {
-  int status = -1;
-  std::string out;  // stdout and stderr
-};
-
-Shell shell(const std::string& command) {
-  Shell r;
-  FILE* pipe = ::popen((command + " 2>&1").c_str(), "r");
-  if (!pipe) return r;
-  char buf[4096];
-  for (std::size_t n; (n = std::fread(buf, 1, sizeof buf, pipe)) > 0;) r.out.append(buf, n);
-  r.status = ::pclose(pipe);
-  return r;
-}
-
-std::string quoted(const std::string& s) { return "'" + s + "'"; }
-
-std::string slurp(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::stringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
-
 // One camera file of the test: intrinsics of its own (non-square, FOV, principal point).
 struct CameraCase {
   int width, height;
@@ -127,7 +103,7 @@ TEST_F(CliViewer, ExportHtmlIsSelfContainedAndReportsItsSize) {
   const fs::path cams = write_cameras("c.json", {96, 64, 45.0, 0.0, 1.0});
   const auto r = run_hisnegs({"export", "html", "--model", model(), "--cameras", cams, "-o", dir_ / "v.html"});
   ASSERT_EQ(r.exit_code, 0) << r.err;
-  const std::string html = slurp(dir_ / "v.html");
+  const std::string html = testing::read_bytes(dir_ / "v.html");
   EXPECT_NE(r.out.find("export html: wrote"), std::string::npos) << r.out;
   EXPECT_NE(r.out.find("40 Gaussians"), std::string::npos) << r.out;
   // The model block is base64 of 40 x 10 float32 = 1600 bytes -> 2136 characters.
@@ -150,7 +126,7 @@ TEST_F(CliViewer, ExportHtmlWithoutCamerasHoldsTheEvaluationOrbit) {
   const auto r = run_hisnegs({"export", "html", "--model", model(), "-o", dir_ / "v.html"});
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_NE(r.out.find("30 views of 256x256 from the evaluation orbit"), std::string::npos) << r.out;
-  const std::string html = slurp(dir_ / "v.html");
+  const std::string html = testing::read_bytes(dir_ / "v.html");
   EXPECT_NE(html.find("\"name\":\"eval_029\""), std::string::npos);
   EXPECT_EQ(html.find("\"name\":\"eval_030\""), std::string::npos);
 }
@@ -225,12 +201,12 @@ TEST_F(CliViewer, ChromiumScreenshotMatchesCpuHardMip) {
                                 " --headless --no-sandbox --disable-gpu --use-angle=swiftshader"
                                 " --enable-unsafe-swiftshader --force-device-scale-factor=1 --hide-scrollbars"
                                 " --force-color-profile=srgb --no-first-run --disable-extensions"
-                                " --user-data-dir=" + quoted((dir_ / ("profile" + tag)).string()) +
+                                " --user-data-dir=" + testing::shell_quoted((dir_ / ("profile" + tag)).string()) +
                                 " --window-size=" + std::to_string(window_w) + "," + std::to_string(window_h) +
                                 " --virtual-time-budget=10000 --enable-logging=stderr --v=0"
-                                " --screenshot=" + quoted(png.string()) + " " + quoted(url);
+                                " --screenshot=" + testing::shell_quoted(png.string()) + " " + testing::shell_quoted(url);
     const auto t0 = std::chrono::steady_clock::now();
-    const Shell s = shell(command);
+    const testing::ShellResult s = testing::run_shell(command);
     const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     ASSERT_EQ(s.status, 0) << s.out;
     EXPECT_EQ(s.out.find("hisnegs-viewer error"), std::string::npos) << s.out;
@@ -387,13 +363,13 @@ TEST_F(CliViewer, ViewPageInChromiumMatchesCpuHardMip) {
   const std::string url = out.substr(at + 3, out.find(' ', at + 3) - at - 3) + "#view=2&ui=0";
   const int window_w = std::max(c.width, kMinWindowWidth), window_h = c.height + kWindowExtraHeight;
   const fs::path png = dir_ / "s.png";
-  const Shell s = shell("timeout " + std::to_string(kChromiumTimeoutSeconds) + " " + kChromium +
+  const testing::ShellResult s = testing::run_shell("timeout " + std::to_string(kChromiumTimeoutSeconds) + " " + kChromium +
                         " --headless --no-sandbox --disable-gpu --use-angle=swiftshader --enable-unsafe-swiftshader"
                         " --force-device-scale-factor=1 --hide-scrollbars --force-color-profile=srgb --no-first-run"
-                        " --user-data-dir=" + quoted((dir_ / "profile").string()) + " --window-size=" +
+                        " --user-data-dir=" + testing::shell_quoted((dir_ / "profile").string()) + " --window-size=" +
                         std::to_string(window_w) + "," + std::to_string(window_h) +
                         " --virtual-time-budget=10000 --enable-logging=stderr --v=0 --screenshot=" +
-                        quoted(png.string()) + " " + quoted(url));
+                        testing::shell_quoted(png.string()) + " " + testing::shell_quoted(url));
   ASSERT_EQ(s.status, 0) << s.out;
   EXPECT_EQ(s.out.find("hisnegs-viewer error"), std::string::npos) << s.out;
   EXPECT_NE(s.out.find("hisnegs-viewer ready: view 2 drawn"), std::string::npos) << s.out;

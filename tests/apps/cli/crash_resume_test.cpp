@@ -33,8 +33,6 @@ constexpr const char* kSchedule = R"(train:
   prune_every: 3
 )";
 
-std::string bytes_of(const fs::path& path) { return io::read_file(path); }
-
 class CrashSafeTraining : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
@@ -82,7 +80,7 @@ class CrashSafeTraining : public ::testing::Test {
       }
     }
     ASSERT_TRUE(fs::exists(checkpoints / "latest")) << fault;
-    const int epoch = std::stoi(bytes_of(checkpoints / "latest"));
+    const int epoch = std::stoi(testing::read_bytes(checkpoints / "latest"));
     bool pair = false;
     for (const auto& e : fs::directory_iterator(checkpoints)) {
       pair = pair || e.path().filename().string().find(std::to_string(epoch)) != std::string::npos;
@@ -91,7 +89,7 @@ class CrashSafeTraining : public ::testing::Test {
 
     const auto resumed = train(run, true);
     ASSERT_EQ(resumed.exit_code, 0) << fault << ": " << resumed.err;
-    EXPECT_EQ(bytes_of(d / run / "final.ply"), bytes_of(d / "reference" / "final.ply")) << fault;
+    EXPECT_EQ(testing::read_bytes(d / run / "final.ply"), testing::read_bytes(d / "reference" / "final.ply")) << fault;
     for (const auto& e : fs::directory_iterator(checkpoints)) {
       EXPECT_FALSE(e.path().filename().string().starts_with(".")) << "stale temporary " << e.path();
     }

@@ -59,13 +59,6 @@ std::vector<std::string> names(const RunSummary& summary, bool reused) {
   return out;
 }
 
-int csv_rows(const fs::path& path) {
-  std::ifstream in(path);
-  int rows = -1;  // header
-  for (std::string line; std::getline(in, line);) ++rows;
-  return rows;
-}
-
 template <RunStage... Stages>
 std::vector<std::string> declared_outputs(StageList<Stages...>) {
   std::vector<std::string> outputs;
@@ -100,7 +93,7 @@ TEST_F(RunPipeline, FirstRunWritesEveryDeclaredOutput) {
     EXPECT_TRUE(fs::is_regular_file(out() / output)) << output;
   }
   for (const char* f : {"run.json", "config.yaml", "report.md"}) EXPECT_TRUE(fs::is_regular_file(out() / f)) << f;
-  EXPECT_EQ(csv_rows(out() / "train" / "log.csv"), 3);
+  EXPECT_EQ(testing::csv_data_rows(out() / "train" / "log.csv"), 3);
 }
 
 TEST_F(RunPipeline, SecondRunReusesEveryStage) {
@@ -123,7 +116,7 @@ TEST_F(RunPipeline, TrainingChangeRedoesTrainingAndWhatFollows) {
   EXPECT_EQ(names(summary, true), (V{"volume", "ground_truth", "fit"}));
   EXPECT_EQ(names(summary, false), (V{"train", "eval", "orbit"}));
   EXPECT_EQ(fs::last_write_time(out() / "gmf.ply"), fit_time);
-  EXPECT_EQ(csv_rows(out() / "train" / "log.csv"), 4);
+  EXPECT_EQ(testing::csv_data_rows(out() / "train" / "log.csv"), 4);
 }
 
 TEST_F(RunPipeline, OrbitSettingRedoesTheOrbitOnly) {
