@@ -1,8 +1,9 @@
 // SPDX-License-Identifier: Apache-2.0
-// `hisnegs view --model m.ply [--cameras cams.json] [--port 8080] [--host 127.0.0.1]
-// [--no-browser]`: the `export html` page served over local HTTP until Ctrl-C.
-// Options and reporting only; the page is apps/viewer/viewer_page, the server
-// apps/viewer/viewer_server.
+// `hisnegs view --model m.ply [--volume V.tif] [--cameras cams.json] [--port 8080]
+// [--host 127.0.0.1] [--no-browser]`: the `export html` page served over local HTTP
+// until Ctrl-C, with the ray-marched MIP of the volume to compare against. Options
+// and reporting only; the page is apps/viewer/viewer_page, what is served
+// apps/viewer/viewer_session, the server apps/viewer/viewer_server.
 #include <spawn.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -11,7 +12,7 @@
 #include <filesystem>
 
 #include "apps/cli/cli_support.hpp"
-#include "apps/viewer/viewer_page.hpp"
+#include "apps/viewer/viewer_session.hpp"
 #include "apps/viewer/viewer_server.hpp"
 #include "gmf/checkpoint.hpp"
 #include "io/error.hpp"
@@ -39,12 +40,13 @@ bool open_browser(const std::string& url) {
 void add_view_command(CLI::App& app, GlobalOptions& global) {
   auto* cmd = app.add_subcommand("view", "serve the WebGL2 hard-MIP viewer of a checkpoint on local HTTP until Ctrl-C");
   struct Args {
-    std::string model, cameras;
+    std::string model, volume, cameras;
     ViewerServerOptions server;
     bool no_browser = false;
   };
   auto args = std::make_shared<Args>();
-  cmd->add_option("--model", args->model, "checkpoint (.ply or .hgs)")->required();
+  cmd->add_option("--model", args->model, "checkpoint (.ply or .hgs); re-read when it changes")->required();
+  cmd->add_option("--volume", args->volume, "TIFF stack the model was fitted to: compare with its ray-marched MIP");
   cmd->add_option("--cameras", args->cameras, "cameras.json whose views #view=N shows (default: eval orbit)");
   cmd->add_option("--port", args->server.port, "TCP port; 0 = any free port")->capture_default_str();
   cmd->add_option("--host", args->server.host, "address to bind (not loopback: reachable from the network)")
@@ -52,20 +54,34 @@ void add_view_command(CLI::App& app, GlobalOptions& global) {
   cmd->add_flag("--no-browser", args->no_browser, "do not open a browser");
   cmd->callback([args, &global] {
     const AppConfig& config = global.config();
-    const gmf::Checkpoint checkpoint = gmf::load_checkpoint(args->model);
-    const splat::CameraSet cameras =
+    ViewerSessionOptions options;
+    options.model = args->model;
+    options.cameras =
         args->cameras.empty() ? splat::evaluation_orbit(config.camera) : splat::read_cameras_json(args->cameras);
-    ViewerPageSettings settings;
-    settings.cutoff = config.splat.mahalanobis_cutoff;
-    settings.low_pass = config.splat.low_pass;
-    const std::string page = viewer_html(checkpoint.mixture, cameras, settings);
+    options.page.cutoff = config.splat.mahalanobis_cutoff;
+    options.page.low_pass = config.splat.low_pass;
+    if (!args->volume.empty()) options.volume = args->volume;
+    options.volume_options = config.volume;
+    options.raymarch = config.raymarch;
+    ViewerSession session(options);
+    // A bad model is reported here and on the page; the server still starts, so that
+    // fixing the file and reloading the page is enough.
+    std::string what;
+    try {
+      const gmf::Checkpoint checkpoint = session.model();
+      what = std::to_string(checkpoint.mixture.size()) + " Gaussians";
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "view: error: %s\n", e.what());
+      what = "not readable yet: the page shows the error until the file is fixed";
+    }
     if (!is_loopback_host(args->server.host)) {
       std::fprintf(stderr, "view: warning: --host %s is not loopback: anyone who can reach it sees the model\n",
                    args->server.host.c_str());
     }
-    const int sig = serve_viewer(page, args->server, [&](const std::string& url) {
-      std::printf("view: serving %s (%zu Gaussians, %zu views) at %s ; %s#view=N&ui=0 shows view N; Ctrl-C stops\n",
-                  args->model.c_str(), checkpoint.mixture.size(), cameras.views.size(), url.c_str(), url.c_str());
+    const int sig = serve_viewer(session.routes(), args->server, [&](const std::string& url) {
+      std::printf("view: serving %s (%s, %zu views%s) at %s ; %s#view=N&ui=0 shows view N; Ctrl-C stops\n",
+                  args->model.c_str(), what.c_str(), options.cameras.views.size(),
+                  session.has_volume() ? ", compared with the volume's MIP" : "", url.c_str(), url.c_str());
       std::fflush(stdout);
       if (!args->no_browser && !open_browser(url)) {
         std::printf("view: no %s here; open the URL in a browser\n", kOpener);

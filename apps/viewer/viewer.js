@@ -3,10 +3,16 @@
 // Gaussian as an instanced screen-space quad from the EWA projection of
 // splat/splat_math.hpp (same Σ2D incl. low_pass, same cutoff q <= δ, value a·exp(−q/2))
 // blended with MAX into a float target (a hard MIP, order-free), then maps it for
-// display (window, gamma, colour map). Orbit/zoom with the mouse. Not a soft MIP.
+// display (window, gamma, colour map). Not a soft MIP. Orbit / pan / zoom with mouse
+// and touch, a depth slab, a µm scale bar, PNG screenshots at any size, the camera as
+// cameras.json, and (served by `hisnegs view --volume`) a swipe comparison with the
+// volume's ray-marched MIP from the server, with its PSNR.
 //
 // Contract (tests rely on it): `#view=N&ui=0` shows view N of the embedded cameras with
 // its own intrinsics and size and no UI; document.body.dataset.ready = "1" once drawn.
+// `&slab=T&offset=O` sets the depth slab (centre depths within O ± T/2 of the view's
+// target, in µm, or world units when the checkpoint has no spacing); `&compare=1&swipe=F`
+// turns on the comparison with the volume's MIP (served pages only).
 "use strict";
 (function () {
   const errorBox = document.getElementById("error");
@@ -39,33 +45,54 @@
   const cams = meta.cameras;
 
   // --- camera state ------------------------------------------------------------------
-  // R: rows of world->camera rotation (OpenCV axes), t: p_cam = R p + t.
+  // R: rows of world->camera rotation (OpenCV axes), t: p_cam = R p + t. The camera
+  // orbits, pans and zooms about `target` (world), the point it looks at.
+  const dot = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+  const add = (a, b, s) => [a[0] + s * b[0], a[1] + s * b[1], a[2] + s * b[2]];
+  const norm = (v) => { const l = Math.hypot(v[0], v[1], v[2]); return v.map((x) => x / l); };
+  const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
   let camera = null;
-  function cameraOfView(n) {
-    const v = cams.views[n];
-    return { R: v.R.map((r) => r.slice()), t: v.T.slice() };
-  }
+  let target = [0, 0, 0];
   function center(c) {  // C = −Rᵀ t
     const R = c.R, t = c.t;
     return [0, 1, 2].map((i) => -(R[0][i] * t[0] + R[1][i] * t[1] + R[2][i] * t[2]));
   }
-  // CONVENTIONS "Orbit pose": C = r (cos e cos φ, cos e sin φ, sin e) looking at the origin.
+  function withCenter(R, C) { return { R, t: R.map((row) => -dot(row, C)) }; }
+  function cameraOfView(n) {
+    const v = cams.views[n];
+    const c = { R: v.R.map((r) => r.slice()), t: v.T.slice() };
+    // The target: the point of the optical axis nearest the world origin (the
+    // origin itself for orbit views).
+    const C = center(c);
+    target = add(C, c.R[2], -dot(C, c.R[2]));
+    return c;
+  }
+  // CONVENTIONS "Orbit pose" about `target`: C = target + r (cos e cos φ, cos e sin φ, sin e).
   function orbitCamera(e, phi, r) {
-    const C = [r * Math.cos(e) * Math.cos(phi), r * Math.cos(e) * Math.sin(phi), r * Math.sin(e)];
-    const norm = (v) => { const l = Math.hypot(v[0], v[1], v[2]); return v.map((x) => x / l); };
-    const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
-    const z = norm(C.map((x) => -x));
+    const C = add(target, [Math.cos(e) * Math.cos(phi), Math.cos(e) * Math.sin(phi), Math.sin(e)], r);
+    const z = norm(add(target, C, -1));
     const up = Math.abs(Math.sin(e)) > 0.999 ? [0, 1, 0] : [0, 0, 1];
     const x = norm(cross(z, up));
-    const y = cross(z, x);
-    const R = [x, y, z];
-    const t = R.map((row) => -(row[0] * C[0] + row[1] * C[1] + row[2] * C[2]));
-    return { R, t };
+    return withCenter([x, cross(z, x), z], C);
+  }
+  function spherical() {
+    const d = add(center(camera), target, -1);
+    const r = Math.hypot(d[0], d[1], d[2]);
+    return { e: Math.asin(Math.max(-1, Math.min(1, d[2] / r))), phi: Math.atan2(d[1], d[0]), r };
+  }
+  function targetDepth() { return dot(camera.R[2], target) + camera.t[2]; }
+  // Moves camera and target by (dx, dy) image pixels at the target's depth.
+  function pan(dx, dy) {
+    const s = targetDepth();
+    const shift = add(camera.R[0].map((v) => v * (-dx * s / K0.fx)), camera.R[1], -dy * s / K0.fy);
+    target = add(target, shift, 1);
+    camera = withCenter(camera.R, add(center(camera), shift, 1));
   }
 
   // --- WebGL2 ----------------------------------------------------------------------
   const canvas = document.getElementById("view");
   const W = cams.width, H = cams.height;
+  const K0 = { fx: cams.fx, fy: cams.fy, cx: cams.cx, cy: cams.cy };
   canvas.width = W;
   canvas.height = H;
   canvas.style.width = W + "px";
@@ -137,7 +164,9 @@ void main() {
   const displayFS = `#version 300 es
 precision highp float;
 uniform highp sampler2D mip;
-uniform float lo, hi, gamma;
+uniform highp sampler2D ref;             // the volume's MIP (image rows top-down), when comparing
+uniform float lo, hi, gamma, height;
+uniform float swipeX;                    // pixels right of it show ref; >= width: none
 uniform int cmap;
 out vec4 colour;
 vec3 inferno(float x) {  // polynomial fit of matplotlib's inferno (Matt Zucker, CC0)
@@ -151,10 +180,13 @@ vec3 inferno(float x) {  // polynomial fit of matplotlib's inferno (Matt Zucker,
   return clamp(c0 + x * (c1 + x * (c2 + x * (c3 + x * (c4 + x * (c5 + x * c6))))), 0.0, 1.0);
 }
 void main() {
-  float v = texelFetch(mip, ivec2(gl_FragCoord.xy), 0).r;
+  ivec2 p = ivec2(gl_FragCoord.xy);
+  float v = texelFetch(mip, p, 0).r;
+  if (gl_FragCoord.x > swipeX) v = texelFetch(ref, ivec2(p.x, int(height) - 1 - p.y), 0).r;
   float x = clamp((v - lo) / (hi - lo), 0.0, 1.0);
   if (gamma != 1.0) x = pow(x, gamma);
   vec3 c = cmap == 1 ? inferno(x) : (cmap == 2 ? vec3(0.0, x, 0.0) : vec3(x));
+  if (int(gl_FragCoord.x) == int(swipeX) && swipeX < float(textureSize(mip, 0).x)) c = vec3(1.0, 0.8, 0.0);  // the swipe line
   colour = vec4(c, 1.0);
 }`;
 
@@ -202,29 +234,55 @@ void main() {
   });
   gl.bindVertexArray(null);
 
-  const target = gl.createTexture();
-  gl.bindTexture(gl.TEXTURE_2D, target);
-  gl.texStorage2D(gl.TEXTURE_2D, 1, float32 ? gl.R32F : gl.R16F, W, H);
-  gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.NEAREST);
-  gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, gl.NEAREST);
-  const fbo = gl.createFramebuffer();
-  gl.bindFramebuffer(gl.FRAMEBUFFER, fbo);
-  gl.framebufferTexture2D(gl.FRAMEBUFFER, gl.COLOR_ATTACHMENT0, gl.TEXTURE_2D, target, 0);
-  if (gl.checkFramebufferStatus(gl.FRAMEBUFFER) !== gl.FRAMEBUFFER_COMPLETE) throw new Error("float render target is incomplete");
-  gl.bindFramebuffer(gl.FRAMEBUFFER, null);
+  function texture(format, w, h) {
+    const tex = gl.createTexture();
+    gl.bindTexture(gl.TEXTURE_2D, tex);
+    gl.texStorage2D(gl.TEXTURE_2D, 1, format, w, h);
+    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.NEAREST);
+    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, gl.NEAREST);
+    return tex;
+  }
+  function framebuffer(tex, what) {
+    const fb = gl.createFramebuffer();
+    gl.bindFramebuffer(gl.FRAMEBUFFER, fb);
+    gl.framebufferTexture2D(gl.FRAMEBUFFER, gl.COLOR_ATTACHMENT0, gl.TEXTURE_2D, tex, 0);
+    if (gl.checkFramebufferStatus(gl.FRAMEBUFFER) !== gl.FRAMEBUFFER_COMPLETE) throw new Error(what + " is incomplete");
+    gl.bindFramebuffer(gl.FRAMEBUFFER, null);
+    return fb;
+  }
+  // A hard-MIP float target of w x h (the view's, or a screenshot's).
+  function mipTarget(w, h) {
+    const tex = texture(float32 ? gl.R32F : gl.R16F, w, h);
+    return { tex, fb: framebuffer(tex, "float render target"), w, h };
+  }
+  const main = mipTarget(W, H);
+  // The volume's MIP from the server (R32F, sampled with texelFetch only: no filtering needed).
+  const refTex = texture(gl.R32F, W, H);
 
   const el = (id) => document.getElementById(id);
+  const umPerWorld = meta.um_per_world;  // [x, y, z] or null
+  // µm per world unit along world direction d (exact for the axis-aligned voxel scale).
+  const umAlong = (d) => umPerWorld ? Math.hypot(d[0] * umPerWorld[0], d[1] * umPerWorld[1], d[2] * umPerWorld[2]) : 1;
   function displaySettings() {
     return { lo: parseFloat(el("lo").value), hi: parseFloat(el("hi").value),
              gamma: parseFloat(el("gamma").value), cmap: parseInt(el("cmap").value, 10) };
   }
+  // The depth range drawn: everything, or a slab about the target (µm, or world units without spacing).
+  function clipRange() {
+    const thick = parseFloat(el("slab").value), offset = parseFloat(el("slab-offset").value) || 0;
+    if (!(thick > 0)) return [cams.near, cams.far];
+    const perWorld = umAlong(camera.R[2]);
+    const mid = targetDepth() + offset / perWorld, half = 0.5 * thick / perWorld;
+    return [Math.max(cams.near, mid - half), Math.max(cams.near, mid + half)];
+  }
 
-  function draw() {
-    const t0 = performance.now();
-    const c = camera;
-    // Pass 1: hard MIP of the splats into the float target.
-    gl.bindFramebuffer(gl.FRAMEBUFFER, fbo);
-    gl.viewport(0, 0, W, H);
+  // Pass 1: the hard MIP of the splats into `t` with intrinsics K; pass 2: window, gamma
+  // and colour map into `outFb` (null: the canvas), comparing with the volume's MIP
+  // right of `swipeX` pixels.
+  function render(t, K, outFb, swipeX) {
+    const c = camera, clip = clipRange();
+    gl.bindFramebuffer(gl.FRAMEBUFFER, t.fb);
+    gl.viewport(0, 0, t.w, t.h);
     gl.clearColor(0, 0, 0, 0);
     gl.clear(gl.COLOR_BUFFER_BIT);
     gl.enable(gl.BLEND);
@@ -236,33 +294,153 @@ void main() {
     gl.uniform3fv(u.r1, c.R[1]);
     gl.uniform3fv(u.r2, c.R[2]);
     gl.uniform3fv(u.t, c.t);
-    gl.uniform4f(u.K, cams.fx, cams.fy, cams.cx, cams.cy);
-    gl.uniform2f(u.clipZ, cams.near, cams.far);
-    gl.uniform2f(u.size, W, H);
+    gl.uniform4f(u.K, K.fx, K.fy, K.cx, K.cy);
+    gl.uniform2f(u.clipZ, clip[0], clip[1]);
+    gl.uniform2f(u.size, t.w, t.h);
     gl.uniform1f(u.cutoff, meta.cutoff);
     gl.uniform1f(u.lowPass, meta.low_pass);
-    gl.uniform1f(u.height, H);
+    gl.uniform1f(u.height, t.h);
     gl.bindVertexArray(vao);
     gl.drawArraysInstanced(gl.TRIANGLE_STRIP, 0, 4, meta.count);
     gl.bindVertexArray(null);
     gl.disable(gl.BLEND);
-    // Pass 2: window / gamma / colour map to the canvas.
-    gl.bindFramebuffer(gl.FRAMEBUFFER, null);
-    gl.viewport(0, 0, W, H);
+    gl.bindFramebuffer(gl.FRAMEBUFFER, outFb);
+    gl.viewport(0, 0, t.w, t.h);
     gl.useProgram(display.p);
     const s = displaySettings();
     gl.activeTexture(gl.TEXTURE0);
-    gl.bindTexture(gl.TEXTURE_2D, target);
+    gl.bindTexture(gl.TEXTURE_2D, t.tex);
     gl.uniform1i(display.u.mip, 0);
+    gl.activeTexture(gl.TEXTURE1);
+    gl.bindTexture(gl.TEXTURE_2D, refTex);
+    gl.uniform1i(display.u.ref, 1);
     gl.uniform1f(display.u.lo, s.lo);
     gl.uniform1f(display.u.hi, s.hi > s.lo ? s.hi : s.lo + 1e-6);
     gl.uniform1f(display.u.gamma, s.gamma > 0 ? s.gamma : 1);
+    gl.uniform1f(display.u.height, t.h);
+    gl.uniform1f(display.u.swipeX, swipeX);
     gl.uniform1i(display.u.cmap, s.cmap);
     gl.drawArrays(gl.TRIANGLES, 0, 3);
+    gl.bindFramebuffer(gl.FRAMEBUFFER, null);
+  }
+
+  // --- comparison with the volume (hisnegs view --volume) ------------------------------
+  let refFor = null;  // the camera key whose volume MIP refTex holds
+  let refRequest = 0, refTimer = 0;
+  const cameraKey = (c) => "R=" + c.R.flat().join(",") + "&T=" + c.t.join(",");
+  const comparing = () => meta.truth && el("compare").checked;
+  function requestTruth() {
+    clearTimeout(refTimer);
+    if (!comparing()) return;
+    const key = cameraKey(camera);
+    if (key === refFor) return;
+    el("psnr").textContent = "rendering the volume's MIP on the server…";
+    refTimer = setTimeout(async () => {
+      const id = ++refRequest;
+      try {
+        const res = await fetch("truth?" + key);
+        if (!res.ok) throw new Error("/truth: " + res.status + " " + (await res.text()).trim());
+        const data = new Float32Array(await res.arrayBuffer());
+        if (id !== refRequest) return;  // the camera moved on meanwhile
+        if (data.length !== W * H) throw new Error("/truth sent " + data.length + " values, expected " + W * H);
+        gl.bindTexture(gl.TEXTURE_2D, refTex);
+        gl.texSubImage2D(gl.TEXTURE_2D, 0, 0, 0, W, H, gl.RED, gl.FLOAT, data);
+        refFor = key;
+        const psnr = parseFloat(res.headers.get("X-Hisnegs-Psnr"));
+        el("psnr").textContent = "model (CPU hard MIP) vs volume MIP: " + psnr.toFixed(2) + " dB";
+        draw();
+      } catch (err) {
+        report(err.message);
+      }
+    }, 150);
+  }
+
+  // --- drawing, scale bar, stats -------------------------------------------------------------
+  // How many canvas pixels one image pixel takes on screen (object-fit: contain).
+  function screenScale() {
+    const r = canvas.getBoundingClientRect();
+    return r.width > 0 ? Math.min(r.width / W, r.height / H) : 1;
+  }
+  function niceLength(x) {  // the largest 1, 2, 5 × 10^n not above x
+    const p = Math.pow(10, Math.floor(Math.log10(x)));
+    return [5, 2, 1].map((m) => m * p).find((v) => v <= x) || p;
+  }
+  function updateScaleBar() {
+    const bar = el("scalebar");
+    const depth = targetDepth();
+    if (!umPerWorld || !(depth > 0)) { bar.hidden = true; return; }
+    const pxPerUm = (K0.fx / depth) / umAlong(camera.R[0]) * screenScale();  // screen px per µm at the target
+    const um = niceLength(150 / pxPerUm);
+    bar.hidden = false;
+    el("scalebar-bar").style.width = (um * pxPerUm).toFixed(1) + "px";
+    el("scalebar-label").textContent = (um >= 1000 ? um / 1000 + " mm" : um + " µm");
+  }
+  function draw() {
+    const t0 = performance.now();
+    const showRef = comparing() && refFor === cameraKey(camera);
+    render(main, K0, null, showRef ? parseFloat(el("swipe").value) * W : W + 1);
     gl.finish();
     const ms = performance.now() - t0;
     el("stats").textContent = meta.count + " Gaussians, " + W + "×" + H + ", " + ms.toFixed(1) + " ms/frame (" +
-                              (float32 ? "32" : "16") + "-bit float target)";
+                              (float32 ? "32" : "16") + "-bit float target)" +
+                              (umPerWorld ? "" : "; no spacing in the checkpoint: no scale bar, slab in world units");
+    updateScaleBar();
+    el("camera-json").value = cameraJson();
+    requestTruth();
+  }
+
+  // --- screenshot and camera ---------------------------------------------------------------
+  // The current view at w x h: the intrinsics scaled with the image (same field of view).
+  function screenshot(w, h) {
+    const max = Math.min(gl.getParameter(gl.MAX_TEXTURE_SIZE), gl.getParameter(gl.MAX_RENDERBUFFER_SIZE));
+    if (!(w >= 1 && h >= 1 && w <= max && h <= max)) throw new Error("screenshot size " + w + "×" + h + ": each side must be in 1.." + max);
+    const K = { fx: K0.fx * w / W, fy: K0.fy * h / H, cx: K0.cx * w / W, cy: K0.cy * h / H };
+    const t = mipTarget(w, h);
+    const rgbaTex = texture(gl.RGBA8, w, h);
+    const rgbaFb = framebuffer(rgbaTex, "screenshot target");
+    try {
+      render(t, K, rgbaFb, w + 1);
+      const pixels = new Uint8ClampedArray(w * h * 4);
+      gl.bindFramebuffer(gl.FRAMEBUFFER, rgbaFb);
+      gl.readPixels(0, 0, w, h, gl.RGBA, gl.UNSIGNED_BYTE, pixels);
+      gl.bindFramebuffer(gl.FRAMEBUFFER, null);
+      const flipped = new Uint8ClampedArray(w * h * 4);  // GL rows are bottom-up
+      for (let y = 0; y < h; ++y) flipped.set(pixels.subarray((h - 1 - y) * w * 4, (h - y) * w * 4), y * w * 4);
+      const c2 = document.createElement("canvas");
+      c2.width = w;
+      c2.height = h;
+      c2.getContext("2d").putImageData(new ImageData(flipped, w, h), 0, 0);
+      return c2;
+    } finally {
+      [t.tex, rgbaTex].forEach((x) => gl.deleteTexture(x));
+      [t.fb, rgbaFb].forEach((x) => gl.deleteFramebuffer(x));
+    }
+  }
+  function saveScreenshot() {
+    const w = parseInt(el("shot-w").value, 10), h = parseInt(el("shot-h").value, 10);
+    screenshot(w, h).toBlob((blob) => {
+      const a = document.createElement("a");
+      a.href = URL.createObjectURL(blob);
+      a.download = "hisnegs_view_" + w + "x" + h + ".png";
+      a.click();
+      setTimeout(() => URL.revokeObjectURL(a.href), 1000);
+    }, "image/png");
+  }
+  // The current camera as a cameras.json (CONVENTIONS) of one view.
+  function cameraJson() {
+    const out = { width: W, height: H, fx: K0.fx, fy: K0.fy, cx: K0.cx, cy: K0.cy, near: cams.near, far: cams.far,
+                  views: [{ name: "viewer", R: camera.R.map((r) => r.slice()), T: camera.t.slice() }] };
+    return JSON.stringify(out, null, 1);
+  }
+  function copyCamera() {
+    const text = el("camera-json");
+    text.value = cameraJson();
+    text.select();
+    if (navigator.clipboard && window.isSecureContext) {
+      navigator.clipboard.writeText(text.value).catch(() => document.execCommand("copy"));
+    } else {
+      document.execCommand("copy");
+    }
   }
 
   // --- views, hash, UI ---------------------------------------------------------------
@@ -277,34 +455,79 @@ void main() {
     const params = new URLSearchParams(location.hash.replace(/^#/, ""));
     const view = params.has("view") ? parseInt(params.get("view"), 10) : 0;
     if (!(view >= 0 && view < cams.views.length)) throw new Error("#view=" + params.get("view") + ": expected 0.." + (cams.views.length - 1));
-    return { view, ui: params.get("ui") !== "0" };
+    return { view, ui: params.get("ui") !== "0", params };
   }
   function applyHash() {
     const h = parseHash();
+    // #slab=T&offset=O: the depth slab of the UI (µm; world units without spacing).
+    [["slab", "slab"], ["offset", "slab-offset"]].forEach(([key, id]) => {
+      if (!h.params.has(key)) return;
+      const v = parseFloat(h.params.get(key));
+      if (!isFinite(v)) throw new Error("#" + key + "=" + h.params.get(key) + ": expected a number");
+      el(id).value = String(v);
+    });
+    // #compare=1&swipe=F: the comparison with the volume's MIP (hisnegs view --volume).
+    if (h.params.has("compare")) el("compare").checked = h.params.get("compare") === "1";
+    if (h.params.has("swipe")) el("swipe").value = h.params.get("swipe");
     document.body.classList.toggle("noui", !h.ui);
     select.value = String(h.view);
     camera = cameraOfView(h.view);
     draw();
   }
+  el("shot-w").value = String(W);
+  el("shot-h").value = String(H);
+  el("slab-unit").textContent = umPerWorld ? "µm" : "world units";
+  el("compare-box").hidden = !meta.truth;
   window.addEventListener("hashchange", applyHash);
+  window.addEventListener("resize", updateScaleBar);
   select.addEventListener("change", () => { camera = cameraOfView(parseInt(select.value, 10)); draw(); });
   el("reset").addEventListener("click", () => { camera = cameraOfView(parseInt(select.value, 10)); draw(); });
-  ["lo", "hi", "gamma", "cmap"].forEach((id) => el(id).addEventListener("input", draw));
+  ["lo", "hi", "gamma", "cmap", "slab", "slab-offset", "compare", "swipe"].forEach((id) => el(id).addEventListener("input", draw));
+  el("shot").addEventListener("click", () => { try { saveScreenshot(); } catch (err) { report(err.message); } });
+  el("camera-copy").addEventListener("click", copyCamera);
 
-  // Orbit about the origin from the current camera centre; wheel scales the radius.
-  function spherical() {
-    const C = center(camera);
-    const r = Math.hypot(C[0], C[1], C[2]);
-    return { e: Math.asin(Math.max(-1, Math.min(1, C[2] / r))), phi: Math.atan2(C[1], C[0]), r };
+  // Mouse and touch: one pointer orbits about the target (shift, right or middle button:
+  // pans); two pointers pinch-zoom and pan with their midpoint; the wheel zooms.
+  const pointers = new Map();
+  let gesture = null;
+  function startGesture(ev) {
+    const pts = [...pointers.values()];
+    const mid = pts.reduce((m, p) => [m[0] + p.x / pts.length, m[1] + p.y / pts.length], [0, 0]);
+    const spread = pts.length > 1 ? Math.hypot(pts[0].x - pts[1].x, pts[0].y - pts[1].y) : 0;
+    gesture = { n: pts.length, mid, spread, s: spherical(),
+                pan: pts.length === 1 && (ev.shiftKey || ev.button === 1 || ev.button === 2) };
   }
-  let drag = null;
-  canvas.addEventListener("pointerdown", (ev) => { drag = { x: ev.clientX, y: ev.clientY, s: spherical() }; canvas.setPointerCapture(ev.pointerId); });
-  canvas.addEventListener("pointerup", () => { drag = null; });
+  canvas.addEventListener("contextmenu", (ev) => ev.preventDefault());
+  canvas.addEventListener("pointerdown", (ev) => {
+    pointers.set(ev.pointerId, { x: ev.clientX, y: ev.clientY });
+    canvas.setPointerCapture(ev.pointerId);
+    startGesture(ev);
+  });
+  const lift = (ev) => { pointers.delete(ev.pointerId); if (pointers.size > 0) startGesture(ev); else gesture = null; };
+  canvas.addEventListener("pointerup", lift);
+  canvas.addEventListener("pointercancel", lift);
   canvas.addEventListener("pointermove", (ev) => {
-    if (!drag) return;
-    const k = Math.PI / 360;  // 0.5° per pixel
-    const e = Math.max(-1.55, Math.min(1.55, drag.s.e + (ev.clientY - drag.y) * k));
-    camera = orbitCamera(e, drag.s.phi - (ev.clientX - drag.x) * k, drag.s.r);
+    if (!gesture || !pointers.has(ev.pointerId)) return;
+    pointers.set(ev.pointerId, { x: ev.clientX, y: ev.clientY });
+    const pts = [...pointers.values()];
+    const mid = pts.reduce((m, p) => [m[0] + p.x / pts.length, m[1] + p.y / pts.length], [0, 0]);
+    const scale = screenScale();
+    const dx = (mid[0] - gesture.mid[0]) / scale, dy = (mid[1] - gesture.mid[1]) / scale;  // image pixels
+    if (gesture.n >= 2 && pts.length >= 2) {
+      const spread = Math.hypot(pts[0].x - pts[1].x, pts[0].y - pts[1].y);
+      camera = orbitCamera(gesture.s.e, gesture.s.phi, gesture.s.r * gesture.spread / Math.max(spread, 1));
+      pan(dx, dy);
+      gesture.mid = mid;
+      gesture.spread = spread;
+      gesture.s = spherical();
+    } else if (gesture.pan) {
+      pan(dx, dy);
+      gesture.mid = mid;
+    } else {
+      const k = Math.PI / 360;  // 0.5° per screen pixel
+      const e = Math.max(-1.55, Math.min(1.55, gesture.s.e + (mid[1] - gesture.mid[1]) * k));
+      camera = orbitCamera(e, gesture.s.phi - (mid[0] - gesture.mid[0]) * k, gesture.s.r);
+    }
     draw();
   });
   canvas.addEventListener("wheel", (ev) => {
@@ -313,6 +536,12 @@ void main() {
     camera = orbitCamera(s.e, s.phi, s.r * Math.exp(ev.deltaY * 0.001));
     draw();
   }, { passive: false });
+
+  // For scripts and tests: the current camera, a screenshot of any size as a data URL.
+  window.hisnegsViewer = {
+    camera: () => JSON.parse(cameraJson()),
+    screenshot: (w, h) => screenshot(w, h).toDataURL("image/png"),
+  };
 
   applyHash();
   // #bench=N: N more frames of the same view, timed to a readPixels that waits for each (real time only when

@@ -80,6 +80,12 @@ std::string viewer_html(const gmf::GaussianMixture& mixture, const splat::Camera
   meta["floats_per_gaussian"] = kViewerFloatsPerGaussian;
   meta["cutoff"] = settings.cutoff;
   meta["low_pass"] = settings.low_pass;
+  if (settings.um_per_world) {
+    meta["um_per_world"] = *settings.um_per_world;
+  } else {
+    meta["um_per_world"] = nullptr;
+  }
+  meta["truth"] = settings.truth;
   meta["cameras"] = nlohmann::ordered_json::parse(splat::cameras_json_text(cameras));
 
   std::string data;

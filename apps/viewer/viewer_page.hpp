@@ -4,7 +4,9 @@
 // (`hisnegs export html`). The projection itself lives in viewer.js; not a server.
 #pragma once
 
+#include <array>
 #include <cstddef>
+#include <optional>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -23,6 +25,9 @@ inline constexpr int kViewerFloatsPerGaussian = 10;
 struct ViewerPageSettings {
   double cutoff = 16.0;   // δ: a Gaussian touches the pixels with q <= δ, > 0
   double low_pass = 0.0;  // pixels², added to Σ2D's diagonal, >= 0
+  // µm per world unit along x, y, z (the scale bar); none: no scale bar.
+  std::optional<std::array<double, 3>> um_per_world;
+  bool truth = false;  // the page may ask its server for /truth (hisnegs view --volume)
 };
 
 // The page template (with its <!--HISNEGS_DATA--> marker) and script, as embedded.
