@@ -36,4 +36,9 @@ function(hisnegs_target_defaults target)
   # SKIP_UNITY_BUILD_INCLUSION (Highway's per-target re-inclusion). Two files'
   # anonymous-namespace helpers of the same name clash in a batch: rename one.
   set_target_properties(${target} PROPERTIES UNITY_BUILD ${HISNEGS_UNITY_BUILD} UNITY_BUILD_BATCH_SIZE 6)
+  if(HISNEGS_UNITY_BUILD AND CMAKE_CXX_COMPILER_ID STREQUAL "GNU")
+    # In a batch GCC sees the .cpp files as included headers and warns about their
+    # classes holding anonymous-namespace types, which is fine in a .cpp file.
+    target_compile_options(${target} PRIVATE $<$<COMPILE_LANGUAGE:CXX>:-Wno-subobject-linkage>)
+  endif()
 endfunction()
