@@ -201,6 +201,7 @@ void run_export_compact(const CompactArgs& args, GlobalOptions& global) {
 
 struct HtmlArgs {
   std::string model, cameras, out;
+  bool float32 = false;
 };
 
 // Without --cameras the page gets the evaluation orbit of the `camera` config section,
@@ -214,16 +215,19 @@ void run_export_html(const HtmlArgs& args, GlobalOptions& global) {
   ViewerPageSettings settings;
   settings.cutoff = config.splat.mahalanobis_cutoff;
   settings.low_pass = config.splat.low_pass;
+  settings.um_per_world = um_per_world(checkpoint.meta);
+  settings.model_block = args.float32 ? ViewerModelBlock::kFloat32 : ViewerModelBlock::kCompact;
   const std::string html = viewer_html(checkpoint.mixture, cameras, settings);
   io::write_file_atomic(args.out, html.data(), html.size());
   if (global.quiet) return;
   const auto model_bytes = static_cast<double>(std::filesystem::file_size(args.model));
   const double k = static_cast<double>(checkpoint.mixture.size());
   std::printf(
-      "export html: wrote %s: %s (%zu Gaussians, %.1f B/Gaussian; %s is %s), %zu views of %dx%d from %s; "
+      "export html: wrote %s: %s (%zu Gaussians, %.1f B/Gaussian as %s; %s is %s), %zu views of %dx%d from %s; "
       "hard MIP, cutoff %g, low-pass %g px^2; open it with #view=N&ui=0 for view N; %s\n",
       args.out.c_str(), format_bytes(static_cast<double>(html.size())).c_str(), checkpoint.mixture.size(),
-      k > 0 ? static_cast<double>(html.size()) / k : 0.0, args.model.c_str(), format_bytes(model_bytes).c_str(),
+      k > 0 ? static_cast<double>(html.size()) / k : 0.0, args.float32 ? "float32" : "compact .hgs", args.model.c_str(),
+      format_bytes(model_bytes).c_str(),
       cameras.views.size(), cameras.intrinsics.width, cameras.intrinsics.height,
       args.cameras.empty() ? "the evaluation orbit" : args.cameras.c_str(), settings.cutoff, settings.low_pass,
       format_seconds(watch.elapsed()).c_str());
@@ -323,6 +327,8 @@ void add_export_command(CLI::App& app, GlobalOptions& global) {
   html->add_option("--model", html_args->model, "checkpoint (.ply or .hgs)")->required();
   html->add_option("--cameras", html_args->cameras, "cameras.json whose views #view=N shows (default: eval orbit)");
   html->add_option("-o,--output", html_args->out, "output .html")->required();
+  html->add_flag("--float32", html_args->float32,
+                 "embed exact float32 parameters instead of the compact .hgs encoding (about 3x larger)");
   html->callback([html_args, &global] { run_export_html(*html_args, global); });
 }
 

@@ -24,15 +24,99 @@
   window.addEventListener("error", (e) => report(e.message || String(e)));
 
   // --- data ------------------------------------------------------------------------
-  // hisnegs-meta: {"count", "floats_per_gaussian": 10, "cutoff", "low_pass", "cameras": cameras.json}
-  // hisnegs-model: base64 of count × 10 little-endian float32: mean x y z, Σ xx xy xz yy yz zz, amplitude.
+  // hisnegs-meta: {"count", "model_format": "hgs" | "float32", "floats_per_gaussian": 10,
+  //   "cutoff", "low_pass", "um_per_world", "truth", "cameras": cameras.json}
+  // hisnegs-model: base64 of the compact .hgs file (docs/file-formats.md), or of
+  //   count × 10 little-endian float32. Either becomes `packed`: per Gaussian mean x y z,
+  //   Σ xx xy xz yy yz zz (world units²), amplitude a = sigmoid(logit).
   const meta = JSON.parse(document.getElementById("hisnegs-meta").textContent);
-  const packed = (function () {
-    const text = document.getElementById("hisnegs-model").textContent.trim();
+  const stride = meta.floats_per_gaussian;
+  function base64Bytes(text) {
     const bin = atob(text);
     const bytes = new Uint8Array(bin.length);
     for (let i = 0; i < bin.length; ++i) bytes[i] = bin.charCodeAt(i);
-    const stride = meta.floats_per_gaussian;
+    return bytes;
+  }
+  // Σ = (R diag(s)) (R diag(s))ᵀ of the unit quaternion q = (w, x, y, z) and
+  // standard deviations s, as gmf/gaussian_math.hpp covariance_from_axes.
+  function packGaussian(out, k, mean, s, q, a) {
+    const [w, x, y, z] = q;
+    const R = [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+               2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+               2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)];
+    const M = R.map((v, i) => v * s[i % 3]);
+    const cov = (r, c) => M[3 * r] * M[3 * c] + M[3 * r + 1] * M[3 * c + 1] + M[3 * r + 2] * M[3 * c + 2];
+    out.set([mean[0], mean[1], mean[2], cov(0, 0), cov(0, 1), cov(0, 2), cov(1, 1), cov(1, 2), cov(2, 2), a], k * stride);
+  }
+  // The compact checkpoint's decoder (gmf/compact_checkpoint.cpp decode_compact_checkpoint).
+  function decodeHgs(bytes) {
+    const fail = (what) => { throw new Error("model block: " + what); };
+    const dv = new DataView(bytes.buffer, bytes.byteOffset, bytes.byteLength);
+    [0x89, 0x48, 0x47, 0x53, 0x0d, 0x0a, 0x1a, 0x0a].forEach((b, i) => { if (bytes[i] !== b) fail("not a compact checkpoint"); });
+    if (dv.getUint32(8, true) !== 1) fail("compact format version " + dv.getUint32(8, true) + ", this page reads 1");
+    const K = Number(dv.getBigUint64(12, true));
+    const [P, S, Rb, A] = [bytes[20], bytes[21], bytes[22], bytes[23]];
+    const f32 = (at) => dv.getFloat32(at, true);
+    const lo = [0, 1, 2].map((d) => f32(24 + 4 * d)), hi = [0, 1, 2].map((d) => f32(36 + 4 * d));
+    const slo = [0, 1, 2].map((d) => f32(48 + 4 * d)), shi = [0, 1, 2].map((d) => f32(60 + 4 * d));
+    const zAt = 80 + Number(dv.getBigUint64(72, true));
+    const Z = Number(dv.getBigUint64(zAt, true));
+    if (zAt + 8 + Z !== bytes.length) fail("payload size " + Z + " is not the rest of the block");
+    const raw = fzstd.decompress(bytes.subarray(zAt + 8));
+    const planes = (bits) => Math.ceil(bits / 8);
+    const pp = planes(3 * P), sp = planes(S), rp = planes(2 + 3 * Rb), ip = planes(A);
+    if (raw.length !== K * (pp + 3 * sp + rp + ip)) fail("payload holds " + raw.length + " bytes, not " + K + " Gaussians");
+    // Column c's value k: its byte planes, least significant first (a Number: ≤ 48 bits here).
+    const column = [0, pp, pp + sp, pp + 2 * sp, pp + 3 * sp, pp + 3 * sp + rp].map((p) => p * K);
+    const get = (col, np, k) => { let v = 0; for (let b = np - 1; b >= 0; --b) v = v * 256 + raw[col + b * K + k]; return v; };
+    const deq = (c, l, h, m) => (h > l ? l + (h - l) * (c / m) : l);
+    // Coordinate d: bits d, d + 3, d + 6, ... of the Morton code. The page's blocks use
+    // the default 16 position bits (hisnegs_viewer writes them), so a code has at most
+    // 48 bits: an exact Number, split into 24-bit halves for bit operations.
+    if (3 * P > 48) fail(P + " position bits: the page reads up to 16");
+    const unmorton = (lo24, hi24, d) => {
+      let out = 0;
+      for (let b = 0; b < P; ++b) {
+        const i = 3 * b + d;
+        out += (i < 24 ? (lo24 >>> i) & 1 : (hi24 >>> (i - 24)) & 1) * 2 ** b;
+      }
+      return out;
+    };
+    const mP = 2 ** P - 1, mS = 2 ** S - 1, mR = 2 ** Rb - 1, mA = 2 ** A - 1;
+    const out = new Float32Array(K * stride);
+    let code = 0;
+    const h = Math.SQRT1_2;
+    const mean = [0, 0, 0];
+    for (let k = 0; k < K; ++k) {
+      code += get(column[0], pp, k);
+      const lo24 = code % 16777216, hi24 = Math.floor(code / 16777216);
+      for (let d = 0; d < 3; ++d) mean[d] = deq(unmorton(lo24, hi24, d), lo[d], hi[d], mP);
+      const s = [0, 1, 2].map((d) => Math.exp(deq(get(column[1 + d], sp, k), slo[d], shi[d], mS)));
+      const word = get(column[4], rp, k);
+      const largest = Math.floor(word / 2 ** (3 * Rb));
+      const q = [0, 0, 0, 0];
+      let small2 = 0;
+      for (let j = 3, shift = 0; j >= 0; --j) {
+        if (j === largest) continue;
+        q[j] = deq(Math.floor(word / 2 ** shift) % (mR + 1), -h, h, mR);
+        small2 += q[j] * q[j];
+        shift += Rb;
+      }
+      q[largest] = Math.sqrt(Math.max(0, 1 - small2));
+      const n = Math.hypot(q[0], q[1], q[2], q[3]);
+      const a = Math.min(Math.max(get(column[5], ip, k) / mA, 1e-7), 1 - 1e-7);
+      packGaussian(out, k, mean, s, q.map((v) => v / n), a);
+    }
+    return out;
+  }
+  const decodeStart = performance.now();
+  const packed = (function () {
+    const bytes = base64Bytes(document.getElementById("hisnegs-model").textContent.trim());
+    if (meta.model_format === "hgs") {
+      const out = decodeHgs(bytes);
+      if (out.length !== meta.count * stride) throw new Error("model block holds " + out.length / stride + " Gaussians, expected " + meta.count);
+      return out;
+    }
     if (bytes.length !== meta.count * stride * 4) {
       throw new Error("model holds " + bytes.length + " bytes, expected " + meta.count * stride * 4);
     }
@@ -42,6 +126,7 @@
     for (let i = 0; i < out.length; ++i) out[i] = view.getFloat32(4 * i, true);
     return out;
   })();
+  const decodeMs = performance.now() - decodeStart;
   const cams = meta.cameras;
 
   // --- camera state ------------------------------------------------------------------
@@ -226,10 +311,10 @@ void main() {
   const instBuf = gl.createBuffer();
   gl.bindBuffer(gl.ARRAY_BUFFER, instBuf);
   gl.bufferData(gl.ARRAY_BUFFER, packed, gl.STATIC_DRAW);
-  const stride = 4 * meta.floats_per_gaussian;
+  const strideBytes = 4 * stride;
   [[1, 3, 0], [2, 3, 12], [3, 3, 24], [4, 1, 36]].forEach(([loc, n, offset]) => {
     gl.enableVertexAttribArray(loc);
-    gl.vertexAttribPointer(loc, n, gl.FLOAT, false, stride, offset);
+    gl.vertexAttribPointer(loc, n, gl.FLOAT, false, strideBytes, offset);
     gl.vertexAttribDivisor(loc, 1);
   });
   gl.bindVertexArray(null);
@@ -559,5 +644,6 @@ void main() {
   }
   document.body.dataset.ready = "1";
   // The same signal for tools that read the console rather than the DOM.
-  console.log("hisnegs-viewer ready: view " + select.value + " drawn");
+  console.log("hisnegs-viewer ready: view " + select.value + " drawn; " + meta.model_format + " model of " + meta.count +
+              " Gaussians decoded in " + decodeMs.toFixed(1) + " ms");
 })();

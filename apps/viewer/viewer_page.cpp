@@ -9,6 +9,7 @@
 #include <stdexcept>
 
 #include "apps/viewer/viewer_assets.hpp"
+#include "gmf/compact_checkpoint.hpp"
 
 namespace hisnegs::apps {
 namespace {
@@ -28,6 +29,19 @@ std::string_view viewer_page_template() {
 }
 
 std::string_view viewer_script() { return {reinterpret_cast<const char*>(detail::kViewerJs), detail::kViewerJsSize}; }
+
+std::string_view viewer_zstd_script() {
+  return {reinterpret_cast<const char*>(detail::kViewerZstdJs), detail::kViewerZstdJsSize};
+}
+
+std::optional<std::array<double, 3>> um_per_world(const gmf::CheckpointMeta& meta) {
+  if (!meta.volume_shape_zyx || !meta.spacing_um || !meta.aspect) return std::nullopt;
+  const auto& zyx = *meta.volume_shape_zyx;
+  const std::array<int, 3> n{zyx[2], zyx[1], zyx[0]};
+  std::array<double, 3> out{};
+  for (int a = 0; a < 3; ++a) out[a] = (*meta.spacing_um)[a] * n[a] / (2.0 * (*meta.aspect)[a]);
+  return out;
+}
 
 std::vector<float> pack_viewer_model(const gmf::GaussianMixture& mixture) {
   std::vector<float> out;
@@ -72,11 +86,19 @@ std::string viewer_html(const gmf::GaussianMixture& mixture, const splat::Camera
     throw std::invalid_argument("viewer: low_pass must be a finite number >= 0");
   }
   if (cameras.views.empty()) throw std::invalid_argument("viewer: the camera set has no views");
-  static_assert(std::endian::native == std::endian::little, "the page's model block is little-endian float32");
-  const std::vector<float> packed = pack_viewer_model(mixture);
+  static_assert(std::endian::native == std::endian::little, "the page's model block is little-endian");
+  const bool compact = settings.model_block == ViewerModelBlock::kCompact;
+  std::string block;
+  if (compact) {
+    block = gmf::encode_compact_checkpoint(mixture, gmf::CheckpointMeta{});
+  } else {
+    const std::vector<float> packed = pack_viewer_model(mixture);
+    block.assign(reinterpret_cast<const char*>(packed.data()), packed.size() * sizeof(float));
+  }
 
   nlohmann::ordered_json meta;
   meta["count"] = mixture.size();
+  meta["model_format"] = compact ? "hgs" : "float32";
   meta["floats_per_gaussian"] = kViewerFloatsPerGaussian;
   meta["cutoff"] = settings.cutoff;
   meta["low_pass"] = settings.low_pass;
@@ -92,8 +114,10 @@ std::string viewer_html(const gmf::GaussianMixture& mixture, const splat::Camera
   data += "<script id=\"hisnegs-meta\" type=\"application/json\">";
   data += script_safe(meta.dump());
   data += "</script>\n<script id=\"hisnegs-model\" type=\"application/octet-stream\">";
-  data += base64_encode(packed.data(), packed.size() * sizeof(float));
+  data += base64_encode(block.data(), block.size());
   data += "</script>\n<script>\n";
+  data += viewer_zstd_script();
+  data += "\n;\n";
   data += viewer_script();
   data += "</script>";
 

@@ -11,6 +11,7 @@
 #include <string_view>
 #include <vector>
 
+#include "gmf/checkpoint.hpp"
 #include "gmf/gaussian_mixture.hpp"
 #include "splat/camera.hpp"
 
@@ -20,6 +21,12 @@ namespace hisnegs::apps {
 // (world units²), amplitude a = sigmoid(logit).
 inline constexpr int kViewerFloatsPerGaussian = 10;
 
+// How the page holds the model: the compact .hgs file (gmf/compact_checkpoint.hpp,
+// default bit depths; decoded by the page with the vendored fzstd; within the
+// format's bounds, ~0.005 dB from float32 on op1) or exact float32 parameters
+// (kViewerFloatsPerGaussian per Gaussian, about three times larger).
+enum class ViewerModelBlock { kCompact, kFloat32 };
+
 // What the page renders with besides the model and cameras (the CPU renderer's
 // SplatOptions of the same names, so the page draws what `render --mode hard` does).
 struct ViewerPageSettings {
@@ -28,11 +35,17 @@ struct ViewerPageSettings {
   // µm per world unit along x, y, z (the scale bar); none: no scale bar.
   std::optional<std::array<double, 3>> um_per_world;
   bool truth = false;  // the page may ask its server for /truth (hisnegs view --volume)
+  ViewerModelBlock model_block = ViewerModelBlock::kCompact;
 };
+
+// µm per world unit along x, y, z from the checkpoint's volume shape, spacing and
+// aspect (CONVENTIONS: a voxel is 2 a / N world units); empty when any is missing.
+[[nodiscard]] std::optional<std::array<double, 3>> um_per_world(const gmf::CheckpointMeta& meta);
 
 // The page template (with its <!--HISNEGS_DATA--> marker) and script, as embedded.
 [[nodiscard]] std::string_view viewer_page_template();
 [[nodiscard]] std::string_view viewer_script();
+[[nodiscard]] std::string_view viewer_zstd_script();  // vendor/fzstd-*.umd.js
 
 // The model block of the page: size() = kViewerFloatsPerGaussian × mixture.size()
 // (Σ computed in double from log-scales and the normalized quaternion, then rounded).
@@ -41,8 +54,10 @@ struct ViewerPageSettings {
 // RFC 4648 base64 of `bytes` (with padding).
 [[nodiscard]] std::string base64_encode(const void* bytes, std::size_t size);
 
-// The self-contained page: template + meta JSON (count, cutoff, low_pass, cameras as
-// cameras.json) + base64 of the little-endian float32 model block + the script.
+// The self-contained page: template + meta JSON (count, model_format "hgs" or
+// "float32", cutoff, low_pass, um_per_world, truth, cameras as cameras.json) + base64
+// of the model block (the .hgs file, or little-endian float32) + the scripts (fzstd,
+// viewer.js).
 // Opens from file:// with no server. Throws std::invalid_argument for settings out of
 // range or a camera set with no views.
 [[nodiscard]] std::string viewer_html(const gmf::GaussianMixture& mixture, const splat::CameraSet& cameras,

@@ -84,15 +84,6 @@ splat::CameraView camera_from_query(const ViewerQuery& query) {
   return view;
 }
 
-std::optional<std::array<double, 3>> um_per_world(const gmf::CheckpointMeta& meta) {
-  if (!meta.volume_shape_zyx || !meta.spacing_um || !meta.aspect) return std::nullopt;
-  const auto& zyx = *meta.volume_shape_zyx;
-  const std::array<int, 3> n{zyx[2], zyx[1], zyx[0]};
-  std::array<double, 3> out{};
-  for (int a = 0; a < 3; ++a) out[a] = (*meta.spacing_um)[a] * n[a] / (2.0 * (*meta.aspect)[a]);
-  return out;
-}
-
 ViewerSession::ViewerSession(ViewerSessionOptions options) : options_(std::move(options)) {
   if (options_.cameras.views.empty()) throw std::invalid_argument("viewer: the camera set has no views");
   if (options_.volume) {

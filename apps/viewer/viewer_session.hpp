@@ -88,8 +88,4 @@ class ViewerSession {
 // finite, R orthonormal to 1e-3 with det +1. Throws io::InputError naming the field.
 [[nodiscard]] splat::CameraView camera_from_query(const ViewerQuery& query);
 
-// µm per world unit along x, y, z from the checkpoint's volume shape, spacing and
-// aspect (CONVENTIONS: a voxel is 2 a / N world units); empty when any is missing.
-[[nodiscard]] std::optional<std::array<double, 3>> um_per_world(const gmf::CheckpointMeta& meta);
-
 }  // namespace hisnegs::apps

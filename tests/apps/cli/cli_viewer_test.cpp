@@ -24,6 +24,7 @@
 
 #include "apps/viewer/viewer_page.hpp"
 #include "gmf/checkpoint.hpp"
+#include "gmf/compact_checkpoint.hpp"
 #include "gmf/psnr.hpp"
 #include "io/png.hpp"
 #include "io/tiff_stack.hpp"
@@ -131,29 +132,46 @@ class CliViewer : public ::testing::Test {
   }
 };
 
+// The model block of an exported page (base64), or "" when there is none.
+std::string model_block(const std::string& html) {
+  const std::string open = "<script id=\"hisnegs-model\" type=\"application/octet-stream\">";
+  const std::size_t at = html.find(open);
+  if (at == std::string::npos) return "";
+  return html.substr(at + open.size(), html.find("</script>", at) - at - open.size());
+}
+
 TEST_F(CliViewer, ExportHtmlIsSelfContainedAndReportsItsSize) {
   const fs::path cams = write_cameras("c.json", {96, 64, 45.0, 0.0, 1.0});
+  // Default: the compact .hgs encoding of the model (no metadata needed by the page).
   const auto r = run_hisnegs({"export", "html", "--model", model(), "--cameras", cams, "-o", dir_ / "v.html"});
   ASSERT_EQ(r.exit_code, 0) << r.err;
   const std::string html = testing::read_bytes(dir_ / "v.html");
   EXPECT_NE(r.out.find("export html: wrote"), std::string::npos) << r.out;
   EXPECT_NE(r.out.find("40 Gaussians"), std::string::npos) << r.out;
-  // The model block is base64 of 40 x 10 float32 = 1600 bytes -> 2136 characters.
-  const std::string open = "<script id=\"hisnegs-model\" type=\"application/octet-stream\">";
-  const std::size_t at = html.find(open);
-  ASSERT_NE(at, std::string::npos);
-  const std::size_t end = html.find("</script>", at);
+  EXPECT_NE(r.out.find("as compact .hgs"), std::string::npos) << r.out;
+  const std::string hgs = gmf::encode_compact_checkpoint(mixture_, gmf::CheckpointMeta{});
+  EXPECT_EQ(model_block(html), apps::base64_encode(hgs.data(), hgs.size()));
+  EXPECT_NE(html.find("\"model_format\":\"hgs\""), std::string::npos);
+  EXPECT_NE(html.find("fzstd"), std::string::npos);  // the decoder is inside
+  // --float32: the exact parameters, 40 x 10 float32 = 1600 bytes -> 2136 characters.
+  const auto f = run_hisnegs(
+      {"export", "html", "--model", model(), "--cameras", cams, "-o", dir_ / "f.html", "--float32"});
+  ASSERT_EQ(f.exit_code, 0) << f.err;
+  const std::string exact = testing::read_bytes(dir_ / "f.html");
   const std::vector<float> packed = apps::pack_viewer_model(mixture_);
-  EXPECT_EQ(html.substr(at + open.size(), end - at - open.size()),
-            apps::base64_encode(packed.data(), packed.size() * sizeof(float)));
-  EXPECT_EQ(end - at - open.size(), 2136u);
+  EXPECT_EQ(model_block(exact), apps::base64_encode(packed.data(), packed.size() * sizeof(float)));
+  EXPECT_EQ(model_block(exact).size(), 2136u);
+  EXPECT_NE(exact.find("\"model_format\":\"float32\""), std::string::npos);
+  EXPECT_LT(model_block(html).size(), model_block(exact).size());
   // Nothing is loaded (no src= or href=); the script's one fetch (the volume's MIP
   // from `hisnegs view --volume`) is off in an exported page.
-  for (const char* needle : {"src=", "href=", "<!--HISNEGS_DATA-->"}) {
-    EXPECT_EQ(html.find(needle), std::string::npos) << needle;
+  for (const std::string* page : {&html, &exact}) {
+    for (const char* needle : {"src=", "href=", "<!--HISNEGS_DATA-->"}) {
+      EXPECT_EQ(page->find(needle), std::string::npos) << needle;
+    }
+    EXPECT_NE(page->find("\"truth\":false"), std::string::npos);
+    EXPECT_NE(page->find("\"width\":96"), std::string::npos);
   }
-  EXPECT_NE(html.find("\"truth\":false"), std::string::npos);
-  EXPECT_NE(html.find("\"width\":96"), std::string::npos);
 }
 
 TEST_F(CliViewer, ExportHtmlWithoutCamerasHoldsTheEvaluationOrbit) {
@@ -353,8 +371,8 @@ TEST_F(CliViewer, ViewServesOnlyThePageOnLoopbackAndStopsOnCtrlC) {
   const auto page = client.Get("/");
   ASSERT_TRUE(page) << httplib::to_string(page.error());
   EXPECT_EQ(page->status, 200);
-  const std::vector<float> packed = apps::pack_viewer_model(mixture_);
-  EXPECT_NE(page->body.find(apps::base64_encode(packed.data(), packed.size() * sizeof(float))), std::string::npos);
+  const std::string hgs = gmf::encode_compact_checkpoint(mixture_, gmf::CheckpointMeta{});
+  EXPECT_EQ(model_block(page->body), apps::base64_encode(hgs.data(), hgs.size()));
   EXPECT_NE(page->body.find("\"width\":96"), std::string::npos);
   // Traversal, encoded traversal, absolute and unknown paths: refused, nothing leaks.
   for (const char* path : {"/../etc/passwd", "/%2e%2e/%2e%2e/etc/passwd", "//etc/passwd", "/index.html/../../x",
@@ -405,8 +423,8 @@ TEST_F(CliViewer, ViewKeepsServingAnErrorPageForABadModelUntilItIsFixed) {
   const auto fixed = client.Get("/");
   ASSERT_TRUE(fixed);
   EXPECT_EQ(fixed->status, 200);
-  const std::vector<float> packed = apps::pack_viewer_model(mixture_);
-  EXPECT_NE(fixed->body.find(apps::base64_encode(packed.data(), packed.size() * sizeof(float))), std::string::npos);
+  const std::string hgs = gmf::encode_compact_checkpoint(mixture_, gmf::CheckpointMeta{});
+  EXPECT_EQ(model_block(fixed->body), apps::base64_encode(hgs.data(), hgs.size()));
   EXPECT_EQ(view.stop(SIGINT, 10.0), 0);
 }
 
