@@ -21,6 +21,7 @@
 #include <random>
 #include <sstream>
 #include <string>
+#include <string_view>
 
 #include "apps/viewer/viewer_page.hpp"
 #include "gmf/checkpoint.hpp"
@@ -102,7 +103,9 @@ class CliViewer : public ::testing::Test {
 
   // Headless Chromium's screenshot of `url` (a `#view=N&ui=0` page of a w x h view):
   // its top-left w x h grey values in [0, 1]. Fails the test on a page error.
-  std::vector<float> chromium_view(const std::string& url, int w, int h, const std::string& tag) const {
+  // `log` (if given) gets Chromium's output, console lines included.
+  std::vector<float> chromium_view(const std::string& url, int w, int h, const std::string& tag,
+                                   std::string* log = nullptr) const {
     const fs::path png = dir_ / ("shot" + tag + ".png");
     const int window_w = std::max(w, kMinWindowWidth), window_h = h + kWindowExtraHeight;
     const testing::ShellResult s = testing::run_shell(
@@ -117,6 +120,7 @@ class CliViewer : public ::testing::Test {
     EXPECT_EQ(s.out.find("hisnegs-viewer error"), std::string::npos) << s.out;
     EXPECT_EQ(s.out.find("Uncaught"), std::string::npos) << s.out;
     EXPECT_NE(s.out.find("hisnegs-viewer ready"), std::string::npos) << s.out;
+    if (log) *log = s.out;
     std::vector<float> page(static_cast<std::size_t>(w) * h, -1.0f);
     if (!fs::exists(png)) return page;
     const io::Image8 shot = io::read_png(png);
@@ -549,6 +553,102 @@ TEST_F(CliViewer, ChromiumSlabMatchesCpuHardMipWithThatDepthRange) {
   // The slab leaves Gaussians out: the full view is clearly another image.
   EXPECT_LT(gmf::psnr(want, all), kMinPsnrDb - 10.0);
   EXPECT_LT(gmf::psnr(page, all), kMinPsnrDb - 10.0);
+}
+
+// RFC 4648 base64 (padded) to bytes; stops at the first character outside the alphabet.
+std::string base64_decode(std::string_view text) {
+  static const std::string kAlphabet = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+  std::string out;
+  unsigned v = 0;
+  int bits = 0;
+  for (const char ch : text) {
+    const std::size_t d = kAlphabet.find(ch);
+    if (d == std::string::npos) break;
+    v = (v << 6) | static_cast<unsigned>(d);
+    bits += 6;
+    if (bits >= 8) {
+      bits -= 8;
+      out.push_back(static_cast<char>((v >> bits) & 0xff));
+    }
+  }
+  return out;
+}
+
+// The text of console line "TAG ..." in Chromium's log (to the closing quote), or "".
+std::string console_value(const std::string& log, const std::string& tag) {
+  const std::size_t at = log.find("\"" + tag + " ");
+  if (at == std::string::npos) return "";
+  const std::size_t from = at + tag.size() + 2;
+  return log.substr(from, log.find('"', from) - from);
+}
+
+// The page's script API: window.hisnegsViewer.screenshot(w, h) draws the current
+// view at another size (the intrinsics scaled with it, as the UI's PNG button does),
+// and camera() is the view as a cameras.json that `render` takes. A probe script
+// appended to an exported page logs both.
+TEST_F(CliViewer, ChromiumScreenshotAtAnotherSizeAndCameraAsCamerasJson) {
+  if (!fs::exists(kChromium)) {
+    if (std::getenv("CI")) FAIL() << kChromium << " is missing; scripts/install-deps.sh installs it";
+    GTEST_SKIP() << kChromium << " is not installed";
+  }
+  const CameraCase c{96, 64, 45.0, 3.0, 1.1};
+  const fs::path cams = write_cameras("c.json", c);
+  const auto e = run_hisnegs({"export", "html", "--model", model(), "--cameras", cams, "-o", dir_ / "v.html"});
+  ASSERT_EQ(e.exit_code, 0) << e.err;
+  std::string html = testing::read_bytes(dir_ / "v.html");
+  const std::size_t body_end = html.rfind("</body>");
+  ASSERT_NE(body_end, std::string::npos);
+  html.insert(body_end,
+              "<script>console.log(\"probe-camera \" + JSON.stringify(window.hisnegsViewer.camera()).replace(/\"/g, \"'\"));"
+              "console.log(\"probe-png \" + window.hisnegsViewer.screenshot(150, 80));</script>\n");
+  testing::write_text(dir_ / "p.html", html);
+  std::string log;
+  (void)chromium_view("file://" + (dir_ / "p.html").string() + "#view=1&ui=0", c.width, c.height, "probe", &log);
+
+  // The camera: a cameras.json of view 1 (the page's own intrinsics and pose).
+  std::string camera = console_value(log, "probe-camera");
+  ASSERT_FALSE(camera.empty()) << log.substr(0, 2000);
+  std::replace(camera.begin(), camera.end(), '\'', '"');
+  testing::write_text(dir_ / "cam.json", camera);
+  const splat::CameraSet got = splat::read_cameras_json(dir_ / "cam.json");
+  const splat::CameraSet want = splat::read_cameras_json(cams);
+  ASSERT_EQ(got.views.size(), 1u);
+  EXPECT_EQ(got.intrinsics.width, c.width);
+  EXPECT_EQ(got.intrinsics.height, c.height);
+  EXPECT_NEAR(got.intrinsics.fy, want.intrinsics.fy, 1e-9);
+  EXPECT_NEAR(got.intrinsics.cx, want.intrinsics.cx, 1e-9);
+  EXPECT_LT((got.views[0].R_cam_from_world - want.views[1].R_cam_from_world).cwiseAbs().maxCoeff(), 1e-12);
+  EXPECT_LT((got.views[0].t_cam_from_world - want.views[1].t_cam_from_world).cwiseAbs().maxCoeff(), 1e-12);
+
+  // The screenshot: 150 x 80 of view 1, against the CPU hard MIP with the intrinsics
+  // scaled by 150/96 across and 80/64 down.
+  const std::string url = console_value(log, "probe-png");
+  const std::string prefix = "data:image/png;base64,";
+  ASSERT_EQ(url.rfind(prefix, 0), 0u) << url.substr(0, 80);
+  testing::write_text(dir_ / "shot.png", base64_decode(std::string_view(url).substr(prefix.size())));
+  const io::Image8 shot = io::read_png(dir_ / "shot.png");
+  ASSERT_EQ(shot.width, 150);
+  ASSERT_EQ(shot.height, 80);
+  splat::CameraSet scaled = want;
+  const double sx = 150.0 / c.width, sy = 80.0 / c.height;
+  scaled.intrinsics.width = 150;
+  scaled.intrinsics.height = 80;
+  scaled.intrinsics.fx *= sx;
+  scaled.intrinsics.cx *= sx;
+  scaled.intrinsics.fy *= sy;
+  scaled.intrinsics.cy *= sy;
+  scaled.views = {want.views[1], want.views[0]};  // a TIFF stack needs two pages; the first is compared
+  splat::write_cameras_json(dir_ / "scaled.json", scaled);
+  const auto r = run_hisnegs({"render", "--model", model(), "--cameras", dir_ / "scaled.json", "-o", dir_ / "r",
+                              "--mode", "hard", "--backend", "cpu"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const io::Volume cpu = io::read_tiff_stack(dir_ / "r" / "render.tif");
+  std::vector<float> page(150 * 80);
+  for (std::size_t i = 0; i < page.size(); ++i) page[i] = shot.pixels[i * shot.channels] / 255.0f;
+  const std::span<const float> view1(cpu.voxels.data(), page.size());
+  EXPECT_GT(*std::max_element(view1.begin(), view1.end()), 0.2f) << "the view must show the model";
+  EXPECT_GE(gmf::psnr(page, view1), kMinPsnrDb);
+  EXPECT_LT(gmf::psnr(page, std::span<const float>(cpu.voxels.data() + page.size(), page.size())), kMinPsnrDb - 10.0);
 }
 
 // The served page is the exported one: Chromium's screenshot of it over HTTP matches
