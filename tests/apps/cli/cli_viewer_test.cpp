@@ -53,6 +53,15 @@ constexpr int kChromiumTimeoutSeconds = 60;
 // The bar for the page against the CPU renderer (8-bit screenshot vs float).
 constexpr double kMinPsnrDb = 35.0;
 
+// Skips a test where Chromium is missing; fails it under CI, which installs Chromium.
+#define REQUIRE_CHROMIUM()                                                                            \
+  do {                                                                                                \
+    if (!fs::exists(kChromium)) {                                                                     \
+      if (std::getenv("CI")) FAIL() << kChromium << " is missing; scripts/install-deps.sh installs it"; \
+      GTEST_SKIP() << kChromium << " is not installed";                                               \
+    }                                                                                                 \
+  } while (false)
+
 // One camera file of the test: intrinsics of its own (non-square, FOV, principal point).
 struct CameraCase {
   int width, height;
@@ -228,10 +237,7 @@ TEST(ViewerPage, PackedCovarianceIsTheModelsSigma) {
 
 // Chromium's screenshot of each `#view=N&ui=0` against `render --mode hard` of view N.
 TEST_F(CliViewer, ChromiumScreenshotMatchesCpuHardMip) {
-  if (!fs::exists(kChromium)) {
-    if (std::getenv("CI")) FAIL() << kChromium << " is missing; scripts/install-deps.sh installs it";
-    GTEST_SKIP() << kChromium << " is not installed";
-  }
+  REQUIRE_CHROMIUM();
   // Landscape narrow FOV with an off-centre principal point; portrait wide FOV with
   // fy != fx; a wider landscape at the default FOV.
   const CameraCase cases[] = {{160, 112, 35.0, 7.5, 1.0}, {96, 144, 70.0, 0.0, 1.2}, {200, 120, 50.0, -5.0, 0.9}};
@@ -521,10 +527,7 @@ TEST_F(CliViewer, ViewTruthIsTheGroundTruthMipWithTheModelsPsnr) {
 // `#slab=T&offset=O` draws the Gaussians whose centre depth is within O ± T/2 of the
 // view's target: the CPU hard MIP with near/far at those depths.
 TEST_F(CliViewer, ChromiumSlabMatchesCpuHardMipWithThatDepthRange) {
-  if (!fs::exists(kChromium)) {
-    if (std::getenv("CI")) FAIL() << kChromium << " is missing; scripts/install-deps.sh installs it";
-    GTEST_SKIP() << kChromium << " is not installed";
-  }
+  REQUIRE_CHROMIUM();
   const CameraCase c{128, 96, 45.0, 0.0, 1.0};
   const fs::path cams = write_cameras("c.json", c);
   splat::CameraSet set = splat::read_cameras_json(cams);
@@ -587,10 +590,7 @@ std::string console_value(const std::string& log, const std::string& tag) {
 // and camera() is the view as a cameras.json that `render` takes. A probe script
 // appended to an exported page logs both.
 TEST_F(CliViewer, ChromiumScreenshotAtAnotherSizeAndCameraAsCamerasJson) {
-  if (!fs::exists(kChromium)) {
-    if (std::getenv("CI")) FAIL() << kChromium << " is missing; scripts/install-deps.sh installs it";
-    GTEST_SKIP() << kChromium << " is not installed";
-  }
+  REQUIRE_CHROMIUM();
   const CameraCase c{96, 64, 45.0, 3.0, 1.1};
   const fs::path cams = write_cameras("c.json", c);
   const auto e = run_hisnegs({"export", "html", "--model", model(), "--cameras", cams, "-o", dir_ / "v.html"});
@@ -654,10 +654,7 @@ TEST_F(CliViewer, ChromiumScreenshotAtAnotherSizeAndCameraAsCamerasJson) {
 // The served page is the exported one: Chromium's screenshot of it over HTTP matches
 // the CPU hard MIP as the file:// page does.
 TEST_F(CliViewer, ViewPageInChromiumMatchesCpuHardMip) {
-  if (!fs::exists(kChromium)) {
-    if (std::getenv("CI")) FAIL() << kChromium << " is missing; scripts/install-deps.sh installs it";
-    GTEST_SKIP() << kChromium << " is not installed";
-  }
+  REQUIRE_CHROMIUM();
   const CameraCase c{120, 90, 60.0, 3.0, 1.1};
   const fs::path cams = write_cameras("c.json", c);
   const auto r = run_hisnegs(
