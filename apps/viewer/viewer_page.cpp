@@ -10,6 +10,7 @@
 
 #include "apps/viewer/viewer_assets.hpp"
 #include "gmf/compact_checkpoint.hpp"
+#include "io/volume.hpp"
 
 namespace hisnegs::apps {
 namespace {
@@ -37,9 +38,10 @@ std::string_view viewer_zstd_script() {
 std::optional<std::array<double, 3>> um_per_world(const gmf::CheckpointMeta& meta) {
   if (!meta.volume_shape_zyx || !meta.spacing_um || !meta.aspect) return std::nullopt;
   const auto& zyx = *meta.volume_shape_zyx;
-  const std::array<int, 3> n{zyx[2], zyx[1], zyx[0]};
+  const auto& aspect = *meta.aspect;
+  const io::WorldFrame frame(zyx[2], zyx[1], zyx[0], Eigen::Vector3d(aspect[0], aspect[1], aspect[2]));
   std::array<double, 3> out{};
-  for (int a = 0; a < 3; ++a) out[a] = (*meta.spacing_um)[a] * n[a] / (2.0 * (*meta.aspect)[a]);
+  for (int a = 0; a < 3; ++a) out[a] = (*meta.spacing_um)[a] / frame.voxel_size()[a];
   return out;
 }
 
