@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "gmf/block_index.hpp"
+#include "gmf/detail/block_cost.hpp"
 #include "gmf/gaussian_math.hpp"
 #include "gmf/samples.hpp"
 #include "tests/gmf/gmf_test_scenes.hpp"
@@ -106,6 +107,71 @@ TEST(GmfObjective, LossIsHalfTheWeightedSquaredResidualSum) {
   EXPECT_NEAR(loss, direct, 1e-12 * direct);
   std::vector<double> grad(x.size());
   EXPECT_EQ(objective.evaluate(x.data(), grad.data()), loss);  // the gradient pass reports the same loss
+}
+
+// The fused gradient (per-Gaussian sums chained through the rotation and sigmoid
+// VJPs once) equals Jᵀr formed from BlockCost's per-sample analytic Jacobian, the
+// one the least-squares solvers use, for the sum and the softmax at low and high
+// β, with Gaussians widened so that several overlap at most samples; and on the
+// softmax its loss equals BlockCost's residuals' ½ Σ r².
+TEST(GmfObjective, FusedGradientEqualsBlockCostJacobianTimesResidual) {
+  const Scene scene = make_scene(31);
+  const io::SparseGrid grid = grid_of(scene, 0.05);
+  const SampleSet samples = extract_samples(grid, 2.0, 2);
+  std::mt19937_64 rng(32);
+  std::normal_distribution<double> n(0, 1);
+  GaussianMixture m = scene.truth;
+  for (auto& g : m) {
+    for (int a = 0; a < 3; ++a) {
+      g.mean[a] += static_cast<float>(0.4 * scene.frame.voxel_size().x() * n(rng));
+      g.log_scale[a] += 0.4f;
+    }
+    g.rotation = {0.9f, static_cast<float>(0.2 * n(rng)), static_cast<float>(0.2 * n(rng)), 0.1f};
+    g.intensity_logit += static_cast<float>(0.5 * n(rng));
+  }
+  const std::vector<double> x = flat_of(m);
+  for (const MixtureModel model : {MixtureModel{.cutoff = 16.0},
+                                   MixtureModel{.aggregation = Aggregation::kSoftmax, .beta = 8.0, .cutoff = 16.0},
+                                   MixtureModel{.aggregation = Aggregation::kSoftmax, .beta = 64.0, .cutoff = 9.0}}) {
+    const BlockIndex index = build_block_index(m, samples, scene.frame, model.cutoff);
+    const FitObjective objective(samples, index, m.size(), model);
+    std::vector<double> grad(x.size());
+    const double loss = objective.evaluate(x.data(), grad.data());
+    // Jᵀr and ½ Σ r² from BlockCost, block by block.
+    std::vector<double> expected(x.size(), 0.0);
+    double expected_loss = objective.constant();
+    std::size_t overlapping = 0;
+    for (std::size_t b = 0; b < samples.blocks(); ++b) {
+      const auto ids = index.of(b);
+      if (ids.empty()) continue;
+      overlapping += ids.size() > 1 ? 1 : 0;
+      const detail::BlockCost cost(samples, b, ids.size(), model);
+      const int nr = cost.num_residuals();
+      std::vector<const double*> p;
+      for (std::uint32_t k : ids) p.push_back(x.data() + kGaussianParamCount * k);
+      std::vector<double> r(nr);
+      std::vector<std::vector<double>> J(ids.size(), std::vector<double>(nr * kGaussianParamCount));
+      std::vector<double*> jp;
+      for (auto& j : J) jp.push_back(j.data());
+      ASSERT_TRUE(cost.Evaluate(p.data(), r.data(), jp.data()));
+      for (int j = 0; j < nr; ++j) expected_loss += 0.5 * r[j] * r[j];
+      for (std::size_t g = 0; g < ids.size(); ++g) {
+        for (int j = 0; j < nr; ++j) {
+          for (int c = 0; c < kGaussianParamCount; ++c) {
+            expected[kGaussianParamCount * ids[g] + c] += r[j] * J[g][j * kGaussianParamCount + c];
+          }
+        }
+      }
+    }
+    EXPECT_GT(overlapping, samples.blocks() / 4) << "the case must overlap";
+    EXPECT_NEAR(loss, expected_loss, 1e-11 * expected_loss) << "beta " << model.beta;
+    double largest = 0;
+    for (double g : expected) largest = std::max(largest, std::abs(g));
+    ASSERT_GT(largest, 0.0);
+    for (std::size_t i = 0; i < x.size(); ++i) {
+      ASSERT_NEAR(grad[i], expected[i], 1e-9 * largest) << "parameter " << i << ", beta " << model.beta;
+    }
+  }
 }
 
 // Evaluation does not depend on the thread count: the loss and gradient with one
