@@ -17,12 +17,25 @@ BlockIndex build_block_index(const GaussianMixture& mixture, const SampleSet& sa
                              double cutoff, double scale_pad, double pad_world) {
   // Dense map from leaf (8^3) coordinates to the sample blocks inside (several
   // blocks per leaf, and a foreground and a background block may coincide): CSR.
+  // The leaves span the stack and any samples outside it (negative origins).
+  const auto leaf = [](int v) { return v >= 0 ? v / 8 : -((-v + 7) / 8); };
   const Eigen::Vector3i n = frame.shape();
-  const int nb[3] = {(n.x() + 7) / 8, (n.y() + 7) / 8, (n.z() + 7) / 8};
+  int lo_leaf[3] = {0, 0, 0}, nb[3] = {(n.x() + 7) / 8, (n.y() + 7) / 8, (n.z() + 7) / 8};
+  {
+    int hi_leaf[3] = {nb[0] - 1, nb[1] - 1, nb[2] - 1};
+    for (const auto& o : samples.block_origin) {
+      for (int a = 0; a < 3; ++a) {
+        lo_leaf[a] = std::min(lo_leaf[a], leaf(o[a]));
+        hi_leaf[a] = std::max(hi_leaf[a], leaf(o[a]));
+      }
+    }
+    for (int a = 0; a < 3; ++a) nb[a] = hi_leaf[a] - lo_leaf[a] + 1;
+  }
   const std::size_t cells = static_cast<std::size_t>(nb[0]) * nb[1] * nb[2];
   std::vector<std::uint32_t> cell_begin(cells + 1, 0), cell_blocks(samples.blocks());
   auto cell_of = [&](const std::array<int, 3>& o) {
-    return (static_cast<std::size_t>(o[2] / 8) * nb[1] + o[1] / 8) * nb[0] + o[0] / 8;
+    return (static_cast<std::size_t>(leaf(o[2]) - lo_leaf[2]) * nb[1] + (leaf(o[1]) - lo_leaf[1])) * nb[0] +
+           (leaf(o[0]) - lo_leaf[0]);
   };
   for (const auto& o : samples.block_origin) ++cell_begin[cell_of(o) + 1];
   for (std::size_t c = 0; c < cells; ++c) cell_begin[c + 1] += cell_begin[c];
@@ -45,12 +58,15 @@ BlockIndex build_block_index(const GaussianMixture& mixture, const SampleSet& sa
           frame.index_from_world(Eigen::Vector3d(mean[0] - half[0], mean[1] - half[1], mean[2] - half[2]));
       const Eigen::Vector3d hi =
           frame.index_from_world(Eigen::Vector3d(mean[0] + half[0], mean[1] + half[1], mean[2] + half[2]));
-      // Block b holds voxel centres 8b .. 8b + 7: overlap iff hi >= 8b and lo <= 8b + 7.
+      // Leaf l holds voxel centres 8l .. 8l + 7: overlap iff hi >= 8l and lo <= 8l + 7
+      // (b0, b1: leaves relative to lo_leaf, clamped to the map).
       int b0[3], b1[3];
       bool empty = false;
       for (int a = 0; a < 3; ++a) {
-        b0[a] = std::max(0, static_cast<int>(std::ceil((lo[a] - 7.0) / 8.0)));
-        b1[a] = std::min(nb[a] - 1, static_cast<int>(std::floor(hi[a] / 8.0)));
+        const double first = std::clamp(std::ceil((lo[a] - 7.0) / 8.0) - lo_leaf[a], 0.0, double(nb[a]));
+        const double last = std::clamp(std::floor(hi[a] / 8.0) - lo_leaf[a], -1.0, double(nb[a] - 1));
+        b0[a] = static_cast<int>(first);
+        b1[a] = static_cast<int>(last);
         empty |= b0[a] > b1[a];
       }
       if (empty) continue;

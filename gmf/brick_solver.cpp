@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <atomic>
 #include <chrono>
+#include <cstdlib>
 #include <cmath>
 #include <map>
 #include <memory>
@@ -188,6 +189,7 @@ int solve_brick(std::uint32_t b, const SampleSet& samples, const BlockIndex& ind
   so.linear_solver_type = ceres::DENSE_NORMAL_CHOLESKY;
   so.max_num_iterations = options.iterations;
   so.max_solver_time_in_seconds = seconds_left;
+  if (const char* r = std::getenv("HISNEGS_BRICK_RADIUS")) so.initial_trust_region_radius = std::atof(r);
   so.num_threads = 1;  // bricks run in parallel instead; one thread keeps each solve deterministic
   so.logging_type = ceres::SILENT;
   so.minimizer_progress_to_stdout = false;

@@ -389,7 +389,8 @@ FitResult fit_mixture(const io::Volume& volume, const io::SparseGrid& grid, Gaus
   FitResult result;
   FitLog log{result, clock, on_progress, options.stop_loss};
   const io::WorldFrame frame = grid.frame();
-  const SampleSet samples = extract_samples(grid, options.background_weight, options.residual_block_voxels);
+  const SampleSet samples =
+      extract_samples(grid, options.background_weight, options.residual_block_voxels, options.outside_voxels);
   detail::GaussianManifold manifold;
   SolverState state;
   int iterations = 0;

@@ -62,6 +62,11 @@ struct GmfOptions {
   // block)²; 2 was the fastest per exact-LM iteration on the synthetic default
   // with 3000 Gaussians (figures in docs/benchmarks.md).
   int residual_block_voxels = 2;
+  // Depth in voxels of the zero-valued shell sampled just outside the stack's box,
+  // beyond every foreground voxel on a face (gmf/samples.hpp), [0, 8]; 0 = none.
+  // The volume is 0 outside its box, as the ray-marched MIPs see it: without the
+  // shell, Gaussians at a face grew out of the stack (streaks in views past it).
+  int outside_voxels = 2;
   // brick-lm: bricks start as cubes of this many voxels (a power of two, [2, 256])
   // and are halved while they hold more than brick_gaussians Gaussians, [1, 10^4].
   int brick_voxels = 32;
@@ -104,6 +109,7 @@ struct GmfOptions {
     v("background_fraction", background_fraction);
     v("background_weight", background_weight);
     v("residual_block_voxels", residual_block_voxels);
+    v("outside_voxels", outside_voxels);
     v("brick_voxels", brick_voxels);
     v("brick_gaussians", brick_gaussians);
     v("brick_iterations", brick_iterations);

@@ -2,16 +2,73 @@
 // extract_samples: visit the SparseGrid's active leaves, group each leaf's voxels into blocks.
 #include "gmf/samples.hpp"
 
+#include <algorithm>
 #include <cmath>
+#include <tuple>
 #include <span>
 #include <stdexcept>
 #include <vector>
 
 namespace hisnegs::gmf {
+namespace {
 
-SampleSet extract_samples(const io::SparseGrid& grid, double background_weight, int block) {
+int floor_div(int a, int b) { return a >= 0 ? a / b : -((-a + b - 1) / b); }
+
+// The shell outside the box: for every foreground voxel on a face of the stack,
+// the `depth` voxels beyond it along that face's outward normal, value 0 and
+// weight 1 (every such voxel is sampled), grouped into blocks of out.block and
+// appended as background. Without them nothing stops a Gaussian at the edge of
+// the stack from growing out of it, where the ray-marched MIPs see nothing.
+void add_outside_samples(const io::SparseGrid& grid, const io::WorldFrame& frame, int depth, SampleSet& out) {
+  const Eigen::Vector3i n = frame.shape();
+  std::vector<std::array<int, 3>> outside;
+  grid.visit_active_leaves(io::SparseGridPart::kForeground, [&](const auto&, auto voxels) {
+    for (const io::ActiveVoxel& v : voxels) {
+      for (int a = 0; a < 3; ++a) {
+        for (int side = 0; side < 2; ++side) {
+          if (v.index[a] != (side == 0 ? 0 : n[a] - 1)) continue;
+          for (int d = 1; d <= depth; ++d) {
+            std::array<int, 3> p = v.index;
+            p[a] = side == 0 ? -d : n[a] - 1 + d;
+            outside.push_back(p);
+          }
+        }
+      }
+    }
+  });
+  const int b = out.block;
+  const auto block_of = [b](const std::array<int, 3>& p) {
+    return std::array<int, 3>{floor_div(p[2], b), floor_div(p[1], b), floor_div(p[0], b)};  // z, y, x
+  };
+  std::sort(outside.begin(), outside.end(), [&](const auto& p, const auto& q) {
+    const auto bp = block_of(p), bq = block_of(q);
+    return bp != bq ? bp < bq : std::tie(p[2], p[1], p[0]) < std::tie(q[2], q[1], q[0]);
+  });
+  outside.erase(std::unique(outside.begin(), outside.end()), outside.end());
+  for (std::size_t i = 0; i < outside.size(); ++i) {
+    const auto key = block_of(outside[i]);
+    if (i == 0 || key != block_of(outside[i - 1])) {
+      out.block_begin.push_back(static_cast<std::uint32_t>(out.size()));
+      out.block_origin.push_back({key[2] * b, key[1] * b, key[0] * b});
+    }
+    const Eigen::Vector3d p = frame.world_from_index(Eigen::Vector3d(outside[i][0], outside[i][1], outside[i][2]));
+    out.x.push_back(p.x());
+    out.y.push_back(p.y());
+    out.z.push_back(p.z());
+    out.value.push_back(0.0);
+    out.weight.push_back(1.0);
+    ++out.background;
+  }
+}
+
+}  // namespace
+
+SampleSet extract_samples(const io::SparseGrid& grid, double background_weight, int block, int outside_voxels) {
   if (block != 1 && block != 2 && block != 4 && block != 8) {
     throw std::invalid_argument("extract_samples: block must be 1, 2, 4 or 8");
+  }
+  if (outside_voxels < 0 || outside_voxels > 8) {
+    throw std::invalid_argument("extract_samples: outside_voxels must be in [0, 8]");
   }
   SampleSet out;
   out.block = block;
@@ -50,6 +107,7 @@ SampleSet extract_samples(const io::SparseGrid& grid, double background_weight, 
     grid.visit_active_leaves(io::SparseGridPart::kBackground,
                              [&](const auto& o, auto voxels) { add_leaf(o, voxels, bg_weight, out.background); });
   }
+  if (outside_voxels > 0) add_outside_samples(grid, frame, outside_voxels, out);
   out.block_begin.push_back(static_cast<std::uint32_t>(out.size()));
   return out;
 }

@@ -34,6 +34,11 @@ struct SampleSet {
 // Background samples stand for 1 / background_fraction voxels each, so their
 // weight is sqrt(background_weight / fraction): empty space counts in the loss
 // as much as it would if every voxel were sampled.
-SampleSet extract_samples(const io::SparseGrid& grid, double background_weight, int block = 8);
+// outside_voxels > 0 adds the shell outside the stack's box: for every foreground
+// voxel on a face, that many voxels beyond it along the outward normal, value 0,
+// weight 1, counted as background (their block origins may be negative or past
+// the shape). The volume is 0 outside its box, as the ray-marched MIPs see it.
+SampleSet extract_samples(const io::SparseGrid& grid, double background_weight, int block = 8,
+                          int outside_voxels = 0);
 
 }  // namespace hisnegs::gmf

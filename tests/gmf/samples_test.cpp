@@ -13,6 +13,8 @@
 #include <set>
 #include <stdexcept>
 
+#include "gmf/block_index.hpp"
+#include "gmf/density_ops.hpp"
 #include "io/sparse_grid.hpp"
 
 namespace hisnegs::gmf {
@@ -160,6 +162,63 @@ TEST(Samples, BlocksAreContiguousForEveryBlockSize) {
       EXPECT_GT(s.blocks(), extract_samples(grid, 1.0, 8).blocks()) << "block " << block;
     }
   }
+}
+
+// The shell outside the box: a foreground that touches the x = 0 and z = nz − 1
+// faces gets, beyond each of its face voxels, `depth` samples along the outward
+// normal, value 0, weight 1, as background, in blocks whose origin is a multiple of
+// the block edge (negative at x < 0); none beyond faces it does not touch.
+TEST(Samples, OutsideShellBeyondForegroundOnTheFaces) {
+  io::Volume v;
+  v.nx = 13;
+  v.ny = 10;
+  v.nz = 7;
+  v.voxels.assign(v.size(), 0.0f);
+  for (int y = 3; y < 6; ++y) {
+    v.at(0, y, 3) = 1.0f;   // on the x = 0 face
+    v.at(6, y, 6) = 0.8f;   // on the z = nz − 1 face
+  }
+  io::SparseGridOptions o;
+  o.threshold = 0.5;
+  o.band_voxels = 0;
+  const io::SparseGrid grid = io::build_sparse_grid(v, Eigen::Vector3d::Ones(), o);
+  const SampleSet inside = extract_samples(grid, 1.0, 2);
+  for (const int depth : {1, 2, 3}) {
+    const SampleSet s = extract_samples(grid, 1.0, 2, depth);
+    ASSERT_EQ(s.foreground, inside.foreground);
+    EXPECT_EQ(s.background, inside.background + 2 * 3 * depth) << "depth " << depth;
+    std::set<Index> seen;
+    for (std::size_t b = 0; b < s.blocks(); ++b) {
+      const Index& bo = s.block_origin[b];
+      for (int a = 0; a < 3; ++a) EXPECT_EQ(((bo[a] % 2) + 2) % 2, 0);
+      for (std::uint32_t i = s.block_begin[b]; i < s.block_begin[b + 1]; ++i) {
+        if (i < inside.size()) continue;
+        const Index idx = index_of(grid.frame(), s, i);
+        EXPECT_EQ(s.value[i], 0.0);
+        EXPECT_EQ(s.weight[i], 1.0);
+        EXPECT_TRUE(seen.insert(idx).second) << "twice";
+        for (int a = 0; a < 3; ++a) {
+          EXPECT_GE(idx[a], bo[a]);
+          EXPECT_LT(idx[a], bo[a] + 2);
+        }
+        const bool beyond_x = idx[0] < 0 && idx[0] >= -depth && idx[1] >= 3 && idx[1] < 6 && idx[2] == 3;
+        const bool beyond_z = idx[2] >= 7 && idx[2] < 7 + depth && idx[0] == 6 && idx[1] >= 3 && idx[1] < 6;
+        EXPECT_TRUE(beyond_x || beyond_z) << idx[0] << " " << idx[1] << " " << idx[2];
+      }
+    }
+    EXPECT_EQ(seen.size(), static_cast<std::size_t>(2 * 3 * depth));
+    // The block index reaches the outside blocks: a Gaussian on the x = 0 face
+    // lists every block of the shell beyond it, and none beyond the z face.
+    GaussianMixture m;
+    m.push_back(isotropic_gaussian(grid.frame().world_from_index(Eigen::Vector3d(0, 4, 3)), grid.frame().voxel_size(),
+                                   0.9));
+    const BlockIndex index = build_block_index(m, s, grid.frame(), 16.0);
+    for (std::size_t b = 0; b < s.blocks(); ++b) {
+      if (s.block_begin[b] < inside.size()) continue;
+      EXPECT_EQ(index.of(b).size(), s.block_origin[b][0] < 0 ? 1u : 0u) << "block " << b;
+    }
+  }
+  EXPECT_THROW((void)extract_samples(grid, 1.0, 2, 9), std::invalid_argument);
 }
 
 TEST(Samples, OtherBlockSizesAreRefused) {
