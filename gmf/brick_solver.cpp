@@ -9,7 +9,6 @@
 #include <algorithm>
 #include <atomic>
 #include <chrono>
-#include <cstdlib>
 #include <cmath>
 #include <map>
 #include <memory>
@@ -189,7 +188,11 @@ int solve_brick(std::uint32_t b, const SampleSet& samples, const BlockIndex& ind
   so.linear_solver_type = ceres::DENSE_NORMAL_CHOLESKY;
   so.max_num_iterations = options.iterations;
   so.max_solver_time_in_seconds = seconds_left;
-  if (const char* r = std::getenv("HISNEGS_BRICK_RADIUS")) so.initial_trust_region_radius = std::atof(r);
+  // Ceres starts at radius 1e4 (μ 1e-4: nearly plain Gauss–Newton); on the softmax
+  // the first steps are then rejected until the radius has shrunk, which spent
+  // most of a brick's few iterations. op1, one sweep from the grid init: loss
+  // 2009 → 1792 at 1e4, → 788 at 1, → 1330 at 0.01 (docs/benchmarks.md).
+  so.initial_trust_region_radius = 1.0;
   so.num_threads = 1;  // bricks run in parallel instead; one thread keeps each solve deterministic
   so.logging_type = ceres::SILENT;
   so.minimizer_progress_to_stdout = false;
