@@ -455,7 +455,7 @@ FitResult fit_mixture(const io::Volume& volume, const io::SparseGrid& grid, Gaus
   result.seconds = clock.now();
   result.final_beta = log_beta(model);
   io::Stopwatch measuring;
-  result.final_psnr_3d = psnr(rasterize_mixture(mixture, frame, RasterizeOptions::of(model)), volume.voxels);
+  result.final_psnr_3d = mixture_psnr(mixture, frame, RasterizeOptions::of(model), volume.voxels);
   result.measuring_seconds = measuring.elapsed();
   FitIteration final_line = result.log.empty() ? FitIteration{} : result.log.back();
   final_line.psnr_3d = result.final_psnr_3d;

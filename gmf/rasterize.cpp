@@ -11,8 +11,11 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <stdexcept>
+#include <string>
 
 #include "gmf/gaussian_math.hpp"
+#include "gmf/psnr.hpp"
 #include "io/error.hpp"
 #include "io/memory_limit.hpp"
 
@@ -239,6 +242,52 @@ std::vector<float> rasterize_mixture(const GaussianMixture& mixture, const io::W
     }
   });
   return out;
+}
+
+double mixture_psnr(const GaussianMixture& mixture, const io::WorldFrame& frame, const RasterizeOptions& options,
+                    std::span<const float> reference) {
+  const Eigen::Vector3i n = frame.shape();
+  const std::size_t plane = static_cast<std::size_t>(n.x()) * n.y();
+  if (reference.size() != plane * static_cast<std::size_t>(n.z()) || reference.empty()) {
+    throw std::invalid_argument("mixture_psnr: " + std::to_string(reference.size()) + " reference values for a " +
+                                std::to_string(n.x()) + "x" + std::to_string(n.y()) + "x" + std::to_string(n.z()) +
+                                " frame");
+  }
+  // Σ V² over every voxel (the squared error of f = 0), in fixed chunks summed in order.
+  constexpr std::size_t kChunk = std::size_t{1} << 16;
+  std::vector<double> chunk_se((reference.size() + kChunk - 1) / kChunk, 0.0);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, chunk_se.size()), [&](const auto& r) {
+    for (std::size_t c = r.begin(); c != r.end(); ++c) {
+      const std::size_t end = std::min(reference.size(), (c + 1) * kChunk);
+      double sum = 0;
+      for (std::size_t i = c * kChunk; i < end; ++i) sum += static_cast<double>(reference[i]) * reference[i];
+      chunk_se[c] = sum;
+    }
+  });
+  double se = 0;
+  for (double c : chunk_se) se += c;
+  const BlockRasterizer raster(mixture, VoxelLattice::of(frame), options, "mixture");
+  std::vector<double> block_se(raster.blocks(), 0.0);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, raster.blocks(), 4), [&](const auto& r) {
+    BlockValues values;
+    for (std::size_t b = r.begin(); b != r.end(); ++b) {
+      raster.evaluate(b, values);
+      const Eigen::Vector3i o = raster.block_origin(b);
+      const Eigen::Vector3i hi = (o + Eigen::Vector3i::Constant(kRasterBlockDim)).cwiseMin(n);
+      double delta = 0;
+      for (int z = o.z(); z < hi.z(); ++z)
+        for (int y = o.y(); y < hi.y(); ++y)
+          for (int x = o.x(); x < hi.x(); ++x) {
+            const double v = reference[plane * z + static_cast<std::size_t>(y) * n.x() + x];
+            const double d = static_cast<double>(static_cast<float>(values[block_offset(x - o.x(), y - o.y(),
+                                                                                      z - o.z())])) - v;
+            delta += d * d - v * v;
+          }
+      block_se[b] = delta;
+    }
+  });
+  for (double d : block_se) se += d;
+  return psnr_from_mse(std::max(0.0, se) / static_cast<double>(reference.size()));
 }
 
 VoxelLattice VoxelLattice::of(const io::WorldFrame& frame) {

@@ -14,6 +14,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <span>
 #include <vector>
 
 #include "gmf/aggregation.hpp"
@@ -106,5 +107,13 @@ class BlockRasterizer {
 // TBB-parallel over blocks; deterministic. Memory: 4 bytes per voxel of the frame.
 [[nodiscard]] std::vector<float> rasterize_mixture(const GaussianMixture& mixture, const io::WorldFrame& frame,
                                                    const RasterizeOptions& options);
+
+// psnr(rasterize_mixture(mixture, frame, options), reference) without holding the
+// rasterized volume: the squared error is Σ V² over every voxel plus, block by
+// block, Σ (f − V)² − V² where the supports reach (f rounded to float as
+// rasterize_mixture stores it). `reference` has the frame's voxel count.
+// Deterministic; memory: one double per rasterized block.
+[[nodiscard]] double mixture_psnr(const GaussianMixture& mixture, const io::WorldFrame& frame,
+                                  const RasterizeOptions& options, std::span<const float> reference);
 
 }  // namespace hisnegs::gmf

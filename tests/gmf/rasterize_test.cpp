@@ -12,6 +12,8 @@
 #include <cmath>
 #include <random>
 #include <set>
+#include <span>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -138,6 +140,29 @@ Coverage expect_blocks_match_direct(const GaussianMixture& mixture, const VoxelL
 // Unclipped lattice of 0.1 world units, Gaussians of σ 0.08-0.25 around the
 // origin (so blocks of negative indices occur), cutoff δ = 9: inside each block,
 // terms beyond m = 9 are left out.
+// mixture_psnr (no rasterized volume held) equals psnr of the rasterized volume:
+// a perturbed mixture against the scene's volume, as a sum and as a softmax, with
+// a cutoff small enough that most voxels lie outside every support.
+TEST(GmfRasterize, MixturePsnrEqualsThePsnrOfTheRasterizedVolume) {
+  const Scene scene = make_scene(41);
+  GaussianMixture m = scene.truth;
+  for (auto& g : m) {
+    g.mean[0] += 0.7f * static_cast<float>(scene.frame.voxel_size().x());
+    g.intensity_logit -= 0.3f;
+  }
+  for (const RasterizeOptions options :
+       {RasterizeOptions{.cutoff = 9.0}, RasterizeOptions{.cutoff = 16.0, .aggregation = Aggregation::kSoftmax,
+                                                          .beta = 32.0}}) {
+    const double expected = psnr(rasterize_mixture(m, scene.frame, options), scene.volume.voxels);
+    const double streamed = mixture_psnr(m, scene.frame, options, scene.volume.voxels);
+    EXPECT_GT(expected, 10.0);
+    EXPECT_LT(expected, 80.0);
+    EXPECT_NEAR(streamed, expected, 1e-9);
+  }
+  EXPECT_THROW((void)mixture_psnr(m, scene.frame, {}, std::span<const float>(scene.volume.voxels).first(10)),
+               std::invalid_argument);
+}
+
 TEST(GmfRasterize, BlockValuesEqualDirectEvaluationWithinTheCutoff) {
   std::mt19937_64 rng(41);
   const GaussianMixture m = random_mixture(rng, 6, Eigen::Vector3d::Zero(), 1.0, 0.08, 0.25);
