@@ -221,12 +221,14 @@ void BlockRasterizer::evaluate(std::size_t b, BlockValues& out) const {
   for (std::size_t i = 0; i < terms.size(); ++i) out[i] = terms_value(terms[i], model);
 }
 
-std::vector<float> rasterize_mixture(const GaussianMixture& mixture, const io::WorldFrame& frame,
-                                     const RasterizeOptions& options) {
-  const Eigen::Vector3i n = frame.shape();
+namespace {
+
+// visit(b, i, f) for every voxel of every block of `raster` inside the frame's
+// shape `n`: i the voxel's linear index (x fastest), f its value. TBB-parallel over
+// blocks; each block is visited by one thread.
+template <class Visit>
+void for_each_rasterized_voxel(const BlockRasterizer& raster, const Eigen::Vector3i& n, Visit&& visit) {
   const std::size_t plane = static_cast<std::size_t>(n.x()) * n.y();
-  std::vector<float> out(plane * n.z(), 0.0f);
-  const BlockRasterizer raster(mixture, VoxelLattice::of(frame), options, "mixture");
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, raster.blocks(), 4), [&](const auto& r) {
     BlockValues values;
     for (std::size_t b = r.begin(); b != r.end(); ++b) {
@@ -236,11 +238,22 @@ std::vector<float> rasterize_mixture(const GaussianMixture& mixture, const io::W
       for (int z = o.z(); z < hi.z(); ++z)
         for (int y = o.y(); y < hi.y(); ++y)
           for (int x = o.x(); x < hi.x(); ++x) {
-            out[plane * z + static_cast<std::size_t>(y) * n.x() + x] =
-                static_cast<float>(values[block_offset(x - o.x(), y - o.y(), z - o.z())]);
+            visit(b, plane * z + static_cast<std::size_t>(y) * n.x() + x,
+                  values[block_offset(x - o.x(), y - o.y(), z - o.z())]);
           }
     }
   });
+}
+
+}  // namespace
+
+std::vector<float> rasterize_mixture(const GaussianMixture& mixture, const io::WorldFrame& frame,
+                                     const RasterizeOptions& options) {
+  const Eigen::Vector3i n = frame.shape();
+  std::vector<float> out(static_cast<std::size_t>(n.x()) * n.y() * n.z(), 0.0f);
+  const BlockRasterizer raster(mixture, VoxelLattice::of(frame), options, "mixture");
+  for_each_rasterized_voxel(raster, n,
+                            [&](std::size_t, std::size_t i, double f) { out[i] = static_cast<float>(f); });
   return out;
 }
 
@@ -267,24 +280,11 @@ double mixture_psnr(const GaussianMixture& mixture, const io::WorldFrame& frame,
   double se = 0;
   for (double c : chunk_se) se += c;
   const BlockRasterizer raster(mixture, VoxelLattice::of(frame), options, "mixture");
-  std::vector<double> block_se(raster.blocks(), 0.0);
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, raster.blocks(), 4), [&](const auto& r) {
-    BlockValues values;
-    for (std::size_t b = r.begin(); b != r.end(); ++b) {
-      raster.evaluate(b, values);
-      const Eigen::Vector3i o = raster.block_origin(b);
-      const Eigen::Vector3i hi = (o + Eigen::Vector3i::Constant(kRasterBlockDim)).cwiseMin(n);
-      double delta = 0;
-      for (int z = o.z(); z < hi.z(); ++z)
-        for (int y = o.y(); y < hi.y(); ++y)
-          for (int x = o.x(); x < hi.x(); ++x) {
-            const double v = reference[plane * z + static_cast<std::size_t>(y) * n.x() + x];
-            const double d = static_cast<double>(static_cast<float>(values[block_offset(x - o.x(), y - o.y(),
-                                                                                      z - o.z())])) - v;
-            delta += d * d - v * v;
-          }
-      block_se[b] = delta;
-    }
+  std::vector<double> block_se(raster.blocks(), 0.0);  // Σ (f − V)² − V² per block
+  for_each_rasterized_voxel(raster, n, [&](std::size_t b, std::size_t i, double f) {
+    const double v = reference[i];
+    const double d = static_cast<double>(static_cast<float>(f)) - v;
+    block_se[b] += d * d - v * v;
   });
   for (double d : block_se) se += d;
   return psnr_from_mse(std::max(0.0, se) / static_cast<double>(reference.size()));
