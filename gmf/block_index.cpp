@@ -18,7 +18,7 @@ BlockIndex build_block_index(const GaussianMixture& mixture, const SampleSet& sa
   // Dense map from leaf (8^3) coordinates to the sample blocks inside (several
   // blocks per leaf, and a foreground and a background block may coincide): CSR.
   // The leaves span the stack and any samples outside it (negative origins).
-  const auto leaf = [](int v) { return v >= 0 ? v / 8 : -((-v + 7) / 8); };
+  const auto leaf = [](int v) { return floor_div(v, 8); };
   const Eigen::Vector3i n = frame.shape();
   int lo_leaf[3] = {0, 0, 0}, nb[3] = {(n.x() + 7) / 8, (n.y() + 7) / 8, (n.z() + 7) / 8};
   {

@@ -35,10 +35,9 @@ struct Term {
 struct FitObjective::Blocks {
   const SampleSet* samples = nullptr;
   MixtureModel model;
-  std::vector<std::size_t> block;            // the sample blocks some Gaussian reaches
-  std::vector<std::uint32_t> begin;          // their Gaussians: ids[begin[c] .. begin[c + 1])
+  std::vector<std::size_t> block;    // the sample blocks some Gaussian reaches
+  std::vector<std::uint32_t> begin;  // their Gaussians: ids[begin[c] .. begin[c + 1])
   std::vector<std::uint32_t> ids;
-  std::size_t foreground_blocks_end = 0;     // blocks [0, this) hold foreground samples
 };
 
 FitObjective::FitObjective(const SampleSet& samples, const BlockIndex& index, std::size_t gaussians,

@@ -12,6 +12,9 @@ namespace hisnegs::gmf {
 // of different or zero length.
 [[nodiscard]] double mean_squared_error(std::span<const float> values, std::span<const float> reference);
 
+// Σ values² in double, reduced like mean_squared_error (any thread count, same value).
+[[nodiscard]] double sum_of_squares(std::span<const float> values);
+
 // 10 log10(1 / mse) in dB; +infinity for mse = 0 (identical arrays).
 [[nodiscard]] double psnr_from_mse(double mse);
 

@@ -266,19 +266,7 @@ double mixture_psnr(const GaussianMixture& mixture, const io::WorldFrame& frame,
                                 std::to_string(n.x()) + "x" + std::to_string(n.y()) + "x" + std::to_string(n.z()) +
                                 " frame");
   }
-  // Σ V² over every voxel (the squared error of f = 0), in fixed chunks summed in order.
-  constexpr std::size_t kChunk = std::size_t{1} << 16;
-  std::vector<double> chunk_se((reference.size() + kChunk - 1) / kChunk, 0.0);
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, chunk_se.size()), [&](const auto& r) {
-    for (std::size_t c = r.begin(); c != r.end(); ++c) {
-      const std::size_t end = std::min(reference.size(), (c + 1) * kChunk);
-      double sum = 0;
-      for (std::size_t i = c * kChunk; i < end; ++i) sum += static_cast<double>(reference[i]) * reference[i];
-      chunk_se[c] = sum;
-    }
-  });
-  double se = 0;
-  for (double c : chunk_se) se += c;
+  double se = sum_of_squares(reference);  // the squared error of f = 0
   const BlockRasterizer raster(mixture, VoxelLattice::of(frame), options, "mixture");
   std::vector<double> block_se(raster.blocks(), 0.0);  // Σ (f − V)² − V² per block
   for_each_rasterized_voxel(raster, n, [&](std::size_t b, std::size_t i, double f) {

@@ -12,8 +12,6 @@
 namespace hisnegs::gmf {
 namespace {
 
-int floor_div(int a, int b) { return a >= 0 ? a / b : -((-a + b - 1) / b); }
-
 // The shell outside the box: for every foreground voxel on a face of the stack,
 // the `depth` voxels beyond it along that face's outward normal, value 0 and
 // weight 1 (every such voxel is sampled), grouped into blocks of out.block and

@@ -14,6 +14,10 @@
 
 namespace hisnegs::gmf {
 
+// ⌊a / b⌋ for b > 0 and any int a: block and leaf coordinates of voxel indices,
+// which are negative for samples outside the stack.
+[[nodiscard]] constexpr int floor_div(int a, int b) { return a >= 0 ? a / b : -((-a + b - 1) / b); }
+
 struct SampleSet {
   // Structure of arrays, one entry per sample, blocks stored contiguously.
   std::vector<double> x, y, z;  // world position of the voxel centre
