@@ -214,6 +214,10 @@ TEST_F(BadInput, HostileValuesAreRefusedUpFront) {
   // A crop smaller than the SSIM window.
   testing::write_text(in("crop.yaml"), "train:\n  crop_size: 5\n");
   expect_rejected({"--config", in("crop.yaml"), "vdb", in("ok.tif"), "-o", out()}, {"train.crop_size = 5", "SSIM"});
+  // The fit's outside shell deeper than a leaf.
+  testing::write_text(in("outside.yaml"), "gmf:\n  outside_voxels: 9\n");
+  expect_rejected({"--config", in("outside.yaml"), "vdb", in("ok.tif"), "-o", out()},
+                  {"gmf.outside_voxels = 9", "[0, 8]"});
   // Degenerate spacing, on the command line and through the box it makes.
   expect_rejected({"vdb", in("ok.tif"), "--spacing", "1e-20,1,1", "-o", out()}, {"volume.spacing_um", "factor"});
   expect_rejected({"gt", in("ok.tif"), "--spacing", "1e-20,1,1", "-o", gt}, {"spacing_um"});
