@@ -10,9 +10,11 @@
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <vector>
 
+#include "gmf/detail/candidates.hpp"
 #include "gmf/gaussian_math.hpp"
 
 namespace hisnegs::gmf {
@@ -76,11 +78,25 @@ double FitObjective::evaluate(const double* params, double* gradient, double* fo
   const bool soft = model.aggregation == Aggregation::kSoftmax;
   const std::size_t K = gaussians_;
   std::vector<GaussianFrame<double>> frames(K);
+  // Per Gaussian, one row of its candidate fields (detail::kGaussianRow).
+  std::vector<double> rows(K * detail::kGaussianRow);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, K, 256), [&](const tbb::blocked_range<std::size_t>& range) {
     for (std::size_t k = range.begin(); k != range.end(); ++k) {
-      prepare_gaussian(params + kGaussianParamCount * k, frames[k]);
+      GaussianFrame<double>& fr = frames[k];
+      prepare_gaussian(params + kGaussianParamCount * k, fr);
+      double* p = rows.data() + k * detail::kGaussianRow;
+      for (int i = 0; i < 3; ++i) {
+        p[i] = fr.mean[i];
+        for (int j = 0; j < 3; ++j) p[3 + 3 * i + j] = fr.R[3 * j + i] * fr.inv_scale[i];
+      }
+      p[detail::kRowMaxInvScale] = std::max({fr.inv_scale[0], fr.inv_scale[1], fr.inv_scale[2]});
     }
   });
+  // A candidate whose √m at the block's centre exceeds √cutoff by more than
+  // max_inv_scale × the block's radius reaches none of its samples (√m is a norm
+  // of x − μ). The margin keeps the test conservative under rounding, so the
+  // terms are exactly those of testing each sample.
+  const double reach = std::sqrt(model.cutoff) * (1 + 1e-9) + 1e-12;
   const std::size_t blocks = bl.block.size();
   std::vector<double> chunk_loss(kChunks, 0.0), chunk_fg(kChunks, 0.0);
   std::vector<std::vector<double>> chunk_acc(kChunks);
@@ -90,23 +106,63 @@ double FitObjective::evaluate(const double* params, double* gradient, double* fo
     std::vector<double>& acc = chunk_acc[chunk];
     if (gradient) acc.assign(K * kAccCount, 0.0);
     std::vector<Term> terms;
+    std::vector<std::uint32_t> near;  // the block's candidates that may reach one of its samples
+    detail::CandidatePack pack;  // the near candidates
+    std::vector<std::int64_t> offset;
+    std::vector<double> slack, m, e, z, g, w;
     for (std::size_t c = begin; c < end; ++c) {
       const std::size_t b = bl.block[c];
       const bool foreground = sm.block_begin[b] < sm.foreground;
+      const std::uint32_t s0 = sm.block_begin[b], s1 = sm.block_begin[b + 1];
+      double centre[3] = {0, 0, 0}, radius2 = 0;
+      for (std::uint32_t s = s0; s < s1; ++s) {
+        centre[0] += sm.x[s];
+        centre[1] += sm.y[s];
+        centre[2] += sm.z[s];
+      }
+      for (double& v : centre) v /= static_cast<double>(s1 - s0);
+      for (std::uint32_t s = s0; s < s1; ++s) {
+        const double d[3] = {sm.x[s] - centre[0], sm.y[s] - centre[1], sm.z[s] - centre[2]};
+        radius2 = std::max(radius2, d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+      }
+      const double radius = std::sqrt(radius2) * (1 + 1e-9);
       const std::uint32_t* ids = bl.ids.data() + bl.begin[c];
       const std::size_t n_ids = bl.begin[c + 1] - bl.begin[c];
-      for (std::uint32_t s = sm.block_begin[b]; s < sm.block_begin[b + 1]; ++s) {
+      const std::size_t padded = (n_ids + detail::kCandidateAlign - 1) / detail::kCandidateAlign * detail::kCandidateAlign;
+      offset.resize(padded);
+      slack.resize(padded);
+      for (std::size_t i = 0; i < n_ids; ++i) offset[i] = static_cast<std::int64_t>(ids[i] * detail::kGaussianRow);
+      std::fill(offset.begin() + static_cast<std::ptrdiff_t>(n_ids), offset.end(), offset[0]);
+      detail::candidate_slack(rows.data(), offset.data(), n_ids, centre, radius, reach, slack.data());
+      near.clear();
+      for (std::size_t i = 0; i < n_ids; ++i) {
+        if (slack[i] <= 0) near.push_back(ids[i]);
+      }
+      pack.resize(near.size());
+      for (std::size_t i = 0; i < near.size(); ++i) {
+        const double* p = rows.data() + near[i] * detail::kGaussianRow;
+        for (int f = 0; f < detail::CandidatePack::kFields; ++f) pack.field(f)[i] = p[f];
+      }
+      if (m.size() < pack.stride) {
+        m.resize(pack.stride);
+        e.resize(pack.stride);
+        z.resize(3 * pack.stride);
+        g.resize(pack.stride);
+        w.resize(pack.stride);
+      }
+      for (std::uint32_t s = s0; s < s1; ++s) {
         const double x[3] = {sm.x[s], sm.y[s], sm.z[s]};
         terms.clear();
         double sum = 0, top = -INFINITY;
-        for (std::size_t i = 0; i < n_ids; ++i) {
-          const GaussianFrame<double>& fr = frames[ids[i]];
+        detail::candidate_distances(pack, x, m.data(), e.data(), z.data());
+        for (std::size_t i = 0; i < pack.size; ++i) {
+          if (m[i] > model.cutoff) continue;  // outside the support: contributes nothing
           Term t;
-          const double m = mahalanobis(fr, x, t.z);
-          if (m > model.cutoff) continue;  // outside the support: contributes nothing
-          t.k = ids[i];
-          t.e = std::exp(-0.5 * m);
-          t.g = fr.a * t.e;
+          t.k = near[i];
+          t.e = e[i];
+          t.g = frames[t.k].a * t.e;
+          for (int j = 0; j < 3; ++j) t.z[j] = z[static_cast<std::size_t>(j) * pack.stride + i];
+          g[terms.size()] = t.g;
           sum += t.g;
           top = std::max(top, t.g);
           terms.push_back(t);
@@ -118,8 +174,10 @@ double FitObjective::evaluate(const double* params, double* gradient, double* fo
           f = sum;
         } else if (!terms.empty()) {
           double W = 0;
-          for (Term& t : terms) {
-            t.w = std::exp(model.beta * (t.g - top));
+          detail::shifted_exp(g.data(), terms.size(), model.beta, top, w.data());
+          for (std::size_t i = 0; i < terms.size(); ++i) {
+            Term& t = terms[i];
+            t.w = w[i];
             S += t.w;
             W += t.w * t.g;
           }

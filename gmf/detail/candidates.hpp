@@ -1,0 +1,52 @@
+// SPDX-License-Identifier: Apache-2.0
+// The hot loop of the stage-1 objective (gmf/objective.cpp): at one sample, the
+// Mahalanobis distance, local coordinates and e^{−m/2} of every candidate Gaussian
+// of its block at once, SIMD across candidates (Highway, dispatched at run time).
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <vector>
+
+namespace hisnegs::gmf::detail {
+
+inline constexpr std::size_t kCandidateAlign = 32;  // ≥ the widest SIMD vector of doubles on any target
+
+// A block's candidate Gaussians, structure of arrays: field f of candidate i at
+// data[f * stride + i]. Fields: the mean (3), then A = diag(1/s) Rᵀ row-major (9),
+// so that z = A (x − μ) and m = |z|². stride is a multiple of every SIMD width;
+// the padding holds zeros.
+struct CandidatePack {
+  static constexpr int kFields = 12;
+  std::vector<double> data;
+  std::size_t size = 0, stride = 0;
+
+  void resize(std::size_t n);  // zero-filled
+  double* field(int f) { return data.data() + static_cast<std::size_t>(f) * stride; }
+  [[nodiscard]] const double* field(int f) const { return data.data() + static_cast<std::size_t>(f) * stride; }
+};
+
+// Each Gaussian's candidate fields in one row of kGaussianRow doubles: the
+// CandidatePack fields, then 1 / its smallest σ (how fast √m can change along a
+// unit step), then padding.
+inline constexpr std::size_t kGaussianRow = 16;
+inline constexpr std::size_t kRowMaxInvScale = CandidatePack::kFields;
+
+// For the n candidates whose rows start at rows + offset[i] (offset holds n
+// rounded up to a multiple of kCandidateAlign valid offsets): slack[i] =
+// √m(centre) − max_inv_scale · radius − reach, a lower bound of √m − reach over
+// the ball of `radius` about `centre`. slack holds the rounded-up count.
+void candidate_slack(const double* rows, const std::int64_t* offset, std::size_t n, const double centre[3],
+                     double radius, double reach, double* slack);
+
+// Per candidate i < pack.size (and the padding up to pack.stride): m[i], e[i] =
+// e^{−m[i]/2} and z[c * stride + i] (c = 0, 1, 2) at the point x. Each output holds
+// pack.stride values (z: 3 × stride).
+void candidate_distances(const CandidatePack& pack, const double x[3], double* m, double* e, double* z);
+
+// out[i] = e^{scale (v[i] − shift)} for i < n (n ≤ the capacity of v and out, which
+// must hold n rounded up to a multiple of kCandidateAlign).
+void shifted_exp(const double* v, std::size_t n, double scale, double shift, double* out);
+
+
+}  // namespace hisnegs::gmf::detail
