@@ -1,13 +1,13 @@
 // SPDX-License-Identifier: Apache-2.0
-// build_block_index: per-Gaussian support boxes -> (block, Gaussian) pairs -> CSR.
+// build_block_index: per-Gaussian support boxes -> per-block counts -> CSR, filled and sorted per block.
 #include "gmf/block_index.hpp"
 
-#include <tbb/combinable.h>
+#include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
-#include <utility>
 
 #include "gmf/gaussian_math.hpp"
 
@@ -45,56 +45,70 @@ BlockIndex build_block_index(const GaussianMixture& mixture, const SampleSet& sa
       cell_blocks[fill[cell_of(samples.block_origin[b])]++] = static_cast<std::uint32_t>(b);
   }
 
-  tbb::combinable<std::vector<std::pair<std::uint32_t, std::uint32_t>>> pairs;
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, mixture.size(), 256), [&](const auto& r) {
-    auto& local = pairs.local();
-    for (std::size_t k = r.begin(); k != r.end(); ++k) {
-      const GaussianFrame<double> f = frame_of(mixture[k]);
-      const double* mean = f.mean;
-      double half[3];
-      support_half_extents(f, cutoff, half);
-      for (double& h : half) h = h * scale_pad + pad_world;
-      const Eigen::Vector3d lo =
-          frame.index_from_world(Eigen::Vector3d(mean[0] - half[0], mean[1] - half[1], mean[2] - half[2]));
-      const Eigen::Vector3d hi =
-          frame.index_from_world(Eigen::Vector3d(mean[0] + half[0], mean[1] + half[1], mean[2] + half[2]));
-      // Leaf l holds voxel centres 8l .. 8l + 7: overlap iff hi >= 8l and lo <= 8l + 7
-      // (b0, b1: leaves relative to lo_leaf, clamped to the map).
-      int b0[3], b1[3];
-      bool empty = false;
-      for (int a = 0; a < 3; ++a) {
-        const double first = std::clamp(std::ceil((lo[a] - 7.0) / 8.0) - lo_leaf[a], 0.0, double(nb[a]));
-        const double last = std::clamp(std::floor(hi[a] / 8.0) - lo_leaf[a], -1.0, double(nb[a] - 1));
-        b0[a] = static_cast<int>(first);
-        b1[a] = static_cast<int>(last);
-        empty |= b0[a] > b1[a];
-      }
-      if (empty) continue;
-      for (int bz = b0[2]; bz <= b1[2]; ++bz)
-        for (int by = b0[1]; by <= b1[1]; ++by)
-          for (int bx = b0[0]; bx <= b1[0]; ++bx) {
-            const std::size_t c = (static_cast<std::size_t>(bz) * nb[1] + by) * nb[0] + bx;
-            for (std::uint32_t i = cell_begin[c]; i < cell_begin[c + 1]; ++i) {
-              // The block's voxel centres: origin .. origin + block - 1 per axis.
-              const auto& o = samples.block_origin[cell_blocks[i]];
-              bool overlap = true;
-              for (int a = 0; a < 3; ++a) overlap = overlap && hi[a] >= o[a] && lo[a] <= o[a] + samples.block - 1;
-              if (overlap) local.emplace_back(cell_blocks[i], static_cast<std::uint32_t>(k));
-            }
+  // Every block Gaussian k's padded support box overlaps, in no particular order.
+  const auto for_each_block_of = [&](std::size_t k, auto&& visit) {
+    const GaussianFrame<double> f = frame_of(mixture[k]);
+    const double* mean = f.mean;
+    double half[3];
+    support_half_extents(f, cutoff, half);
+    for (double& h : half) h = h * scale_pad + pad_world;
+    const Eigen::Vector3d lo =
+        frame.index_from_world(Eigen::Vector3d(mean[0] - half[0], mean[1] - half[1], mean[2] - half[2]));
+    const Eigen::Vector3d hi =
+        frame.index_from_world(Eigen::Vector3d(mean[0] + half[0], mean[1] + half[1], mean[2] + half[2]));
+    // Leaf l holds voxel centres 8l .. 8l + 7: overlap iff hi >= 8l and lo <= 8l + 7
+    // (b0, b1: leaves relative to lo_leaf, clamped to the map).
+    int b0[3], b1[3];
+    for (int a = 0; a < 3; ++a) {
+      const double first = std::clamp(std::ceil((lo[a] - 7.0) / 8.0) - lo_leaf[a], 0.0, double(nb[a]));
+      const double last = std::clamp(std::floor(hi[a] / 8.0) - lo_leaf[a], -1.0, double(nb[a] - 1));
+      b0[a] = static_cast<int>(first);
+      b1[a] = static_cast<int>(last);
+      if (b0[a] > b1[a]) return;
+    }
+    for (int bz = b0[2]; bz <= b1[2]; ++bz)
+      for (int by = b0[1]; by <= b1[1]; ++by)
+        for (int bx = b0[0]; bx <= b1[0]; ++bx) {
+          const std::size_t c = (static_cast<std::size_t>(bz) * nb[1] + by) * nb[0] + bx;
+          for (std::uint32_t i = cell_begin[c]; i < cell_begin[c + 1]; ++i) {
+            // The block's voxel centres: origin .. origin + block - 1 per axis.
+            const auto& o = samples.block_origin[cell_blocks[i]];
+            bool overlap = true;
+            for (int a = 0; a < 3; ++a) overlap = overlap && hi[a] >= o[a] && lo[a] <= o[a] + samples.block - 1;
+            if (overlap) visit(cell_blocks[i]);
           }
+        }
+  };
+  // Two passes (count, then fill) straight into the CSR arrays: a list of (block,
+  // Gaussian) pairs to sort needed 4-6 times the index's memory at its peak, on a
+  // large stack more than the volume itself. Each block's list is sorted at the end.
+  const std::size_t blocks = samples.blocks();
+  BlockIndex index;
+  std::vector<std::atomic<std::uint32_t>> count(blocks);
+  for (auto& c : count) c.store(0, std::memory_order_relaxed);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, mixture.size(), 256), [&](const auto& r) {
+    for (std::size_t k = r.begin(); k != r.end(); ++k) {
+      for_each_block_of(k, [&](std::uint32_t b) { count[b].fetch_add(1, std::memory_order_relaxed); });
     }
   });
-  std::vector<std::pair<std::uint32_t, std::uint32_t>> all;
-  pairs.combine_each([&](const auto& v) { all.insert(all.end(), v.begin(), v.end()); });
-  std::sort(all.begin(), all.end());
-  BlockIndex index;
-  index.begin.assign(samples.blocks() + 1, 0);
-  index.gaussians.reserve(all.size());
-  for (const auto& [b, k] : all) {
-    ++index.begin[b + 1];
-    index.gaussians.push_back(k);
+  index.begin.assign(blocks + 1, 0);
+  for (std::size_t b = 0; b < blocks; ++b) {
+    index.begin[b + 1] = index.begin[b] + count[b].load(std::memory_order_relaxed);
+    count[b].store(index.begin[b], std::memory_order_relaxed);  // now the next free slot
   }
-  for (std::size_t b = 0; b < samples.blocks(); ++b) index.begin[b + 1] += index.begin[b];
+  index.gaussians.resize(index.begin[blocks]);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, mixture.size(), 256), [&](const auto& r) {
+    for (std::size_t k = r.begin(); k != r.end(); ++k) {
+      for_each_block_of(k, [&](std::uint32_t b) {
+        index.gaussians[count[b].fetch_add(1, std::memory_order_relaxed)] = static_cast<std::uint32_t>(k);
+      });
+    }
+  });
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, blocks, 1024), [&](const auto& r) {
+    for (std::size_t b = r.begin(); b != r.end(); ++b) {
+      std::sort(index.gaussians.begin() + index.begin[b], index.gaussians.begin() + index.begin[b + 1]);
+    }
+  });
   return index;
 }
 

@@ -29,7 +29,8 @@ std::string optimizer_name(Optimizer optimizer) {
   return name;
 }
 
-Comparison compare_optimizers(const io::Volume& volume, const io::SparseGrid& grid, const GaussianMixture& initial,
+Comparison compare_optimizers(const io::Volume& volume, const SampleSet& samples, const io::WorldFrame& frame,
+                              const GaussianMixture& initial,
                               const GmfOptions& base, const CompareOptions& options,
                               const std::function<void(const OptimizerRun&, const FitIteration&)>& on_progress,
                               const std::function<void(const Comparison&)>& after_run) {
@@ -65,7 +66,7 @@ Comparison compare_optimizers(const io::Volume& volume, const io::SparseGrid& gr
       if (on_progress) on_progress(run, it);
     };
     try {
-      const FitResult result = fit_mixture(volume, grid, mixture, o, record);
+      const FitResult result = fit_mixture(volume, samples, frame, mixture, o, record);
       run.result = result;
     } catch (const io::InputError&) {
       throw;

@@ -382,15 +382,23 @@ SampleFit measure_on_samples(const GaussianMixture& mixture, const SampleSet& sa
 
 }  // namespace
 
+SampleSet fit_samples(const io::SparseGrid& grid, const GmfOptions& options) {
+  options.validate();
+  return extract_samples(grid, options.background_weight, options.residual_block_voxels, options.outside_voxels);
+}
+
 FitResult fit_mixture(const io::Volume& volume, const io::SparseGrid& grid, GaussianMixture& mixture,
                       const GmfOptions& options, const std::function<void(const FitIteration&)>& on_progress) {
+  return fit_mixture(volume, fit_samples(grid, options), grid.frame(), mixture, options, on_progress);
+}
+
+FitResult fit_mixture(const io::Volume& volume, const SampleSet& samples, const io::WorldFrame& frame,
+                      GaussianMixture& mixture, const GmfOptions& options,
+                      const std::function<void(const FitIteration&)>& on_progress) {
   options.validate();
   FitClock clock;
   FitResult result;
   FitLog log{result, clock, on_progress, options.stop_loss};
-  const io::WorldFrame frame = grid.frame();
-  const SampleSet samples =
-      extract_samples(grid, options.background_weight, options.residual_block_voxels, options.outside_voxels);
   detail::GaussianManifold manifold;
   SolverState state;
   int iterations = 0;
@@ -416,6 +424,7 @@ FitResult fit_mixture(const io::Volume& volume, const io::SparseGrid& grid, Gaus
     FitRound stats;
     stats.round = round;
     stats.pruned = take_round_result(problem, options, mixture);
+    problem = RoundProblem{};  // its padded index is the largest allocation: gone before the next index is built
     result.pruned += stats.pruned;
     // The round's result's block index: for its measurement and its density control.
     const BlockIndex current = build_block_index(mixture, samples, frame, model.cutoff);

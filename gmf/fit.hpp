@@ -11,6 +11,7 @@
 
 #include "gmf/gaussian_mixture.hpp"
 #include "gmf/gmf_options.hpp"
+#include "gmf/samples.hpp"
 #include "io/sparse_grid.hpp"
 #include "io/volume.hpp"
 
@@ -48,12 +49,22 @@ struct FitResult {
   std::string stop_reason;
 };
 
-// Fits `mixture` (modified in place) to `volume` (normalized) using the samples of
-// `grid`, with gmf.aggregation (sum, or softmax along the β schedule). Optimizers:
+// The fit's samples of `grid` (gmf.background_weight, residual_block_voxels,
+// outside_voxels). Once they are taken the grid is no longer needed: on a large
+// stack its scattered background leaves are as large as the volume, so callers
+// that keep the fit's memory low drop it before fitting.
+[[nodiscard]] SampleSet fit_samples(const io::SparseGrid& grid, const GmfOptions& options);
+
+// Fits `mixture` (modified in place) to `volume` (normalized, in `frame`) using
+// `samples` (fit_samples()), with gmf.aggregation (sum, or softmax along the β schedule). Optimizers:
 // brick-lm (gmf/brick_solver.hpp), lm, lm-cgnr, dogleg (one global Ceres least-
 // squares problem per round), lbfgs (ceres::GradientProblem) and adam. No solver
 // starts work after gmf.time_budget_s; the final 3D PSNR is measured after it.
 // `on_progress` is called for every log line.
+FitResult fit_mixture(const io::Volume& volume, const SampleSet& samples, const io::WorldFrame& frame,
+                      GaussianMixture& mixture, const GmfOptions& options,
+                      const std::function<void(const FitIteration&)>& on_progress = {});
+// The same with fit_samples(grid, options) in grid.frame().
 FitResult fit_mixture(const io::Volume& volume, const io::SparseGrid& grid, GaussianMixture& mixture,
                       const GmfOptions& options, const std::function<void(const FitIteration&)>& on_progress = {});
 

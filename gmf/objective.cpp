@@ -37,9 +37,8 @@ struct Term {
 struct FitObjective::Blocks {
   const SampleSet* samples = nullptr;
   MixtureModel model;
-  std::vector<std::size_t> block;    // the sample blocks some Gaussian reaches
-  std::vector<std::uint32_t> begin;  // their Gaussians: ids[begin[c] .. begin[c + 1])
-  std::vector<std::uint32_t> ids;
+  const BlockIndex* index = nullptr;  // not copied: on a large stack its lists are the fit's largest part
+  std::vector<std::size_t> block;     // the sample blocks some Gaussian reaches
 };
 
 FitObjective::FitObjective(const SampleSet& samples, const BlockIndex& index, std::size_t gaussians,
@@ -48,7 +47,7 @@ FitObjective::FitObjective(const SampleSet& samples, const BlockIndex& index, st
   constant_ = unreached_loss(samples, index);
   blocks_->samples = &samples;
   blocks_->model = model;
-  blocks_->begin.push_back(0);
+  blocks_->index = &index;
   for (std::size_t b = 0; b < samples.blocks(); ++b) {
     const auto ids = index.of(b);
     const bool foreground = samples.block_begin[b] < samples.foreground;  // blocks hold one part only
@@ -61,8 +60,6 @@ FitObjective::FitObjective(const SampleSet& samples, const BlockIndex& index, st
       continue;
     }
     blocks_->block.push_back(b);
-    blocks_->ids.insert(blocks_->ids.end(), ids.begin(), ids.end());
-    blocks_->begin.push_back(static_cast<std::uint32_t>(blocks_->ids.size()));
   }
 }
 
@@ -126,8 +123,9 @@ double FitObjective::evaluate(const double* params, double* gradient, double* fo
         radius2 = std::max(radius2, d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
       }
       const double radius = std::sqrt(radius2) * (1 + 1e-9);
-      const std::uint32_t* ids = bl.ids.data() + bl.begin[c];
-      const std::size_t n_ids = bl.begin[c + 1] - bl.begin[c];
+      const std::span<const std::uint32_t> candidates = bl.index->of(b);
+      const std::uint32_t* ids = candidates.data();
+      const std::size_t n_ids = candidates.size();
       const std::size_t padded = (n_ids + detail::kCandidateAlign - 1) / detail::kCandidateAlign * detail::kCandidateAlign;
       offset.resize(padded);
       slack.resize(padded);

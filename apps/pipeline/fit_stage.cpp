@@ -52,13 +52,16 @@ FitSetup prepare_fit(const std::string& volume_path, const FitConfig& config, co
   setup.loaded = io::load_volume(volume_path, config.get<&AppConfig::volume>());
   io::SparseGridOptions sparse = sparse_grid;
   sparse.background_fraction = gmf.background_fraction;  // the fit's own need (see GmfOptions)
-  setup.grid = io::build_sparse_grid(setup.loaded.volume, setup.loaded.frame.aspect(), sparse);
+  {
+    const io::SparseGrid grid = io::build_sparse_grid(setup.loaded.volume, setup.loaded.frame.aspect(), sparse);
+    setup.samples = gmf::fit_samples(grid, gmf);
+    setup.active_voxels = grid.active_voxels();
+  }
   gmf::InitReport init_report;
   setup.mixture =
       gmf::initialize_mixture(setup.loaded.volume, setup.loaded.frame, sparse_grid.threshold, gmf, &init_report);
   progress.say("%s: %s: %lld samples (%lld active voxels), %zu Gaussians %s %.4g (budget %d), %s", label,
-               volume_path.c_str(), static_cast<long long>(setup.grid.active_voxels() + setup.grid.background_voxels()),
-               static_cast<long long>(setup.grid.active_voxels()), setup.mixture.size(),
+               volume_path.c_str(), static_cast<long long>(setup.samples.size()), static_cast<long long>(setup.active_voxels), setup.mixture.size(),
                gmf.init == gmf::FitInit::kGrid ? "on a grid of step" : "at local maxima, spacing",
                init_report.cell_world, gmf.gaussians, format_seconds(watch.elapsed()).c_str());
   return setup;
@@ -83,7 +86,7 @@ FitOutcome fit_to_checkpoint(const std::string& volume, const FitConfig& config,
   FitSetup setup = prepare_fit(volume, config, "fit", progress);
   gmf::GaussianMixture& mixture = setup.mixture;
   const gmf::FitResult result =
-      gmf::fit_mixture(setup.loaded.volume, setup.grid, mixture, config.get<&AppConfig::gmf>(),
+      gmf::fit_mixture(setup.loaded.volume, setup.samples, setup.loaded.frame, mixture, config.get<&AppConfig::gmf>(),
                        [&](const gmf::FitIteration& it) { report_iteration(it, progress); });
   for (const gmf::FitRound& r : result.rounds) {
     progress.say("fit: round %d density control: %d pruned, %d split, %d cloned -> K %d", r.round, r.pruned, r.split,

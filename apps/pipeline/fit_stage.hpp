@@ -21,12 +21,14 @@ namespace hisnegs::apps {
 
 using FitConfig = ConfigSlice<&AppConfig::volume, &AppConfig::sparse_grid, &AppConfig::gmf>;
 
-// What the GMF fit starts from: the normalized volume, its samples (with the fit's
-// background share, gmf.background_fraction) and the mixture initialized on the
+// What the GMF fit starts from: the normalized volume, its samples (from the
+// sparse grid with the fit's background share, gmf.background_fraction; the grid
+// itself is dropped once they are taken) and the mixture initialized on the
 // foreground grid (sparse_grid.threshold, gmf.gaussians).
 struct FitSetup {
   io::LoadedVolume loaded;
-  io::SparseGrid grid;
+  gmf::SampleSet samples;
+  std::int64_t active_voxels = 0;  // foreground + band voxels of the grid
   gmf::GaussianMixture mixture;
 };
 // Loads `volume_path` and prepares the fit; one line "LABEL: ...".

@@ -130,7 +130,7 @@ gmf::Comparison write_optimizer_comparison(const std::filesystem::path& dir, con
   std::filesystem::create_directories(dir);
   io::Stopwatch watch;
   const FitSetup setup = prepare_fit(volume, config, "compare", progress);
-  const std::int64_t samples = setup.grid.active_voxels() + setup.grid.background_voxels();
+  const auto samples = static_cast<std::int64_t>(setup.samples.size());
   auto save = [&](const gmf::Comparison& c) {
     write_text_file(dir / "results.csv", results_csv(c));
     write_text_file(dir / "curves.csv", curves_csv(c));
@@ -139,7 +139,7 @@ gmf::Comparison write_optimizer_comparison(const std::filesystem::path& dir, con
     io::write_png(dir / "loss_vs_time.png", loss_plot(c));
   };
   const gmf::Comparison c = gmf::compare_optimizers(
-      setup.loaded.volume, setup.grid, setup.mixture, config.get<&AppConfig::gmf>(), compare,
+      setup.loaded.volume, setup.samples, setup.loaded.frame, setup.mixture, config.get<&AppConfig::gmf>(), compare,
       [&](const gmf::OptimizerRun& run, const gmf::FitIteration& it) {
         if (it.psnr_3d < 0 && it.iteration % 25 != 0) return;
         progress.say("compare: %-8s iteration %5d: loss %.6g%s, %s", run.name.c_str(), it.iteration, it.loss,

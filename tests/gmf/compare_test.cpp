@@ -54,7 +54,7 @@ TEST(GmfCompare, AdamDefinesTheTargetAndRunsFirst) {
   o.adam_steps = 25;
   o.time_budget_s = 20;
   int lines = 0;
-  const Comparison c = compare_optimizers(scene.volume, grid, start, base, o,
+  const Comparison c = compare_optimizers(scene.volume, fit_samples(grid, base), grid.frame(), start, base, o,
                                           [&](const OptimizerRun&, const FitIteration&) { ++lines; });
   ASSERT_EQ(c.runs.size(), 2u);
   EXPECT_EQ(c.runs[0].name, "adam");
@@ -87,7 +87,7 @@ TEST(GmfCompare, EmptyListIsAnError) {
   const io::SparseGrid grid = io::build_sparse_grid(scene.volume, Eigen::Vector3d(1.0, 1.0, 1.0), {});
   CompareOptions o;
   o.optimizers.clear();
-  EXPECT_THROW(compare_optimizers(scene.volume, grid, scene.truth, GmfOptions{}, o), io::InputError);
+  EXPECT_THROW(compare_optimizers(scene.volume, fit_samples(grid, GmfOptions{}), grid.frame(), scene.truth, GmfOptions{}, o), io::InputError);
 }
 
 }  // namespace
