@@ -30,8 +30,7 @@ std::string optimizer_name(Optimizer optimizer) {
 }
 
 Comparison compare_optimizers(const io::Volume& volume, const SampleSet& samples, const io::WorldFrame& frame,
-                              const GaussianMixture& initial,
-                              const GmfOptions& base, const CompareOptions& options,
+                              const GaussianMixture& initial, const GmfOptions& base, const CompareOptions& options,
                               const std::function<void(const OptimizerRun&, const FitIteration&)>& on_progress,
                               const std::function<void(const Comparison&)>& after_run) {
   if (options.optimizers.empty()) throw io::InputError("compare-optimizers: no optimizers to compare");

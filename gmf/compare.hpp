@@ -44,14 +44,14 @@ struct Comparison {
 // The configured name of an optimizer ("lm-cgnr", ...).
 std::string optimizer_name(Optimizer optimizer);
 
-// Runs the comparison on `samples` (fit_samples()) of `volume` in `frame`. `base` supplies everything but the optimizer, the budget and
-// density control; `initial` is copied for every run. `on_progress(run, line)` is
-// called for every log line, `after_run(comparison so far)` after each optimizer (to
-// save partial results). A run that fails (out of memory, a solver error) is recorded
-// as failed and the others still run; bad input (io::InputError) is rethrown.
+// Runs the comparison on `samples` (fit_samples()) of `volume` in `frame`. `base`
+// supplies everything but the optimizer, the budget and density control; `initial`
+// is copied for every run. `on_progress(run, line)` is called for every log line,
+// `after_run(comparison so far)` after each optimizer (to save partial results). A
+// run that fails (out of memory, a solver error) is recorded as failed and the
+// others still run; bad input (io::InputError) is rethrown.
 Comparison compare_optimizers(const io::Volume& volume, const SampleSet& samples, const io::WorldFrame& frame,
-                              const GaussianMixture& initial,
-                              const GmfOptions& base, const CompareOptions& options,
+                              const GaussianMixture& initial, const GmfOptions& base, const CompareOptions& options,
                               const std::function<void(const OptimizerRun&, const FitIteration&)>& on_progress = {},
                               const std::function<void(const Comparison&)>& after_run = {});
 

@@ -56,10 +56,11 @@ struct FitResult {
 [[nodiscard]] SampleSet fit_samples(const io::SparseGrid& grid, const GmfOptions& options);
 
 // Fits `mixture` (modified in place) to `volume` (normalized, in `frame`) using
-// `samples` (fit_samples()), with gmf.aggregation (sum, or softmax along the β schedule). Optimizers:
-// brick-lm (gmf/brick_solver.hpp), lm, lm-cgnr, dogleg (one global Ceres least-
-// squares problem per round), lbfgs (ceres::GradientProblem) and adam. No solver
-// starts work after gmf.time_budget_s; the final 3D PSNR is measured after it.
+// `samples` (fit_samples()), with gmf.aggregation (sum, or softmax along the β
+// schedule). Optimizers: brick-lm (gmf/brick_solver.hpp), lm, lm-cgnr, dogleg
+// (one global Ceres least-squares problem per round), lbfgs (ceres::GradientProblem)
+// and adam. No solver starts work after gmf.time_budget_s; the final 3D PSNR is
+// measured after it.
 // `on_progress` is called for every log line.
 FitResult fit_mixture(const io::Volume& volume, const SampleSet& samples, const io::WorldFrame& frame,
                       GaussianMixture& mixture, const GmfOptions& options,

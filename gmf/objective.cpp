@@ -39,6 +39,9 @@ struct FitObjective::Blocks {
   MixtureModel model;
   const BlockIndex* index = nullptr;  // not copied: on a large stack its lists are the fit's largest part
   std::vector<std::size_t> block;     // the sample blocks some Gaussian reaches
+  // Per listed block, the ball holding its samples: centre (their mean) and
+  // radius (their largest distance from it, with a relative margin of 1e-9).
+  std::vector<std::array<double, 4>> ball;
 };
 
 FitObjective::FitObjective(const SampleSet& samples, const BlockIndex& index, std::size_t gaussians,
@@ -60,6 +63,21 @@ FitObjective::FitObjective(const SampleSet& samples, const BlockIndex& index, st
       continue;
     }
     blocks_->block.push_back(b);
+    const std::uint32_t s0 = samples.block_begin[b], s1 = samples.block_begin[b + 1];
+    std::array<double, 4> ball = {0, 0, 0, 0};
+    for (std::uint32_t s = s0; s < s1; ++s) {
+      ball[0] += samples.x[s];
+      ball[1] += samples.y[s];
+      ball[2] += samples.z[s];
+    }
+    for (int a = 0; a < 3; ++a) ball[a] /= static_cast<double>(s1 - s0);
+    double radius2 = 0;
+    for (std::uint32_t s = s0; s < s1; ++s) {
+      const double d[3] = {samples.x[s] - ball[0], samples.y[s] - ball[1], samples.z[s] - ball[2]};
+      radius2 = std::max(radius2, d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+    }
+    ball[3] = std::sqrt(radius2) * (1 + 1e-9);
+    blocks_->ball.push_back(ball);
   }
 }
 
@@ -79,14 +97,8 @@ double FitObjective::evaluate(const double* params, double* gradient, double* fo
   std::vector<double> rows(K * detail::kGaussianRow);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, K, 256), [&](const tbb::blocked_range<std::size_t>& range) {
     for (std::size_t k = range.begin(); k != range.end(); ++k) {
-      GaussianFrame<double>& fr = frames[k];
-      prepare_gaussian(params + kGaussianParamCount * k, fr);
-      double* p = rows.data() + k * detail::kGaussianRow;
-      for (int i = 0; i < 3; ++i) {
-        p[i] = fr.mean[i];
-        for (int j = 0; j < 3; ++j) p[3 + 3 * i + j] = fr.R[3 * j + i] * fr.inv_scale[i];
-      }
-      p[detail::kRowMaxInvScale] = std::max({fr.inv_scale[0], fr.inv_scale[1], fr.inv_scale[2]});
+      prepare_gaussian(params + kGaussianParamCount * k, frames[k]);
+      detail::write_candidate_row(frames[k], rows.data() + k * detail::kGaussianRow);
     }
   });
   // A candidate whose √m at the block's centre exceeds √cutoff by more than
@@ -104,43 +116,29 @@ double FitObjective::evaluate(const double* params, double* gradient, double* fo
     if (gradient) acc.assign(K * kAccCount, 0.0);
     std::vector<Term> terms;
     std::vector<std::uint32_t> near;  // the block's candidates that may reach one of its samples
-    detail::CandidatePack pack;  // the near candidates
+    detail::CandidatePack pack;       // the near candidates
     std::vector<std::int64_t> offset;
     std::vector<double> slack, m, e, z, g, w;
     for (std::size_t c = begin; c < end; ++c) {
       const std::size_t b = bl.block[c];
       const bool foreground = sm.block_begin[b] < sm.foreground;
       const std::uint32_t s0 = sm.block_begin[b], s1 = sm.block_begin[b + 1];
-      double centre[3] = {0, 0, 0}, radius2 = 0;
-      for (std::uint32_t s = s0; s < s1; ++s) {
-        centre[0] += sm.x[s];
-        centre[1] += sm.y[s];
-        centre[2] += sm.z[s];
-      }
-      for (double& v : centre) v /= static_cast<double>(s1 - s0);
-      for (std::uint32_t s = s0; s < s1; ++s) {
-        const double d[3] = {sm.x[s] - centre[0], sm.y[s] - centre[1], sm.z[s] - centre[2]};
-        radius2 = std::max(radius2, d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
-      }
-      const double radius = std::sqrt(radius2) * (1 + 1e-9);
+      const std::array<double, 4>& ball = bl.ball[c];
       const std::span<const std::uint32_t> candidates = bl.index->of(b);
       const std::uint32_t* ids = candidates.data();
       const std::size_t n_ids = candidates.size();
-      const std::size_t padded = (n_ids + detail::kCandidateAlign - 1) / detail::kCandidateAlign * detail::kCandidateAlign;
+      const std::size_t padded =
+          (n_ids + detail::kCandidateAlign - 1) / detail::kCandidateAlign * detail::kCandidateAlign;
       offset.resize(padded);
       slack.resize(padded);
       for (std::size_t i = 0; i < n_ids; ++i) offset[i] = static_cast<std::int64_t>(ids[i] * detail::kGaussianRow);
       std::fill(offset.begin() + static_cast<std::ptrdiff_t>(n_ids), offset.end(), offset[0]);
-      detail::candidate_slack(rows.data(), offset.data(), n_ids, centre, radius, reach, slack.data());
+      detail::candidate_slack(rows.data(), offset.data(), n_ids, ball.data(), ball[3], reach, slack.data());
       near.clear();
       for (std::size_t i = 0; i < n_ids; ++i) {
         if (slack[i] <= 0) near.push_back(ids[i]);
       }
-      pack.resize(near.size());
-      for (std::size_t i = 0; i < near.size(); ++i) {
-        const double* p = rows.data() + near[i] * detail::kGaussianRow;
-        for (int f = 0; f < detail::CandidatePack::kFields; ++f) pack.field(f)[i] = p[f];
-      }
+      pack.assign(rows.data(), near.data(), near.size());
       if (m.size() < pack.stride) {
         m.resize(pack.stride);
         e.resize(pack.stride);

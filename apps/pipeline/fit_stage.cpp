@@ -61,7 +61,8 @@ FitSetup prepare_fit(const std::string& volume_path, const FitConfig& config, co
   setup.mixture =
       gmf::initialize_mixture(setup.loaded.volume, setup.loaded.frame, sparse_grid.threshold, gmf, &init_report);
   progress.say("%s: %s: %lld samples (%lld active voxels), %zu Gaussians %s %.4g (budget %d), %s", label,
-               volume_path.c_str(), static_cast<long long>(setup.samples.size()), static_cast<long long>(setup.active_voxels), setup.mixture.size(),
+               volume_path.c_str(), static_cast<long long>(setup.samples.size()),
+               static_cast<long long>(setup.active_voxels), setup.mixture.size(),
                gmf.init == gmf::FitInit::kGrid ? "on a grid of step" : "at local maxima, spacing",
                init_report.cell_world, gmf.gaussians, format_seconds(watch.elapsed()).c_str());
   return setup;

@@ -42,8 +42,8 @@ void CandidateDistances(const CandidatePack& pack, const double* x, double* m, d
   }
 }
 
-void CandidateSlack(const double* rows, const std::int64_t* offset, std::size_t n, const double* centre,
-                    double radius, double reach, double* slack) {
+void CandidateSlack(const double* rows, const std::int64_t* offset, std::size_t n, const double* centre, double radius,
+                    double reach, double* slack) {
   const hn::ScalableTag<double> d;
   const hn::RebindToSigned<decltype(d)> di;
   const std::size_t N = hn::Lanes(d);
@@ -87,6 +87,14 @@ void CandidatePack::resize(std::size_t n) {
   size = n;
   stride = (n + kCandidateAlign - 1) / kCandidateAlign * kCandidateAlign;
   data.assign(static_cast<std::size_t>(kFields) * stride, 0.0);
+}
+
+void CandidatePack::assign(const double* rows, const std::uint32_t* ids, std::size_t n) {
+  resize(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    const double* row = rows + ids[i] * kGaussianRow;
+    for (int f = 0; f < kFields; ++f) field(f)[i] = row[f];
+  }
 }
 
 void candidate_distances(const CandidatePack& pack, const double x[3], double* m, double* e, double* z) {

@@ -4,9 +4,12 @@
 // of its block at once, SIMD across candidates (Highway, dispatched at run time).
 #pragma once
 
+#include <algorithm>
 #include <cstddef>
 #include <cstdint>
 #include <vector>
+
+#include "gmf/gaussian_math.hpp"
 
 namespace hisnegs::gmf::detail {
 
@@ -22,6 +25,8 @@ struct CandidatePack {
   std::size_t size = 0, stride = 0;
 
   void resize(std::size_t n);  // zero-filled
+  // The fields of candidates ids[0..n) from their rows (kGaussianRow doubles each).
+  void assign(const double* rows, const std::uint32_t* ids, std::size_t n);
   double* field(int f) { return data.data() + static_cast<std::size_t>(f) * stride; }
   [[nodiscard]] const double* field(int f) const { return data.data() + static_cast<std::size_t>(f) * stride; }
 };
@@ -31,6 +36,15 @@ struct CandidatePack {
 // unit step), then padding.
 inline constexpr std::size_t kGaussianRow = 16;
 inline constexpr std::size_t kRowMaxInvScale = CandidatePack::kFields;
+
+// Writes the row of the Gaussian with frame f.
+inline void write_candidate_row(const GaussianFrame<double>& f, double* row) {
+  for (int i = 0; i < 3; ++i) {
+    row[i] = f.mean[i];
+    for (int j = 0; j < 3; ++j) row[3 + 3 * i + j] = f.R[3 * j + i] * f.inv_scale[i];
+  }
+  row[kRowMaxInvScale] = std::max({f.inv_scale[0], f.inv_scale[1], f.inv_scale[2]});
+}
 
 // For the n candidates whose rows start at rows + offset[i] (offset holds n
 // rounded up to a multiple of kCandidateAlign valid offsets): slack[i] =
@@ -47,6 +61,5 @@ void candidate_distances(const CandidatePack& pack, const double x[3], double* m
 // out[i] = e^{scale (v[i] − shift)} for i < n (n ≤ the capacity of v and out, which
 // must hold n rounded up to a multiple of kCandidateAlign).
 void shifted_exp(const double* v, std::size_t n, double scale, double shift, double* out);
-
 
 }  // namespace hisnegs::gmf::detail

@@ -7,6 +7,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <numeric>
 #include <random>
 #include <vector>
 
@@ -32,24 +33,17 @@ Candidates random_candidates(std::size_t n, std::uint64_t seed) {
     p[kLogScale0] = log_s(rng), p[kLogScale0 + 1] = log_s(rng), p[kLogScale0 + 2] = log_s(rng);
     p[kRotW] = unit(rng) + 1.5, p[kRotW + 1] = unit(rng), p[kRotW + 2] = unit(rng), p[kRotW + 3] = unit(rng);
     p[kLogit] = unit(rng);
-    GaussianFrame<double>& f = c.frames[k];
-    prepare_gaussian(p, f);
-    double* row = c.rows.data() + k * kGaussianRow;
-    for (int i = 0; i < 3; ++i) {
-      row[i] = f.mean[i];
-      for (int j = 0; j < 3; ++j) row[3 + 3 * i + j] = f.R[3 * j + i] * f.inv_scale[i];
-    }
-    row[kRowMaxInvScale] = std::max({f.inv_scale[0], f.inv_scale[1], f.inv_scale[2]});
+    prepare_gaussian(p, c.frames[k]);
+    write_candidate_row(c.frames[k], c.rows.data() + k * kGaussianRow);
   }
   return c;
 }
 
 CandidatePack pack_of(const Candidates& c) {
+  std::vector<std::uint32_t> ids(c.frames.size());
+  std::iota(ids.begin(), ids.end(), 0u);
   CandidatePack pack;
-  pack.resize(c.frames.size());
-  for (std::size_t i = 0; i < c.frames.size(); ++i) {
-    for (int f = 0; f < CandidatePack::kFields; ++f) pack.field(f)[i] = c.rows[i * kGaussianRow + f];
-  }
+  pack.assign(c.rows.data(), ids.data(), ids.size());
   return pack;
 }
 

@@ -87,7 +87,9 @@ TEST(GmfCompare, EmptyListIsAnError) {
   const io::SparseGrid grid = io::build_sparse_grid(scene.volume, Eigen::Vector3d(1.0, 1.0, 1.0), {});
   CompareOptions o;
   o.optimizers.clear();
-  EXPECT_THROW(compare_optimizers(scene.volume, fit_samples(grid, GmfOptions{}), grid.frame(), scene.truth, GmfOptions{}, o), io::InputError);
+  EXPECT_THROW(
+      compare_optimizers(scene.volume, fit_samples(grid, GmfOptions{}), grid.frame(), scene.truth, GmfOptions{}, o),
+      io::InputError);
 }
 
 }  // namespace
