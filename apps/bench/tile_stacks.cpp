@@ -57,7 +57,8 @@ int run(int argc, char** argv) {
   const int nz = shape[0], ny = shape[1], nx = shape[2];
   std::vector<hisnegs::io::Volume> inputs;
   for (int i = 3; i < argc; ++i) {
-    if (hisnegs::io::same_file(out, argv[i])) throw InputError(out + ": is input " + argv[i] + "; refusing to overwrite it");
+    if (hisnegs::io::same_file(out, argv[i]))
+      throw InputError(out + ": is input " + argv[i] + "; refusing to overwrite it");
     inputs.push_back(hisnegs::io::read_tiff_stack(argv[i]));
   }
   int tile_x = 0, tile_y = 0;
