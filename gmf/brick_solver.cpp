@@ -15,6 +15,7 @@
 #include <tuple>
 
 #include "gmf/detail/block_cost.hpp"
+#include "gmf/detail/candidates.hpp"
 #include "gmf/gaussian_math.hpp"
 
 namespace hisnegs::gmf {
@@ -164,28 +165,68 @@ int solve_brick(std::uint32_t b, const SampleSet& samples, const BlockIndex& ind
   for (std::uint32_t block : blocks) total += samples.block_begin[block + 1] - samples.block_begin[block];
   std::vector<PointTerms<double>> fixed(total);
   std::size_t offset = 0;
+  // The brick's sample blocks, in order, grouped into chunks whose free Gaussians
+  // (the union over the chunk's blocks) stay within options.chunk_gaussians: one
+  // residual block per chunk, over only those Gaussians, so the normal equations
+  // are formed block-sparse (a chunk's dense JᵀJ is at most chunk_gaussians²
+  // parameter blocks) rather than as one rows × all-Gaussians GEMM.
   std::vector<BrickCost::Block> costs;
-  costs.reserve(blocks.size());
+  std::vector<std::uint32_t> chunk;                    // local ids of the chunk's Gaussians, in first-seen order
+  std::vector<std::int32_t> in_chunk(ids.size(), -1);  // local id -> its position in `chunk`, or -1
+  const auto flush = [&] {
+    if (costs.empty()) return;
+    std::vector<double*> parameter_blocks;
+    for (std::uint32_t l : chunk) parameter_blocks.push_back(local[l].data());
+    problem.AddResidualBlock(new BrickCost(std::move(costs), chunk.size()), nullptr, parameter_blocks);
+    for (std::uint32_t l : chunk) in_chunk[l] = -1;
+    chunk.clear();
+    costs.clear();
+  };
+  std::vector<std::uint32_t> mine;
+  const double reach = std::sqrt(options.model.cutoff) + options.reach_margin;
   for (std::uint32_t block : blocks) {
     const std::size_t n = samples.block_begin[block + 1] - samples.block_begin[block];
+    mine.clear();
+    const std::uint32_t s0 = samples.block_begin[block], s1 = samples.block_begin[block + 1];
+    const std::array<double, 4> ball = detail::sample_ball(samples, s0, s1);
+    for (std::uint32_t g : index.of(block)) {
+      if (partition.brick_of[g] != b) continue;
+      if (detail::sqrt_mahalanobis_lower_bound(frames[g], ball) > reach) continue;
+      mine.push_back(static_cast<std::uint32_t>(local_of(g)));
+    }
+    if (mine.empty()) continue;  // none of the brick's Gaussians can reach it: its residuals are constant
     const std::span<PointTerms<double>> terms(fixed.data() + offset, n);
     offset += n;
     fixed_terms_of_block(samples, block, index, partition, b, frames, options.model, terms);
+    std::size_t added = 0;
+    for (std::uint32_t l : mine) added += in_chunk[l] < 0 ? 1 : 0;
+    if (!chunk.empty() && chunk.size() + added > static_cast<std::size_t>(options.chunk_gaussians)) flush();
     BrickCost::Block c;
-    for (std::uint32_t g : index.of(block)) {
-      if (partition.brick_of[g] == b) c.gaussians.push_back(static_cast<std::uint32_t>(local_of(g)));
+    for (std::uint32_t l : mine) {
+      if (in_chunk[l] < 0) {
+        in_chunk[l] = static_cast<std::int32_t>(chunk.size());
+        chunk.push_back(l);
+      }
+      c.gaussians.push_back(static_cast<std::uint32_t>(in_chunk[l]));
     }
     c.cost = std::make_unique<detail::BlockCost>(samples, block, c.gaussians.size(), options.model, terms);
     costs.push_back(std::move(c));
   }
-  std::vector<double*> parameter_blocks;
-  for (ParamsD& p : local) parameter_blocks.push_back(p.data());
-  problem.AddResidualBlock(new BrickCost(std::move(costs), local.size()), nullptr, parameter_blocks);
+  flush();
+  if (problem.NumResidualBlocks() == 0) return 0;  // no Gaussian of the brick reaches a sample now
 
   ceres::Solver::Options so;
   so.minimizer_type = ceres::TRUST_REGION;
   so.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
-  so.linear_solver_type = ceres::DENSE_NORMAL_CHOLESKY;
+  // Sparse normal equations (SuiteSparse, or Eigen's sparse Cholesky) where Ceres
+  // has one: they are formed chunk by chunk. Without one, dense.
+  static const bool have_sparse = ceres::IsSparseLinearAlgebraLibraryTypeAvailable(ceres::SUITE_SPARSE) ||
+                                  ceres::IsSparseLinearAlgebraLibraryTypeAvailable(ceres::EIGEN_SPARSE);
+  so.linear_solver_type = options.sparse && have_sparse ? ceres::SPARSE_NORMAL_CHOLESKY : ceres::DENSE_NORMAL_CHOLESKY;
+  if (so.linear_solver_type == ceres::SPARSE_NORMAL_CHOLESKY &&
+      !ceres::IsSparseLinearAlgebraLibraryTypeAvailable(ceres::SUITE_SPARSE)) {
+    so.sparse_linear_algebra_library_type = ceres::EIGEN_SPARSE;
+  }
   so.max_num_iterations = options.iterations;
   so.max_solver_time_in_seconds = seconds_left;
   // Ceres starts at radius 1e4 (μ 1e-4: nearly plain Gauss–Newton); on the softmax

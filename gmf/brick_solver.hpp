@@ -41,7 +41,21 @@ struct BrickPartition {
 
 struct BrickSweepOptions {
   MixtureModel model;
-  int iterations = 8;          // LM iterations per brick
+  int iterations = 8;  // LM iterations per brick
+  // What a brick's residuals see of its Gaussians. A Gaussian enters a sample
+  // block's residuals only where, at the start of the solve, a lower bound of its
+  // √m over the block is at most √δ + reach_margin (in σ: it would have to move
+  // further than that towards the block within the solve to reach it); blocks none
+  // reaches are left out (their residuals are constant). The block index, padded
+  // for a round's movement, lists many more: with all of them an op1 sweep took
+  // 82 s, with these 28 s (docs/benchmarks.md).
+  double reach_margin = 1.0;
+  // Sample blocks are grouped, in order, into residual blocks while their
+  // Gaussians number at most chunk_gaussians, so that Ceres forms the normal
+  // equations block-sparse; solved with sparse Cholesky when `sparse` (and Ceres
+  // has a sparse library), dense otherwise.
+  int chunk_gaussians = 8;
+  bool sparse = true;
   double seconds_left = 1e30;  // no brick starts after this, and none runs past it
 };
 

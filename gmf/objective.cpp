@@ -64,19 +64,7 @@ FitObjective::FitObjective(const SampleSet& samples, const BlockIndex& index, st
     }
     blocks_->block.push_back(b);
     const std::uint32_t s0 = samples.block_begin[b], s1 = samples.block_begin[b + 1];
-    std::array<double, 4> ball = {0, 0, 0, 0};
-    for (std::uint32_t s = s0; s < s1; ++s) {
-      ball[0] += samples.x[s];
-      ball[1] += samples.y[s];
-      ball[2] += samples.z[s];
-    }
-    for (int a = 0; a < 3; ++a) ball[a] /= static_cast<double>(s1 - s0);
-    double radius2 = 0;
-    for (std::uint32_t s = s0; s < s1; ++s) {
-      const double d[3] = {samples.x[s] - ball[0], samples.y[s] - ball[1], samples.z[s] - ball[2]};
-      radius2 = std::max(radius2, d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
-    }
-    ball[3] = std::sqrt(radius2) * (1 + 1e-9);
+    const std::array<double, 4> ball = detail::sample_ball(samples, s0, s1);
     blocks_->ball.push_back(ball);
   }
 }

@@ -5,11 +5,14 @@
 #pragma once
 
 #include <algorithm>
+#include <array>
+#include <cmath>
 #include <cstddef>
 #include <cstdint>
 #include <vector>
 
 #include "gmf/gaussian_math.hpp"
+#include "gmf/samples.hpp"
 
 namespace hisnegs::gmf::detail {
 
@@ -44,6 +47,35 @@ inline void write_candidate_row(const GaussianFrame<double>& f, double* row) {
     for (int j = 0; j < 3; ++j) row[3 + 3 * i + j] = f.R[3 * j + i] * f.inv_scale[i];
   }
   row[kRowMaxInvScale] = std::max({f.inv_scale[0], f.inv_scale[1], f.inv_scale[2]});
+}
+
+// The ball holding samples [s0, s1) (s1 > s0) of `samples`: {centre x, y, z (their
+// mean), radius (the largest distance from it, grown by a relative 1e-9 so that
+// every sample is inside despite rounding)}.
+inline std::array<double, 4> sample_ball(const SampleSet& samples, std::uint32_t s0, std::uint32_t s1) {
+  std::array<double, 4> ball = {0, 0, 0, 0};
+  for (std::uint32_t s = s0; s < s1; ++s) {
+    ball[0] += samples.x[s];
+    ball[1] += samples.y[s];
+    ball[2] += samples.z[s];
+  }
+  for (int a = 0; a < 3; ++a) ball[a] /= static_cast<double>(s1 - s0);
+  double radius2 = 0;
+  for (std::uint32_t s = s0; s < s1; ++s) {
+    const double d[3] = {samples.x[s] - ball[0], samples.y[s] - ball[1], samples.z[s] - ball[2]};
+    radius2 = std::max(radius2, d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+  }
+  ball[3] = std::sqrt(radius2) * (1 + 1e-9);
+  return ball;
+}
+
+// A lower bound of √m over `ball` for the Gaussian with frame f (scalar; the
+// bound candidate_slack computes, without the margin): √m at the centre minus
+// 1/σ_min × the radius (√m is the norm of diag(1/s) Rᵀ (x − μ)).
+inline double sqrt_mahalanobis_lower_bound(const GaussianFrame<double>& f, const std::array<double, 4>& ball) {
+  double z[3];
+  const double m = mahalanobis(f, ball.data(), z);
+  return std::sqrt(m) - std::max({f.inv_scale[0], f.inv_scale[1], f.inv_scale[2]}) * ball[3];
 }
 
 // For the n candidates whose rows start at rows + offset[i] (offset holds n

@@ -128,5 +128,51 @@ TEST(BrickSolver, SweepLowersTheLossAndIsTheSameForAnyThreadCount) {
   }
 }
 
+// The brick problem as the sweep builds it by default (each Gaussian only in the
+// blocks it can reach, blocks grouped into residual blocks of at most 8 Gaussians,
+// sparse normal equations) reaches the loss of the plain one (every indexed
+// Gaussian in every block of the brick, one dense residual block).
+TEST(BrickSolver, ReachLimitedChunkedBricksMatchThePlainDenseProblem) {
+  const Scene scene = make_scene(5);
+  const io::SparseGrid grid = grid_of(scene, 0.05);
+  const SampleSet samples = extract_samples(grid, 1.0, 2);
+  std::mt19937_64 rng(8);
+  std::normal_distribution<double> n(0, 1);
+  GaussianMixture start = scene.truth;
+  const double voxel = scene.frame.voxel_size().x();
+  for (auto& g : start) {
+    for (int a = 0; a < 3; ++a) g.mean[a] += static_cast<float>(0.3 * voxel * n(rng));
+    g.intensity_logit += static_cast<float>(0.4 * n(rng));
+  }
+  for (const Aggregation aggregation : {Aggregation::kSum, Aggregation::kSoftmax}) {
+    const MixtureModel model{.aggregation = aggregation, .beta = 32.0, .cutoff = 16.0};
+    const BlockIndex index = build_block_index(start, samples, scene.frame, 16.0, 1.25, voxel);
+    const std::vector<ParamsD> p0 = params_of(start);
+    const BrickPartition partition = partition_into_bricks(p0, index, scene.frame, 16, 12);
+    const std::size_t n_params = p0.size() * kGaussianParamCount;
+    std::vector<double> lower(n_params, -1e30), upper(n_params, 1e30);
+    BrickSweepOptions plain;
+    plain.model = model;
+    plain.iterations = 20;
+    plain.reach_margin = 1e30;
+    plain.chunk_gaussians = 1 << 30;
+    plain.sparse = false;
+    BrickSweepOptions fast = plain;
+    fast.reach_margin = BrickSweepOptions{}.reach_margin;
+    fast.chunk_gaussians = BrickSweepOptions{}.chunk_gaussians;
+    fast.sparse = BrickSweepOptions{}.sparse;
+    std::vector<ParamsD> p_plain = p0, p_fast = p0;
+    sweep_bricks(samples, index, partition, p_plain, lower, upper, plain);
+    sweep_bricks(samples, index, partition, p_fast, lower, upper, fast);
+    const FitObjective objective(samples, index, p0.size(), model);
+    const double before = objective.evaluate(p0[0].data(), nullptr);
+    const double loss_plain = objective.evaluate(p_plain[0].data(), nullptr);
+    const double loss_fast = objective.evaluate(p_fast[0].data(), nullptr);
+    const char* name = aggregation == Aggregation::kSum ? "sum" : "softmax";
+    EXPECT_LT(loss_plain, 0.5 * before) << name;
+    EXPECT_NEAR(loss_fast, loss_plain, 0.02 * (before - loss_plain)) << name << ": before " << before;
+  }
+}
+
 }  // namespace
 }  // namespace hisnegs::gmf
