@@ -31,9 +31,9 @@ struct GmfOptions {
   double beta_growth = 2.0;  // >= 1
   // adam | brick-lm | lm | lm-cgnr | dogleg | lbfgs. brick-lm: exact LM on small
   // local problems (gmf/brick_solver.hpp), swept colour by colour; the others solve
-  // one global problem per round. Adam is the default because it fits the softmax
-  // objective best of all of them on the shared stacks (docs/benchmarks.md, issue 17:
-  // the brick LM does not yet reach it).
+  // one global problem per round. Adam is the default because it fits both
+  // objectives best of all of them on the shared stacks (docs/benchmarks.md, issue
+  // 17: the brick LM beats the global Ceres solvers, but not Adam).
   Optimizer optimizer = Optimizer::kAdam;
   FitInit init = FitInit::kGrid;  // grid | maxima
   // Wall-clock limit of the whole fit, seconds, > 0: the fit stops before it.
