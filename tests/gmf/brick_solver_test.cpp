@@ -44,6 +44,30 @@ GaussianMixture random_mixture(const Scene& scene, int n, std::mt19937_64& rng) 
   return m;
 }
 
+// A scene's samples and its truth with means moved by ~0.3 voxel and logits by
+// ~0.4, indexed with the padding of a fit round; parameters unbounded.
+struct PerturbedScene {
+  Scene scene = make_scene(5);
+  SampleSet samples = extract_samples(grid_of(scene, 0.05), 1.0, 2);
+  GaussianMixture start = perturbed(scene);
+  BlockIndex index = build_block_index(start, samples, scene.frame, 16.0, 1.25, scene.frame.voxel_size().x());
+  std::vector<ParamsD> p0 = params_of(start);
+  std::vector<double> lower = std::vector<double>(p0.size() * kGaussianParamCount, -1e30);
+  std::vector<double> upper = std::vector<double>(p0.size() * kGaussianParamCount, 1e30);
+
+  static GaussianMixture perturbed(const Scene& scene) {
+    std::mt19937_64 rng(8);
+    std::normal_distribution<double> n(0, 1);
+    GaussianMixture m = scene.truth;
+    const double voxel = scene.frame.voxel_size().x();
+    for (auto& g : m) {
+      for (int a = 0; a < 3; ++a) g.mean[a] += static_cast<float>(0.3 * voxel * n(rng));
+      g.intensity_logit += static_cast<float>(0.4 * n(rng));
+    }
+    return m;
+  }
+};
+
 TEST(BrickSolver, ColoursNeverShareASampleBlockAndEveryGaussianHasOneBrick) {
   const Scene scene = make_scene(3);
   const io::SparseGrid grid = grid_of(scene, 0.05);
@@ -89,25 +113,12 @@ TEST(BrickSolver, ColoursNeverShareASampleBlockAndEveryGaussianHasOneBrick) {
 // A sweep lowers the loss of a perturbed truth and gives the same parameters, bit
 // for bit, on one thread and on two.
 TEST(BrickSolver, SweepLowersTheLossAndIsTheSameForAnyThreadCount) {
-  const Scene scene = make_scene(5);
-  const io::SparseGrid grid = grid_of(scene, 0.05);
-  const SampleSet samples = extract_samples(grid, 1.0, 2);
-  std::mt19937_64 rng(8);
-  std::normal_distribution<double> n(0, 1);
-  GaussianMixture start = scene.truth;
-  const double voxel = scene.frame.voxel_size().x();
-  for (auto& g : start) {
-    for (int a = 0; a < 3; ++a) g.mean[a] += static_cast<float>(0.3 * voxel * n(rng));
-    g.intensity_logit += static_cast<float>(0.4 * n(rng));
-  }
+  const PerturbedScene t;
+  const auto& [scene, samples, start, index, p0, lower, upper] = t;
   for (const Aggregation aggregation : {Aggregation::kSum, Aggregation::kSoftmax}) {
     const MixtureModel model{.aggregation = aggregation, .beta = 32.0, .cutoff = 16.0};
-    const BlockIndex index = build_block_index(start, samples, scene.frame, 16.0, 1.25, voxel);
-    const std::vector<ParamsD> p0 = params_of(start);
     const BrickPartition partition = partition_into_bricks(p0, index, scene.frame, 16, 4);
     ASSERT_GT(partition.colours.size(), 1u);
-    const std::size_t n_params = p0.size() * kGaussianParamCount;
-    std::vector<double> lower(n_params, -1e30), upper(n_params, 1e30);
     BrickSweepOptions so;
     so.model = model;
     so.iterations = 5;
@@ -133,24 +144,11 @@ TEST(BrickSolver, SweepLowersTheLossAndIsTheSameForAnyThreadCount) {
 // sparse normal equations) reaches the loss of the plain one (every indexed
 // Gaussian in every block of the brick, one dense residual block).
 TEST(BrickSolver, ReachLimitedChunkedBricksMatchThePlainDenseProblem) {
-  const Scene scene = make_scene(5);
-  const io::SparseGrid grid = grid_of(scene, 0.05);
-  const SampleSet samples = extract_samples(grid, 1.0, 2);
-  std::mt19937_64 rng(8);
-  std::normal_distribution<double> n(0, 1);
-  GaussianMixture start = scene.truth;
-  const double voxel = scene.frame.voxel_size().x();
-  for (auto& g : start) {
-    for (int a = 0; a < 3; ++a) g.mean[a] += static_cast<float>(0.3 * voxel * n(rng));
-    g.intensity_logit += static_cast<float>(0.4 * n(rng));
-  }
+  const PerturbedScene t;
+  const auto& [scene, samples, start, index, p0, lower, upper] = t;
   for (const Aggregation aggregation : {Aggregation::kSum, Aggregation::kSoftmax}) {
     const MixtureModel model{.aggregation = aggregation, .beta = 32.0, .cutoff = 16.0};
-    const BlockIndex index = build_block_index(start, samples, scene.frame, 16.0, 1.25, voxel);
-    const std::vector<ParamsD> p0 = params_of(start);
     const BrickPartition partition = partition_into_bricks(p0, index, scene.frame, 16, 12);
-    const std::size_t n_params = p0.size() * kGaussianParamCount;
-    std::vector<double> lower(n_params, -1e30), upper(n_params, 1e30);
     BrickSweepOptions plain;
     plain.model = model;
     plain.iterations = 20;
