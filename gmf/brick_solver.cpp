@@ -7,6 +7,7 @@
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -140,7 +141,8 @@ class BrickCost final : public ceres::CostFunction {
 
 // Exact LM on brick b's Gaussians; returns its iterations, or -1 when skipped.
 int solve_brick(std::uint32_t b, const SampleSet& samples, const BlockIndex& index, const BrickPartition& partition,
-                std::span<ParamsD> params, std::span<const GaussianFrame<double>> frames, std::span<const double> lower,
+                std::span<ParamsD> params, std::span<const GaussianFrame<double>> frames,
+                std::span<const std::array<double, 4>> balls, std::span<const double> lower,
                 std::span<const double> upper, const BrickSweepOptions& options, double seconds_left) {
   static detail::GaussianManifold manifold;  // stateless: shared by every thread
   const std::vector<std::uint32_t>& ids = partition.gaussians[b];
@@ -187,11 +189,9 @@ int solve_brick(std::uint32_t b, const SampleSet& samples, const BlockIndex& ind
   for (std::uint32_t block : blocks) {
     const std::size_t n = samples.block_begin[block + 1] - samples.block_begin[block];
     mine.clear();
-    const std::uint32_t s0 = samples.block_begin[block], s1 = samples.block_begin[block + 1];
-    const std::array<double, 4> ball = detail::sample_ball(samples, s0, s1);
     for (std::uint32_t g : index.of(block)) {
       if (partition.brick_of[g] != b) continue;
-      if (detail::sqrt_mahalanobis_lower_bound(frames[g], ball) > reach) continue;
+      if (detail::sqrt_mahalanobis_lower_bound(frames[g], balls[block]) > reach) continue;
       mine.push_back(static_cast<std::uint32_t>(local_of(g)));
     }
     if (mine.empty()) continue;  // none of the brick's Gaussians can reach it: its residuals are constant
@@ -220,12 +220,13 @@ int solve_brick(std::uint32_t b, const SampleSet& samples, const BlockIndex& ind
   so.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
   // Sparse normal equations (SuiteSparse, or Eigen's sparse Cholesky) where Ceres
   // has one: they are formed chunk by chunk. Without one, dense.
-  static const bool have_sparse = ceres::IsSparseLinearAlgebraLibraryTypeAvailable(ceres::SUITE_SPARSE) ||
-                                  ceres::IsSparseLinearAlgebraLibraryTypeAvailable(ceres::EIGEN_SPARSE);
-  so.linear_solver_type = options.sparse && have_sparse ? ceres::SPARSE_NORMAL_CHOLESKY : ceres::DENSE_NORMAL_CHOLESKY;
-  if (so.linear_solver_type == ceres::SPARSE_NORMAL_CHOLESKY &&
-      !ceres::IsSparseLinearAlgebraLibraryTypeAvailable(ceres::SUITE_SPARSE)) {
-    so.sparse_linear_algebra_library_type = ceres::EIGEN_SPARSE;
+  static const ceres::SparseLinearAlgebraLibraryType sparse_library =
+      ceres::IsSparseLinearAlgebraLibraryTypeAvailable(ceres::SUITE_SPARSE) ? ceres::SUITE_SPARSE : ceres::EIGEN_SPARSE;
+  if (options.sparse && ceres::IsSparseLinearAlgebraLibraryTypeAvailable(sparse_library)) {
+    so.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
+    so.sparse_linear_algebra_library_type = sparse_library;
+  } else {
+    so.linear_solver_type = ceres::DENSE_NORMAL_CHOLESKY;
   }
   so.max_num_iterations = options.iterations;
   so.max_solver_time_in_seconds = seconds_left;
@@ -306,10 +307,17 @@ BrickSweepStats sweep_bricks(const SampleSet& samples, const BlockIndex& index, 
   std::vector<GaussianFrame<double>> frames(params.size());
   tbb::parallel_for(std::size_t{0}, params.size(),
                     [&](std::size_t g) { prepare_gaussian(params[g].data(), frames[g]); });
+  // Every sample block's ball, once per sweep (a block is in the problems of
+  // several bricks).
+  std::vector<std::array<double, 4>> balls(samples.blocks());
+  tbb::parallel_for(std::size_t{0}, balls.size(), [&](std::size_t block) {
+    const std::uint32_t s0 = samples.block_begin[block], s1 = samples.block_begin[block + 1];
+    if (s1 > s0) balls[block] = detail::sample_ball(samples, s0, s1);
+  });
   for (const std::vector<std::uint32_t>& bricks : partition.colours) {
     tbb::parallel_for(std::size_t{0}, bricks.size(), [&](std::size_t i) {
-      const int it =
-          solve_brick(bricks[i], samples, index, partition, params, frames, lower, upper, options, seconds_left());
+      const int it = solve_brick(bricks[i], samples, index, partition, params, frames, balls, lower, upper, options,
+                                 seconds_left());
       if (it < 0) {
         ++skipped;
       } else {
