@@ -9,6 +9,7 @@
 #include <string_view>
 #include <type_traits>
 
+#include "io/config.hpp"
 #include "io/error.hpp"
 
 namespace hisnegs::gmf {
@@ -29,13 +30,23 @@ std::string optimizer_name(Optimizer optimizer) {
   return name;
 }
 
+void CompareOptions::validate() const {
+  if (optimizers.empty()) throw io::InputError("compare-optimizers: no optimizers to compare");
+  io::require_positive("compare", "time_budget_s", time_budget_s);
+  io::require_in_range("compare", "adam_steps", adam_steps, 1, 1e9);
+  for (const Optimizer o : continuation) {
+    if (o != Optimizer::kAdam && o != Optimizer::kBrickLm) {
+      io::fail_option("compare", "continuation", optimizer_name(o),
+                      "only adam and brick-lm can follow the β schedule (they log at the final β)");
+    }
+  }
+}
+
 Comparison compare_optimizers(const io::Volume& volume, const SampleSet& samples, const io::WorldFrame& frame,
                               const GaussianMixture& initial, const GmfOptions& base, const CompareOptions& options,
                               const std::function<void(const OptimizerRun&, const FitIteration&)>& on_progress,
                               const std::function<void(const Comparison&)>& after_run) {
-  if (options.optimizers.empty()) throw io::InputError("compare-optimizers: no optimizers to compare");
-  io::require_positive("compare", "time_budget_s", options.time_budget_s);
-  io::require_in_range("compare", "adam_steps", options.adam_steps, 1, 1e9);
+  options.validate();
   std::vector<Optimizer> order = options.optimizers;
   std::stable_partition(order.begin(), order.end(), [](Optimizer o) { return o == Optimizer::kAdam; });
   order.erase(std::unique(order.begin(), order.end()), order.end());
@@ -47,8 +58,13 @@ Comparison compare_optimizers(const io::Volume& volume, const SampleSet& samples
     o.densify = false;  // same K for everyone: the comparison is of optimizers, not of density control
     o.time_budget_s = options.time_budget_s;
     o.rounds = 1000;  // rounds only rebuild the index here; the budget (or Adam's steps) ends the run
-    // One objective for all: the softmax at the schedule's final β from the start.
-    o.beta_start = o.beta_end;
+    // One objective for all, the softmax at the schedule's final β: the runs with
+    // continuation follow the schedule towards it and log their loss at it.
+    const bool continuation =
+        std::find(options.continuation.begin(), options.continuation.end(), optimizer) != options.continuation.end() &&
+        o.aggregation == Aggregation::kSoftmax && o.beta_start < o.beta_end;
+    if (!continuation) o.beta_start = o.beta_end;
+    o.report_beta = o.aggregation == Aggregation::kSoftmax ? o.beta_end : 0.0;
     // The global solvers' rounds are index rebuilds: 25 iterations each, as before
     // (brick LM's sweeps take gmf.brick_iterations per brick).
     o.iterations_per_round = 25;
@@ -59,6 +75,7 @@ Comparison compare_optimizers(const io::Volume& volume, const SampleSet& samples
     OptimizerRun run;
     run.optimizer = optimizer;
     run.name = optimizer_name(optimizer);
+    run.continuation = continuation;
     GaussianMixture mixture = initial;
     auto record = [&](const FitIteration& it) {
       run.result.log.push_back(it);

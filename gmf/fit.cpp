@@ -13,6 +13,7 @@
 #include <cmath>
 #include <limits>
 #include <memory>
+#include <optional>
 #include <string>
 #include <thread>
 
@@ -197,11 +198,12 @@ RoundOutcome solve_lbfgs(const FitObjective& objective, double* x, const std::ve
 // ε 1e-8, step gmf.adam_learning_rate, times the smallest voxel size for means
 // (world units); each step is projected onto the round's box. The moments carry over
 // from the previous round when K did not change (a restart spikes the loss). A step
-// is not started when it would end past the time left.
-RoundOutcome solve_adam(const FitObjective& objective, double* x, const std::vector<double>& lower,
-                        const std::vector<double>& upper, const GmfOptions& options, Adam<double>& adam,
-                        int max_iterations, double seconds_left, double min_voxel, FitLog& log, int round,
-                        int iteration0, int K, double beta) {
+// is not started when it would end past the time left. `report` (null: `objective`)
+// is what the logged loss is measured with, when that is another β.
+RoundOutcome solve_adam(const FitObjective& objective, const FitObjective* report, double* x,
+                        const std::vector<double>& lower, const std::vector<double>& upper, const GmfOptions& options,
+                        Adam<double>& adam, int max_iterations, double seconds_left, double min_voxel, FitLog& log,
+                        int round, int iteration0, int K, double beta) {
   const std::size_t n = objective.parameters();
   if (adam.gaussians() != n / kGaussianParamCount) adam = Adam<double>(AdamOptions{}, n / kGaussianParamCount);
   std::vector<double> g(n);
@@ -227,7 +229,7 @@ RoundOutcome solve_adam(const FitObjective& objective, double* x, const std::vec
     it.round = round;
     it.iteration = iteration0 + step;
     it.seconds = log.clock.now();
-    it.loss = loss;
+    it.loss = report != nullptr ? report->evaluate(x, nullptr) : loss;
     it.gaussians = K;
     it.beta = beta;
     if (log.add(it)) break;  // at stop_loss: x is the point that reached it
@@ -297,18 +299,18 @@ struct SolverState {
 // The brick sweep as one round: the partition of this round's Gaussians and one
 // sweep in which each brick gets gmf.brick_iterations LM iterations.
 RoundOutcome solve_bricks(RoundProblem& r, const SampleSet& samples, const io::WorldFrame& frame,
-                          const GmfOptions& options, const MixtureModel& model, double seconds_left, FitLog& log,
-                          int round, int iteration0) {
+                          const GmfOptions& options, const MixtureModel& model, const MixtureModel& report,
+                          double seconds_left, FitLog& log, int round, int iteration0) {
   io::Stopwatch watch;
   {  // the round's starting loss, as the other solvers log it (their iteration 0)
-    const FitObjective objective(samples, r.index, r.params.size(), model);
+    const FitObjective objective(samples, r.index, r.params.size(), report);
     FitIteration it;
     it.round = round;
     it.iteration = iteration0;
     it.seconds = log.clock.now();
     it.loss = objective.evaluate(r.x(), nullptr);
     it.gaussians = static_cast<int>(r.params.size());
-    it.beta = log_beta(model);
+    it.beta = log_beta(report);
     if (log.add(it)) return RoundOutcome{.message = "reached gmf.stop_loss"};
   }
   const BrickPartition partition =
@@ -327,15 +329,17 @@ RoundOutcome solve_bricks(RoundProblem& r, const SampleSet& samples, const io::W
 }
 
 // The configured optimizer on one round's problem.
+// Adam and the brick LM log the loss under `report` (GmfOptions::report_model); the
+// others solve at it (GmfOptions::validate).
 RoundOutcome solve_round(RoundProblem& r, const SampleSet& samples, const io::WorldFrame& frame,
-                         const GmfOptions& options, const MixtureModel& model, SolverState& state,
-                         ceres::Manifold& manifold, int max_iterations, double seconds_left, FitLog& log, int round,
-                         int iteration0) {
+                         const GmfOptions& options, const MixtureModel& model, const MixtureModel& report,
+                         SolverState& state, ceres::Manifold& manifold, int max_iterations, double seconds_left,
+                         FitLog& log, int round, int iteration0) {
   const int K = static_cast<int>(r.params.size());
   const double min_voxel = frame.voxel_size().minCoeff();
   switch (options.optimizer) {
     case Optimizer::kBrickLm:
-      return solve_bricks(r, samples, frame, options, model, seconds_left, log, round, iteration0);
+      return solve_bricks(r, samples, frame, options, model, report, seconds_left, log, round, iteration0);
     case Optimizer::kLbfgs: {
       const FitObjective objective(samples, r.index, r.params.size(), model);
       return solve_lbfgs(objective, r.x(), r.lower, r.upper, max_iterations, seconds_left, log, round, iteration0, K,
@@ -343,8 +347,10 @@ RoundOutcome solve_round(RoundProblem& r, const SampleSet& samples, const io::Wo
     }
     case Optimizer::kAdam: {
       const FitObjective objective(samples, r.index, r.params.size(), model);
-      return solve_adam(objective, r.x(), r.lower, r.upper, options, state.adam, max_iterations, seconds_left,
-                        min_voxel, log, round, iteration0, K, log_beta(model));
+      std::optional<FitObjective> at_report;
+      if (report.beta != model.beta) at_report.emplace(samples, r.index, r.params.size(), report);
+      return solve_adam(objective, at_report ? &*at_report : nullptr, r.x(), r.lower, r.upper, options, state.adam,
+                        max_iterations, seconds_left, min_voxel, log, round, iteration0, K, log_beta(report));
     }
     default:
       return solve_least_squares(samples, r.index, r.params, r.lower, r.upper, manifold, options, model, max_iterations,
@@ -403,6 +409,7 @@ FitResult fit_mixture(const io::Volume& volume, const SampleSet& samples, const 
   SolverState state;
   int iterations = 0;
   MixtureModel model = options.model(0);
+  MixtureModel report = options.report_model(0);  // what the log measures
   // The round's measurement and density control must fit after its solve: the
   // solve gets the time left minus what they took last round.
   double overhead = 0;
@@ -413,11 +420,12 @@ FitResult fit_mixture(const io::Volume& volume, const SampleSet& samples, const 
       break;
     }
     model = options.model(round);
+    report = options.report_model(round);
     int round_iterations = options.iterations_per_round;
     if (options.max_iterations > 0) round_iterations = std::min(round_iterations, options.max_iterations - iterations);
     RoundProblem problem = prepare_round(mixture, samples, frame, options);
-    const RoundOutcome outcome = solve_round(problem, samples, frame, options, model, state, manifold, round_iterations,
-                                             left, log, round, iterations);
+    const RoundOutcome outcome = solve_round(problem, samples, frame, options, model, report, state, manifold,
+                                             round_iterations, left, log, round, iterations);
     const double solved_at = clock.now();
     iterations += outcome.iterations;
     result.stop_reason = outcome.message;
@@ -428,7 +436,7 @@ FitResult fit_mixture(const io::Volume& volume, const SampleSet& samples, const 
     result.pruned += stats.pruned;
     // The round's result's block index: for its measurement and its density control.
     const BlockIndex current = build_block_index(mixture, samples, frame, model.cutoff);
-    const SampleFit fit = measure_on_samples(mixture, samples, current, model);
+    const SampleFit fit = measure_on_samples(mixture, samples, current, report);
     FitIteration end;
     end.round = round;
     end.iteration = iterations;
@@ -436,7 +444,7 @@ FitResult fit_mixture(const io::Volume& volume, const SampleSet& samples, const 
     end.loss = fit.loss;
     end.psnr_fg = fit.psnr_fg;
     end.gaussians = static_cast<int>(mixture.size());
-    end.beta = log_beta(model);
+    end.beta = log_beta(report);
     log.add(end);
     result.final_psnr_fg = fit.psnr_fg;
     const bool last = log.reached_stop_loss || (options.max_iterations > 0 && iterations >= options.max_iterations);
@@ -462,9 +470,9 @@ FitResult fit_mixture(const io::Volume& volume, const SampleSet& samples, const 
     }
   }
   result.seconds = clock.now();
-  result.final_beta = log_beta(model);
+  result.final_beta = log_beta(report);
   io::Stopwatch measuring;
-  result.final_psnr_3d = mixture_psnr(mixture, frame, RasterizeOptions::of(model), volume.voxels);
+  result.final_psnr_3d = mixture_psnr(mixture, frame, RasterizeOptions::of(report), volume.voxels);
   result.measuring_seconds = measuring.elapsed();
   FitIteration final_line = result.log.empty() ? FitIteration{} : result.log.back();
   final_line.psnr_3d = result.final_psnr_3d;

@@ -28,6 +28,13 @@ void GmfOptions::validate() const {
   io::require_in_range(s, "beta_start", beta_start, 1e-6, 1e4);
   io::require_in_range(s, "beta_end", beta_end, beta_start, 1e4);
   io::require_in_range(s, "beta_growth", beta_growth, 1.0, 1e3);
+  io::require_in_range(s, "report_beta", report_beta, 0.0, 1e4);
+  const bool logs_at_report_beta = optimizer == Optimizer::kAdam || optimizer == Optimizer::kBrickLm;
+  if (report_beta > 0 && aggregation == Aggregation::kSoftmax && !logs_at_report_beta &&
+      (beta_start != report_beta || beta_end != report_beta)) {
+    io::fail_option(s, "report_beta", std::to_string(report_beta),
+                    "only adam and brick-lm log their loss at another β than they solve at");
+  }
   io::require_in_range(s, "brick_voxels", brick_voxels, 2, 256);
   if ((brick_voxels & (brick_voxels - 1)) != 0) {
     io::fail_option(s, "brick_voxels", std::to_string(brick_voxels), "must be a power of two");
@@ -46,6 +53,12 @@ MixtureModel GmfOptions::model(int round) const {
   m.aggregation = aggregation;
   m.cutoff = mahalanobis_cutoff;
   m.beta = std::min(beta_end, beta_start * std::pow(beta_growth, round));
+  return m;
+}
+
+MixtureModel GmfOptions::report_model(int round) const {
+  MixtureModel m = model(round);
+  if (report_beta > 0 && m.aggregation == Aggregation::kSoftmax) m.beta = report_beta;
   return m;
 }
 

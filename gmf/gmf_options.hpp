@@ -76,9 +76,16 @@ struct GmfOptions {
   int brick_iterations = 8;          // brick-lm: LM iterations per brick per round, [1, 1000]
   double adam_learning_rate = 0.01;  // Adam baseline step size, > 0
   std::uint64_t seed = 0;            // init jitter and sampling seed
+  // Not a config key (set by compare-optimizers): softmax only, when > 0 every
+  // logged loss is the objective at this β while the rounds follow the schedule, so
+  // that runs with and without β continuation are measured on one objective. Only
+  // Adam and brick-lm log at another β than they solve; 0 = each round's own β.
+  double report_beta = 0.0;
 
   // The mixture model of round `round` (its β from the schedule).
   [[nodiscard]] MixtureModel model(int round) const;
+  // The model every logged loss is measured with: model(round), at report_beta when set.
+  [[nodiscard]] MixtureModel report_model(int round) const;
   void validate() const;  // throws InputError("gmf.FIELD = VALUE: rule")
   template <class V>
   void visit(V&& v) {

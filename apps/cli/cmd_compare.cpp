@@ -2,6 +2,7 @@
 // `hisnegs compare-optimizers VOLUME -o DIR`: options of the optimizer comparison
 // (pipeline/optimizer_comparison.hpp; the comparison itself lives in gmf).
 #include <sstream>
+#include <vector>
 
 #include "apps/cli/cli_support.hpp"
 #include "apps/pipeline/optimizer_comparison.hpp"
@@ -13,7 +14,7 @@ void add_compare_command(CLI::App& app, GlobalOptions& global) {
   auto* cmd = app.add_subcommand("compare-optimizers",
                                  "fit with every optimizer from the same init and budget; table, CSV and plot in DIR");
   struct Args {
-    std::string volume, out, optimizers;
+    std::string volume, out, optimizers, continuation = "brick-lm";
     std::optional<int> gaussians;
     gmf::CompareOptions compare;
     VolumeOverrides overrides;
@@ -28,6 +29,10 @@ void add_compare_command(CLI::App& app, GlobalOptions& global) {
   cmd->add_option("--time-budget", args->compare.time_budget_s, "seconds per optimizer (default gmf.time_budget_s)");
   cmd->add_option("--adam-steps", args->compare.adam_steps, "Adam steps that define the target loss")
       ->capture_default_str();
+  cmd->add_option("--continuation", args->continuation,
+                  "optimizers that follow the β schedule towards gmf.beta_end (adam, brick-lm, or none); the others "
+                  "solve at beta_end from the start; every loss is logged at beta_end")
+      ->capture_default_str();
   cmd->add_flag("--stop-at-target", args->compare.stop_at_target, "end each run once it reaches the target loss");
   args->overrides.add_to(cmd);
   cmd->callback([args, &global] {
@@ -37,15 +42,20 @@ void add_compare_command(CLI::App& app, GlobalOptions& global) {
     config.gmf.validate();
     gmf::CompareOptions compare = args->compare;
     if (compare.time_budget_s < 0) compare.time_budget_s = config.gmf.time_budget_s;
-    if (!args->optimizers.empty()) {
-      compare.optimizers.clear();
-      std::stringstream list(args->optimizers);
+    const auto optimizers = [](const std::string& text, const char* option) {
+      std::vector<gmf::Optimizer> out;
+      std::stringstream list(text);
       for (std::string name; std::getline(list, name, ',');) {
         gmf::GmfOptions parsed;
-        io::set_enum_field(parsed, "optimizer", name, "--optimizers");
-        compare.optimizers.push_back(parsed.optimizer);
+        io::set_enum_field(parsed, "optimizer", name, option);
+        out.push_back(parsed.optimizer);
       }
-    }
+      return out;
+    };
+    if (!args->optimizers.empty()) compare.optimizers = optimizers(args->optimizers, "--optimizers");
+    compare.continuation =
+        args->continuation == "none" ? std::vector<gmf::Optimizer>{} : optimizers(args->continuation, "--continuation");
+    compare.validate();
     write_optimizer_comparison(args->out, args->volume, FitConfig(config), compare, global.progress());
   });
 }

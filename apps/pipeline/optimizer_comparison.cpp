@@ -23,14 +23,15 @@ void write_text_file(const std::filesystem::path& path, const std::string& text)
 std::string results_csv(const gmf::Comparison& c) {
   std::ostringstream s;
   s.precision(10);
-  s << "optimizer,seconds_to_target,final_loss,final_psnr_3d,iterations,seconds,gaussians,stop_reason\n";
+  s << "optimizer,seconds_to_target,final_loss,final_psnr_3d,iterations,seconds,gaussians,stop_reason,"
+       "beta_continuation\n";
   for (const auto& run : c.runs) {
     s << run.name << ",";
     if (run.seconds_to_target >= 0) s << run.seconds_to_target;
     s << "," << run.final_loss << ",";
     if (run.failure.empty()) s << run.result.final_psnr_3d;  // empty: a failed run has no final model
     s << "," << run.iterations << "," << run.result.seconds << "," << run.gaussians << ",\"" << run.result.stop_reason
-      << "\"\n";
+      << "\"," << (run.continuation ? 1 : 0) << "\n";
   }
   return s.str();
 }
@@ -42,15 +43,24 @@ std::string curves_csv(const gmf::Comparison& c) {
   return s.str();
 }
 
-std::string summary_md(const gmf::Comparison& c, const std::string& volume, const gmf::CompareOptions& o, int K,
-                       std::int64_t samples) {
+std::string summary_md(const gmf::Comparison& c, const std::string& volume, const gmf::CompareOptions& o,
+                       const gmf::GmfOptions& gmf, int K, std::int64_t samples) {
+  const bool softmax = gmf.aggregation == gmf::Aggregation::kSoftmax;
+  const double beta_start = gmf.beta_start, beta_end = softmax ? gmf.beta_end : 0.0;
   std::ostringstream s;
   char line[512];
   s << "# Optimizer comparison\n\n";
   s << "Volume `" << io::printable(volume, 200) << "`: " << samples << " samples, K = " << K
     << " Gaussians from the same grid initialization, density control off, the same loss "
        "(½ Σ w² (f − V)²) for every optimizer. Budget "
-    << o.time_budget_s << " s of wall time per optimizer (the 3D PSNR measured after each round is not counted).\n\n";
+    << o.time_budget_s << " s of wall time per optimizer (the 3D PSNR measured after each round is not counted).";
+  if (softmax) {
+    s << " The loss is the softmax mixture's at β " << beta_end
+      << " for every run and every logged point; the runs whose β column reads a → b solve at the fit's β "
+         "schedule on the way there (β continuation), the others at β "
+      << beta_end << " from the start.";
+  }
+  s << "\n\n";
   const gmf::OptimizerRun* adam = nullptr;
   for (const auto& run : c.runs) {
     if (run.optimizer == gmf::Optimizer::kAdam) adam = &run;
@@ -65,8 +75,9 @@ std::string summary_md(const gmf::Comparison& c, const std::string& volume, cons
   } else {
     s << "Adam was not run, so there is no target loss; compare final losses.\n\n";
   }
-  s << "| optimizer | time to target | vs Adam | final loss | final 3D PSNR (dB) | iterations | seconds | stop |\n";
-  s << "|---|---:|---:|---:|---:|---:|---:|---|\n";
+  s << "| optimizer | β | time to target | vs Adam | final loss | final 3D PSNR (dB) | iterations | seconds | stop "
+       "|\n";
+  s << "|---|---|---:|---:|---:|---:|---:|---:|---|\n";
   for (const auto& run : c.runs) {
     std::string to_target = "not reached", ratio = "-";
     if (run.seconds_to_target >= 0) {
@@ -82,9 +93,16 @@ std::string summary_md(const gmf::Comparison& c, const std::string& volume, cons
       std::snprintf(line, sizeof line, "%.2f", run.result.final_psnr_3d);
       psnr = line;
     }
-    std::snprintf(line, sizeof line, "| %s | %s | %s | %.6g | %s | %d | %.1f | %s |\n", run.name.c_str(),
-                  to_target.c_str(), ratio.c_str(), run.final_loss, psnr.c_str(), run.iterations, run.result.seconds,
-                  run.result.stop_reason.c_str());
+    // The β each run solved at: the schedule (continuation) or the final β from the start.
+    std::string beta = "-";
+    if (beta_end > 0) {
+      std::snprintf(line, sizeof line, run.continuation ? "%g → %g" : "%g", run.continuation ? beta_start : beta_end,
+                    beta_end);
+      beta = line;
+    }
+    std::snprintf(line, sizeof line, "| %s | %s | %s | %s | %.6g | %s | %d | %.1f | %s |\n", run.name.c_str(),
+                  beta.c_str(), to_target.c_str(), ratio.c_str(), run.final_loss, psnr.c_str(), run.iterations,
+                  run.result.seconds, run.result.stop_reason.c_str());
     s << line;
   }
   s << "\n![loss against wall time](loss_vs_time.png)\n\nPer-iteration logs: `curves.csv`; this table: "
@@ -134,8 +152,8 @@ gmf::Comparison write_optimizer_comparison(const std::filesystem::path& dir, con
   auto save = [&](const gmf::Comparison& c) {
     write_text_file(dir / "results.csv", results_csv(c));
     write_text_file(dir / "curves.csv", curves_csv(c));
-    write_text_file(dir / "summary.md",
-                    summary_md(c, volume, compare, static_cast<int>(setup.mixture.size()), samples));
+    write_text_file(dir / "summary.md", summary_md(c, volume, compare, config.get<&AppConfig::gmf>(),
+                                                   static_cast<int>(setup.mixture.size()), samples));
     io::write_png(dir / "loss_vs_time.png", loss_plot(c));
   };
   const gmf::Comparison c = gmf::compare_optimizers(

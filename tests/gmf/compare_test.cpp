@@ -5,6 +5,11 @@
 
 #include <gtest/gtest.h>
 
+#include <cmath>
+#include <span>
+#include <string>
+#include <vector>
+
 #include "gmf/init.hpp"
 #include "gmf/rasterize.hpp"
 #include "io/error.hpp"
@@ -73,6 +78,92 @@ TEST(GmfCompare, AdamDefinesTheTargetAndRunsFirst) {
         EXPECT_GT(it.loss, c.target_loss);
       }
     }
+  }
+}
+
+// GmfOptions::report_beta changes what is logged, never what is solved: the same
+// Adam or brick-LM run at β 8 logs the loss at β 64 (the first line is then the
+// β-64 run's first line) and ends at the same mixture.
+TEST(GmfFit, ReportBetaChangesWhatIsLoggedNotWhatIsSolved) {
+  const CompareScene scene = make_compare_scene();
+  io::SparseGridOptions so;
+  so.threshold = 0.05;
+  const io::SparseGrid grid = io::build_sparse_grid(scene.volume, Eigen::Vector3d(1.0, 1.0, 1.0), so);
+  GaussianMixture start = scene.truth;
+  for (auto& g : start) {
+    g.intensity_logit -= 0.8f;
+    g.mean[0] += 0.3f;
+  }
+  for (const Optimizer optimizer : {Optimizer::kAdam, Optimizer::kBrickLm}) {
+    GmfOptions base;
+    base.optimizer = optimizer;
+    base.beta_start = base.beta_end = 8.0;
+    base.rounds = 2;
+    base.iterations_per_round = 10;
+    base.brick_iterations = 3;
+    base.densify = false;
+    base.prune_intensity = 0.0;
+    const SampleSet samples = fit_samples(grid, base);
+    GmfOptions reported = base, at64 = base;
+    reported.report_beta = 64.0;
+    at64.beta_start = at64.beta_end = 64.0;
+    GaussianMixture a = start, b = start, c = start;
+    const FitResult ra = fit_mixture(scene.volume, samples, grid.frame(), a, base);
+    const FitResult rb = fit_mixture(scene.volume, samples, grid.frame(), b, reported);
+    const FitResult rc = fit_mixture(scene.volume, samples, grid.frame(), c, at64);
+    const std::string name = optimizer_name(optimizer);
+    ASSERT_EQ(a.size(), b.size()) << name;
+    const std::span<const float> pa = flat_params(a), pb = flat_params(b);
+    EXPECT_EQ(std::vector<float>(pa.begin(), pa.end()), std::vector<float>(pb.begin(), pb.end())) << name;
+    ASSERT_FALSE(rb.log.empty());
+    EXPECT_NEAR(rb.log.front().loss, rc.log.front().loss, 1e-9 * rc.log.front().loss) << name;
+    EXPECT_GT(std::abs(rb.log.front().loss - ra.log.front().loss), 1e-6 * ra.log.front().loss) << name;
+    for (const FitIteration& it : rb.log) EXPECT_EQ(it.beta, 64.0) << name;
+    for (const FitIteration& it : ra.log) EXPECT_EQ(it.beta, 8.0) << name;
+  }
+}
+
+TEST(GmfFit, ReportBetaIsOnlyForSolversThatLogAtIt) {
+  GmfOptions o;
+  o.optimizer = Optimizer::kLevenbergMarquardtCgnr;
+  o.report_beta = 64.0;
+  EXPECT_THROW(o.validate(), io::InputError);  // the schedule starts at 8: LM-CGNR would log at 8
+  o.beta_start = 64.0;
+  EXPECT_NO_THROW(o.validate());  // solves at the β it reports
+  CompareOptions c;
+  c.continuation = {Optimizer::kLbfgs};
+  EXPECT_THROW(c.validate(), io::InputError);
+}
+
+// With continuation, Adam and the brick LM follow the β schedule and the others
+// solve at β_end; every run logs at β_end, from the same first loss.
+TEST(GmfCompare, ContinuationRunsAreMeasuredOnTheFinalObjective) {
+  const CompareScene scene = make_compare_scene();
+  io::SparseGridOptions so;
+  so.threshold = 0.05;
+  const io::SparseGrid grid = io::build_sparse_grid(scene.volume, Eigen::Vector3d(1.0, 1.0, 1.0), so);
+  GaussianMixture start = scene.truth;
+  for (auto& g : start) g.intensity_logit -= 0.8f;
+  GmfOptions base;  // the softmax, β 8 → 64
+  base.prune_intensity = 0.0;
+  base.brick_iterations = 3;
+  CompareOptions o;
+  o.optimizers = {Optimizer::kAdam, Optimizer::kBrickLm, Optimizer::kLbfgs};
+  o.continuation = {Optimizer::kAdam, Optimizer::kBrickLm};
+  o.adam_steps = 60;  // 25 steps at β 8, 25 at 16, 10 at 32
+  o.time_budget_s = 5;
+  const Comparison c = compare_optimizers(scene.volume, fit_samples(grid, base), grid.frame(), start, base, o);
+  ASSERT_EQ(c.runs.size(), 3u);
+  EXPECT_TRUE(c.runs[0].continuation);
+  EXPECT_TRUE(c.runs[1].continuation);
+  EXPECT_FALSE(c.runs[2].continuation);
+  for (const OptimizerRun& run : c.runs) {
+    ASSERT_FALSE(run.result.log.empty()) << run.name;
+    EXPECT_NEAR(run.result.log.front().loss, c.runs[0].result.log.front().loss,
+                1e-9 * c.runs[0].result.log.front().loss)
+        << run.name;
+    for (const FitIteration& it : run.result.log) EXPECT_EQ(it.beta, 64.0) << run.name;
+    EXPECT_LT(run.final_loss, run.result.log.front().loss) << run.name;
   }
 }
 
