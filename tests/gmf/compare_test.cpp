@@ -22,6 +22,8 @@ struct CompareScene {
   io::Volume volume;
   io::WorldFrame frame;
   GaussianMixture truth;
+  io::SparseGrid grid;    // of the volume, threshold 0.05
+  GaussianMixture start;  // the truth, each Gaussian dimmer
 };
 
 // Six Gaussians on a line in a 32x24x16 volume.
@@ -40,16 +42,18 @@ CompareScene make_compare_scene() {
     s.truth.push_back(g);
   }
   s.volume.voxels = rasterize_mixture(s.truth, s.frame, {.cutoff = 1e9});
+  io::SparseGridOptions so;
+  so.threshold = 0.05;
+  s.grid = io::build_sparse_grid(s.volume, Eigen::Vector3d(1.0, 1.0, 1.0), so);
+  s.start = s.truth;
+  for (auto& g : s.start) g.intensity_logit -= 0.8f;
   return s;
 }
 
 TEST(GmfCompare, AdamDefinesTheTargetAndRunsFirst) {
   const CompareScene scene = make_compare_scene();
-  io::SparseGridOptions so;
-  so.threshold = 0.05;
-  const io::SparseGrid grid = io::build_sparse_grid(scene.volume, Eigen::Vector3d(1.0, 1.0, 1.0), so);
-  GaussianMixture start = scene.truth;
-  for (auto& g : start) g.intensity_logit -= 0.8f;
+  const io::SparseGrid& grid = scene.grid;
+  const GaussianMixture& start = scene.start;
   GmfOptions base;
   base.aggregation = Aggregation::kSum;  // these tests fit the report's sum
   base.iterations_per_round = 10;
@@ -86,14 +90,9 @@ TEST(GmfCompare, AdamDefinesTheTargetAndRunsFirst) {
 // β-64 run's first line) and ends at the same mixture.
 TEST(GmfFit, ReportBetaChangesWhatIsLoggedNotWhatIsSolved) {
   const CompareScene scene = make_compare_scene();
-  io::SparseGridOptions so;
-  so.threshold = 0.05;
-  const io::SparseGrid grid = io::build_sparse_grid(scene.volume, Eigen::Vector3d(1.0, 1.0, 1.0), so);
-  GaussianMixture start = scene.truth;
-  for (auto& g : start) {
-    g.intensity_logit -= 0.8f;
-    g.mean[0] += 0.3f;
-  }
+  const io::SparseGrid& grid = scene.grid;
+  GaussianMixture start = scene.start;
+  for (auto& g : start) g.mean[0] += 0.3f;
   for (const Optimizer optimizer : {Optimizer::kAdam, Optimizer::kBrickLm}) {
     GmfOptions base;
     base.optimizer = optimizer;
@@ -139,11 +138,8 @@ TEST(GmfFit, ReportBetaIsOnlyForSolversThatLogAtIt) {
 // solve at β_end; every run logs at β_end, from the same first loss.
 TEST(GmfCompare, ContinuationRunsAreMeasuredOnTheFinalObjective) {
   const CompareScene scene = make_compare_scene();
-  io::SparseGridOptions so;
-  so.threshold = 0.05;
-  const io::SparseGrid grid = io::build_sparse_grid(scene.volume, Eigen::Vector3d(1.0, 1.0, 1.0), so);
-  GaussianMixture start = scene.truth;
-  for (auto& g : start) g.intensity_logit -= 0.8f;
+  const io::SparseGrid& grid = scene.grid;
+  const GaussianMixture& start = scene.start;
   GmfOptions base;  // the softmax, β 8 → 64
   base.prune_intensity = 0.0;
   base.brick_iterations = 3;
@@ -175,7 +171,7 @@ TEST(GmfCompare, OptimizerNamesMatchTheConfig) {
 
 TEST(GmfCompare, EmptyListIsAnError) {
   const CompareScene scene = make_compare_scene();
-  const io::SparseGrid grid = io::build_sparse_grid(scene.volume, Eigen::Vector3d(1.0, 1.0, 1.0), {});
+  const io::SparseGrid& grid = scene.grid;
   CompareOptions o;
   o.optimizers.clear();
   EXPECT_THROW(
