@@ -394,6 +394,11 @@ MixtureModel model_of(const CheckpointMeta& meta, double cutoff) {
   return m;
 }
 
+std::string describe(const MixtureModel& model) {
+  if (model.aggregation == Aggregation::kSum) return "sum";
+  return "softmax (beta " + io::number_text(model.beta) + ")";
+}
+
 std::optional<io::WorldFrame> model_frame(const CheckpointMeta& meta) {
   if (!meta.volume_shape_zyx || !meta.aspect) return std::nullopt;
   const auto& s = *meta.volume_shape_zyx;

@@ -104,6 +104,9 @@ void save_checkpoint(const std::filesystem::path& path, const GaussianMixture& m
 // given Mahalanobis cutoff δ.
 [[nodiscard]] MixtureModel model_of(const CheckpointMeta& meta, double cutoff = 16.0);
 
+// "sum" or "softmax (beta 64)": which f a model's 3D value is, for progress lines.
+[[nodiscard]] std::string describe(const MixtureModel& model);
+
 // The frame of the stack a checkpoint was fitted to, from its `volume_shape` and
 // `aspect` metadata; nullopt when either is missing (e.g. a model made elsewhere).
 [[nodiscard]] std::optional<io::WorldFrame> model_frame(const CheckpointMeta& meta);

@@ -86,9 +86,10 @@ void write_splat_ply(const std::filesystem::path& path, const GaussianMixture& m
   io::write_ply(path, table);
 }
 
-std::vector<float> rasterize_dense(const GaussianMixture& mixture, const io::WorldFrame& frame, double tail) {
+std::vector<float> rasterize_dense(const GaussianMixture& mixture, const MixtureModel& model,
+                                   const io::WorldFrame& frame, double tail) {
   if (!(tail > 0.0)) throw std::invalid_argument("rasterize_dense: tail must be > 0");
-  return rasterize_mixture(mixture, frame, RasterizeOptions{.tail = tail});
+  return rasterize_mixture(mixture, frame, RasterizeOptions::exported(model, tail));
 }
 
 }  // namespace hisnegs::gmf

@@ -10,6 +10,7 @@
 #include <string_view>
 #include <vector>
 
+#include "gmf/aggregation.hpp"
 #include "gmf/gaussian_mixture.hpp"
 #include "io/ply.hpp"
 #include "io/volume.hpp"
@@ -48,12 +49,14 @@ struct SplatPlyOptions {
 // Writes splat_ply_table atomically as binary little-endian PLY.
 void write_splat_ply(const std::filesystem::path& path, const GaussianMixture& mixture, const SplatPlyOptions& options);
 
-// f(x) at every voxel centre of `frame`, x fastest like io::Volume (float32), through
-// gmf::rasterize_mixture with the per-term bound `tail`: every term a_k exp(-m/2) >=
-// tail is included, so each value is below the exact f by at most
-// tail × (Gaussians reaching the voxel). `tail` > 0, the same meaning as
-// VdbExportOptions::tail. Memory: 4 bytes per voxel of the frame.
-[[nodiscard]] std::vector<float> rasterize_dense(const GaussianMixture& mixture, const io::WorldFrame& frame,
-                                                 double tail);
+// The model's own f (`model`: its aggregation and β, and for a softmax its support
+// δ; model_of(checkpoint.meta, δ)) at every voxel centre of `frame`, x fastest like
+// io::Volume (float32), through gmf::rasterize_mixture with
+// RasterizeOptions::exported: every term a_k exp(-m/2) >= tail is included, so a
+// sum is below the exact f by at most tail × (Gaussians reaching the voxel). `tail`
+// > 0, the same meaning as VdbExportOptions::tail. Memory: 4 bytes per voxel of the
+// frame.
+[[nodiscard]] std::vector<float> rasterize_dense(const GaussianMixture& mixture, const MixtureModel& model,
+                                                 const io::WorldFrame& frame, double tail);
 
 }  // namespace hisnegs::gmf

@@ -56,10 +56,10 @@ constexpr int kVdbFormatVersion = 1;
 // The `density` grid: the core rasterizer's blocks are OpenVDB leaves (8³ voxels,
 // the same z-fastest offsets), evaluated in parallel; a leaf is kept where some f
 // exceeds the cutoff.
-FloatGrid::Ptr rasterize_density(const GaussianMixture& mixture, const VoxelLattice& lattice,
-                                 const VdbExportOptions& options, const std::string& model,
+FloatGrid::Ptr rasterize_density(const GaussianMixture& mixture, const MixtureModel& mixture_model,
+                                 const VoxelLattice& lattice, const VdbExportOptions& options, const std::string& model,
                                  const ExportProgress& progress, VdbExportReport& report) {
-  const BlockRasterizer raster(mixture, lattice, RasterizeOptions{.tail = options.tail}, model);
+  const BlockRasterizer raster(mixture, lattice, RasterizeOptions::exported(mixture_model, options.tail), model);
   const std::size_t n_leaves = raster.blocks();
   report.candidate_leaves = static_cast<std::int64_t>(n_leaves);
   std::vector<std::unique_ptr<LeafT>> leaves(n_leaves);  // empty where nothing exceeds the cutoff
@@ -100,6 +100,12 @@ void put_density_meta(FloatGrid& g, const Checkpoint& checkpoint, const VoxelLat
   g.insertMeta("gaussians", openvdb::Int64Metadata(static_cast<openvdb::Int64>(checkpoint.mixture.size())));
   g.insertMeta("cutoff", openvdb::DoubleMetadata(options.cutoff));
   g.insertMeta("tail", openvdb::DoubleMetadata(options.tail));
+  const bool soft = checkpoint.meta.aggregation == Aggregation::kSoftmax;
+  g.insertMeta("aggregation", openvdb::StringMetadata(soft ? "softmax" : "sum"));
+  if (soft) {
+    g.insertMeta("beta", openvdb::DoubleMetadata(checkpoint.meta.beta));
+    g.insertMeta("support", openvdb::DoubleMetadata(options.support));
+  }
   g.insertMeta("model", openvdb::StringMetadata(model_source));
   std::string source;
   for (const auto& [key, value] : m.extra) {
@@ -189,6 +195,9 @@ void VdbExportOptions::validate() const {
   if (!(cutoff > 0.0 && cutoff < 1.0)) {
     throw io::InputError("cutoff = " + io::number_text(cutoff) + ": must be in (0, 1) (normalized intensity)");
   }
+  if (!(std::isfinite(support) && support > 0.0)) {
+    throw io::InputError("support = " + io::number_text(support) + ": must be a finite number > 0 (Mahalanobis δ)");
+  }
   if (!(tail > 0.0 && tail <= cutoff)) {
     throw io::InputError("tail = " + io::number_text(tail) + ": must be in (0, cutoff = " + io::number_text(cutoff) +
                          "]");
@@ -206,7 +215,8 @@ VdbExportReport export_vdb(const fs::path& path, const Checkpoint& checkpoint, c
   io::Stopwatch watch;
 
   const auto transform = io::make_vdb_transform(lattice.voxel_size_world, lattice.origin_world);
-  FloatGrid::Ptr density = rasterize_density(checkpoint.mixture, lattice, options, model_source, progress, report);
+  FloatGrid::Ptr density = rasterize_density(checkpoint.mixture, model_of(checkpoint.meta, options.support), lattice,
+                                             options, model_source, progress, report);
   density->setTransform(transform->copy());
   density->setName(kDensityGrid);
   density->setGridClass(openvdb::GRID_FOG_VOLUME);
@@ -271,7 +281,7 @@ Checkpoint import_vdb_points(const fs::path& path) {
     io::fail_input(path, "not a readable OpenVDB file: " + io::printable(e.what()));  // OpenVDB messages can span lines
   } catch (const std::bad_alloc&) {
     io::fail_input(path, "damaged: reading it would take more than " + io::gib_text(guard.cap_bytes()) +
-                           " of memory (64x the file, at least 1 GiB)");
+                             " of memory (64x the file, at least 1 GiB)");
   }
   if (!grid) io::fail_input(path, "grid 'gaussians' is not a PointDataGrid");
   const auto header = grid->getMetadata<openvdb::StringMetadata>(kCheckpointMetaKey);

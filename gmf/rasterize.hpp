@@ -13,8 +13,8 @@
 #include <limits>
 #include <memory>
 #include <optional>
-#include <string>
 #include <span>
+#include <string>
 #include <vector>
 
 #include "gmf/aggregation.hpp"
@@ -61,6 +61,17 @@ struct RasterizeOptions {
   // The options that evaluate `model`'s f (its cutoff, aggregation and β).
   [[nodiscard]] static RasterizeOptions of(const MixtureModel& model) {
     return {model.cutoff, 0.0, model.aggregation, model.beta};
+  }
+  // The options an export evaluates `model`'s own f with, each term down to `tail`.
+  // A sum is report Eq. 1 over every term (no support cutoff: beyond δ a term adds
+  // less than a e^{-δ/2}). A softmax counts only the terms inside the model's support
+  // δ, as the fit and the renderer do: a far tail, though ~0, would still take
+  // softmax weight and pull f down wherever the signal is dim.
+  [[nodiscard]] static RasterizeOptions exported(const MixtureModel& model, double tail) {
+    RasterizeOptions o = of(model);
+    if (model.aggregation == Aggregation::kSum) o.cutoff = std::numeric_limits<double>::infinity();
+    o.tail = tail;
+    return o;
   }
 };
 

@@ -61,7 +61,9 @@ struct VdbArgs {
 };
 
 void run_export_vdb(const VdbArgs& args, GlobalOptions& global) {
-  args.options.validate();
+  gmf::VdbExportOptions options = args.options;
+  options.support = global.config().gmf.mahalanobis_cutoff;  // a softmax model's support, as its fit had it
+  options.validate();
   io::Stopwatch watch;
   const gmf::Checkpoint checkpoint = gmf::load_checkpoint(args.model);
   gmf::VoxelLattice lattice;
@@ -99,7 +101,7 @@ void run_export_vdb(const VdbArgs& args, GlobalOptions& global) {
                 format_seconds(watch.elapsed()).c_str());
     std::fflush(stdout);
   };
-  const gmf::VdbExportReport r = gmf::export_vdb(args.out, checkpoint, lattice, args.options, args.model, progress);
+  const gmf::VdbExportReport r = gmf::export_vdb(args.out, checkpoint, lattice, options, args.model, progress);
   if (global.quiet) return;
   std::string dense;
   if (frame) {
@@ -107,13 +109,13 @@ void run_export_vdb(const VdbArgs& args, GlobalOptions& global) {
     dense = ", dense float32 of the stack " + format_bytes(4.0 * n.x() * n.y() * n.z());
   }
   std::printf(
-      "export vdb: wrote %s: `density` on %s, %lld active voxels (f > %g) in %lld leaves of %lld reached, "
-      "K %lld%s; file %s%s; rasterize %s%s, write %s\n",
-      args.out.c_str(), lattice_text.c_str(), static_cast<long long>(r.active_voxels), args.options.cutoff,
-      static_cast<long long>(r.leaf_count), static_cast<long long>(r.candidate_leaves),
-      static_cast<long long>(r.gaussians), args.options.points ? " + `gaussians` points" : "",
-      format_bytes(static_cast<double>(r.file_bytes)).c_str(), dense.c_str(),
-      format_seconds(r.rasterize_seconds).c_str(),
+      "export vdb: wrote %s: `density` (the model's %s f) on %s, %lld active voxels (f > %g) in %lld leaves of "
+      "%lld reached, K %lld%s; file %s%s; rasterize %s%s, write %s\n",
+      args.out.c_str(), gmf::describe(gmf::model_of(checkpoint.meta, options.support)).c_str(), lattice_text.c_str(),
+      static_cast<long long>(r.active_voxels), args.options.cutoff, static_cast<long long>(r.leaf_count),
+      static_cast<long long>(r.candidate_leaves), static_cast<long long>(r.gaussians),
+      args.options.points ? " + `gaussians` points" : "", format_bytes(static_cast<double>(r.file_bytes)).c_str(),
+      dense.c_str(), format_seconds(r.rasterize_seconds).c_str(),
       args.options.points ? (", points " + format_seconds(r.points_seconds)).c_str() : "",
       format_seconds(r.write_seconds).c_str());
 }
@@ -152,7 +154,8 @@ void run_export_volume(const VolumeArgs& args, GlobalOptions& global) {
                              std::to_string(shape.y()) + " x " + std::to_string(shape.x()));
   }
   const double t_load = watch.lap();
-  const std::vector<float> f = gmf::rasterize_dense(checkpoint.mixture, frame, args.tail);
+  const gmf::MixtureModel model = gmf::model_of(checkpoint.meta, global.config().gmf.mahalanobis_cutoff);
+  const std::vector<float> f = gmf::rasterize_dense(checkpoint.mixture, model, frame, args.tail);
   const double t_raster = watch.lap();
   const Eigen::Vector3i& n = frame.shape();
   io::write_tiff_stack(args.out, f, n.x(), n.y(), n.z(), tiff);
@@ -165,9 +168,10 @@ void run_export_volume(const VolumeArgs& args, GlobalOptions& global) {
                   args.match_volume.c_str());
     psnr = buf;
   }
-  std::printf("export volume: wrote %s: %s float32 (%s)%s; load %s, rasterize %s, write %s\n", args.out.c_str(),
-              shape_text(frame).c_str(), format_bytes(4.0 * static_cast<double>(f.size())).c_str(), psnr.c_str(),
-              format_seconds(t_load).c_str(), format_seconds(t_raster).c_str(), format_seconds(t_write).c_str());
+  std::printf("export volume: wrote %s: the model's %s f, %s float32 (%s)%s; load %s, rasterize %s, write %s\n",
+              args.out.c_str(), gmf::describe(model).c_str(), shape_text(frame).c_str(),
+              format_bytes(4.0 * static_cast<double>(f.size())).c_str(), psnr.c_str(), format_seconds(t_load).c_str(),
+              format_seconds(t_raster).c_str(), format_seconds(t_write).c_str());
 }
 
 struct CompactArgs {
@@ -227,8 +231,7 @@ void run_export_html(const HtmlArgs& args, GlobalOptions& global) {
       "hard MIP, cutoff %g, low-pass %g px^2; open it with #view=N&ui=0 for view N; %s\n",
       args.out.c_str(), format_bytes(static_cast<double>(html.size())).c_str(), checkpoint.mixture.size(),
       k > 0 ? static_cast<double>(html.size()) / k : 0.0, args.float32 ? "float32" : "compact .hgs", args.model.c_str(),
-      format_bytes(model_bytes).c_str(),
-      cameras.views.size(), cameras.intrinsics.width, cameras.intrinsics.height,
+      format_bytes(model_bytes).c_str(), cameras.views.size(), cameras.intrinsics.width, cameras.intrinsics.height,
       args.cameras.empty() ? "the evaluation orbit" : args.cameras.c_str(), settings.cutoff, settings.low_pass,
       format_seconds(watch.elapsed()).c_str());
 }
@@ -237,7 +240,8 @@ void run_export_html(const HtmlArgs& args, GlobalOptions& global) {
 
 void add_export_command(CLI::App& app, GlobalOptions& global) {
   auto* cmd = app.add_subcommand(
-      "export", "convert a checkpoint: OpenVDB grids, splat-viewer PLY, dense TIFF stack, compact checkpoint, HTML viewer");
+      "export",
+      "convert a checkpoint: OpenVDB grids, splat-viewer PLY, dense TIFF stack, compact checkpoint, HTML viewer");
   cmd->require_subcommand(1);
 
   auto* vdb = cmd->add_subcommand("vdb", "the mixture as a sparse OpenVDB `density` grid (+ `gaussians` points)");

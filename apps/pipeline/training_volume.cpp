@@ -51,9 +51,7 @@ std::shared_ptr<const splat::VolumeTerm> make_training_volume(const std::filesys
   };
   const gmf::MixtureModel model = gmf::model_of(meta, gmf.mahalanobis_cutoff);
   progress.say("train: 3D term on %s: %zu samples in %zu blocks, the model's %s, %s", volume.c_str(), samples.size(),
-               samples.blocks(),
-               model.aggregation == gmf::Aggregation::kSum ? "sum" : strf("softmax (beta %g)", model.beta).c_str(),
-               format_seconds(watch.elapsed()).c_str());
+               samples.blocks(), gmf::describe(model).c_str(), format_seconds(watch.elapsed()).c_str());
   return std::make_shared<splat::VolumeTerm>(std::move(samples), model, std::move(empty));
 }
 

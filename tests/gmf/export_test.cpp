@@ -10,6 +10,7 @@
 #include <openvdb/points/PointCount.h>
 #include <openvdb/points/PointDataGrid.h>
 #include <tbb/global_control.h>
+#include <Eigen/LU>
 
 #include <cmath>
 #include <cstring>
@@ -74,6 +75,52 @@ Eigen::Vector3d world_of(const openvdb::FloatGrid& grid, const openvdb::Coord& c
   return {w.x(), w.y(), w.z()};
 }
 
+// The softmax f_β, brute force (report Eq. 8 in 3D): at world point x the terms
+// g_k = a_k exp(-m_k/2) with m_k <= support, weighted by softmax(β g); 0 where none.
+class SoftmaxReference {
+ public:
+  SoftmaxReference(const GaussianMixture& mixture, double beta, double support) : beta_(beta), support_(support) {
+    for (const GaussianParams& p : mixture) {
+      terms_.push_back(
+          {Eigen::Vector3d(p.mean[0], p.mean[1], p.mean[2]), covariance(p).inverse(), intensity<double>(p)});
+    }
+  }
+  double operator()(const Eigen::Vector3d& x) const {
+    std::vector<double> g;
+    double top = -1, num = 0, den = 0;
+    for (const Term& t : terms_) {
+      const Eigen::Vector3d d = x - t.mean;
+      const double m = d.dot(t.precision * d);
+      if (m > support_) continue;
+      g.push_back(t.a * std::exp(-0.5 * m));
+      top = std::max(top, g.back());
+    }
+    for (double v : g) {
+      const double w = std::exp(beta_ * (v - top));
+      num += w * v;
+      den += w;
+    }
+    return den > 0 ? num / den : 0.0;
+  }
+
+ private:
+  struct Term {
+    Eigen::Vector3d mean;
+    Eigen::Matrix3d precision;
+    double a;
+  };
+  std::vector<Term> terms_;
+  double beta_, support_;
+};
+
+// A checkpoint of dense, overlapping Gaussians recorded as a softmax at β 64.
+Checkpoint softmax_checkpoint() {
+  Checkpoint cp{random_mixture(60, 21), stack_meta()};
+  cp.meta.aggregation = Aggregation::kSoftmax;
+  cp.meta.beta = 64.0;
+  return cp;
+}
+
 bool bit_equal(const GaussianMixture& a, const GaussianMixture& b) {
   return a.size() == b.size() && (a.empty() || std::memcmp(a.data(), b.data(), a.size() * sizeof(GaussianParams)) == 0);
 }
@@ -117,6 +164,42 @@ TEST(ExportVdb, DensityMatchesDirectEvaluationAndInactiveVoxelsStayBelowCutoff) 
   EXPECT_GT(inactive, 10000);
   EXPECT_LT(max_diff, 1e-5);
   EXPECT_LE(max_inactive_f, options.cutoff + 25 * options.tail);
+}
+
+// A softmax checkpoint exports its own f_β (support δ), not the sum of its terms:
+// the `density` values are the brute-force softmax, and its metadata says which f.
+TEST(ExportVdb, SoftmaxCheckpointExportsItsOwnF) {
+  ScratchDir dir;
+  const Checkpoint cp = softmax_checkpoint();
+  VdbExportOptions options;
+  options.support = 16.0;
+  export_vdb(dir / "m.vdb", cp, VoxelLattice::of(kFrame), options, "m.ply");
+  const auto grid = read_density(dir / "m.vdb");
+  ASSERT_TRUE(grid);
+  EXPECT_EQ(grid->metaValue<std::string>("aggregation"), "softmax");
+  EXPECT_EQ(grid->metaValue<double>("beta"), 64.0);
+  EXPECT_EQ(grid->metaValue<double>("support"), 16.0);
+  const auto acc = grid->getConstAccessor();
+  const SoftmaxReference reference(cp.mixture, 64.0, 16.0);
+  double max_diff = 0, max_sum_gap = 0;
+  for (int z = 0; z < 20; ++z)
+    for (int y = 0; y < 40; ++y)
+      for (int x = 0; x < 40; ++x) {
+        const Eigen::Vector3d w = kFrame.world_from_index(Eigen::Vector3d(x, y, z));
+        const double f = reference(w);
+        const double stored = acc.getValue(openvdb::Coord(x, y, z));
+        if (f > 2 * options.cutoff) max_diff = std::max(max_diff, std::abs(stored - f));
+        if (acc.isValueOn(openvdb::Coord(x, y, z))) {
+          max_sum_gap = std::max(max_sum_gap, evaluate_mixture(cp.mixture, w) - stored);
+        }
+      }
+  EXPECT_LT(max_diff, 1e-5);
+  EXPECT_GT(max_sum_gap, 0.1);  // where terms overlap the sum is far above f_β
+  // A sum checkpoint says so and carries no β.
+  export_vdb(dir / "sum.vdb", Checkpoint{cp.mixture, stack_meta()}, VoxelLattice::of(kFrame), options, "m.ply");
+  const auto sum = read_density(dir / "sum.vdb");
+  EXPECT_EQ(sum->metaValue<std::string>("aggregation"), "sum");
+  EXPECT_FALSE(sum->getMetadata<openvdb::DoubleMetadata>("beta"));
 }
 
 TEST(ExportVdb, StaysInsideTheStackWhereTheFitSawData) {
@@ -328,6 +411,9 @@ TEST(ExportVdb, RejectsBadOptionsAndLeavesNoFile) {
   o.cutoff = 0.0;
   rejected(VoxelLattice::aligned(0.1), o, "cutoff = 0");
   o = VdbExportOptions{};
+  o.support = 0.0;
+  rejected(VoxelLattice::aligned(0.1), o, "support = 0");
+  o = VdbExportOptions{};
   o.tail = 2 * o.cutoff;
   rejected(VoxelLattice::aligned(0.1), o, "tail = ");
   // Far too fine: refused before anything is allocated (the supports would reach
@@ -396,7 +482,7 @@ TEST(ExportFormats, FireColormapRampsBlackRedYellowWhite) {
 
 TEST(ExportFormats, DenseResamplingMatchesDirectEvaluation) {
   const GaussianMixture m = random_mixture(20, 10);
-  const std::vector<float> f = rasterize_dense(m, kFrame, VdbExportOptions{}.tail);
+  const std::vector<float> f = rasterize_dense(m, MixtureModel{}, kFrame, VdbExportOptions{}.tail);
   ASSERT_EQ(f.size(), 40u * 40u * 20u);
   double max_diff = 0;
   for (int z = 0; z < 20; ++z)
@@ -406,6 +492,24 @@ TEST(ExportFormats, DenseResamplingMatchesDirectEvaluation) {
         max_diff = std::max(max_diff, std::abs(f[(static_cast<std::size_t>(z) * 40 + y) * 40 + x] - exact));
       }
   EXPECT_LT(max_diff, 1e-5);
+}
+
+TEST(ExportFormats, DenseSoftmaxIsTheModelsOwnF) {
+  const Checkpoint cp = softmax_checkpoint();
+  const std::vector<float> f = rasterize_dense(cp.mixture, model_of(cp.meta, 16.0), kFrame, VdbExportOptions{}.tail);
+  ASSERT_EQ(f.size(), 40u * 40u * 20u);
+  const SoftmaxReference reference(cp.mixture, 64.0, 16.0);
+  double max_diff = 0, max_sum_gap = 0;
+  for (int z = 0; z < 20; ++z)
+    for (int y = 0; y < 40; ++y)
+      for (int x = 0; x < 40; ++x) {
+        const Eigen::Vector3d w = kFrame.world_from_index(Eigen::Vector3d(x, y, z));
+        const double v = f[(static_cast<std::size_t>(z) * 40 + y) * 40 + x];
+        max_diff = std::max(max_diff, std::abs(v - reference(w)));
+        max_sum_gap = std::max(max_sum_gap, evaluate_mixture(cp.mixture, w) - v);
+      }
+  EXPECT_LT(max_diff, 1e-5);
+  EXPECT_GT(max_sum_gap, 0.1);
 }
 
 }  // namespace
