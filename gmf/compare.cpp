@@ -55,7 +55,8 @@ Comparison compare_optimizers(const io::Volume& volume, const SampleSet& samples
   for (const Optimizer optimizer : order) {
     GmfOptions o = base;
     o.optimizer = optimizer;
-    o.densify = false;  // same K for everyone: the comparison is of optimizers, not of density control
+    o.densify = false;      // same K for everyone: the comparison is of optimizers, not of density control
+    o.sample_jitter = 0.0;  // the same samples in every round and run: one objective, comparable losses
     o.time_budget_s = options.time_budget_s;
     o.rounds = 1000;  // rounds only rebuild the index here; the budget (or Adam's steps) ends the run
     // One objective for all, the softmax at the schedule's final β: the runs with

@@ -30,6 +30,7 @@
 #include "gmf/rasterize.hpp"
 #include "gmf/samples.hpp"
 #include "io/error.hpp"
+#include "io/hash.hpp"
 #include "io/timer.hpp"
 
 namespace hisnegs::gmf {
@@ -268,10 +269,11 @@ RoundProblem prepare_round(const GaussianMixture& mixture, const SampleSet& samp
   constexpr double kScaleGrowth = 1.25;
   const double min_voxel = frame.voxel_size().minCoeff(), max_voxel = frame.voxel_size().maxCoeff();
   const double move = max_voxel;
+  const double jitter = 0.5 * options.sample_jitter * max_voxel;  // how far samples sit off their voxel centres
   RoundProblem r;
   r.params.resize(mixture.size());
   for (std::size_t k = 0; k < mixture.size(); ++k) r.params[k] = to_double(mixture[k]);
-  r.index = build_block_index(mixture, samples, frame, options.mahalanobis_cutoff, kScaleGrowth, move);
+  r.index = build_block_index(mixture, samples, frame, options.mahalanobis_cutoff, kScaleGrowth, move + jitter);
   const std::size_t n = r.params.size() * kGaussianParamCount;
   r.lower.assign(n, -std::numeric_limits<double>::infinity());
   r.upper.assign(n, std::numeric_limits<double>::infinity());
@@ -398,7 +400,7 @@ FitResult fit_mixture(const io::Volume& volume, const io::SparseGrid& grid, Gaus
   return fit_mixture(volume, fit_samples(grid, options), grid.frame(), mixture, options, on_progress);
 }
 
-FitResult fit_mixture(const io::Volume& volume, const SampleSet& samples, const io::WorldFrame& frame,
+FitResult fit_mixture(const io::Volume& volume, const SampleSet& centres, const io::WorldFrame& frame,
                       GaussianMixture& mixture, const GmfOptions& options,
                       const std::function<void(const FitIteration&)>& on_progress) {
   options.validate();
@@ -413,6 +415,7 @@ FitResult fit_mixture(const io::Volume& volume, const SampleSet& samples, const 
   // The round's measurement and density control must fit after its solve: the
   // solve gets the time left minus what they took last round.
   double overhead = 0;
+  const double max_voxel = frame.voxel_size().maxCoeff();
   for (int round = 0; round < options.rounds; ++round) {
     const double left = options.time_budget_s - clock.now() - overhead;
     if (left <= 0) {
@@ -423,6 +426,12 @@ FitResult fit_mixture(const io::Volume& volume, const SampleSet& samples, const 
     report = options.report_model(round);
     int round_iterations = options.iterations_per_round;
     if (options.max_iterations > 0) round_iterations = std::min(round_iterations, options.max_iterations - iterations);
+    // This round's samples: the voxel centres, or each moved within its voxel.
+    const SampleSet moved = options.sample_jitter > 0
+                                ? jitter_samples(centres, volume, frame, options.sample_jitter,
+                                                 io::splitmix64(options.seed) + static_cast<std::uint64_t>(round))
+                                : SampleSet{};
+    const SampleSet& samples = options.sample_jitter > 0 ? moved : centres;
     RoundProblem problem = prepare_round(mixture, samples, frame, options);
     const RoundOutcome outcome = solve_round(problem, samples, frame, options, model, report, state, manifold,
                                              round_iterations, left, log, round, iterations);
@@ -435,7 +444,8 @@ FitResult fit_mixture(const io::Volume& volume, const SampleSet& samples, const 
     problem = RoundProblem{};  // its padded index is the largest allocation: gone before the next index is built
     result.pruned += stats.pruned;
     // The round's result's block index: for its measurement and its density control.
-    const BlockIndex current = build_block_index(mixture, samples, frame, model.cutoff);
+    const BlockIndex current =
+        build_block_index(mixture, samples, frame, model.cutoff, 1.0, 0.5 * options.sample_jitter * max_voxel);
     const SampleFit fit = measure_on_samples(mixture, samples, current, report);
     FitIteration end;
     end.round = round;

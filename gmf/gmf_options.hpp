@@ -69,6 +69,13 @@ struct GmfOptions {
   // The volume is 0 outside its box, as the ray-marched MIPs see it: without the
   // shell, Gaussians at a face grew out of the stack (streaks in views past it).
   int outside_voxels = 2;
+  // Each round, every sample moves to a random point within ±sample_jitter/2 voxel
+  // of its voxel centre, its target the volume's trilinear value there
+  // (gmf::jitter_samples), [0, 1]; 0 = voxel centres only (the report's samples).
+  // On centres alone the fit put bright sub-voxel Gaussians between them, which
+  // every MIP view shows: op2's fit-alone views 30.5 dB at 0, 37.7 dB at 1
+  // (docs/benchmarks.md, "Sub-voxel samples").
+  double sample_jitter = 1.0;
   // brick-lm: bricks start as cubes of this many voxels (a power of two, [2, 256])
   // and are halved while they hold more than brick_gaussians Gaussians, [1, 10^4].
   int brick_voxels = 32;
@@ -119,6 +126,7 @@ struct GmfOptions {
     v("background_weight", background_weight);
     v("residual_block_voxels", residual_block_voxels);
     v("outside_voxels", outside_voxels);
+    v("sample_jitter", sample_jitter);
     v("brick_voxels", brick_voxels);
     v("brick_gaussians", brick_gaussians);
     v("brick_iterations", brick_iterations);

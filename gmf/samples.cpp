@@ -2,12 +2,17 @@
 // extract_samples: visit the SparseGrid's active leaves, group each leaf's voxels into blocks.
 #include "gmf/samples.hpp"
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
 #include <algorithm>
 #include <cmath>
-#include <tuple>
 #include <span>
 #include <stdexcept>
+#include <tuple>
 #include <vector>
+
+#include "io/hash.hpp"
 
 namespace hisnegs::gmf {
 namespace {
@@ -107,6 +112,30 @@ SampleSet extract_samples(const io::SparseGrid& grid, double background_weight, 
   }
   if (outside_voxels > 0) add_outside_samples(grid, frame, outside_voxels, out);
   out.block_begin.push_back(static_cast<std::uint32_t>(out.size()));
+  return out;
+}
+
+SampleSet jitter_samples(const SampleSet& samples, const io::Volume& volume, const io::WorldFrame& frame, double jitter,
+                         std::uint64_t seed) {
+  if (!(jitter >= 0.0 && jitter <= 1.0)) {
+    throw std::invalid_argument("jitter_samples: jitter must be in [0, 1]");
+  }
+  SampleSet out = samples;
+  if (jitter == 0.0) return out;
+  const Eigen::Vector3d voxel = frame.voxel_size();
+  const std::uint64_t stream = io::splitmix64(seed ^ 0x6A6974746572ULL);  // "jitter"
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, out.size(), 4096), [&](const auto& r) {
+    for (std::size_t i = r.begin(); i != r.end(); ++i) {
+      const std::uint64_t h = io::splitmix64(stream + 3 * i);
+      const auto offset = [&](std::uint64_t k, double size) {
+        return (io::unit_double(io::splitmix64(h + k)) - 0.5) * jitter * size;
+      };
+      out.x[i] += offset(0, voxel.x());
+      out.y[i] += offset(1, voxel.y());
+      out.z[i] += offset(2, voxel.z());
+      out.value[i] = io::sample_trilinear(volume, frame, Eigen::Vector3d(out.x[i], out.y[i], out.z[i]));
+    }
+  });
   return out;
 }
 

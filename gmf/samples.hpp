@@ -42,7 +42,19 @@ struct SampleSet {
 // voxel on a face, that many voxels beyond it along the outward normal, value 0,
 // weight 1, counted as background (their block origins may be negative or past
 // the shape). The volume is 0 outside its box, as the ray-marched MIPs see it.
-SampleSet extract_samples(const io::SparseGrid& grid, double background_weight, int block = 8,
-                          int outside_voxels = 0);
+SampleSet extract_samples(const io::SparseGrid& grid, double background_weight, int block = 8, int outside_voxels = 0);
+
+// The samples moved off the voxel centres: sample i moves by u ⊙ (voxel size), u
+// uniform in [-jitter/2, jitter/2]³ (jitter in [0, 1]: 1 = anywhere in its voxel
+// cell), and its target becomes the volume's CONVENTIONS trilinear value there
+// (io::sample_trilinear: 0 outside the box, so the outside shell stays 0).
+// Weights, blocks and counts are unchanged. u depends only on (seed, i), so the
+// result does not depend on the thread count. jitter 0 returns a copy.
+// Why: voxel centres alone leave a mixture free between them, and a fit uses that
+// freedom (Gaussians thinner than a voxel, bright between centres) which every
+// view at finer than voxel resolution shows (docs/benchmarks.md, "Sub-voxel
+// samples"); the ray-marched MIPs see the trilinear interpolant everywhere.
+[[nodiscard]] SampleSet jitter_samples(const SampleSet& samples, const io::Volume& volume, const io::WorldFrame& frame,
+                                       double jitter, std::uint64_t seed);
 
 }  // namespace hisnegs::gmf

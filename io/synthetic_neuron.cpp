@@ -19,6 +19,7 @@
 
 #include "io/config.hpp"
 #include "io/error.hpp"
+#include "io/hash.hpp"
 
 namespace hisnegs::io {
 namespace {
@@ -37,13 +38,6 @@ constexpr double kSomaLobeOffset = 0.3;        // soma = sphere + 3 lobes at thi
 constexpr double kSomaLobeRadius = 0.7;        // lobe radius / soma radius (lobes stay inside it)
 constexpr double kProfileCutoff = 4.0;         // profiles are evaluated out to r + 4 sigma
 constexpr double kMaxVoxels = 2147483648.0;    // 2^31: the volume must stay addressable
-
-std::uint64_t splitmix64(std::uint64_t x) {
-  x += 0x9E3779B97F4A7C15ULL;
-  x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ULL;
-  x = (x ^ (x >> 27)) * 0x94D049BB133111EBULL;
-  return x ^ (x >> 31);
-}
 
 // Independent streams: the morphology and each z-slice's noise.
 constexpr std::uint64_t kMorphologyStream = 0x6D6F7270686F6CULL;

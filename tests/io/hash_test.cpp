@@ -1,6 +1,6 @@
 // SPDX-License-Identifier: Apache-2.0
 // io/hash: fnv1a64 against the published FNV-1a 64-bit test vectors, and
-// chaining through the seed argument.
+// chaining through the seed argument; splitmix64 against its reference sequence.
 #include "io/hash.hpp"
 
 #include <gtest/gtest.h>
@@ -30,6 +30,16 @@ TEST(Hash, Fnv1a64ChainsThroughTheSeed) {
   EXPECT_EQ(fnv1a64(b.data(), b.size(), fnv1a64(a)), fnv1a64(a + b));
   EXPECT_NE(fnv1a64(a + b), fnv1a64(b + a));
   EXPECT_EQ(fnv1a64(nullptr, 0), fnv1a64(""));
+}
+
+// SplitMix64's first outputs from state 0 (the reference generator's sequence:
+// state += 0x9E3779B97F4A7C15 before each mix), and unit_double's range.
+TEST(Hash, SplitMix64MatchesTheReferenceSequence) {
+  EXPECT_EQ(splitmix64(0), 0xe220a8397b1dcdafull);
+  EXPECT_EQ(splitmix64(0x9E3779B97F4A7C15ull), 0x6e789e6aa1b965f4ull);
+  EXPECT_EQ(unit_double(0), 0.0);
+  EXPECT_LT(unit_double(~0ull), 1.0);
+  EXPECT_GT(unit_double(~0ull), 1.0 - 1e-15);
 }
 
 }  // namespace
