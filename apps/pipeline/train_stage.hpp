@@ -32,10 +32,10 @@ struct TrainOutcome {
   double psnr = 0;     // mean training-view PSNR of the last epoch
   double seconds = 0;  // training wall time, earlier sessions of a resumed run included
 };
-// The CPU schedule (configs/train_cpu.yaml's train section): 400 epochs with the
-// β warm-up and density control scaled to them: 16 min on op1 (K 20k → 12k with
-// the 3D term, 256² views) on a 2-core machine, where the default 2000-epoch (GPU)
-// schedule takes hours.
+// The CPU schedule (configs/train_cpu.yaml's train section): a short refinement of
+// the stage-1 fit, 100 epochs at a tenth of the report's step, β at its end value
+// from the start, no split or clone (docs/benchmarks.md, "Stage 2 after the
+// sub-voxel fit"), where the default 2000-epoch (GPU) schedule takes hours.
 [[nodiscard]] splat::TrainOptions cpu_train_schedule();
 
 // The schedule a run on `backend` trains with: on the CPU back end, when the

@@ -121,6 +121,27 @@ Checkpoint softmax_checkpoint() {
   return cp;
 }
 
+// Over every voxel of kFrame, exported values `value(x, y, z)` against the
+// checkpoint's f_β: the largest |value − f_β| where f_β > floor, and the largest
+// (Σ terms − value), how far below the sum of the terms they sit.
+struct SoftmaxGaps {
+  double max_diff = 0, max_sum_gap = 0;
+};
+template <class Value>
+SoftmaxGaps gaps_to_softmax(const GaussianMixture& mixture, double floor, Value&& value) {
+  const SoftmaxReference reference(mixture, 64.0, 16.0);
+  SoftmaxGaps gaps;
+  for (int z = 0; z < 20; ++z)
+    for (int y = 0; y < 40; ++y)
+      for (int x = 0; x < 40; ++x) {
+        const Eigen::Vector3d w = kFrame.world_from_index(Eigen::Vector3d(x, y, z));
+        const double v = value(x, y, z), f = reference(w);
+        if (f > floor) gaps.max_diff = std::max(gaps.max_diff, std::abs(v - f));
+        gaps.max_sum_gap = std::max(gaps.max_sum_gap, evaluate_mixture(mixture, w) - v);
+      }
+  return gaps;
+}
+
 bool bit_equal(const GaussianMixture& a, const GaussianMixture& b) {
   return a.size() == b.size() && (a.empty() || std::memcmp(a.data(), b.data(), a.size() * sizeof(GaussianParams)) == 0);
 }
@@ -180,21 +201,10 @@ TEST(ExportVdb, SoftmaxCheckpointExportsItsOwnF) {
   EXPECT_EQ(grid->metaValue<double>("beta"), 64.0);
   EXPECT_EQ(grid->metaValue<double>("support"), 16.0);
   const auto acc = grid->getConstAccessor();
-  const SoftmaxReference reference(cp.mixture, 64.0, 16.0);
-  double max_diff = 0, max_sum_gap = 0;
-  for (int z = 0; z < 20; ++z)
-    for (int y = 0; y < 40; ++y)
-      for (int x = 0; x < 40; ++x) {
-        const Eigen::Vector3d w = kFrame.world_from_index(Eigen::Vector3d(x, y, z));
-        const double f = reference(w);
-        const double stored = acc.getValue(openvdb::Coord(x, y, z));
-        if (f > 2 * options.cutoff) max_diff = std::max(max_diff, std::abs(stored - f));
-        if (acc.isValueOn(openvdb::Coord(x, y, z))) {
-          max_sum_gap = std::max(max_sum_gap, evaluate_mixture(cp.mixture, w) - stored);
-        }
-      }
-  EXPECT_LT(max_diff, 1e-5);
-  EXPECT_GT(max_sum_gap, 0.1);  // where terms overlap the sum is far above f_β
+  const SoftmaxGaps gaps = gaps_to_softmax(cp.mixture, 2 * options.cutoff,
+                                           [&](int x, int y, int z) { return acc.getValue(openvdb::Coord(x, y, z)); });
+  EXPECT_LT(gaps.max_diff, 1e-5);
+  EXPECT_GT(gaps.max_sum_gap, 0.1);  // where terms overlap the sum is far above f_β
   // A sum checkpoint says so and carries no β.
   export_vdb(dir / "sum.vdb", Checkpoint{cp.mixture, stack_meta()}, VoxelLattice::of(kFrame), options, "m.ply");
   const auto sum = read_density(dir / "sum.vdb");
@@ -498,18 +508,10 @@ TEST(ExportFormats, DenseSoftmaxIsTheModelsOwnF) {
   const Checkpoint cp = softmax_checkpoint();
   const std::vector<float> f = rasterize_dense(cp.mixture, model_of(cp.meta, 16.0), kFrame, VdbExportOptions{}.tail);
   ASSERT_EQ(f.size(), 40u * 40u * 20u);
-  const SoftmaxReference reference(cp.mixture, 64.0, 16.0);
-  double max_diff = 0, max_sum_gap = 0;
-  for (int z = 0; z < 20; ++z)
-    for (int y = 0; y < 40; ++y)
-      for (int x = 0; x < 40; ++x) {
-        const Eigen::Vector3d w = kFrame.world_from_index(Eigen::Vector3d(x, y, z));
-        const double v = f[(static_cast<std::size_t>(z) * 40 + y) * 40 + x];
-        max_diff = std::max(max_diff, std::abs(v - reference(w)));
-        max_sum_gap = std::max(max_sum_gap, evaluate_mixture(cp.mixture, w) - v);
-      }
-  EXPECT_LT(max_diff, 1e-5);
-  EXPECT_GT(max_sum_gap, 0.1);
+  const SoftmaxGaps gaps = gaps_to_softmax(
+      cp.mixture, 0.0, [&](int x, int y, int z) { return f[(static_cast<std::size_t>(z) * 40 + y) * 40 + x]; });
+  EXPECT_LT(gaps.max_diff, 1e-5);
+  EXPECT_GT(gaps.max_sum_gap, 0.1);
 }
 
 }  // namespace
