@@ -483,9 +483,16 @@ FitResult fit_mixture(const io::Volume& volume, const SampleSet& centres, const 
   result.final_beta = log_beta(report);
   io::Stopwatch measuring;
   result.final_psnr_3d = mixture_psnr(mixture, frame, RasterizeOptions::of(report), volume.voxels);
+  if (options.sample_jitter > 0 && !result.log.empty()) {
+    // The rounds measured their moved samples; the result is measured, like the
+    // 3D PSNR, at the voxel centres.
+    const BlockIndex index = build_block_index(mixture, centres, frame, report.cutoff);
+    result.final_psnr_fg = measure_on_samples(mixture, centres, index, report).psnr_fg;
+  }
   result.measuring_seconds = measuring.elapsed();
   FitIteration final_line = result.log.empty() ? FitIteration{} : result.log.back();
   final_line.psnr_3d = result.final_psnr_3d;
+  if (options.sample_jitter > 0 && final_line.psnr_fg >= 0) final_line.psnr_fg = result.final_psnr_fg;
   final_line.gaussians = static_cast<int>(mixture.size());
   log.add(final_line);
   return result;

@@ -43,7 +43,7 @@ struct FitResult {
   double seconds = 0;            // wall clock of the fit, within gmf.time_budget_s
   double measuring_seconds = 0;  // the final all-voxel 3D PSNR, after the fit
   double final_psnr_3d = 0;      // all voxels, the model's own aggregation at final_beta
-  double final_psnr_fg = 0;      // foreground samples
+  double final_psnr_fg = 0;      // foreground samples, at the voxel centres (not moved)
   double final_beta = 0;         // β of the last round (0 for a sum)
   int pruned = 0;
   std::string stop_reason;
