@@ -57,16 +57,20 @@ using ExportProgress = std::function<void(std::int64_t done, std::int64_t total)
 
 // Writes `path` (atomically: temp file + rename, so no partial file on any throw)
 // holding a FloatGrid `density` (class fog volume): the checkpoint's own f(x) (its
-// aggregation: report Eq. 1 for a sum, f_β for a softmax, RasterizeOptions::exported) at the voxel
-// centres of `lattice` inside lattice.clip, active where f > options.cutoff, with
-// the lattice as its linear transform and metadata hisnegs_format_version,
-// gaussians (K), cutoff, tail, aggregation (and for a softmax beta and support), model (= `model_source`), source (the
-// checkpoint's `source`), clip_min/clip_max (when clipped) and, when the checkpoint records them, volume_shape_xyz,
-// spacing_um, aspect, normalization. With options.points also a PointDataGrid `gaussians` (see import_vdb_points). Work
-// and memory scale with the leaves the Gaussians' supports reach, never with their bounding box; values do not depend
-// on the thread count (each voxel sums its Gaussians in checkpoint order). Throws io::InputError for invalid options or
-// a lattice so fine that the supports would reach more leaves than memory holds (MemAvailable, or HISNEGS_MAX_ALLOC_GB
-// GiB) or span more than 2^23 voxels along an axis; std::runtime_error naming `path` if writing fails.
+// aggregation: report Eq. 1 for a sum, f_β for a softmax; RasterizeOptions::exported)
+// at the voxel centres of `lattice` inside lattice.clip, active where f >
+// options.cutoff, with the lattice as its linear transform and metadata
+// hisnegs_format_version, gaussians (K), cutoff, tail, aggregation (and for a
+// softmax beta and support), model (= `model_source`), source (the checkpoint's
+// `source`), clip_min/clip_max (when clipped) and, when the checkpoint records
+// them, volume_shape_xyz, spacing_um, aspect, normalization.
+// With options.points also a PointDataGrid `gaussians` (see import_vdb_points).
+// Work and memory scale with the leaves the Gaussians' supports reach, never with
+// their bounding box; values do not depend on the thread count (each voxel sums its
+// Gaussians in checkpoint order). Throws io::InputError for invalid options or a
+// lattice so fine that the supports would reach more leaves than memory holds
+// (MemAvailable, or HISNEGS_MAX_ALLOC_GB GiB) or span more than 2^23 voxels along an
+// axis; std::runtime_error naming `path` if writing fails.
 VdbExportReport export_vdb(const std::filesystem::path& path, const Checkpoint& checkpoint, const VoxelLattice& lattice,
                            const VdbExportOptions& options, const std::string& model_source,
                            const ExportProgress& progress = {});

@@ -258,6 +258,12 @@ struct RoundProblem {
 };
 static_assert(sizeof(Params) == kGaussianParamCount * sizeof(double), "Params must be a plain array of doubles");
 
+// How far (world units, on any axis) a moved sample can sit from its voxel centre,
+// which the block indexes cover, so they reach every sample a Gaussian reaches.
+double sample_jitter_pad(const GmfOptions& options, const io::WorldFrame& frame) {
+  return 0.5 * options.sample_jitter * frame.voxel_size().maxCoeff();
+}
+
 // Per-round trust region on each Gaussian's geometry: its mean stays within one
 // (largest) voxel of the round's start and its scales grow by at most kScaleGrowth,
 // and the index is padded to match, so a Gaussian cannot reach samples outside its
@@ -269,11 +275,11 @@ RoundProblem prepare_round(const GaussianMixture& mixture, const SampleSet& samp
   constexpr double kScaleGrowth = 1.25;
   const double min_voxel = frame.voxel_size().minCoeff(), max_voxel = frame.voxel_size().maxCoeff();
   const double move = max_voxel;
-  const double jitter = 0.5 * options.sample_jitter * max_voxel;  // how far samples sit off their voxel centres
   RoundProblem r;
   r.params.resize(mixture.size());
   for (std::size_t k = 0; k < mixture.size(); ++k) r.params[k] = to_double(mixture[k]);
-  r.index = build_block_index(mixture, samples, frame, options.mahalanobis_cutoff, kScaleGrowth, move + jitter);
+  r.index = build_block_index(mixture, samples, frame, options.mahalanobis_cutoff, kScaleGrowth,
+                              move + sample_jitter_pad(options, frame));
   const std::size_t n = r.params.size() * kGaussianParamCount;
   r.lower.assign(n, -std::numeric_limits<double>::infinity());
   r.upper.assign(n, std::numeric_limits<double>::infinity());
@@ -415,7 +421,6 @@ FitResult fit_mixture(const io::Volume& volume, const SampleSet& centres, const 
   // The round's measurement and density control must fit after its solve: the
   // solve gets the time left minus what they took last round.
   double overhead = 0;
-  const double max_voxel = frame.voxel_size().maxCoeff();
   for (int round = 0; round < options.rounds; ++round) {
     const double left = options.time_budget_s - clock.now() - overhead;
     if (left <= 0) {
@@ -445,7 +450,7 @@ FitResult fit_mixture(const io::Volume& volume, const SampleSet& centres, const 
     result.pruned += stats.pruned;
     // The round's result's block index: for its measurement and its density control.
     const BlockIndex current =
-        build_block_index(mixture, samples, frame, model.cutoff, 1.0, 0.5 * options.sample_jitter * max_voxel);
+        build_block_index(mixture, samples, frame, model.cutoff, 1.0, sample_jitter_pad(options, frame));
     const SampleFit fit = measure_on_samples(mixture, samples, current, report);
     FitIteration end;
     end.round = round;
