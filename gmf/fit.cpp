@@ -261,7 +261,7 @@ static_assert(sizeof(Params) == kGaussianParamCount * sizeof(double), "Params mu
 // How far (world units, on any axis) a moved sample can sit from its voxel centre,
 // which the block indexes cover, so they reach every sample a Gaussian reaches.
 double sample_jitter_pad(const GmfOptions& options, const io::WorldFrame& frame) {
-  return 0.5 * options.sample_jitter * frame.voxel_size().maxCoeff();
+  return 0.5 * options.jitter() * frame.voxel_size().maxCoeff();
 }
 
 // Per-round trust region on each Gaussian's geometry: its mean stays within one
@@ -432,11 +432,11 @@ FitResult fit_mixture(const io::Volume& volume, const SampleSet& centres, const 
     int round_iterations = options.iterations_per_round;
     if (options.max_iterations > 0) round_iterations = std::min(round_iterations, options.max_iterations - iterations);
     // This round's samples: the voxel centres, or each moved within its voxel.
-    const SampleSet moved = options.sample_jitter > 0
-                                ? jitter_samples(centres, volume, frame, options.sample_jitter,
+    const SampleSet moved = options.jitter() > 0
+                                ? jitter_samples(centres, volume, frame, options.jitter(),
                                                  io::splitmix64(options.seed) + static_cast<std::uint64_t>(round))
                                 : SampleSet{};
-    const SampleSet& samples = options.sample_jitter > 0 ? moved : centres;
+    const SampleSet& samples = options.jitter() > 0 ? moved : centres;
     RoundProblem problem = prepare_round(mixture, samples, frame, options);
     const RoundOutcome outcome = solve_round(problem, samples, frame, options, model, report, state, manifold,
                                              round_iterations, left, log, round, iterations);
@@ -488,7 +488,7 @@ FitResult fit_mixture(const io::Volume& volume, const SampleSet& centres, const 
   result.final_beta = log_beta(report);
   io::Stopwatch measuring;
   result.final_psnr_3d = mixture_psnr(mixture, frame, RasterizeOptions::of(report), volume.voxels);
-  if (options.sample_jitter > 0 && !result.log.empty()) {
+  if (options.jitter() > 0 && !result.log.empty()) {
     // The rounds measured their moved samples; the result is measured, like the
     // 3D PSNR, at the voxel centres.
     const BlockIndex index = build_block_index(mixture, centres, frame, report.cutoff);
@@ -497,7 +497,7 @@ FitResult fit_mixture(const io::Volume& volume, const SampleSet& centres, const 
   result.measuring_seconds = measuring.elapsed();
   FitIteration final_line = result.log.empty() ? FitIteration{} : result.log.back();
   final_line.psnr_3d = result.final_psnr_3d;
-  if (options.sample_jitter > 0 && final_line.psnr_fg >= 0) final_line.psnr_fg = result.final_psnr_fg;
+  if (options.jitter() > 0 && final_line.psnr_fg >= 0) final_line.psnr_fg = result.final_psnr_fg;
   final_line.gaussians = static_cast<int>(mixture.size());
   log.add(final_line);
   return result;

@@ -42,12 +42,14 @@ void GmfOptions::validate() const {
   io::require_in_range(s, "brick_gaussians", brick_gaussians, 1, 10000);
   io::require_in_range(s, "brick_iterations", brick_iterations, 1, 1000);
   io::require_in_range(s, "outside_voxels", outside_voxels, 0, 8);
-  io::require_in_range(s, "sample_jitter", sample_jitter, 0.0, 1.0);
+  if (sample_jitter) io::require_in_range(s, "sample_jitter", *sample_jitter, 0.0, 1.0);
   if (residual_block_voxels != 1 && residual_block_voxels != 2 && residual_block_voxels != 4 &&
       residual_block_voxels != 8) {
     io::fail_option(s, "residual_block_voxels", std::to_string(residual_block_voxels), "must be 1, 2, 4 or 8");
   }
 }
+
+double GmfOptions::jitter() const { return sample_jitter.value_or(aggregation == Aggregation::kSum ? 0.0 : 1.0); }
 
 MixtureModel GmfOptions::model(int round) const {
   MixtureModel m;

@@ -5,6 +5,7 @@
 #pragma once
 
 #include <cstdint>
+#include <optional>
 #include <string>
 
 #include "gmf/aggregation.hpp"
@@ -69,13 +70,15 @@ struct GmfOptions {
   // The volume is 0 outside its box, as the ray-marched MIPs see it: without the
   // shell, Gaussians at a face grew out of the stack (streaks in views past it).
   int outside_voxels = 2;
-  // Each round, every sample moves to a random point within ±sample_jitter/2 voxel
-  // of its voxel centre, its target the volume's trilinear value there
+  // Each round, every sample moves to a random point within ±jitter/2 voxel of its
+  // voxel centre, its target the volume's trilinear value there
   // (gmf::jitter_samples), [0, 1]; 0 = voxel centres only (the report's samples).
-  // On centres alone the fit put bright sub-voxel Gaussians between them, which
-  // every MIP view shows: op2's fit-alone views 30.5 dB at 0, 37.7 dB at 1
-  // (docs/benchmarks.md, "Sub-voxel samples").
-  double sample_jitter = 1.0;
+  // On centres alone the softmax fit put bright sub-voxel Gaussians between them,
+  // which every MIP view shows: op2's fit-alone views 30.5 dB at 0, 37.7 dB at 1.
+  // Unset (`auto`, the default) = 1 for the softmax (the MIP model), 0 for the sum
+  // (the density model, measured at voxel centres: op1's foreground 3D PSNR 52.6 dB
+  // at 0, 31.2 dB at 1); docs/benchmarks.md, "Sub-voxel samples".
+  std::optional<double> sample_jitter;
   // brick-lm: bricks start as cubes of this many voxels (a power of two, [2, 256])
   // and are halved while they hold more than brick_gaussians Gaussians, [1, 10^4].
   int brick_voxels = 32;
@@ -89,6 +92,8 @@ struct GmfOptions {
   // Adam and brick-lm log at another β than they solve; 0 = each round's own β.
   double report_beta = 0.0;
 
+  // sample_jitter, or its automatic value for this aggregation.
+  [[nodiscard]] double jitter() const;
   // The mixture model of round `round` (its β from the schedule).
   [[nodiscard]] MixtureModel model(int round) const;
   // The model every logged loss is measured with: model(round), at report_beta when set.

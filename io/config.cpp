@@ -213,6 +213,23 @@ void ConfigReader::operator()(std::string_view key, double& value) {
   value = v;
 }
 
+void ConfigReader::operator()(std::string_view key, std::optional<double>& value) {
+  std::string text;
+  if (!read_string(key, text)) return;
+  if (text == "auto") {
+    value.reset();
+    return;
+  }
+  double v = 0;
+  try {
+    v = state_->node[std::string(key)].as<double>();
+  } catch (const YAML::Exception&) {
+    fail(key, "expected a number or auto, got '" + text + "'");
+  }
+  if (!std::isfinite(v)) fail(key, "expected a finite number or auto, got '" + text + "'");
+  value = v;
+}
+
 namespace {
 template <class Int>
 bool parse_integer(const std::string& text, Int& out) {

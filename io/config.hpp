@@ -10,6 +10,7 @@
 #include <filesystem>
 #include <initializer_list>
 #include <memory>
+#include <optional>
 #include <sstream>
 #include <stdexcept>
 #include <string>
@@ -66,6 +67,8 @@ class ConfigReader {
   void operator()(std::string_view key, std::string& value);
   void operator()(std::string_view key, std::array<double, 3>& value);
   void operator()(std::string_view key, std::vector<double>& value);
+  // A number, or `auto` (no value: the option's documented automatic choice).
+  void operator()(std::string_view key, std::optional<double>& value);
   template <class E>
   requires std::is_enum_v<E>
   void operator()(std::string_view key, E& value, EnumNames<E> names) {
@@ -119,6 +122,7 @@ class ConfigWriter {
   static std::string format(const std::string& v);
   static std::string format(const std::array<double, 3>& v);
   static std::string format(const std::vector<double>& v);
+  static std::string format(const std::optional<double>& v) { return v ? format(*v) : "auto"; }
   std::ostringstream out_;
 };
 

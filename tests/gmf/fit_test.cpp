@@ -13,6 +13,7 @@
 #include "gmf/objective.hpp"
 #include "gmf/psnr.hpp"
 #include "gmf/samples.hpp"
+#include "io/error.hpp"
 #include "tests/gmf/gmf_test_scenes.hpp"
 
 namespace hisnegs::gmf {
@@ -176,6 +177,23 @@ TEST(GmfFit, IterationCapAndStopLoss) {
     for (const FitIteration& it : stopped.log) at_or_below += it.loss <= o.stop_loss ? 1 : 0;
     EXPECT_GE(at_or_below, 1);
   }
+}
+
+// sample_jitter unset (auto): moved samples for the softmax (the MIP model), voxel
+// centres for the sum (the density model); a value set is used for both.
+TEST(GmfOptions, AutomaticJitterFollowsTheAggregation) {
+  GmfOptions o;
+  EXPECT_FALSE(o.sample_jitter.has_value());
+  o.aggregation = Aggregation::kSoftmax;
+  EXPECT_EQ(o.jitter(), 1.0);
+  o.aggregation = Aggregation::kSum;
+  EXPECT_EQ(o.jitter(), 0.0);
+  o.sample_jitter = 0.5;
+  EXPECT_EQ(o.jitter(), 0.5);
+  o.aggregation = Aggregation::kSoftmax;
+  EXPECT_EQ(o.jitter(), 0.5);
+  o.sample_jitter = 1.5;
+  EXPECT_THROW(o.validate(), io::InputError);
 }
 
 // With moved samples the rounds measure those; the fit's result (and its last log

@@ -21,6 +21,7 @@ struct Demo {
   std::vector<double> list;
   std::uint64_t seed = 0;
   Mode mode = Mode::kA;
+  std::optional<double> amount;  // unset = auto
   template <class V>
   void visit(V&& vis) {
     vis("n", n);
@@ -31,6 +32,7 @@ struct Demo {
     vis("list", list);
     vis("seed", seed);
     vis("mode", mode, EnumNames<Mode>{{"a", Mode::kA}, {"b", Mode::kB}});
+    vis("amount", amount);
   }
 };
 
@@ -139,11 +141,22 @@ TEST(Config, WriterOutputReadsBackIdentically) {
   d.list = {1, 2};
   d.seed = 42;
   d.mode = Mode::kB;
+  d.amount = 0.75;
   ConfigWriter w;
   w.begin_section("demo");
   d.visit(w);
   Demo back;
   ConfigFile::parse(w.str(), "dump").read("demo", back);
+  EXPECT_EQ(back.amount, d.amount);
+  Demo automatic;
+  ConfigWriter wa;
+  wa.begin_section("demo");
+  automatic.visit(wa);
+  EXPECT_NE(wa.str().find("  amount: auto\n"), std::string::npos) << wa.str();
+  Demo back_auto;
+  back_auto.amount = 1.0;
+  ConfigFile::parse(wa.str(), "dump").read("demo", back_auto);
+  EXPECT_FALSE(back_auto.amount.has_value());
   EXPECT_EQ(back.n, d.n);
   EXPECT_DOUBLE_EQ(back.x, d.x);
   EXPECT_EQ(back.flag, d.flag);

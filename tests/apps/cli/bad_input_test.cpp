@@ -218,6 +218,13 @@ TEST_F(BadInput, HostileValuesAreRefusedUpFront) {
   testing::write_text(in("outside.yaml"), "gmf:\n  outside_voxels: 9\n");
   expect_rejected({"--config", in("outside.yaml"), "vdb", in("ok.tif"), "-o", out()},
                   {"gmf.outside_voxels = 9", "[0, 8]"});
+  // Samples moved further than their own voxel; a word that is not `auto`.
+  testing::write_text(in("jitter.yaml"), "gmf:\n  sample_jitter: 2\n");
+  expect_rejected({"--config", in("jitter.yaml"), "vdb", in("ok.tif"), "-o", out()},
+                  {"gmf.sample_jitter = 2", "[0, 1]"});
+  testing::write_text(in("jitter_word.yaml"), "gmf:\n  sample_jitter: half\n");
+  expect_rejected({"--config", in("jitter_word.yaml"), "vdb", in("ok.tif"), "-o", out()},
+                  {"sample_jitter", "expected a number or auto, got 'half'"});
   // Degenerate spacing, on the command line and through the box it makes.
   expect_rejected({"vdb", in("ok.tif"), "--spacing", "1e-20,1,1", "-o", out()}, {"volume.spacing_um", "factor"});
   expect_rejected({"gt", in("ok.tif"), "--spacing", "1e-20,1,1", "-o", gt}, {"spacing_um"});

@@ -11,6 +11,7 @@
 #include <cmath>
 #include <cstdint>
 #include <map>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -51,6 +52,7 @@ struct FieldChanger {
   static bool change(std::string& v) { return v += "x", true; }
   static bool change(std::array<double, 3>& v) { return v[0] += 1, true; }
   static bool change(std::vector<double>& v) { return v.push_back(1.0), true; }
+  static bool change(std::optional<double>& v) { return (v = v ? std::optional<double>{} : 0.5), true; }
 };
 
 struct FieldChange {
