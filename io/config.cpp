@@ -200,17 +200,20 @@ bool ConfigReader::read_string(std::string_view key, std::string& out) {
 
 void ConfigReader::operator()(std::string_view key, std::string& value) { read_string(key, value); }
 
-void ConfigReader::operator()(std::string_view key, double& value) {
-  std::string text;
-  if (!read_string(key, text)) return;
+double ConfigReader::number(std::string_view key, const std::string& text, std::string_view alternatives) const {
   double v = 0;
   try {
     v = state_->node[std::string(key)].as<double>();
   } catch (const YAML::Exception&) {
-    fail(key, "expected a number, got '" + text + "'");
+    fail(key, "expected a number" + std::string(alternatives) + ", got '" + text + "'");
   }
-  if (!std::isfinite(v)) fail(key, "expected a finite number, got '" + text + "'");
-  value = v;
+  if (!std::isfinite(v)) fail(key, "expected a finite number" + std::string(alternatives) + ", got '" + text + "'");
+  return v;
+}
+
+void ConfigReader::operator()(std::string_view key, double& value) {
+  std::string text;
+  if (read_string(key, text)) value = number(key, text, "");
 }
 
 void ConfigReader::operator()(std::string_view key, std::optional<double>& value) {
@@ -218,16 +221,9 @@ void ConfigReader::operator()(std::string_view key, std::optional<double>& value
   if (!read_string(key, text)) return;
   if (text == "auto") {
     value.reset();
-    return;
+  } else {
+    value = number(key, text, " or auto");
   }
-  double v = 0;
-  try {
-    v = state_->node[std::string(key)].as<double>();
-  } catch (const YAML::Exception&) {
-    fail(key, "expected a number or auto, got '" + text + "'");
-  }
-  if (!std::isfinite(v)) fail(key, "expected a finite number or auto, got '" + text + "'");
-  value = v;
 }
 
 namespace {

@@ -90,6 +90,9 @@ class ConfigReader {
 
  private:
   bool read_string(std::string_view key, std::string& out);
+  // The value of `key` (its text `text`) as a finite double, else fail naming what
+  // else it may be (`alternatives`, e.g. " or auto").
+  double number(std::string_view key, const std::string& text, std::string_view alternatives) const;
   [[noreturn]] void fail(std::string_view key, const std::string& message) const;
   struct State;
   std::unique_ptr<State> state_;
