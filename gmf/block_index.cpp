@@ -15,6 +15,11 @@ namespace hisnegs::gmf {
 
 BlockIndex build_block_index(const GaussianMixture& mixture, const SampleSet& samples, const io::WorldFrame& frame,
                              double cutoff, double scale_pad, double pad_world) {
+  return build_block_index(mixture, samples, frame, cutoff, scale_pad, Eigen::Vector3d::Constant(pad_world));
+}
+
+BlockIndex build_block_index(const GaussianMixture& mixture, const SampleSet& samples, const io::WorldFrame& frame,
+                             double cutoff, double scale_pad, const Eigen::Vector3d& pad_world) {
   // Dense map from leaf (8^3) coordinates to the sample blocks inside (several
   // blocks per leaf, and a foreground and a background block may coincide): CSR.
   // The leaves span the stack and any samples outside it (negative origins).
@@ -51,7 +56,7 @@ BlockIndex build_block_index(const GaussianMixture& mixture, const SampleSet& sa
     const double* mean = f.mean;
     double half[3];
     support_half_extents(f, cutoff, half);
-    for (double& h : half) h = h * scale_pad + pad_world;
+    for (int a = 0; a < 3; ++a) half[a] = half[a] * scale_pad + pad_world[a];
     const Eigen::Vector3d lo =
         frame.index_from_world(Eigen::Vector3d(mean[0] - half[0], mean[1] - half[1], mean[2] - half[2]));
     const Eigen::Vector3d hi =

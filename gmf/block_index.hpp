@@ -4,6 +4,7 @@
 // centres. Rebuilt between fit rounds as Gaussians move. Knows no solver.
 #pragma once
 
+#include <Eigen/Core>
 #include <cstdint>
 #include <span>
 #include <vector>
@@ -26,8 +27,12 @@ struct BlockIndex {
 
 // `cutoff` is δ (16 = 4σ). The support box is grown to half · scale_pad + pad_world
 // per axis, so that a Gaussian whose scales may grow by `scale_pad` and whose mean
-// may move by `pad_world` within a fit round stays in every block it can reach.
+// may move by `pad_world` within a fit round (or whose samples may have moved by
+// up to that much, gmf::jitter_reach) stays in every block it can reach.
 // TBB-parallel over Gaussians.
+BlockIndex build_block_index(const GaussianMixture& mixture, const SampleSet& samples, const io::WorldFrame& frame,
+                             double cutoff, double scale_pad, const Eigen::Vector3d& pad_world);
+// The same with one pad on every axis.
 BlockIndex build_block_index(const GaussianMixture& mixture, const SampleSet& samples, const io::WorldFrame& frame,
                              double cutoff, double scale_pad = 1.0, double pad_world = 0.0);
 

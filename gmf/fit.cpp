@@ -258,10 +258,10 @@ struct RoundProblem {
 };
 static_assert(sizeof(Params) == kGaussianParamCount * sizeof(double), "Params must be a plain array of doubles");
 
-// How far (world units, on any axis) a moved sample can sit from its voxel centre,
+// How far (world units, per axis) a moved sample can sit from its voxel centre,
 // which the block indexes cover, so they reach every sample a Gaussian reaches.
-double sample_jitter_pad(const GmfOptions& options, const io::WorldFrame& frame) {
-  return 0.5 * options.jitter() * frame.voxel_size().maxCoeff();
+Eigen::Vector3d sample_jitter_pad(const GmfOptions& options, const io::WorldFrame& frame) {
+  return jitter_reach(frame, options.jitter());
 }
 
 // Per-round trust region on each Gaussian's geometry: its mean stays within one
@@ -279,7 +279,7 @@ RoundProblem prepare_round(const GaussianMixture& mixture, const SampleSet& samp
   r.params.resize(mixture.size());
   for (std::size_t k = 0; k < mixture.size(); ++k) r.params[k] = to_double(mixture[k]);
   r.index = build_block_index(mixture, samples, frame, options.mahalanobis_cutoff, kScaleGrowth,
-                              move + sample_jitter_pad(options, frame));
+                              Eigen::Vector3d::Constant(move) + sample_jitter_pad(options, frame));
   const std::size_t n = r.params.size() * kGaussianParamCount;
   r.lower.assign(n, -std::numeric_limits<double>::infinity());
   r.upper.assign(n, std::numeric_limits<double>::infinity());

@@ -115,6 +115,8 @@ SampleSet extract_samples(const io::SparseGrid& grid, double background_weight, 
   return out;
 }
 
+Eigen::Vector3d jitter_reach(const io::WorldFrame& frame, double jitter) { return 0.5 * jitter * frame.voxel_size(); }
+
 SampleSet jitter_samples(const SampleSet& samples, const io::Volume& volume, const io::WorldFrame& frame, double jitter,
                          std::uint64_t seed) {
   if (!(jitter >= 0.0 && jitter <= 1.0)) {

@@ -6,6 +6,7 @@
 // block's samples form one residual block. Knows no Gaussians.
 #pragma once
 
+#include <Eigen/Core>
 #include <array>
 #include <cstdint>
 #include <vector>
@@ -56,5 +57,10 @@ SampleSet extract_samples(const io::SparseGrid& grid, double background_weight, 
 // samples"); the ray-marched MIPs see the trilinear interpolant everywhere.
 [[nodiscard]] SampleSet jitter_samples(const SampleSet& samples, const io::Volume& volume, const io::WorldFrame& frame,
                                        double jitter, std::uint64_t seed);
+
+// How far (world units, per axis) jitter_samples can move a sample from its voxel
+// centre: jitter/2 of the voxel's edge on each axis. A block index padded by this
+// (build_block_index's pad_world) reaches every moved sample a Gaussian reaches.
+[[nodiscard]] Eigen::Vector3d jitter_reach(const io::WorldFrame& frame, double jitter);
 
 }  // namespace hisnegs::gmf
