@@ -151,16 +151,21 @@ void Trainer::adam_update(std::span<const float> grad, double lr) {
   adam_.step(params_, grad, rates);
 }
 
-Trainer::Evaluation Trainer::evaluate() {
+Trainer::Evaluation Trainer::evaluate() { return evaluate(params_, soft_mip_beta(options_, epoch_)); }
+
+Trainer::Evaluation Trainer::evaluate(std::span<const float> params, double beta) {
+  if (params.size() % gmf::kGaussianParamCount != 0) {
+    throw std::invalid_argument("Trainer::evaluate: params is not a whole number of Gaussians");
+  }
   SplatSettings settings = splat_;
-  settings.beta = static_cast<float>(soft_mip_beta(options_, epoch_));
+  settings.beta = static_cast<float>(beta);
   const Intrinsics& intr = data_.intrinsics;
   image_.resize(static_cast<std::size_t>(intr.width) * intr.height);
   Evaluation e;
-  const double reg = options_.lambda_scale * scale_regularizer(std::span<const float>(params_), options_.scale_min,
-                                                               options_.scale_max, 0.0, std::span<float>());
+  const double reg = options_.lambda_scale *
+                     scale_regularizer(params, options_.scale_min, options_.scale_max, 0.0, std::span<float>());
   for (int i = 0; i < data_.count(); ++i) {
-    renderer_->forward(params_, intr, data_.views[static_cast<std::size_t>(i)], settings, image_);
+    renderer_->forward(params, intr, data_.views[static_cast<std::size_t>(i)], settings, image_);
     e.loss +=
         combined_image_loss(image_, data_.image(i), intr.width, intr.height, weights_, std::span<float>(), workspace_)
             .total +

@@ -103,6 +103,8 @@ class Trainer {
     double psnr = 0;
   };
   [[nodiscard]] Evaluation evaluate();
+  // The same for other parameters (any whole number of Gaussians) at soft-MIP `beta`.
+  [[nodiscard]] Evaluation evaluate(std::span<const float> params, double beta);
 
   // Density control now (what run_epoch does on schedule). densify(): every Gaussian
   // seen in at least one view whose mean screen-gradient statistic (see
@@ -146,8 +148,8 @@ class Trainer {
 
  private:
   struct StepSums {
-    double loss = 0;  // Σ over the step's views of their loss
-    double psnr = 0;  // Σ over the step's views of their PSNR
+    double loss = 0;     // Σ over the step's views of their loss
+    double psnr = 0;     // Σ over the step's views of their PSNR
     double loss_3d = 0;  // the step's 3D term
   };
   StepSums train_step(std::span<const int> view_indices);

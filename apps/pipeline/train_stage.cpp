@@ -38,6 +38,7 @@ struct TrainingSession {
   gmf::CheckpointMeta meta;  // of the initial model, with "init" naming it
   std::vector<TrainingLogRow> rows;
   int views = 0, width = 0, height = 0;
+  std::vector<float> init_params;  // the initial model (train.keep_better_init)
 };
 
 void check_training(const TrainRequest& request, const TrainConfig& config) {
@@ -58,6 +59,7 @@ TrainingSession start_training(const TrainRequest& request, const TrainConfig& c
   splat::TrainingData data = splat::load_training_data(request.data);
   const gmf::Checkpoint init = gmf::load_checkpoint(request.init.string());
   const auto flat = splat::flat_params(init.mixture);
+  s.init_params.assign(flat.begin(), flat.end());
   // hisnegs worlds are [-a, a] with max a = 1; a model from elsewhere without aspect: 1.
   const double scene_scale =
       init.meta.aspect ? *std::max_element(init.meta.aspect->begin(), init.meta.aspect->end()) : 1.0;
@@ -112,12 +114,28 @@ void run_epochs(TrainingSession& s, const fs::path& run, int epochs, const Progr
   }
 }
 
-// RUN/final.ply (tagged with its epoch) and RUN/training_curve.png.
-void finish_training(const TrainingSession& s, const fs::path& run) {
+// Whether training made the training views worse than the initial model (both as
+// soft MIPs at beta_end, whole images), said in one line either way.
+bool training_made_it_worse(TrainingSession& s, const splat::TrainOptions& train, const Progress& progress) {
+  const double before = s.trainer->evaluate(s.init_params, train.beta_end).psnr;
+  const double after = s.trainer->evaluate(s.trainer->params(), train.beta_end).psnr;
+  const bool worse = after < before;
+  progress.say("train: the %d training views at beta %g: initial model %.2f dB, trained %.2f dB%s", s.views,
+               train.beta_end, before, after,
+               worse ? ": training made them worse, so final.ply is the initial model "
+                       "(train.keep_better_init: false keeps the trained one)"
+                     : "");
+  return worse;
+}
+
+// RUN/final.ply (tagged with its epoch; the initial model when `initial`, tagged
+// so) and RUN/training_curve.png.
+void finish_training(const TrainingSession& s, const fs::path& run, bool initial) {
   gmf::CheckpointMeta final_meta = s.meta;
-  std::erase_if(final_meta.extra, [](const auto& kv) { return kv.first == "train_epoch"; });
+  std::erase_if(final_meta.extra, [](const auto& kv) { return kv.first == "train_epoch" || kv.first == "train_kept"; });
   final_meta.extra.emplace_back("train_epoch", std::to_string(s.trainer->epoch()));
-  gmf::save_checkpoint(run / "final.ply", mixture_of(s.trainer->params()), final_meta);
+  if (initial) final_meta.extra.emplace_back("train_kept", "init");
+  gmf::save_checkpoint(run / "final.ply", mixture_of(initial ? s.init_params : s.trainer->params()), final_meta);
   io::write_png(run / "training_curve.png", training_curve(s.rows));
 }
 
@@ -162,11 +180,14 @@ TrainOutcome train_model(const TrainRequest& request, const TrainConfig& config,
                std::string(splat::to_string(request.backend)).c_str());
   io::Stopwatch watch;
   run_epochs(s, request.run, epochs, progress);
-  finish_training(s, request.run);
+  const splat::TrainOptions& train = config.get<&AppConfig::train>();
+  const bool kept_init = train.keep_better_init && training_made_it_worse(s, train, progress);
+  finish_training(s, request.run, kept_init);
   const double psnr = s.rows.empty() ? 0.0 : s.rows.back().psnr;
-  progress.say("train: wrote %s: K %d, PSNR %.2f dB, %s", (request.run / "final.ply").c_str(), s.trainer->gaussians(),
-               psnr, format_seconds(watch.elapsed()).c_str());
-  return {s.trainer->epoch(), s.trainer->gaussians(), psnr, s.rows.empty() ? 0.0 : s.rows.back().seconds};
+  const int K = kept_init ? static_cast<int>(s.init_params.size() / gmf::kGaussianParamCount) : s.trainer->gaussians();
+  progress.say("train: wrote %s: K %d%s, last epoch's PSNR %.2f dB, %s", (request.run / "final.ply").c_str(), K,
+               kept_init ? " (the initial model)" : "", psnr, format_seconds(watch.elapsed()).c_str());
+  return {s.trainer->epoch(), K, psnr, s.rows.empty() ? 0.0 : s.rows.back().seconds, kept_init};
 }
 
 nlohmann::ordered_json TrainStage::run(const RunRequest& request, const Config& config, bool resume,

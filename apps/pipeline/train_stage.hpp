@@ -31,6 +31,9 @@ struct TrainOutcome {
   int gaussians = 0;
   double psnr = 0;     // mean training-view PSNR of the last epoch
   double seconds = 0;  // training wall time, earlier sessions of a resumed run included
+  // final.ply is the initial model: training made the training views worse
+  // (train.keep_better_init).
+  bool kept_init = false;
 };
 // The CPU schedule (configs/train_cpu.yaml's train section): a short refinement of
 // the stage-1 fit, 100 epochs at a tenth of the report's step, β at its end value

@@ -13,6 +13,8 @@
 #include <limits>
 #include <numeric>
 #include <random>
+#include <span>
+#include <stdexcept>
 #include <vector>
 
 #include "io/error.hpp"
@@ -335,6 +337,25 @@ TEST(Trainer, ResumeRejectsAStateOfOtherOptions) {
   EXPECT_THROW(resume_training(dir.path(), other), io::InputError);
   testing::ScratchDir empty;
   EXPECT_THROW(resume_training(empty.path(), other), io::InputError);
+}
+
+// evaluate(params, β) measures any parameters at any β: the trainer's own at the
+// schedule's β give evaluate(); other parameters give their own figure, and nothing
+// of the trainer changes.
+TEST(Trainer, EvaluatesOtherParametersAtAGivenBeta) {
+  TrainOptions o = quiet_options(4);
+  Trainer trainer = make_trainer(o, perturbed(true_params()));
+  const std::vector<float> own(trainer.params().begin(), trainer.params().end());
+  const Trainer::Evaluation now = trainer.evaluate();
+  const Trainer::Evaluation same = trainer.evaluate(own, soft_mip_beta(o, 0));
+  EXPECT_EQ(same.psnr, now.psnr);
+  EXPECT_EQ(same.loss, now.loss);
+  const std::vector<float> truth = true_params();
+  const double true_psnr = trainer.evaluate(truth, soft_mip_beta(o, 0)).psnr;
+  EXPECT_GT(true_psnr, now.psnr + 5.0);  // the unperturbed model renders its own views better
+  EXPECT_NE(trainer.evaluate(truth, 5.0 * soft_mip_beta(o, 0)).psnr, true_psnr);
+  EXPECT_EQ(std::vector<float>(trainer.params().begin(), trainer.params().end()), own);
+  EXPECT_THROW((void)trainer.evaluate(std::span<const float>(truth).first(5), 10.0), std::invalid_argument);
 }
 
 TEST(Trainer, TinySceneTrainsAbove35dB) {

@@ -6,7 +6,9 @@
 #include <algorithm>
 #include <fstream>
 #include <string>
+#include <utility>
 
+#include "gmf/checkpoint.hpp"
 #include "io/gif.hpp"
 #include "io/tiff_stack.hpp"
 #include "tests/test_support.hpp"
@@ -121,6 +123,43 @@ TEST(CliTrain, WritesRunFolderResumesAndRejectsBadInput) {
   EXPECT_NE(r.err.find("nowhere"), std::string::npos) << r.err;
   EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
   EXPECT_FALSE(fs::exists(dir / "run2"));
+}
+
+// Training that makes the training views worse (a step 300x the report's) leaves
+// the initial model as final.ply, tagged and said; keep_better_init: false keeps
+// the trained one.
+TEST(CliTrain, KeepsTheInitialModelWhenTrainingMakesTheViewsWorse) {
+  testing::ScratchDir dir;
+  ASSERT_NO_FATAL_FAILURE(make_model_and_ground_truth(dir.path(), 24, "both"));
+  const gmf::Checkpoint init = gmf::load_checkpoint((dir / "m.ply").string());
+  testing::write_text(dir / "wild.yaml", "train:\n  lr_initial: 1\n  lr_final: 1\n  save_every: 2\n");
+  auto r = run_hisnegs({"--config", dir / "wild.yaml", "train", "--init", dir / "m.ply", "--data", dir / "gt", "-o",
+                        dir / "run", "--epochs", "2", "--backend", "cpu"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("training made them worse, so final.ply is the initial model"), std::string::npos) << r.out;
+  const gmf::Checkpoint kept = gmf::load_checkpoint((dir / "run" / "final.ply").string());
+  ASSERT_EQ(kept.mixture.size(), init.mixture.size());
+  for (std::size_t k = 0; k < init.mixture.size(); ++k) {
+    EXPECT_EQ(gmf::to_array(kept.mixture[k]), gmf::to_array(init.mixture[k])) << k;
+  }
+  EXPECT_NE(std::find(kept.meta.extra.begin(), kept.meta.extra.end(),
+                      std::pair<std::string, std::string>{"train_kept", "init"}),
+            kept.meta.extra.end());
+  testing::write_text(dir / "wild_keep.yaml",
+                      "train:\n  lr_initial: 1\n  lr_final: 1\n  save_every: 2\n  keep_better_init: false\n");
+  r = run_hisnegs({"--config", dir / "wild_keep.yaml", "train", "--init", dir / "m.ply", "--data", dir / "gt", "-o",
+                   dir / "run2", "--epochs", "2", "--backend", "cpu"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(r.out.find("training made them worse"), std::string::npos) << r.out;
+  const gmf::Checkpoint trained = gmf::load_checkpoint((dir / "run2" / "final.ply").string());
+  bool moved = trained.mixture.size() != init.mixture.size();
+  for (std::size_t k = 0; !moved && k < init.mixture.size(); ++k) {
+    moved = gmf::to_array(trained.mixture[k]) != gmf::to_array(init.mixture[k]);
+  }
+  EXPECT_TRUE(moved);
+  EXPECT_EQ(std::find_if(trained.meta.extra.begin(), trained.meta.extra.end(),
+                         [](const auto& kv) { return kv.first == "train_kept"; }),
+            trained.meta.extra.end());
 }
 
 TEST(CliRender, BadInputsGetOneLineErrors) {
