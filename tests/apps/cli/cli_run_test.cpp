@@ -119,6 +119,17 @@ TEST_F(CliRun, WritesEveryOutputThenReusesFinishedStages) {
   r = run({"--force"}, "longer.yaml");
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_EQ(reused_stages(r.out), 0) << r.out;
+
+  // Training that wrecks the model (a step of 1): the report says final.ply is the fit.
+  const std::string reported = "the fit itself, because training made the training views worse";
+  EXPECT_EQ(report.find(reported), std::string::npos) << report;
+  testing::write_text(dir_ / "wild.yaml", std::string(kTinyPipeline) + "  lr_initial: 1\n  lr_final: 1\n");
+  r = run({}, "wild.yaml");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("training made them worse, so final.ply is the initial model"), std::string::npos) << r.out;
+  std::ifstream wild_in(out / "report.md");
+  const std::string wild{std::istreambuf_iterator<char>(wild_in), std::istreambuf_iterator<char>()};
+  EXPECT_NE(wild.find(reported), std::string::npos) << wild;
 }
 
 // A stage output that another process rewrote (same bytes, a new file: what any
