@@ -85,6 +85,14 @@ FitOutcome fit_to_checkpoint(const std::string& volume, const FitConfig& config,
   config.get<&AppConfig::gmf>().validate();
   io::Stopwatch watch;
   FitSetup setup = prepare_fit(volume, config, "fit", progress);
+  const gmf::GmfOptions& gmf = config.get<&AppConfig::gmf>();
+  const bool sum = gmf.aggregation == gmf::Aggregation::kSum;
+  const std::string jitter_source =
+      gmf.sample_jitter ? "" : std::string(sum ? "auto for the sum: " : "auto for the softmax: ");
+  progress.say("fit: %s objective; samples %s (gmf.sample_jitter %s%g)",
+               sum ? "sum (report Eq. 1)" : strf("softmax (beta %g -> %g)", gmf.beta_start, gmf.beta_end).c_str(),
+               gmf.jitter() > 0 ? "moved within their voxels each round" : "at the voxel centres",
+               jitter_source.c_str(), gmf.jitter());
   gmf::GaussianMixture& mixture = setup.mixture;
   const gmf::FitResult result =
       gmf::fit_mixture(setup.loaded.volume, setup.samples, setup.loaded.frame, mixture, config.get<&AppConfig::gmf>(),

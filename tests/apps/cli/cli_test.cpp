@@ -154,6 +154,18 @@ TEST(CliFit, WritesCheckpointAndCsvLog) {
                         "--time-budget", "60", "--log", dir / "fit.csv"});
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_NE(r.out.find("3D PSNR"), std::string::npos) << r.out;
+  // The objective and where its samples sit, with sample_jitter's automatic value.
+  EXPECT_NE(r.out.find("fit: softmax (beta 8 -> 64) objective; samples moved within their voxels each round "
+                       "(gmf.sample_jitter auto for the softmax: 1)"),
+            std::string::npos)
+      << r.out;
+  auto sum = run_hisnegs({"--config", dir / "c.yaml", "fit", dir / "s.tif", "-o", dir / "sum.ply", "--gaussians", "150",
+                          "--aggregation", "sum"});
+  ASSERT_EQ(sum.exit_code, 0) << sum.err;
+  EXPECT_NE(sum.out.find("fit: sum (report Eq. 1) objective; samples at the voxel centres (gmf.sample_jitter auto for "
+                         "the sum: 0)"),
+            std::string::npos)
+      << sum.out;
   r = run_hisnegs({"info", dir / "m.ply"});
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_NE(r.out.find("volume       Z=16 Y=48 X=48"), std::string::npos) << r.out;
