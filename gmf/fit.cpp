@@ -258,18 +258,12 @@ struct RoundProblem {
 };
 static_assert(sizeof(Params) == kGaussianParamCount * sizeof(double), "Params must be a plain array of doubles");
 
-// How far (world units, per axis) a moved sample can sit from its voxel centre,
-// which the block indexes cover, so they reach every sample a Gaussian reaches.
-Eigen::Vector3d sample_jitter_pad(const GmfOptions& options, const io::WorldFrame& frame) {
-  return jitter_reach(frame, options.jitter());
-}
-
 // Per-round trust region on each Gaussian's geometry: its mean stays within one
 // (largest) voxel of the round's start and its scales grow by at most kScaleGrowth,
-// and the index is padded to match, so a Gaussian cannot reach samples outside its
-// residual blocks during the round. Without it, Gaussians drifted into unwatched
-// space and the next round's loss jumped by four orders of magnitude on op1. Scales
-// stay within [0.2 smallest voxel, 32 largest voxel]; everything else is free.
+// and the index is padded to match (and by jitter_reach for moved samples), so a
+// Gaussian cannot reach samples outside its residual blocks during the round. Without it, Gaussians drifted into
+// unwatched space and the next round's loss jumped by four orders of magnitude on op1. Scales stay within [0.2 smallest
+// voxel, 32 largest voxel]; everything else is free.
 RoundProblem prepare_round(const GaussianMixture& mixture, const SampleSet& samples, const io::WorldFrame& frame,
                            const GmfOptions& options) {
   constexpr double kScaleGrowth = 1.25;
@@ -279,7 +273,7 @@ RoundProblem prepare_round(const GaussianMixture& mixture, const SampleSet& samp
   r.params.resize(mixture.size());
   for (std::size_t k = 0; k < mixture.size(); ++k) r.params[k] = to_double(mixture[k]);
   r.index = build_block_index(mixture, samples, frame, options.mahalanobis_cutoff, kScaleGrowth,
-                              Eigen::Vector3d::Constant(move) + sample_jitter_pad(options, frame));
+                              Eigen::Vector3d::Constant(move) + jitter_reach(frame, options.jitter()));
   const std::size_t n = r.params.size() * kGaussianParamCount;
   r.lower.assign(n, -std::numeric_limits<double>::infinity());
   r.upper.assign(n, std::numeric_limits<double>::infinity());
@@ -421,6 +415,7 @@ FitResult fit_mixture(const io::Volume& volume, const SampleSet& centres, const 
   // The round's measurement and density control must fit after its solve: the
   // solve gets the time left minus what they took last round.
   double overhead = 0;
+  const double jitter = options.jitter();  // 0: every round samples the voxel centres
   for (int round = 0; round < options.rounds; ++round) {
     const double left = options.time_budget_s - clock.now() - overhead;
     if (left <= 0) {
@@ -432,11 +427,11 @@ FitResult fit_mixture(const io::Volume& volume, const SampleSet& centres, const 
     int round_iterations = options.iterations_per_round;
     if (options.max_iterations > 0) round_iterations = std::min(round_iterations, options.max_iterations - iterations);
     // This round's samples: the voxel centres, or each moved within its voxel.
-    const SampleSet moved = options.jitter() > 0
-                                ? jitter_samples(centres, volume, frame, options.jitter(),
+    const SampleSet moved = jitter > 0
+                                ? jitter_samples(centres, volume, frame, jitter,
                                                  io::splitmix64(options.seed) + static_cast<std::uint64_t>(round))
                                 : SampleSet{};
-    const SampleSet& samples = options.jitter() > 0 ? moved : centres;
+    const SampleSet& samples = jitter > 0 ? moved : centres;
     RoundProblem problem = prepare_round(mixture, samples, frame, options);
     const RoundOutcome outcome = solve_round(problem, samples, frame, options, model, report, state, manifold,
                                              round_iterations, left, log, round, iterations);
@@ -450,7 +445,7 @@ FitResult fit_mixture(const io::Volume& volume, const SampleSet& centres, const 
     result.pruned += stats.pruned;
     // The round's result's block index: for its measurement and its density control.
     const BlockIndex current =
-        build_block_index(mixture, samples, frame, model.cutoff, 1.0, sample_jitter_pad(options, frame));
+        build_block_index(mixture, samples, frame, model.cutoff, 1.0, jitter_reach(frame, jitter));
     const SampleFit fit = measure_on_samples(mixture, samples, current, report);
     FitIteration end;
     end.round = round;
@@ -488,7 +483,7 @@ FitResult fit_mixture(const io::Volume& volume, const SampleSet& centres, const 
   result.final_beta = log_beta(report);
   io::Stopwatch measuring;
   result.final_psnr_3d = mixture_psnr(mixture, frame, RasterizeOptions::of(report), volume.voxels);
-  if (options.jitter() > 0 && !result.log.empty()) {
+  if (jitter > 0 && !result.log.empty()) {
     // The rounds measured their moved samples; the result is measured, like the
     // 3D PSNR, at the voxel centres.
     const BlockIndex index = build_block_index(mixture, centres, frame, report.cutoff);
@@ -497,7 +492,7 @@ FitResult fit_mixture(const io::Volume& volume, const SampleSet& centres, const 
   result.measuring_seconds = measuring.elapsed();
   FitIteration final_line = result.log.empty() ? FitIteration{} : result.log.back();
   final_line.psnr_3d = result.final_psnr_3d;
-  if (options.jitter() > 0 && final_line.psnr_fg >= 0) final_line.psnr_fg = result.final_psnr_fg;
+  if (jitter > 0 && final_line.psnr_fg >= 0) final_line.psnr_fg = result.final_psnr_fg;
   final_line.gaussians = static_cast<int>(mixture.size());
   log.add(final_line);
   return result;
