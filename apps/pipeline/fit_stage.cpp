@@ -82,10 +82,10 @@ gmf::CheckpointMeta checkpoint_meta(const io::LoadedVolume& loaded, const std::s
 
 FitOutcome fit_to_checkpoint(const std::string& volume, const FitConfig& config, const std::filesystem::path& out,
                              const std::filesystem::path& log_csv, const Progress& progress) {
-  config.get<&AppConfig::gmf>().validate();
+  const gmf::GmfOptions& gmf = config.get<&AppConfig::gmf>();
+  gmf.validate();
   io::Stopwatch watch;
   FitSetup setup = prepare_fit(volume, config, "fit", progress);
-  const gmf::GmfOptions& gmf = config.get<&AppConfig::gmf>();
   const bool sum = gmf.aggregation == gmf::Aggregation::kSum;
   const std::string jitter_source =
       gmf.sample_jitter ? "" : std::string(sum ? "auto for the sum: " : "auto for the softmax: ");
@@ -94,15 +94,14 @@ FitOutcome fit_to_checkpoint(const std::string& volume, const FitConfig& config,
                gmf.jitter() > 0 ? "moved within their voxels each round" : "at the voxel centres",
                jitter_source.c_str(), gmf.jitter());
   gmf::GaussianMixture& mixture = setup.mixture;
-  const gmf::FitResult result =
-      gmf::fit_mixture(setup.loaded.volume, setup.samples, setup.loaded.frame, mixture, config.get<&AppConfig::gmf>(),
-                       [&](const gmf::FitIteration& it) { report_iteration(it, progress); });
+  const gmf::FitResult result = gmf::fit_mixture(setup.loaded.volume, setup.samples, setup.loaded.frame, mixture, gmf,
+                                                 [&](const gmf::FitIteration& it) { report_iteration(it, progress); });
   for (const gmf::FitRound& r : result.rounds) {
     progress.say("fit: round %d density control: %d pruned, %d split, %d cloned -> K %d", r.round, r.pruned, r.split,
                  r.cloned, r.gaussians);
   }
   gmf::CheckpointMeta meta = checkpoint_meta(setup.loaded, volume);
-  meta.aggregation = config.get<&AppConfig::gmf>().aggregation;
+  meta.aggregation = gmf.aggregation;
   meta.beta = result.final_beta;
   gmf::save_checkpoint(out, mixture, meta);
   if (!log_csv.empty()) {

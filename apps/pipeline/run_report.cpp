@@ -2,7 +2,6 @@
 // write_run_report: DIR/report.md of `hisnegs run` from the run folder's files.
 #include "apps/pipeline/run_report.hpp"
 
-#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <ctime>
@@ -10,6 +9,7 @@
 
 #include "apps/pipeline/format.hpp"
 #include "apps/pipeline/report_tables.hpp"
+#include "apps/pipeline/train_stage.hpp"
 #include "gmf/checkpoint.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
@@ -107,13 +107,11 @@ std::string summary_section(const RunFiles& f, const Json& run_state, const RunS
     s.add({"GMF fit", strf("K %zu, 3D PSNR %.2f dB (%s)", f.fit.mixture.size(), run_state["fit"].value("psnr_3d", 0.0),
                            run_state["fit"].value("stop", "").c_str())});
   }
-  const bool kept_init =
-      std::ranges::find(f.trained.meta.extra, std::pair<std::string, std::string>{"train_kept", "init"}) !=
-      f.trained.meta.extra.end();
-  s.add({"Trained model", strf("K %zu ([train/final.ply](train/final.ply))%s", f.trained.mixture.size(),
-                               kept_init ? ": the fit itself, because training made the training views worse "
-                                           "(train.keep_better_init)"
-                                         : "")});
+  s.add({"Trained model",
+         strf("K %zu ([train/final.ply](train/final.ply))%s", f.trained.mixture.size(),
+              kept_initial_model(f.trained.meta) ? ": the fit itself, because training made the training views worse "
+                                                   "(train.keep_better_init)"
+                                                 : "")});
   double all_stages = 0;
   for (const StageTiming& t : summary.stages) all_stages += t.seconds;
   s.add({"Wall time", strf("%s for all stages; this invocation %s", format_seconds(all_stages).c_str(),

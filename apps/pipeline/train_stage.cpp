@@ -4,6 +4,8 @@
 
 #include <algorithm>
 #include <optional>
+#include <string>
+#include <utility>
 
 #include "apps/pipeline/format.hpp"
 #include "apps/pipeline/training_log.hpp"
@@ -20,6 +22,9 @@ namespace hisnegs::apps {
 namespace {
 
 namespace fs = std::filesystem;
+
+// The final.ply header entry that says the initial model was kept.
+const std::pair<std::string, std::string> kKeptInit{"train_kept", "init"};
 
 gmf::GaussianMixture mixture_of(std::span<const float> params) {
   gmf::GaussianMixture mixture;
@@ -132,14 +137,19 @@ bool training_made_it_worse(TrainingSession& s, const splat::TrainOptions& train
 // so) and RUN/training_curve.png.
 void finish_training(const TrainingSession& s, const fs::path& run, bool initial) {
   gmf::CheckpointMeta final_meta = s.meta;
-  std::erase_if(final_meta.extra, [](const auto& kv) { return kv.first == "train_epoch" || kv.first == "train_kept"; });
+  std::erase_if(final_meta.extra,
+                [](const auto& kv) { return kv.first == "train_epoch" || kv.first == kKeptInit.first; });
   final_meta.extra.emplace_back("train_epoch", std::to_string(s.trainer->epoch()));
-  if (initial) final_meta.extra.emplace_back("train_kept", "init");
+  if (initial) final_meta.extra.push_back(kKeptInit);
   gmf::save_checkpoint(run / "final.ply", mixture_of(initial ? s.init_params : s.trainer->params()), final_meta);
   io::write_png(run / "training_curve.png", training_curve(s.rows));
 }
 
 }  // namespace
+
+bool kept_initial_model(const gmf::CheckpointMeta& meta) {
+  return std::ranges::find(meta.extra, kKeptInit) != meta.extra.end();
+}
 
 splat::TrainOptions cpu_train_schedule() {
   splat::TrainOptions t;

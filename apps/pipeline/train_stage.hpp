@@ -8,6 +8,7 @@
 #include "apps/pipeline/config_slice.hpp"
 #include "apps/pipeline/progress.hpp"
 #include "apps/pipeline/run_stage.hpp"
+#include "gmf/checkpoint.hpp"
 #include "splat/backend.hpp"
 
 namespace hisnegs::apps {
@@ -35,6 +36,9 @@ struct TrainOutcome {
   // (train.keep_better_init).
   bool kept_init = false;
 };
+// Whether a final.ply that train_model wrote is the initial model (its
+// `train_kept init` header entry).
+[[nodiscard]] bool kept_initial_model(const gmf::CheckpointMeta& meta);
 // The CPU schedule (configs/train_cpu.yaml's train section): a short refinement of
 // the stage-1 fit, 100 epochs at a tenth of the report's step, β at its end value
 // from the start, no split or clone (docs/benchmarks.md, "Stage 2 after the
