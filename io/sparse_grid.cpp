@@ -25,8 +25,8 @@
 #include "io/detail/vdb_grids.hpp"
 #include "io/error.hpp"
 #include "io/memory_limit.hpp"
-#include "io/vdb_validate.hpp"
 #include "io/vdb_file.hpp"
+#include "io/vdb_validate.hpp"
 
 namespace hisnegs::io {
 
@@ -47,9 +47,9 @@ void ensure_openvdb_initialized() {
   std::call_once(once, [] { openvdb::initialize(); });
 }
 
-void check_vdb_structure(const std::filesystem::path& path) {
+VdbFileCheck check_vdb_structure(const std::filesystem::path& path) {
   ensure_openvdb_initialized();
-  validate_vdb_file(path, [](const std::string& type) { return openvdb::Metadata::isRegisteredType(type); });
+  return validate_vdb_file(path, [](const std::string& type) { return openvdb::Metadata::isRegisteredType(type); });
 }
 
 #if defined(__SANITIZE_ADDRESS__)
@@ -383,21 +383,28 @@ SparseGrid read_vdb(const std::filesystem::path& path) {
   require_regular_file(path);
   ensure_openvdb_initialized();
   auto impl = std::make_shared<SparseGrid::Impl>();
-  check_vdb_structure(path);
+  const VdbFileCheck check = check_vdb_structure(path);
+  if (!find_grid(check, "volume")) fail_input(path, "has no grid named 'volume'");
+  // Only a float grid's values are read: OpenVDB reads any other type in full,
+  // sizes it states included, before gridPtrCast could refuse it.
+  for (const char* name : {"volume", "background"}) {
+    const VdbGridCheck* g = find_grid(check, name);
+    if (g && (g->grid_type != "Tree_float_5_4_3" || !values_checked(check, name)))
+      fail_input(path, "grid '" + std::string(name) + "' is " + printable(g->grid_type, 64) + ", not a float grid");
+  }
   const VdbReadGuard guard(path);
   try {
     openvdb::io::File file(path.string());
     file.open(false);
-    if (!file.hasGrid("volume")) fail_input(path, "has no grid named 'volume'");
     impl->volume = openvdb::gridPtrCast<FloatGrid>(file.readGrid("volume"));
     if (!impl->volume) fail_input(path, "grid 'volume' is not a float grid");
-    if (file.hasGrid("background")) impl->background = openvdb::gridPtrCast<FloatGrid>(file.readGrid("background"));
+    if (find_grid(check, "background")) impl->background = openvdb::gridPtrCast<FloatGrid>(file.readGrid("background"));
     file.close();
   } catch (const openvdb::Exception& e) {
     fail_input(path, "not a readable OpenVDB file: " + printable(e.what()));  // OpenVDB messages can span lines
   } catch (const std::bad_alloc&) {
     fail_input(path, "damaged: reading it would take more than " + gib_text(guard.cap_bytes()) +
-                           " of memory (64x the file, at least 1 GiB)");
+                         " of memory (64x the file, at least 1 GiB)");
   }
   if (!impl->background) {
     impl->background = FloatGrid::create(0.0f);
@@ -428,26 +435,41 @@ std::vector<VdbGridSummary> inspect_vdb(const std::filesystem::path& path) {
   require_regular_file(path);
   ensure_openvdb_initialized();
   std::vector<VdbGridSummary> out;
-  check_vdb_structure(path);
+  const VdbFileCheck check = check_vdb_structure(path);
   const VdbReadGuard guard(path);
   try {
     openvdb::io::File file(path.string());
     file.open(false);
     for (auto it = file.beginName(); it != file.endName(); ++it) {
-      const openvdb::GridBase::Ptr grid = file.readGrid(*it);
       VdbGridSummary s;
+      s.values_read = values_checked(check, *it);
+      const openvdb::GridBase::Ptr grid = s.values_read ? file.readGrid(*it) : file.readGridMetadata(*it);
       s.name = grid->getName();
       s.value_type = grid->valueType();
       s.grid_class = openvdb::GridBase::gridClassToString(grid->getGridClass());
-      s.active_voxels = static_cast<std::int64_t>(grid->activeVoxelCount());
-      s.memory_bytes = static_cast<std::size_t>(grid->memUsage());
-      const openvdb::CoordBBox bbox = grid->evalActiveVoxelBoundingBox();
-      s.bbox_min = {bbox.min().x(), bbox.min().y(), bbox.min().z()};
-      s.bbox_max = {bbox.max().x(), bbox.max().y(), bbox.max().z()};
       const openvdb::Vec3d vs = grid->voxelSize();
       s.voxel_size = {vs.x(), vs.y(), vs.z()};
-      if (auto fg = openvdb::gridPtrCast<FloatGrid>(grid)) {
-        s.leaf_count = static_cast<std::int64_t>(fg->tree().leafCount());
+      if (s.values_read) {
+        s.active_voxels = static_cast<std::int64_t>(grid->activeVoxelCount());
+        s.memory_bytes = static_cast<std::int64_t>(grid->memUsage());
+        const openvdb::CoordBBox bbox = grid->evalActiveVoxelBoundingBox();
+        s.bbox_min = {bbox.min().x(), bbox.min().y(), bbox.min().z()};
+        s.bbox_max = {bbox.max().x(), bbox.max().y(), bbox.max().z()};
+        s.leaf_count = static_cast<std::int64_t>(grid->baseTreePtr()->leafCount());
+      } else {
+        // What the writer recorded (io::File writes these statistics by default).
+        if (const auto n = grid->getMetadata<openvdb::Int64Metadata>(openvdb::GridBase::META_FILE_VOXEL_COUNT))
+          s.active_voxels = std::max<std::int64_t>(n->value(), -1);
+        if (const auto n = grid->getMetadata<openvdb::Int64Metadata>(openvdb::GridBase::META_FILE_MEM_BYTES))
+          s.memory_bytes = std::max<std::int64_t>(n->value(), -1);
+        const auto lo = grid->getMetadata<openvdb::Vec3IMetadata>(openvdb::GridBase::META_FILE_BBOX_MIN);
+        const auto hi = grid->getMetadata<openvdb::Vec3IMetadata>(openvdb::GridBase::META_FILE_BBOX_MAX);
+        if (lo && hi) {
+          s.bbox_min = {lo->value().x(), lo->value().y(), lo->value().z()};
+          s.bbox_max = {hi->value().x(), hi->value().y(), hi->value().z()};
+        }
+        if (const VdbGridCheck* g = find_grid(check, *it); g && g->depth != VdbGridCheck::Depth::kHeader)
+          s.leaf_count = g->leaves;
       }
       for (auto m = grid->beginMeta(); m != grid->endMeta(); ++m) s.metadata[m->first] = m->second->str();
       out.push_back(std::move(s));
@@ -457,7 +479,7 @@ std::vector<VdbGridSummary> inspect_vdb(const std::filesystem::path& path) {
     fail_input(path, "not a readable OpenVDB file: " + printable(e.what()));  // OpenVDB messages can span lines
   } catch (const std::bad_alloc&) {
     fail_input(path, "damaged: reading it would take more than " + gib_text(guard.cap_bytes()) +
-                           " of memory (64x the file, at least 1 GiB)");
+                         " of memory (64x the file, at least 1 GiB)");
   }
   return out;
 }

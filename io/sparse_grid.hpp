@@ -99,13 +99,17 @@ void write_vdb(const std::filesystem::path& path, const SparseGrid& grid);
 SparseGrid read_vdb(const std::filesystem::path& path);
 
 // A look at any .vdb (not only hisnegs'): one entry per grid.
+// Grids whose leaf values the structural walk cannot check (point data: OpenVDB's
+// attribute arrays state their own sizes) are not loaded: their counts, memory
+// and box come from the statistics the writer stored (-1 where it stored none).
 struct VdbGridSummary {
   std::string name;
   std::string value_type;
   std::string grid_class;
-  std::int64_t active_voxels = 0;
-  std::int64_t leaf_count = 0;
-  std::size_t memory_bytes = 0;
+  bool values_read = false;  // loaded by OpenVDB (else metadata and transform only)
+  std::int64_t active_voxels = -1;
+  std::int64_t leaf_count = -1;
+  std::int64_t memory_bytes = -1;
   std::array<int, 3> bbox_min{0, 0, 0}, bbox_max{0, 0, 0};  // active index bounding box
   std::array<double, 3> voxel_size{1, 1, 1};                // world units
   std::map<std::string, std::string> metadata;

@@ -10,6 +10,8 @@
 #include <Eigen/Core>
 #include <filesystem>
 
+#include "io/vdb_validate.hpp"
+
 namespace hisnegs::io {
 
 // openvdb::initialize() exactly once per process (thread-safe).
@@ -23,9 +25,9 @@ openvdb::math::Transform::Ptr make_vdb_transform(const Eigen::Vector3d& voxel_si
 
 // Walks the file as OpenVDB would read it (io/vdb_validate.hpp) and throws
 // io::InputError naming it for any length, count or chunk size the file cannot hold.
-// Call it before handing the file to openvdb::io::File, with a VdbReadGuard alive
-// for the read itself (the walk cannot check what OpenVDB's point attributes hold).
-void check_vdb_structure(const std::filesystem::path& path);
+// Call it before handing the file to openvdb::io::File, read the values only of
+// grids it checked (values_checked) and keep a VdbReadGuard alive for the read.
+VdbFileCheck check_vdb_structure(const std::filesystem::path& path);
 
 // While alive, caps this process's address space at what it uses now plus
 // min(allocation_limit_bytes(), max(1 GiB, 64 × the file's size)): a damaged .vdb

@@ -18,8 +18,8 @@ namespace hisnegs::io {
 namespace {
 
 // OpenVDB's file format numbers (openvdb/version.h, OPENVDB_FILE_VERSION_*).
-constexpr std::uint32_t kMinVersion = 222;  // NODE_MASK_COMPRESSION: per-grid compression, node metadata
-constexpr std::uint32_t kMaxVersion = 224;  // MULTIPASS_IO, written by OpenVDB 6 to 11
+constexpr std::uint32_t kMinVersion = 222;   // NODE_MASK_COMPRESSION: per-grid compression, node metadata
+constexpr std::uint32_t kMaxVersion = 224;   // MULTIPASS_IO, written by OpenVDB 6 to 11
 constexpr std::int64_t kMagic = 0x56444220;  // "VDB " little-endian
 constexpr std::uint32_t kCompressZip = 0x1, kCompressActiveMask = 0x2, kCompressBlosc = 0x4;
 constexpr int kMaxMapNesting = 4;  // a frustum map holds a second map; nothing nests deeper
@@ -134,8 +134,36 @@ void walk_delayed_load(Walker& w, std::int64_t num_bytes) {
   w.seek(end, "end of delayed-load metadata");
 }
 
-// MetaMap::readMeta.
-void walk_metadata(Walker& w, const std::function<bool(const std::string&)>& is_registered, const char* where) {
+// TypedMetadata<T>::asBool (!math::isZero) of a fixed-size value's bytes: any
+// element nonzero; floating-point elements compare as numbers (-0 is zero, NaN not).
+bool fixed_value_as_bool(const std::string& type, const std::vector<std::uint8_t>& bytes) {
+  const bool single = type == "float" || type == "vec2s" || type == "vec3s" || type == "vec4s" || type == "mat4s";
+  const bool dbl = type == "double" || type == "vec2d" || type == "vec3d" || type == "vec4d" || type == "mat4d";
+  const std::size_t elem = single ? 4 : dbl ? 8 : 1;
+  for (std::size_t i = 0; i + elem <= bytes.size(); i += elem) {
+    if (single) {
+      float v = 0;
+      std::memcpy(&v, bytes.data() + i, 4);
+      if (v != 0.0f) return true;
+    } else if (dbl) {
+      double v = 0;
+      std::memcpy(&v, bytes.data() + i, 8);
+      if (v != 0.0) return true;
+    } else if (bytes[i] != 0) {
+      return true;
+    }
+  }
+  return false;
+}
+
+// MetaMap::readMeta. `half_float`, when given, receives what GridBase::saveFloatAsHalf
+// will answer after reading these entries: the asBool of the last entry named
+// "is_saved_as_half_float" that OpenVDB keeps (unregistered "__" types are dropped),
+// false if none. OpenVDB reads a grid's values as halves by that entry alone.
+void walk_metadata(Walker& w, const std::function<bool(const std::string&)>& is_registered, const char* where,
+                   bool* half_float = nullptr) {
+  constexpr std::string_view kHalfKey = "is_saved_as_half_float";
+  if (half_float) *half_float = false;
   const auto count = w.read<std::uint32_t>(where);
   // Each entry takes at least its two string lengths and its size: 12 bytes.
   if (static_cast<std::int64_t>(count) * 12 > w.left())
@@ -145,15 +173,20 @@ void walk_metadata(Walker& w, const std::function<bool(const std::string&)>& is_
     const std::string type = w.read_string("metadata type");
     const auto num_bytes = static_cast<std::int64_t>(w.read<std::uint32_t>("metadata size"));
     w.need(num_bytes, "metadata value");
+    const bool half_key = half_float && name == kHalfKey;
     if (type == "__delayedload") {
       walk_delayed_load(w, num_bytes);
+      if (half_key) *half_float = false;  // DelayedLoadMetadata::asBool
     } else if (const auto fixed = fixed_metadata_size(type)) {
       if (num_bytes != *fixed)
         w.fail("metadata '" + printable(name, 64) + "' of type " + type + " states " + std::to_string(num_bytes) +
                " bytes, not " + std::to_string(*fixed));
-      w.skip(num_bytes, "metadata value");
+      std::vector<std::uint8_t> value(static_cast<std::size_t>(num_bytes));
+      w.read_bytes(value.data(), num_bytes, "metadata value");
+      if (half_key) *half_float = fixed_value_as_bool(type, value);
     } else if (type == "string" || !is_registered || !is_registered(type)) {
       w.skip(num_bytes, "metadata value");  // read verbatim: a string, or an unknown type kept as bytes
+      if (half_key && type.rfind("__", 0) != 0) *half_float = num_bytes > 0;  // !empty()
     } else {
       w.fail("metadata '" + printable(name, 64) + "' has type '" + printable(type, 64) +
              "', which this reader cannot check");
@@ -164,10 +197,13 @@ void walk_metadata(Walker& w, const std::function<bool(const std::string&)>& is_
 // Transform::read: the map's type name, then the map (math/Maps.h read()).
 void walk_map(Walker& w, int depth) {
   const std::string type = w.read_string("transform type");
-  static const std::map<std::string, std::int64_t> sizes = {
-      {"AffineMap", 128},         {"UnitaryMap", 128},        {"ScaleMap", 120},
-      {"UniformScaleMap", 120},   {"TranslationMap", 24},     {"ScaleTranslateMap", 144},
-      {"UniformScaleTranslateMap", 144}};
+  static const std::map<std::string, std::int64_t> sizes = {{"AffineMap", 128},
+                                                            {"UnitaryMap", 128},
+                                                            {"ScaleMap", 120},
+                                                            {"UniformScaleMap", 120},
+                                                            {"TranslationMap", 24},
+                                                            {"ScaleTranslateMap", 144},
+                                                            {"UniformScaleTranslateMap", 144}};
   if (const auto it = sizes.find(type); it != sizes.end()) {
     w.skip(it->second, "transform");
   } else if (type == "NonlinearFrustumMap" && depth < kMaxMapNesting) {
@@ -184,16 +220,17 @@ struct TreeLayout {
   std::int64_t half_value_bytes = 0;  // its half-float size (real types), else value_bytes
   std::vector<int> log2dims;          // root's child first, leaf last
   bool standard_leaf = false;         // LeafNode<T>: buffers walked chunk by chunk
+  int bit_leaf_masks = 0;             // LeafNode<bool> (2) / <ValueMask> (1): masks per leaf buffer
 };
 
 std::optional<TreeLayout> tree_layout(const std::string& grid_type) {
   // sizeof(ValueType), its half size, and whether its leaves use LeafNode<T>'s IO.
   static const std::map<std::string, std::tuple<int, int, bool>> types = {
-      {"float", {4, 2, true}},  {"double", {8, 2, true}},  {"int32", {4, 4, true}},
-      {"int64", {8, 8, true}},  {"vec3s", {12, 6, true}},  {"vec3d", {24, 6, true}},
-      {"vec3i", {12, 12, true}}, {"bool", {1, 1, false}},  {"mask", {1, 1, false}},
-      {"ptdataidx32", {4, 4, false}}, {"ptdataidx64", {8, 8, false}},
-      {"ptidx32", {4, 4, false}},     {"ptidx64", {8, 8, false}}};
+      {"float", {4, 2, true}},        {"double", {8, 2, true}},       {"int32", {4, 4, true}},
+      {"int64", {8, 8, true}},        {"vec3s", {12, 6, true}},       {"vec3d", {24, 6, true}},
+      {"vec3i", {12, 12, true}},      {"bool", {1, 1, false}},        {"mask", {1, 1, false}},
+      {"ptdataidx32", {4, 4, false}}, {"ptdataidx64", {8, 8, false}}, {"ptidx32", {4, 4, false}},
+      {"ptidx64", {8, 8, false}}};
   if (grid_type.rfind("Tree_", 0) != 0) return std::nullopt;
   std::vector<std::string> parts;
   std::stringstream ss(grid_type.substr(5));
@@ -203,6 +240,7 @@ std::optional<TreeLayout> tree_layout(const std::string& grid_type) {
   if (it == types.end()) return std::nullopt;
   TreeLayout t;
   std::tie(t.value_bytes, t.half_value_bytes, t.standard_leaf) = it->second;
+  t.bit_leaf_masks = parts.front() == "bool" ? 2 : parts.front() == "mask" ? 1 : 0;
   for (std::size_t i = 1; i < parts.size(); ++i) {
     if (parts[i].size() != 1 || parts[i][0] < '1' || parts[i][0] > '7') return std::nullopt;
     t.log2dims.push_back(parts[i][0] - '0');
@@ -262,8 +300,8 @@ void walk_data(Walker& w, std::uint32_t compression, std::int64_t bytes) {
 
 // io::readCompressedValues for `count` values under a node value mask with `active`
 // bits set.
-void walk_compressed_values(Walker& w, const TreeLayout& t, bool half, std::uint32_t compression,
-                            std::int64_t count, std::int64_t active, int log2dim) {
+void walk_compressed_values(Walker& w, const TreeLayout& t, bool half, std::uint32_t compression, std::int64_t count,
+                            std::int64_t active, int log2dim) {
   const auto meta = w.read<std::int8_t>("node compression flag");
   if (meta < 0 || meta > 6) w.fail("node compression flag " + std::to_string(meta));
   if (meta == 2 || meta == 4 || meta == 5) w.skip(t.value_bytes * (meta == 5 ? 2 : 1), "inactive values");
@@ -282,7 +320,7 @@ struct GridWalk {
   const TreeLayout& tree;
   bool half;
   std::uint32_t compression;
-  bool buffers;                         // walk leaf buffers too
+  bool buffers;                           // walk leaf buffers too
   std::vector<std::int64_t> leaf_active;  // per leaf in file order, its active voxels
 };
 
@@ -347,13 +385,19 @@ void walk_topology(Walker& w, GridWalk& g) {
     walk_node_topology(w, g, 0);
   }
   std::sort(origins.begin(), origins.end());
-  if (std::adjacent_find(origins.begin(), origins.end()) != origins.end())
-    w.fail("two root entries share an origin");
+  if (std::adjacent_find(origins.begin(), origins.end()) != origins.end()) w.fail("two root entries share an origin");
 }
 
 // LeafNode::readBuffers for every leaf, in the topology's order.
 void walk_buffers(Walker& w, const GridWalk& g) {
   const int l = g.tree.log2dims.back();
+  if (g.tree.bit_leaf_masks > 0) {
+    // LeafNode<bool>: value mask, origin, value bits; LeafNode<ValueMask>: value mask,
+    // origin. Fixed sizes, whatever the compression flags.
+    const std::int64_t record = mask_bytes(l) * g.tree.bit_leaf_masks + 12;
+    w.skip(record * static_cast<std::int64_t>(g.leaf_active.size()), "bit leaf buffers");
+    return;
+  }
   for (const std::int64_t active : g.leaf_active) {
     w.skip(mask_bytes(l), "leaf value mask");
     walk_compressed_values(w, g.tree, g.half, g.compression, std::int64_t{1} << (3 * l), active, l);
@@ -366,7 +410,8 @@ void walk_grid(Walker& w, VdbGridCheck& grid, std::int64_t grid_pos, std::int64_
   const auto compression = w.read<std::uint32_t>("grid compression");
   if (compression & ~(kCompressZip | kCompressActiveMask | kCompressBlosc))
     w.fail("grid compression flags " + std::to_string(compression));
-  walk_metadata(w, is_registered, "grid metadata");
+  // The descriptor's "_HalfFloat" suffix is not what OpenVDB reads the values by.
+  walk_metadata(w, is_registered, "grid metadata", &grid.half_float);
   walk_map(w, 0);
   if (grid.instance) {
     if (w.pos() > end_pos) w.fail("grid '" + printable(grid.name, 64) + "' runs past its stated end");
@@ -374,7 +419,7 @@ void walk_grid(Walker& w, VdbGridCheck& grid, std::int64_t grid_pos, std::int64_
   }
   const std::optional<TreeLayout> tree = tree_layout(grid.grid_type);
   if (!tree) return;  // a tree configuration this walk does not know: header checks only
-  GridWalk g{*tree, grid.half_float, compression, tree->standard_leaf, {}};
+  GridWalk g{*tree, grid.half_float, compression, tree->standard_leaf || tree->bit_leaf_masks > 0, {}};
   walk_topology(w, g);
   grid.depth = VdbGridCheck::Depth::kTopology;
   grid.leaves = static_cast<std::int64_t>(g.leaf_active.size());
@@ -395,11 +440,13 @@ VdbFileCheck validate_vdb_file(const std::filesystem::path& path,
                                const std::function<bool(const std::string&)>& is_registered_metadata) {
   Walker w(path);
   VdbFileCheck out;
-  if (w.size() < 8 || w.read<std::int64_t>("magic number") != kMagic) fail_input(path, "not a .vdb file (no VDB magic number)");
+  if (w.size() < 8 || w.read<std::int64_t>("magic number") != kMagic)
+    fail_input(path, "not a .vdb file (no VDB magic number)");
   out.file_version = w.read<std::uint32_t>("file version");
   if (out.file_version < kMinVersion || out.file_version > kMaxVersion)
-    fail_input(path, "unsupported .vdb file format version " + std::to_string(out.file_version) + " (this reader takes " +
-                         std::to_string(kMinVersion) + " to " + std::to_string(kMaxVersion) + ")");
+    fail_input(path, "unsupported .vdb file format version " + std::to_string(out.file_version) +
+                         " (this reader takes " + std::to_string(kMinVersion) + " to " + std::to_string(kMaxVersion) +
+                         ")");
   w.skip(8, "library version");
   if (w.read<std::uint8_t>("grid offsets flag") == 0)
     fail_input(path, "unsupported .vdb: written as a stream without grid offsets");
@@ -419,11 +466,10 @@ VdbFileCheck validate_vdb_file(const std::filesystem::path& path,
     grid.name = w.read_string("grid name");
     grid.grid_type = w.read_string("grid type");
     constexpr std::string_view kHalf = "_HalfFloat";
-    if (grid.grid_type.size() > kHalf.size() && grid.grid_type.ends_with(kHalf)) {
-      grid.half_float = true;
+    if (grid.grid_type.size() > kHalf.size() && grid.grid_type.ends_with(kHalf))
       grid.grid_type.resize(grid.grid_type.size() - kHalf.size());
-    }
-    grid.instance = !w.read_string("instance parent name").empty();
+    grid.instance_parent = w.read_string("instance parent name");
+    grid.instance = !grid.instance_parent.empty();
     const auto grid_pos = w.read<std::int64_t>("grid position");
     const auto block_pos = w.read<std::int64_t>("block position");
     const auto end_pos = w.read<std::int64_t>("end position");
@@ -437,6 +483,18 @@ VdbFileCheck validate_vdb_file(const std::filesystem::path& path,
     out.grids.push_back(std::move(grid));
   }
   return out;
+}
+
+const VdbGridCheck* find_grid(const VdbFileCheck& check, const std::string& unique_name) {
+  const auto it = std::find_if(check.grids.begin(), check.grids.end(),
+                               [&](const VdbGridCheck& g) { return g.name == unique_name; });
+  return it == check.grids.end() ? nullptr : &*it;
+}
+
+bool values_checked(const VdbFileCheck& check, const std::string& unique_name) {
+  const VdbGridCheck* g = find_grid(check, unique_name);
+  if (g && g->instance) g = g->instance_parent == unique_name ? nullptr : find_grid(check, g->instance_parent);
+  return g && !g->instance && g->depth == VdbGridCheck::Depth::kBuffers;
 }
 
 }  // namespace hisnegs::io

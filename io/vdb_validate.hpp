@@ -19,12 +19,13 @@ namespace hisnegs::io {
 
 // What the walk could check of one grid.
 struct VdbGridCheck {
-  std::string name;       // the descriptor's unique name
-  std::string grid_type;  // "Tree_float_5_4_3" (without a "_HalfFloat" suffix)
-  bool half_float = false;
-  bool instance = false;  // shares another grid's tree (no topology of its own)
+  std::string name;             // the descriptor's unique name
+  std::string grid_type;        // "Tree_float_5_4_3" (without a "_HalfFloat" suffix)
+  bool half_float = false;      // values stored as halves: its "is_saved_as_half_float" metadata
+  bool instance = false;        // shares another grid's tree (no topology of its own)
+  std::string instance_parent;  // that grid's unique name (empty unless `instance`)
   // kBuffers: topology and every leaf buffer's chunk sizes; kTopology: topology only
-  // (value types whose leaves OpenVDB reads its own way: bool, mask, points);
+  // (point data and point index grids, whose leaves state their own sizes);
   // kHeader: metadata and transform only (a tree configuration this walk does not know).
   enum class Depth { kHeader, kTopology, kBuffers } depth = Depth::kHeader;
   std::int64_t leaves = 0;  // leaf nodes in the topology (0 below kTopology)
@@ -44,5 +45,14 @@ struct VdbFileCheck {
 // keep its bytes verbatim), the file is refused, since its size cannot be checked.
 VdbFileCheck validate_vdb_file(const std::filesystem::path& path,
                                const std::function<bool(const std::string&)>& is_registered_metadata);
+
+// The grid the walk saw under `unique_name`, or nullptr.
+const VdbGridCheck* find_grid(const VdbFileCheck& check, const std::string& unique_name);
+
+// Whether OpenVDB may read the values of the grid named `unique_name`: the walk
+// checked every leaf buffer of it (kBuffers), or of the grid it is an instance of.
+// Anything else (point data, whose attribute arrays state their own sizes; tree
+// configurations the walk does not know) is read as metadata and transform only.
+bool values_checked(const VdbFileCheck& check, const std::string& unique_name);
 
 }  // namespace hisnegs::io

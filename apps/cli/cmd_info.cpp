@@ -102,11 +102,17 @@ void info_vdb(const std::filesystem::path& path) {
   const auto grids = io::inspect_vdb(path);
   print_row("file", path.string());
   print_row("format", "OpenVDB, " + std::to_string(grids.size()) + " grid(s)");
+  auto count = [](std::int64_t n) { return n < 0 ? std::string("?") : std::to_string(n); };
   for (const auto& g : grids) {
-    std::printf("grid '%s': %s %s, %lld active voxels, %lld leaves, %s, voxel size (%.4g, %.4g, %.4g)\n",
-                g.name.c_str(), g.value_type.c_str(), g.grid_class.c_str(), static_cast<long long>(g.active_voxels),
-                static_cast<long long>(g.leaf_count), format_bytes(static_cast<double>(g.memory_bytes)).c_str(),
+    std::printf("grid '%s': %s %s, %s active voxels, %s leaves, %s, voxel size (%.4g, %.4g, %.4g)\n", g.name.c_str(),
+                g.value_type.c_str(), g.grid_class.c_str(), count(g.active_voxels).c_str(), count(g.leaf_count).c_str(),
+                g.memory_bytes < 0 ? "? bytes" : format_bytes(static_cast<double>(g.memory_bytes)).c_str(),
                 g.voxel_size[0], g.voxel_size[1], g.voxel_size[2]);
+    if (!g.values_read)
+      std::printf(
+          "  values not loaded (OpenVDB's own %s format, which hisnegs cannot check first): "
+          "counts as the writer recorded them\n",
+          g.value_type.c_str());
     std::printf("  active index bbox [%d %d %d] .. [%d %d %d]\n", g.bbox_min[0], g.bbox_min[1], g.bbox_min[2],
                 g.bbox_max[0], g.bbox_max[1], g.bbox_max[2]);
     for (const auto& [key, value] : g.metadata) std::printf("  %-22s %s\n", key.c_str(), value.c_str());

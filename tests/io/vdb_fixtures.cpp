@@ -56,8 +56,8 @@ EveryKindFile write_every_kind_vdb(const std::filesystem::path& path, std::uint3
   d->transform().postRotate(0.3, math::Y_AXIS);  // an affine map
   auto v = sphere_of<Vec3SGrid>(Vec3s(1, 2, 3));
   v->setName("vec3s");
-  v->setTransform(math::Transform::Ptr(new math::Transform(
-      math::MapBase::Ptr(new math::ScaleTranslateMap(Vec3d(1, 2, 3), Vec3d(0.5, 0, -1))))));
+  v->setTransform(math::Transform::Ptr(
+      new math::Transform(math::MapBase::Ptr(new math::ScaleTranslateMap(Vec3d(1, 2, 3), Vec3d(0.5, 0, -1))))));
   auto i = sphere_of<Int32Grid>(7);
   i->setName("int32");
   i->setTransform(
@@ -86,13 +86,13 @@ EveryKindFile write_every_kind_vdb(const std::filesystem::path& path, std::uint3
   return out;
 }
 
-std::int64_t write_points_vdb(const std::filesystem::path& path) {
+std::int64_t write_points_vdb(const std::filesystem::path& path, const std::string& name) {
   using namespace openvdb;
   io::ensure_openvdb_initialized();
   const std::vector<Vec3R> positions{{0, 0, 0}, {1.5, 2, 3}, {-4, 8, 1}, {30, 1, -7}};
   const auto xform = math::Transform::createLinearTransform(0.5);
   auto points = points::createPointDataGrid<points::NullCodec, points::PointDataGrid>(positions, *xform);
-  points->setName("points");
+  points->setName(name);
   write_file(path, GridPtrVec{points}, openvdb::io::COMPRESS_BLOSC | openvdb::io::COMPRESS_ACTIVE_MASK);
   return static_cast<std::int64_t>(points->tree().leafCount());
 }

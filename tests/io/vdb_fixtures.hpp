@@ -34,8 +34,8 @@ struct EveryKindFile {
 // metadata of four types, written with `compression`.
 EveryKindFile write_every_kind_vdb(const std::filesystem::path& path, std::uint32_t compression);
 
-// A points grid of four points (NullCodec, Blosc); returns its leaf count.
-std::int64_t write_points_vdb(const std::filesystem::path& path);
+// A points grid `name` of four points (NullCodec, Blosc); returns its leaf count.
+std::int64_t write_points_vdb(const std::filesystem::path& path, const std::string& name = "points");
 
 // A small float grid "volume" (a sphere of radius 6) with a string metadata
 // "source" = "a.tif", through io::write_vdb_file.

@@ -62,9 +62,7 @@ TEST_F(VdbValidate, EveryValueTypeMapAndCompressionWalksToItsEnd) {
       const VdbGridCheck& g = check.grids[k];
       SCOPED_TRACE(g.name);
       EXPECT_EQ(g.name, written.names[k]);
-      if (g.name == "bool" || g.name == "mask") {
-        EXPECT_EQ(g.depth, Depth::kTopology);
-      } else if (g.name == "instance") {
+      if (g.name == "instance") {
         EXPECT_TRUE(g.instance);
       } else {
         EXPECT_EQ(g.depth, Depth::kBuffers);
@@ -103,6 +101,88 @@ TEST_F(VdbValidate, HisnegsGridsAndPointsPass) {
   ASSERT_EQ(pcheck.grids.size(), 1u);
   EXPECT_EQ(pcheck.grids[0].depth, Depth::kTopology);  // attribute buffers are OpenVDB's own format
   EXPECT_EQ(pcheck.grids[0].leaves, point_leaves);
+}
+
+// OpenVDB reads a grid's values as halves when its metadata "is_saved_as_half_float"
+// says so, whatever the descriptor's "_HalfFloat" suffix says: the walk follows the
+// metadata, so a file whose key was renamed or cleared is refused, not handed to
+// OpenVDB to read full floats where halves were written.
+TEST_F(VdbValidate, HalfValuesFollowTheGridMetadata) {
+  for (const std::uint32_t c : testing::vdb_compressions()) {
+    SCOPED_TRACE("compression " + std::to_string(c));
+    const auto path = dir_ / "all.vdb";
+    (void)testing::write_every_kind_vdb(path, c);
+    const std::vector<char> bytes = read_all(path);
+    const std::string key = "is_saved_as_half_float";
+    const std::ptrdiff_t at = find(bytes, key);
+    ASSERT_GT(at, 0);
+    const auto bad = dir_ / "bad.vdb";
+    std::vector<char> renamed = bytes;
+    renamed[static_cast<std::size_t>(at)] = 'j';
+    write_all(bad, renamed);
+    EXPECT_THROW((void)validate_vdb_file(bad, registered), InputError);
+    // The bool value follows its name and type strings ("bool") and its size.
+    const std::size_t value_at = static_cast<std::size_t>(at) + key.size() + 4 + 4 + 4;
+    ASSERT_EQ(bytes[value_at], 1);
+    std::vector<char> cleared = bytes;
+    cleared[value_at] = 0;
+    write_all(bad, cleared);
+    EXPECT_THROW((void)validate_vdb_file(bad, registered), InputError);
+    cleared[value_at] = 2;  // any nonzero byte is true, as for OpenVDB
+    write_all(bad, cleared);
+    EXPECT_TRUE(validate_vdb_file(bad, registered).grids[6].half_float);
+  }
+}
+
+// `hisnegs info` loads the grids whose leaf buffers the walk checked (every kind
+// here, bool and mask included) and only the metadata of point grids, whose
+// attribute arrays state sizes no walk can check before OpenVDB allocates them.
+TEST_F(VdbValidate, InspectLoadsCheckedGridsAndOnlyTheMetadataOfPoints) {
+  const auto path = dir_ / "all.vdb";
+  const testing::EveryKindFile written = testing::write_every_kind_vdb(path, testing::vdb_compressions().front());
+  const std::vector<VdbGridSummary> grids = inspect_vdb(path);
+  ASSERT_EQ(grids.size(), written.names.size());
+  for (const VdbGridSummary& g : grids) {
+    EXPECT_TRUE(g.values_read) << g.name;
+    EXPECT_GT(g.active_voxels, 0) << g.name;
+  }
+
+  const auto ppath = dir_ / "points.vdb";
+  const std::int64_t leaves = testing::write_points_vdb(ppath);
+  std::vector<char> bytes = read_all(ppath);
+  const std::vector<VdbGridSummary> pgrids = inspect_vdb(ppath);
+  ASSERT_EQ(pgrids.size(), 1u);
+  EXPECT_FALSE(pgrids[0].values_read);
+  EXPECT_EQ(pgrids[0].value_type, "ptdataidx32");
+  EXPECT_EQ(pgrids[0].leaf_count, leaves);
+  EXPECT_EQ(pgrids[0].active_voxels, std::stoll(pgrids[0].metadata.at("file_voxel_count")));
+  EXPECT_GT(pgrids[0].active_voxels, 0);
+
+  // A leaf buffer claiming 2^56 bytes: OpenVDB would allocate it; info never asks it to.
+  std::int64_t block_pos = 0;
+  const std::ptrdiff_t type_at = find(bytes, "Tree_ptdataidx32_5_4_3");
+  ASSERT_GT(type_at, 0);
+  std::memcpy(&block_pos, bytes.data() + type_at + 22 + 4 + 8, 8);  // type, empty parent, grid position
+  const std::int64_t huge = (std::int64_t{1} << 56) + 257;
+  for (std::int64_t at = block_pos; at + 8 <= static_cast<std::int64_t>(bytes.size()); at += 8) {
+    std::vector<char> b = bytes;
+    std::memcpy(b.data() + at, &huge, 8);
+    write_all(dir_ / "bad.vdb", b);
+    const std::vector<VdbGridSummary> bad = inspect_vdb(dir_ / "bad.vdb");
+    ASSERT_EQ(bad.size(), 1u);
+    EXPECT_EQ(bad[0].active_voxels, pgrids[0].active_voxels);
+  }
+
+  // Nor does read_vdb: a `volume` that is not a float grid is refused before OpenVDB reads it.
+  (void)testing::write_points_vdb(dir_ / "pv.vdb", "volume");
+  try {
+    (void)read_vdb(dir_ / "pv.vdb");
+    ADD_FAILURE() << "a point grid named volume was read";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("grid 'volume' is Tree_ptdataidx32_5_4_3, not a float grid"),
+              std::string::npos)
+        << e.what();
+  }
 }
 
 // A small hisnegs .vdb and its bytes, for the corruption tests.
@@ -185,7 +265,8 @@ TEST_F(VdbValidate, HostileTreeCountsAndChunkSizesAreRefused) {
   const std::ptrdiff_t map_name_at = map_at >= 0 ? map_at : find(s.bytes, "UniformScaleMap");
   ASSERT_GE(map_name_at, 0);
   const std::size_t map_len = map_at >= 0 ? 17 : 15;
-  const std::ptrdiff_t counts_at = map_name_at + static_cast<std::ptrdiff_t>(map_len) + (map_at >= 0 ? 144 : 120) + 4 + 4;
+  const std::ptrdiff_t counts_at =
+      map_name_at + static_cast<std::ptrdiff_t>(map_len) + (map_at >= 0 ? 144 : 120) + 4 + 4;
   std::uint32_t tiles = 0, children = 0;
   std::memcpy(&tiles, s.bytes.data() + counts_at, 4);
   std::memcpy(&children, s.bytes.data() + counts_at + 4, 4);
