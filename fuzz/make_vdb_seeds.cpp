@@ -2,7 +2,8 @@
 // Writes the seed corpus of fuzz_vdb into OUT_DIR: small .vdb files of the kinds
 // hisnegs reads and writes (a `hisnegs vdb` sparse grid with its background grid,
 // and ones OpenVDB writes otherwise: zip or no compression, half floats, an affine
-// map, an instance, a vec3s grid, a points grid). Built by the `fuzz` preset and
+// map, an instance, a vec3s grid, bool and mask grids, a points grid, also
+// through hisnegs' writer, with its grid checksums). Built by the `fuzz` preset and
 // run by scripts/make-fuzz-corpus.sh; OpenVDB gives each file a random uuid, so
 // seeds differ run to run only there.
 #include <openvdb/io/File.h>
@@ -61,7 +62,8 @@ int main(int argc, char** argv) {
     vol.normalization.method = hisnegs::io::NormalizationMethod::kMinMax;
     hisnegs::io::SparseGridOptions options;
     options.background_fraction = 0.02;
-    hisnegs::io::write_vdb(out / "hisnegs.vdb", hisnegs::io::build_sparse_grid(vol, Eigen::Vector3d(1, 0.5, 0.25), options));
+    hisnegs::io::write_vdb(out / "hisnegs.vdb",
+                           hisnegs::io::build_sparse_grid(vol, Eigen::Vector3d(1, 0.5, 0.25), options));
 
     auto f = tube<FloatGrid>(0.5f);
     f->setName("volume");
@@ -78,11 +80,19 @@ int main(int argc, char** argv) {
     auto v = tube<Vec3SGrid>(Vec3s(1, 2, 3));
     v->setName("vectors");
     write(out / "vec3s.vdb", {v}, io::COMPRESS_BLOSC);
+    auto b = tube<BoolGrid>(true);
+    b->setName("bool");
+    auto m = MaskGrid::create();
+    m->topologyUnion(*b);
+    m->setName("mask");
+    write(out / "bits.vdb", {b, m}, io::COMPRESS_BLOSC | io::COMPRESS_ACTIVE_MASK);
     const std::vector<Vec3R> positions{{0, 0, 0}, {1.5, 2, 3}, {-4, 8, 1}};
     auto points = points::createPointDataGrid<points::NullCodec, points::PointDataGrid>(
         positions, *math::Transform::createLinearTransform(0.5));
     points->setName("gaussians");
     write(out / "points.vdb", {points}, io::COMPRESS_BLOSC | io::COMPRESS_ACTIVE_MASK);
+    // The same through hisnegs' writer: with the grid checksums that let it be read.
+    hisnegs::io::write_vdb_file(out / "hisnegs_points.vdb", {points});
   } catch (const std::exception& e) {
     std::fprintf(stderr, "make_vdb_seeds: %s\n", e.what());
     return 1;

@@ -266,15 +266,23 @@ Checkpoint import_vdb_points(const fs::path& path) {
   io::require_regular_file(path);
   io::ensure_openvdb_initialized();
   PointDataGrid::Ptr grid;
-  io::check_vdb_structure(path);
+  const io::VdbFileCheck check = io::check_vdb_structure(path);
+  const io::VdbGridCheck* points = io::find_grid(check, kPointsGrid);
+  if (!points) io::fail_input(path, "has no grid named 'gaussians' (export it with hisnegs export vdb --points)");
+  // Point attributes state their own sizes, which no walk can check before OpenVDB
+  // allocates them (a damaged file can even trip an assert inside OpenVDB): their
+  // bytes must be what hisnegs wrote.
+  if (!io::values_checked(check, kPointsGrid)) {
+    io::fail_input(path, points->checksum_match
+                             ? "grid 'gaussians' does not match the checksum hisnegs wrote for it: the file was "
+                               "changed or damaged after export"
+                             : "grid 'gaussians' carries no hisnegs checksum (written by another tool or an older "
+                               "hisnegs): export it again with hisnegs export vdb --points");
+  }
   const io::VdbReadGuard guard(path);
   try {
     openvdb::io::File file(path.string());
     file.open(false);
-    if (!file.hasGrid(kPointsGrid)) {
-      file.close();
-      io::fail_input(path, "has no grid named 'gaussians' (export it with hisnegs export vdb --points)");
-    }
     grid = openvdb::gridPtrCast<PointDataGrid>(file.readGrid(kPointsGrid));
     file.close();
   } catch (const openvdb::Exception& e) {

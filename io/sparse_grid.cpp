@@ -96,29 +96,49 @@ namespace {
 class CheckedVdbArchive final : public openvdb::io::Archive {
  public:
   openvdb::io::Archive::Ptr copy() const override { return std::make_shared<CheckedVdbArchive>(*this); }
-  void write_to(std::ostream& os, const openvdb::GridPtrVec& grids) const {
-    openvdb::io::Archive::write(os, grids, /*seekable=*/true);
+  void write_to(std::ostream& os, const openvdb::GridPtrVec& grids, const openvdb::MetaMap& file_meta) const {
+    openvdb::io::Archive::write(os, grids, /*seekable=*/true, file_meta);
   }
 };
 }  // namespace
 
 void write_vdb_file(const std::filesystem::path& path, const openvdb::GridPtrVec& grids) {
   AtomicFile out(path);
-  std::ofstream os(out.temp_path(), std::ios::binary | std::ios::trunc);
-  if (!os) fail_write(path, errno);
-  errno = 0;  // a failing write(2) inside the stream leaves its errno (ENOSPC, EIO, EFBIG)
-  try {
-    CheckedVdbArchive archive;
-    archive.setCompression(openvdb::io::COMPRESS_BLOSC);
-    archive.write_to(os, grids);
-  } catch (const openvdb::Exception& e) {
-    throw std::runtime_error(path.string() + ": cannot write VDB: " + printable(e.what()));
+  {
+    std::ofstream os(out.temp_path(), std::ios::binary | std::ios::trunc);
+    if (!os) fail_write(path, errno);
+    errno = 0;  // a failing write(2) inside the stream leaves its errno (ENOSPC, EIO, EFBIG)
+    // Room for every grid's checksum, filled in below once the grids' bytes exist.
+    openvdb::MetaMap file_meta;
+    file_meta.insertMeta(kVdbChecksumKey, openvdb::StringMetadata(std::string(16 * grids.size(), '0')));
+    try {
+      CheckedVdbArchive archive;
+      archive.setCompression(openvdb::io::COMPRESS_BLOSC);
+      archive.write_to(os, grids, file_meta);
+    } catch (const openvdb::Exception& e) {
+      throw std::runtime_error(path.string() + ": cannot write VDB: " + printable(e.what()));
+    }
+    if (!os) fail_write(path, errno);
+    os.flush();
+    if (!os) fail_write(path, errno);
+    os.close();
+    if (!os) fail_write(path, errno);
   }
-  if (!os) fail_write(path, errno);
-  os.flush();
-  if (!os) fail_write(path, errno);
-  os.close();
-  if (!os) fail_write(path, errno);
+  // The walk checks what was written and finds each grid's bytes and the room left
+  // for their checksums.
+  const VdbFileCheck check = check_vdb_structure(out.temp_path());
+  if (check.checksums_pos < 0 || check.checksums.size() != 16 * check.grids.size())
+    throw std::runtime_error(path.string() + ": cannot write VDB: no room for the grid checksums");
+  errno = 0;
+  const std::optional<std::string> checksums = vdb_grid_checksums(out.temp_path(), check);
+  if (!checksums) fail_write(path, errno);
+  std::fstream patch(out.temp_path(), std::ios::binary | std::ios::in | std::ios::out);
+  patch.seekp(check.checksums_pos);
+  patch.write(checksums->data(), static_cast<std::streamsize>(checksums->size()));
+  patch.flush();
+  if (!patch) fail_write(path, errno);
+  patch.close();
+  if (!patch) fail_write(path, errno);
   out.commit();
 }
 

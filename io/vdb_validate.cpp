@@ -5,6 +5,7 @@
 #include <array>
 #include <bit>
 #include <cctype>
+#include <cstdio>
 #include <cstring>
 #include <fstream>
 #include <map>
@@ -13,6 +14,7 @@
 #include <tuple>
 
 #include "io/error.hpp"
+#include "io/hash.hpp"
 
 namespace hisnegs::io {
 namespace {
@@ -23,6 +25,21 @@ constexpr std::uint32_t kMaxVersion = 224;   // MULTIPASS_IO, written by OpenVDB
 constexpr std::int64_t kMagic = 0x56444220;  // "VDB " little-endian
 constexpr std::uint32_t kCompressZip = 0x1, kCompressActiveMask = 0x2, kCompressBlosc = 0x4;
 constexpr int kMaxMapNesting = 4;  // a frustum map holds a second map; nothing nests deeper
+
+// The 64-bit FNV-1a of bytes [from, to) of `in` (nullopt if they cannot be read).
+std::optional<std::uint64_t> range_fnv1a64(std::istream& in, std::int64_t from, std::int64_t to) {
+  in.clear();
+  in.seekg(from);
+  std::uint64_t h = fnv1a64(nullptr, 0);
+  std::vector<char> buf(std::size_t{1} << 16);
+  for (std::int64_t left = to - from; left > 0;) {
+    const auto n = static_cast<std::streamsize>(std::min<std::int64_t>(left, static_cast<std::int64_t>(buf.size())));
+    if (!in.read(buf.data(), n)) return std::nullopt;
+    h = fnv1a64(buf.data(), static_cast<std::size_t>(n), h);
+    left -= n;
+  }
+  return h;
+}
 
 // Sequential little-endian reads from the file with every length checked against
 // what is left of it. Failures throw InputError "PATH: damaged .vdb: WHAT at byte N".
@@ -74,6 +91,16 @@ class Walker {
     pos_ = to;
     in_.clear();
     in_.seekg(pos_);
+  }
+
+  // The 64-bit FNV-1a of bytes [from, to) of the file; leaves the position at `to`.
+  std::uint64_t hash(std::int64_t from, std::int64_t to) {
+    seek(from, "checksum start");
+    need(to - from, "checksummed grid");
+    const std::optional<std::uint64_t> h = range_fnv1a64(in_, from, to);
+    if (!h) fail("cannot read the checksummed grid");
+    seek(to, "checksum end");
+    return *h;
   }
 
   // OpenVDB's readString: a uint32 length and that many bytes. `max_keep` bytes are
@@ -156,14 +183,23 @@ bool fixed_value_as_bool(const std::string& type, const std::vector<std::uint8_t
   return false;
 }
 
-// MetaMap::readMeta. `half_float`, when given, receives what GridBase::saveFloatAsHalf
-// will answer after reading these entries: the asBool of the last entry named
-// "is_saved_as_half_float" that OpenVDB keeps (unregistered "__" types are dropped),
-// false if none. OpenVDB reads a grid's values as halves by that entry alone.
-void walk_metadata(Walker& w, const std::function<bool(const std::string&)>& is_registered, const char* where,
-                   bool* half_float = nullptr) {
+// What walk_metadata saw of the entries it is asked about.
+struct MetadataSeen {
+  // What GridBase::saveFloatAsHalf answers after reading these entries: the asBool
+  // of the last entry named "is_saved_as_half_float" that OpenVDB keeps (unregistered
+  // "__" types are dropped), false if none. OpenVDB reads a grid's values as halves
+  // by that entry alone.
+  bool half_float = false;
+  std::int64_t checksums_pos = -1;  // the kVdbChecksumKey string's value
+  std::string checksums;
+};
+
+// MetaMap::readMeta.
+MetadataSeen walk_metadata(Walker& w, const std::function<bool(const std::string&)>& is_registered, const char* where) {
   constexpr std::string_view kHalfKey = "is_saved_as_half_float";
-  if (half_float) *half_float = false;
+  constexpr std::size_t kMaxChecksums = 16 * 4096;
+  MetadataSeen seen;
+  bool* half_float = &seen.half_float;
   const auto count = w.read<std::uint32_t>(where);
   // Each entry takes at least its two string lengths and its size: 12 bytes.
   if (static_cast<std::int64_t>(count) * 12 > w.left())
@@ -184,6 +220,10 @@ void walk_metadata(Walker& w, const std::function<bool(const std::string&)>& is_
       std::vector<std::uint8_t> value(static_cast<std::size_t>(num_bytes));
       w.read_bytes(value.data(), num_bytes, "metadata value");
       if (half_key) *half_float = fixed_value_as_bool(type, value);
+    } else if (type == "string" && name == kVdbChecksumKey && num_bytes <= std::int64_t{kMaxChecksums}) {
+      seen.checksums_pos = w.pos();
+      seen.checksums.resize(static_cast<std::size_t>(num_bytes));
+      w.read_bytes(seen.checksums.data(), num_bytes, "metadata value");
     } else if (type == "string" || !is_registered || !is_registered(type)) {
       w.skip(num_bytes, "metadata value");  // read verbatim: a string, or an unknown type kept as bytes
       if (half_key && type.rfind("__", 0) != 0) *half_float = num_bytes > 0;  // !empty()
@@ -192,6 +232,7 @@ void walk_metadata(Walker& w, const std::function<bool(const std::string&)>& is_
              "', which this reader cannot check");
     }
   }
+  return seen;
 }
 
 // Transform::read: the map's type name, then the map (math/Maps.h read()).
@@ -411,7 +452,7 @@ void walk_grid(Walker& w, VdbGridCheck& grid, std::int64_t grid_pos, std::int64_
   if (compression & ~(kCompressZip | kCompressActiveMask | kCompressBlosc))
     w.fail("grid compression flags " + std::to_string(compression));
   // The descriptor's "_HalfFloat" suffix is not what OpenVDB reads the values by.
-  walk_metadata(w, is_registered, "grid metadata", &grid.half_float);
+  grid.half_float = walk_metadata(w, is_registered, "grid metadata").half_float;
   walk_map(w, 0);
   if (grid.instance) {
     if (w.pos() > end_pos) w.fail("grid '" + printable(grid.name, 64) + "' runs past its stated end");
@@ -457,7 +498,9 @@ VdbFileCheck validate_vdb_file(const std::filesystem::path& path,
     const char c = uuid[i];
     if (dash ? c != '-' : !std::isxdigit(static_cast<unsigned char>(c))) w.fail("the uuid is not 36 characters of hex");
   }
-  walk_metadata(w, is_registered_metadata, "file metadata");
+  const MetadataSeen file_meta = walk_metadata(w, is_registered_metadata, "file metadata");
+  out.checksums_pos = file_meta.checksums_pos;
+  out.checksums = file_meta.checksums;
   const auto grids = w.read<std::int32_t>("grid count");
   // A descriptor takes at least three string lengths and three offsets.
   if (grids < 0 || std::int64_t{grids} * 36 > w.left()) w.fail("grid count " + std::to_string(grids));
@@ -478,9 +521,34 @@ VdbFileCheck validate_vdb_file(const std::filesystem::path& path,
     if (!(w.pos() <= grid_pos && grid_pos <= end_pos && blocks_ok && end_pos <= w.size()))
       w.fail("grid '" + printable(grid.name, 64) + "' has positions " + std::to_string(grid_pos) + ", " +
              std::to_string(block_pos) + ", " + std::to_string(end_pos) + " outside its place in the file");
+    grid.grid_pos = grid_pos;
+    grid.end_pos = end_pos;
     walk_grid(w, grid, grid_pos, block_pos, end_pos, is_registered_metadata);
     w.seek(end_pos, "end position");  // the next descriptor follows this grid
     out.grids.push_back(std::move(grid));
+  }
+  const bool have_checksums = out.checksums.size() == 16 * out.grids.size();
+  for (std::size_t i = 0; i < out.grids.size(); ++i) {
+    VdbGridCheck& g = out.grids[i];
+    if (!have_checksums || g.instance || g.depth == VdbGridCheck::Depth::kBuffers) continue;
+    g.checksum_match = out.checksums.compare(16 * i, 16, vdb_checksum_hex(w.hash(g.grid_pos, g.end_pos))) == 0;
+  }
+  return out;
+}
+
+std::string vdb_checksum_hex(std::uint64_t hash) {
+  char hex[17];
+  std::snprintf(hex, sizeof hex, "%016llx", static_cast<unsigned long long>(hash));
+  return hex;
+}
+
+std::optional<std::string> vdb_grid_checksums(const std::filesystem::path& path, const VdbFileCheck& check) {
+  std::ifstream in(path, std::ios::binary);
+  std::string out;
+  for (const VdbGridCheck& g : check.grids) {
+    const std::optional<std::uint64_t> h = range_fnv1a64(in, g.grid_pos, g.end_pos);
+    if (!h) return std::nullopt;
+    out += vdb_checksum_hex(*h);
   }
   return out;
 }
@@ -494,7 +562,7 @@ const VdbGridCheck* find_grid(const VdbFileCheck& check, const std::string& uniq
 bool values_checked(const VdbFileCheck& check, const std::string& unique_name) {
   const VdbGridCheck* g = find_grid(check, unique_name);
   if (g && g->instance) g = g->instance_parent == unique_name ? nullptr : find_grid(check, g->instance_parent);
-  return g && !g->instance && g->depth == VdbGridCheck::Depth::kBuffers;
+  return g && !g->instance && (g->depth == VdbGridCheck::Depth::kBuffers || g->checksum_match.value_or(false));
 }
 
 }  // namespace hisnegs::io

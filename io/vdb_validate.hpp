@@ -12,6 +12,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <functional>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -28,12 +29,23 @@ struct VdbGridCheck {
   // (point data and point index grids, whose leaves state their own sizes);
   // kHeader: metadata and transform only (a tree configuration this walk does not know).
   enum class Depth { kHeader, kTopology, kBuffers } depth = Depth::kHeader;
-  std::int64_t leaves = 0;  // leaf nodes in the topology (0 below kTopology)
+  std::int64_t leaves = 0;                 // leaf nodes in the topology (0 below kTopology)
+  std::int64_t grid_pos = 0, end_pos = 0;  // its bytes: [grid_pos, end_pos)
+  // Below kBuffers (and not an instance): whether its bytes match the checksum
+  // hisnegs wrote for it (kVdbChecksumKey); nullopt when the file carries none.
+  std::optional<bool> checksum_match;
 };
+
+// File metadata hisnegs' .vdb writer adds: a string of 16 lowercase hex digits per
+// grid, in file order, the 64-bit FNV-1a of that grid's bytes [grid_pos, end_pos).
+// It lets hisnegs read back what the walk cannot check (its own point grids).
+inline constexpr const char* kVdbChecksumKey = "hisnegs_grid_fnv1a64";
 
 struct VdbFileCheck {
   std::uint32_t file_version = 0;
   std::vector<VdbGridCheck> grids;
+  std::int64_t checksums_pos = -1;  // byte offset of the kVdbChecksumKey string's value, if any
+  std::string checksums;            // that value (empty if absent)
 };
 
 // Throws io::InputError "PATH: damaged .vdb: WHAT at byte N" (one line) for anything
@@ -46,11 +58,19 @@ struct VdbFileCheck {
 VdbFileCheck validate_vdb_file(const std::filesystem::path& path,
                                const std::function<bool(const std::string&)>& is_registered_metadata);
 
+// 16 lowercase hex digits: one grid's entry in the kVdbChecksumKey string.
+std::string vdb_checksum_hex(std::uint64_t hash);
+
+// kVdbChecksumKey's value for the file at `path` that `check` describes: every
+// grid's checksum, in file order (nullopt if the file cannot be read).
+std::optional<std::string> vdb_grid_checksums(const std::filesystem::path& path, const VdbFileCheck& check);
+
 // The grid the walk saw under `unique_name`, or nullptr.
 const VdbGridCheck* find_grid(const VdbFileCheck& check, const std::string& unique_name);
 
 // Whether OpenVDB may read the values of the grid named `unique_name`: the walk
-// checked every leaf buffer of it (kBuffers), or of the grid it is an instance of.
+// checked every leaf buffer of it (kBuffers) or its bytes match hisnegs' checksum,
+// or the same holds for the grid it is an instance of.
 // Anything else (point data, whose attribute arrays state their own sizes; tree
 // configurations the walk does not know) is read as metadata and transform only.
 bool values_checked(const VdbFileCheck& check, const std::string& unique_name);

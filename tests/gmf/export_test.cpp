@@ -14,10 +14,13 @@
 
 #include <cmath>
 #include <cstring>
+#include <fstream>
+#include <iterator>
 #include <random>
 
 #include "gmf/export_formats.hpp"
 #include "io/error.hpp"
+#include "io/sparse_grid.hpp"
 #include "io/vdb_file.hpp"
 #include "tests/test_support.hpp"
 
@@ -391,7 +394,7 @@ TEST(ExportVdb, ImportRejectsIdsThatDoNotNumberThePoints) {
   }
   openvdb::points::AttributeWriteHandle<std::int32_t> id(leaf->attributeArray("id"));
   id.set(0, ids[1]);
-  openvdb::io::File(dir.path().string() + "/bad.vdb").write(openvdb::GridPtrVec{points});
+  io::write_vdb_file(dir / "bad.vdb", openvdb::GridPtrVec{points});
   try {
     (void)import_vdb_points(dir / "bad.vdb");
     ADD_FAILURE() << "duplicate id accepted";
@@ -400,6 +403,37 @@ TEST(ExportVdb, ImportRejectsIdsThatDoNotNumberThePoints) {
               std::string::npos)
         << e.what();
   }
+}
+
+// Point attributes state their own sizes, so import reads only the point grids
+// hisnegs wrote: their bytes must match the checksum written with them.
+TEST(ExportVdb, ImportReadsOnlyPointGridsMatchingTheirChecksum) {
+  ScratchDir dir;
+  VdbExportOptions options;
+  options.points = true;
+  const Checkpoint checkpoint{random_mixture(20, 12), stack_meta()};
+  export_vdb(dir / "m.vdb", checkpoint, VoxelLattice::of(kFrame), options, "m.ply");
+  EXPECT_EQ(import_vdb_points(dir / "m.vdb").mixture.size(), checkpoint.mixture.size());
+  for (const io::VdbGridSummary& g : io::inspect_vdb(dir / "m.vdb")) EXPECT_TRUE(g.values_read) << g.name;
+  auto expect_refused = [&](const std::filesystem::path& path, const std::string& needle) {
+    try {
+      (void)import_vdb_points(path);
+      ADD_FAILURE() << "accepted " << path;
+    } catch (const io::InputError& e) {
+      EXPECT_NE(std::string(e.what()).find(needle), std::string::npos) << e.what();
+    }
+  };
+  // The same grid written by OpenVDB itself: no checksum.
+  const auto points = read_grid(dir / "m.vdb", "gaussians");
+  openvdb::io::File(dir.path().string() + "/plain.vdb").write(openvdb::GridPtrVec{points});
+  expect_refused(dir / "plain.vdb", "grid 'gaussians' carries no hisnegs checksum");
+  // One byte of the last point attribute changed after export.
+  std::ifstream in(dir / "m.vdb", std::ios::binary);
+  std::vector<char> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  in.close();
+  bytes[bytes.size() - 3] ^= 0x10;
+  std::ofstream(dir / "bad.vdb", std::ios::binary).write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+  expect_refused(dir / "bad.vdb", "does not match the checksum hisnegs wrote");
 }
 
 TEST(ExportVdb, RejectsBadOptionsAndLeavesNoFile) {

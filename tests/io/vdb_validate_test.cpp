@@ -246,7 +246,8 @@ TEST_F(VdbValidate, HostileNumbersAreRefusedBeforeOpenVdbSeesThem) {
   // The number of grids and of file metadata entries.
   patch(type_at - 4 - 6 - 4, std::int32_t{1 << 30});
   expect_refused(bad, "grid count 1073741824");
-  patch(type_at - 4 - 6 - 4 - 4, std::uint32_t{1u << 31});
+  // File metadata follow the magic, versions, offsets flag and uuid (8 + 4 + 8 + 1 + 36).
+  patch(57, std::uint32_t{1u << 31});
   expect_refused(bad, "file metadata claims 2147483648 entries");
   // Not VDB at all; an unknown version.
   patch(0, std::int64_t{0x1234});
