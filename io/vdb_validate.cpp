@@ -199,7 +199,6 @@ MetadataSeen walk_metadata(Walker& w, const std::function<bool(const std::string
   constexpr std::string_view kHalfKey = "is_saved_as_half_float";
   constexpr std::size_t kMaxChecksums = 16 * 4096;
   MetadataSeen seen;
-  bool* half_float = &seen.half_float;
   const auto count = w.read<std::uint32_t>(where);
   // Each entry takes at least its two string lengths and its size: 12 bytes.
   if (static_cast<std::int64_t>(count) * 12 > w.left())
@@ -209,24 +208,28 @@ MetadataSeen walk_metadata(Walker& w, const std::function<bool(const std::string
     const std::string type = w.read_string("metadata type");
     const auto num_bytes = static_cast<std::int64_t>(w.read<std::uint32_t>("metadata size"));
     w.need(num_bytes, "metadata value");
-    const bool half_key = half_float && name == kHalfKey;
+    const bool half_key = name == kHalfKey;
     if (type == "__delayedload") {
       walk_delayed_load(w, num_bytes);
-      if (half_key) *half_float = false;  // DelayedLoadMetadata::asBool
+      if (half_key) seen.half_float = false;  // DelayedLoadMetadata::asBool
     } else if (const auto fixed = fixed_metadata_size(type)) {
       if (num_bytes != *fixed)
         w.fail("metadata '" + printable(name, 64) + "' of type " + type + " states " + std::to_string(num_bytes) +
                " bytes, not " + std::to_string(*fixed));
-      std::vector<std::uint8_t> value(static_cast<std::size_t>(num_bytes));
-      w.read_bytes(value.data(), num_bytes, "metadata value");
-      if (half_key) *half_float = fixed_value_as_bool(type, value);
+      if (half_key) {
+        std::vector<std::uint8_t> value(static_cast<std::size_t>(num_bytes));
+        w.read_bytes(value.data(), num_bytes, "metadata value");
+        seen.half_float = fixed_value_as_bool(type, value);
+      } else {
+        w.skip(num_bytes, "metadata value");
+      }
     } else if (type == "string" && name == kVdbChecksumKey && num_bytes <= std::int64_t{kMaxChecksums}) {
       seen.checksums_pos = w.pos();
       seen.checksums.resize(static_cast<std::size_t>(num_bytes));
       w.read_bytes(seen.checksums.data(), num_bytes, "metadata value");
     } else if (type == "string" || !is_registered || !is_registered(type)) {
       w.skip(num_bytes, "metadata value");  // read verbatim: a string, or an unknown type kept as bytes
-      if (half_key && type.rfind("__", 0) != 0) *half_float = num_bytes > 0;  // !empty()
+      if (half_key && type.rfind("__", 0) != 0) seen.half_float = num_bytes > 0;  // !empty()
     } else {
       w.fail("metadata '" + printable(name, 64) + "' has type '" + printable(type, 64) +
              "', which this reader cannot check");
