@@ -107,6 +107,13 @@ void protect_input(const fs::path& path) {
   g_inputs.emplace(st.st_dev, st.st_ino);
 }
 
+bool is_protected_input(const fs::path& path) {
+  struct stat st {};
+  if (::stat(path.c_str(), &st) != 0) return false;
+  const std::lock_guard lock(g_inputs_mutex);
+  return g_inputs.count({st.st_dev, st.st_ino}) != 0;
+}
+
 bool same_file(const fs::path& a, const fs::path& b) {
   struct stat sa {}, sb {};
   return ::stat(a.c_str(), &sa) == 0 && ::stat(b.c_str(), &sb) == 0 && sa.st_dev == sb.st_dev &&

@@ -49,6 +49,10 @@ std::filesystem::path require_replaceable_output(const std::filesystem::path& ta
 // every file named on the command line except the outputs. Thread-safe.
 void protect_input(const std::filesystem::path& path);
 
+// Whether the existing file `path` (by device and inode, links followed) was marked
+// by protect_input. Thread-safe.
+[[nodiscard]] bool is_protected_input(const std::filesystem::path& path);
+
 // Whether `a` and `b` exist and are the same file (device and inode).
 [[nodiscard]] bool same_file(const std::filesystem::path& a, const std::filesystem::path& b);
 

@@ -174,14 +174,17 @@ void write_tiff_stack(const fs::path& path, std::span<const float> voxels, int n
   AtomicFile file(path);
   const int fd = ::open(file.temp_path().c_str(), O_RDWR | O_CREAT | O_TRUNC | O_CLOEXEC, 0666);
   if (fd < 0) fail_input(path, std::string("cannot open for writing: ") + std::strerror(errno));
+  errno = 0;
   TiffHandle handle(fd, path, bigtiff ? "w8" : "w", 0);
   TIFF* tif = handle.get();
-  if (!tif) fail_input(path, "cannot create TIFF file" + handle.detail());
   auto fail_write = [&](const std::string& what) {
     const int err = errno;  // of the failing write(2): ENOSPC, EIO, EFBIG
     throw WriteError(describe(path, "cannot write " + what + (err ? std::string(": ") + std::strerror(err) : "") +
                                         handle.detail()));
   };
+  // Opening writes the header into the temporary this process just created: a
+  // failure there is a failed write (a full disk), not bad input.
+  if (!tif) fail_write("the TIFF header");
   errno = 0;
   std::vector<unsigned char> strip(rows_per_strip * row_bytes);
   for (int z = 0; z < nz; ++z) {

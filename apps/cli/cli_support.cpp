@@ -59,8 +59,9 @@ namespace {
 
 // Before a command does any work: its outputs (-o, --log) must not be an existing
 // device, FIFO, socket or dangling symlink, nor the same file as any other value on
-// its command line; every other value naming a regular file is protected for the
-// run (io::protect_input), so no write can replace an input under another name.
+// its command line (the global options before the command included); every other
+// value naming a regular file is protected for the run (io::protect_input), so no
+// write can replace an input under another name.
 void guard_outputs(const CLI::App& cmd) {
   std::vector<const CLI::Option*> outputs;
   for (const char* name : {"--output", "--log"}) {
@@ -80,7 +81,13 @@ void guard_outputs(const CLI::App& cmd) {
       }
     }
   }
-  for (const CLI::Option* opt : cmd.get_options()) {
+  // Every value on the command line, the global options before the command
+  // (--config FILE) included: a file a command reads is an input wherever it was named.
+  std::vector<const CLI::Option*> values = cmd.get_options();
+  for (const CLI::App* parent = cmd.get_parent(); parent != nullptr; parent = parent->get_parent()) {
+    for (const CLI::Option* opt : parent->get_options()) values.push_back(opt);
+  }
+  for (const CLI::Option* opt : values) {
     if (std::find(outputs.begin(), outputs.end(), opt) != outputs.end()) continue;
     for (const std::string& value : opt->results()) {
       for (const CLI::Option* out : outputs) {

@@ -93,7 +93,7 @@ EvalOutcome evaluate_model(const std::filesystem::path& model, const std::filesy
 
 nlohmann::ordered_json EvalStage::run(const RunRequest& request, const Config& config, bool, const Progress& progress) {
   const std::filesystem::path dir = request.dir / "eval";
-  std::filesystem::remove_all(dir);
+  clear_stage_folder(request.dir, kFolder, request.volume);
   evaluate_model(request.dir / "train" / "final.ply", request.dir / "gt" / "eval", dir, config, request.backend,
                  progress);
   return nullptr;

@@ -8,6 +8,7 @@
 #include "apps/pipeline/config_slice.hpp"
 #include "apps/pipeline/progress.hpp"
 #include "apps/pipeline/run_stage.hpp"
+#include "apps/pipeline/stage_folder.hpp"
 #include "splat/backend.hpp"
 #include "splat/metrics.hpp"
 
@@ -33,6 +34,8 @@ struct EvalStage {
   static constexpr std::array<const char*, 2> kUpstream{"train", "ground_truth"};
   static constexpr std::array<const char*, 1> kOutputs{"eval/metrics.json"};
   static constexpr const char* kResumeMarker = "";
+  static constexpr std::string_view kFiles[] = {"metrics.csv", "metrics.json", "compare/[0-9]*.png"};
+  static constexpr StageFolder kFolder{"eval", kFiles};  // cleared before each evaluation
   static std::string request_inputs(const RunRequest&) { return {}; }
   static nlohmann::ordered_json run(const RunRequest& request, const Config& config, bool resume,
                                     const Progress& progress);

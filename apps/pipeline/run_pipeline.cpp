@@ -25,6 +25,10 @@ void check_request(const RunRequest& request, const AppConfig& config) {
   if (request.orbit_frames < 1 || request.orbit_frames > 3600) {
     throw io::InputError("--orbit-frames: " + std::to_string(request.orbit_frames) + " is outside [1, 3600]");
   }
+  // The folders a stage starts over hold only what a run wrote (never an input):
+  // refused now, before four stages of work, not when that stage comes.
+  check_stage_folder(request.dir, TrainStage::kFolder, request.volume);
+  check_stage_folder(request.dir, EvalStage::kFolder, request.volume);
 }
 
 // Creates DIR, reads DIR/run.json, writes DIR/config.yaml and records the volume.

@@ -203,7 +203,7 @@ TrainOutcome train_model(const TrainRequest& request, const TrainConfig& config,
 nlohmann::ordered_json TrainStage::run(const RunRequest& request, const Config& config, bool resume,
                                        const Progress& progress) {
   const fs::path train = request.dir / "train";
-  if (!resume) fs::remove_all(train);  // a stale or different run: start over
+  if (!resume) clear_stage_folder(request.dir, kFolder, request.volume);  // a stale or different run: start over
   train_model({request.dir / "gmf.ply", request.dir / "gt" / "train", train, request.backend, resume, request.volume},
               config, progress);
   return nullptr;

@@ -8,6 +8,7 @@
 #include "apps/pipeline/config_slice.hpp"
 #include "apps/pipeline/progress.hpp"
 #include "apps/pipeline/run_stage.hpp"
+#include "apps/pipeline/stage_folder.hpp"
 #include "gmf/checkpoint.hpp"
 #include "splat/backend.hpp"
 
@@ -57,7 +58,8 @@ TrainOutcome train_model(const TrainRequest& request, const TrainConfig& config,
 
 // In a run folder: DIR/train from DIR/gmf.ply on DIR/gt/train, with the run's volume. A training that was
 // started with the same inputs and left a checkpoint resumes; otherwise DIR/train
-// is cleared first.
+// is cleared first: only the files a run writes there (kFolder), and the run refuses
+// to start when anything else is there.
 struct TrainStage {
   using Config = TrainConfig;
   static constexpr const char* kName = "train";
@@ -65,6 +67,13 @@ struct TrainStage {
   static constexpr std::array<const char*, 3> kUpstream{"volume", "fit", "ground_truth"};
   static constexpr std::array<const char*, 1> kOutputs{"train/final.ply"};
   static constexpr const char* kResumeMarker = "train/checkpoints/latest";
+  static constexpr std::string_view kFiles[] = {"log.csv",
+                                                "final.ply",
+                                                "training_curve.png",
+                                                "checkpoints/latest",
+                                                "checkpoints/epoch_[0-9]*.ply",
+                                                "checkpoints/state_[0-9]*.bin"};
+  static constexpr StageFolder kFolder{"train", kFiles};
   static std::string request_inputs(const RunRequest&) { return {}; }
   static nlohmann::ordered_json run(const RunRequest& request, const Config& config, bool resume,
                                     const Progress& progress);

@@ -7,6 +7,7 @@
 #include <tiffio.h>
 #include <unistd.h>
 
+#include <cerrno>
 #include <cstdarg>
 #include <cstddef>
 #include <filesystem>
@@ -49,8 +50,10 @@ class TiffHandle {
       TIFFOpenOptionsSetMaxSingleMemAlloc(opts, static_cast<tmsize_t>(max_single_alloc_bytes));
     }
     tif_ = TIFFFdOpenExt(fd, name.c_str(), mode, opts);
+    const int err = errno;  // of a failed header write (ENOSPC): the caller reports it
     TIFFOpenOptionsFree(opts);
     if (!tif_) ::close(fd);
+    errno = err;
   }
   ~TiffHandle() {
     close();

@@ -161,6 +161,69 @@ TEST_F(Reliability, ASignalRemovesUnfinishedOutputs) {
   }
 }
 
+// Issue 32, item 3: a disk with no room even for the TIFF header is a write error
+// (exit 1, "No space left on device"), as every other writer reports it.
+TEST_F(Reliability, ExportVolumeOnAFullDiskIsAWriteError) {
+  const fs::path full = dir_ / "full";
+  fs::create_directories(full);
+  if (::mount("tmpfs", full.c_str(), "tmpfs", 0, "size=16k") != 0) GTEST_SKIP() << "cannot mount a tmpfs here";
+  struct Unmount {
+    fs::path p;
+    ~Unmount() { ::umount(p.c_str()); }
+  } unmount{full};
+  {
+    std::ofstream filler(full / "filler", std::ios::binary);
+    const std::string block(1024, 'x');
+    for (int i = 0; i < 64 && filler; ++i) filler << block << std::flush;  // until the disk is full
+  }
+  const CommandResult r = run_hisnegs({"export", "volume", "--model", dir_ / "m.ply", "-o", full / "v.tif"});
+  expect_refused(r, 1, "No space left on device");
+  EXPECT_NE(r.err.find((full / "v.tif").string()), std::string::npos) << r.err;
+  for (const auto& e : fs::directory_iterator(full)) EXPECT_EQ(e.path().filename(), "filler") << e.path();
+}
+
+// Issue 32, item 2: a file named by a global option (--config) is an input too.
+TEST_F(Reliability, TheConfigFileIsAnInput) {
+  const std::string config = "splat:\n  beta: 50\n";
+  testing::write_text(dir_ / "cfg.yaml", config);
+  expect_refused(run_hisnegs({"--config", dir_ / "cfg.yaml", "export", "html", "--model", dir_ / "m.ply", "-o",
+                              dir_ / "cfg.yaml"}),
+                 2, "is also an input (--config)");
+  expect_refused(run_hisnegs({"--config", dir_ / "cfg.yaml", "export", "splat-ply", "--model", dir_ / "m.ply", "-o",
+                              dir_ / "cfg.yaml"}),
+                 2, "is also an input (--config)");
+  EXPECT_EQ(testing::read_bytes(dir_ / "cfg.yaml"), config);
+}
+
+// Issue 32, item 1: `run` starts DIR/train and DIR/eval over, but removes only what a
+// run wrote there; a folder holding anything else (its own input included) is
+// refused in one line before the first stage, and nothing is touched.
+TEST_F(Reliability, RunNeverRemovesFilesItDidNotWrite) {
+  const fs::path p = dir_ / "p";
+  fs::create_directories(p / "train");
+  fs::copy_file(dir_ / "v.tif", p / "train" / "vol.tif");
+  const std::string stack = testing::read_bytes(dir_ / "v.tif");
+  expect_refused(run_hisnegs({"run", p / "train" / "vol.tif", "-o", p, "--backend", "cpu"}), 2,
+                 "vol.tif: is an input of this run");
+  EXPECT_EQ(testing::read_bytes(p / "train" / "vol.tif"), stack);
+  EXPECT_FALSE(fs::exists(p / "run.json"));  // refused before any stage
+
+  const fs::path r = dir_ / "r";
+  fs::create_directories(r / "eval" / "compare");
+  testing::write_text(r / "eval" / "compare" / "000.png", "a run's");
+  testing::write_text(r / "eval" / "mine.txt", "mine");
+  expect_refused(run_hisnegs({"run", dir_ / "v.tif", "-o", r, "--backend", "cpu"}), 2,
+                 "eval/mine.txt: not written by hisnegs run");
+  EXPECT_EQ(testing::read_bytes(r / "eval" / "mine.txt"), "mine");
+  EXPECT_TRUE(fs::exists(r / "eval" / "compare" / "000.png"));
+  fs::create_directories(r / "train" / "checkpoints");
+  testing::write_text(r / "train" / "checkpoints" / "notes.txt", "notes");
+  expect_refused(run_hisnegs({"run", dir_ / "v.tif", "-o", r, "--backend", "cpu"}), 2,
+                 "checkpoints/notes.txt: not written by hisnegs run");
+  EXPECT_EQ(testing::read_bytes(r / "train" / "checkpoints" / "notes.txt"), "notes");
+  EXPECT_FALSE(fs::exists(r / "run.json"));
+}
+
 // Stale temporaries: those of dead processes go, those of live ones stay.
 TEST(StaleTemporaries, OnlyThoseOfDeadProcessesAreRemoved) {
   testing::ScratchDir dir;
