@@ -16,6 +16,8 @@ find_package(OpenVDB REQUIRED)
 find_package(TIFF REQUIRED)
 find_package(PNG REQUIRED)
 find_package(GIF REQUIRED)
+# zlib (zlib1g-dev): the compact checkpoint's CRC-32.
+find_package(ZLIB REQUIRED)
 find_package(CLI11 CONFIG REQUIRED)
 find_package(yaml-cpp CONFIG REQUIRED)
 find_package(nlohmann_json 3 CONFIG REQUIRED)

@@ -4,6 +4,7 @@
 // are the PLY checkpoint's (gmf/checkpoint.hpp); no PLY here.
 #include "gmf/compact_checkpoint.hpp"
 
+#include <zlib.h>
 #include <zstd.h>
 
 #include <algorithm>
@@ -31,10 +32,18 @@ namespace {
 constexpr std::size_t kFixedHeaderBytes = 8 + 4 + 8 + 4 + 24 + 24 + 8 + 8;  // with no metadata
 constexpr std::uint64_t kMaxMetadataBytes = std::uint64_t{1} << 20;
 constexpr std::size_t kMaxMetadataLineBytes = 64 * 1024 - 8;  // a PLY header line, less "comment "
-// A zstd block has a header of at least 3 bytes and yields at most 128 KiB
-// (ZSTD_BLOCKSIZE_MAX), so a frame of P bytes holds at most P / 3 × 128 Ki bytes:
-// a header claiming more is refused before anything that size is allocated.
-constexpr std::uint64_t kMaxZstdExpansion = (std::uint64_t{128} << 10) / 3;
+// Version 2 ends with the CRC-32 of every byte before it (the first version that has one).
+constexpr std::uint32_t kFirstChecksummedVersion = 2;
+constexpr std::size_t kChecksumBytes = 4;
+// How many times its payload a file's K × B raw columns may be. zstd alone allows
+// ~43,690 (a 3-byte RLE block yields 128 KiB), so a 2.5 KB file could make a reader
+// allocate hundreds of MB. Models compress far less (docs/benchmarks.md "Compact
+// checkpoint": trained op1 1.2:1; a regular grid with intensities from a volume
+// 8.7:1; a constant-intensity 40³ grid 22:1, 64³ 449:1), so 1024:1 refuses only a
+// degenerate model (e.g. one Gaussian repeated) while bounding what a file can
+// claim. Below kFreeRawBytes any ratio is accepted: tiny models cost nothing.
+constexpr std::uint64_t kMaxCompressionRatio = 1024;
+constexpr std::uint64_t kFreeRawBytes = std::uint64_t{1} << 20;
 constexpr double kHalfSqrt2 = 0.70710678118654752440;  // 1/√2: the smallest-three range
 // The intensity levels include a = 0 and a = 1 (a fifth of a trained model's
 // Gaussians are saturated, ℓ > 6: they decode as bright as they were, not half a
@@ -105,6 +114,19 @@ std::uint64_t compact3(std::uint64_t v) {
 }
 
 double sigmoid_d(double x) { return 1.0 / (1.0 + std::exp(-x)); }
+
+// CRC-32 (zlib's: ISO 3309 / ITU-T V.42, the one of gzip and PNG) of `bytes`: it
+// catches every error of up to 3 bits and every burst of up to 32 bits in a file
+// of this size, and all but 2^-32 of the rest.
+std::uint32_t crc32_of(std::string_view bytes) {
+  uLong crc = ::crc32(0L, Z_NULL, 0);
+  for (std::size_t at = 0; at < bytes.size();) {  // zlib takes uInt lengths
+    const auto n = static_cast<uInt>(std::min<std::size_t>(bytes.size() - at, std::size_t{1} << 30));
+    crc = ::crc32(crc, reinterpret_cast<const Bytef*>(bytes.data() + at), n);
+    at += n;
+  }
+  return static_cast<std::uint32_t>(crc);
+}
 
 // One column of K values, `planes` bytes each, least significant plane first:
 // value k's byte b is at column[b × K + k]. Planes of like bytes compress far
@@ -319,6 +341,9 @@ std::string encode_compact_checkpoint(const GaussianMixture& mixture, const Chec
   tail.put(static_cast<std::uint64_t>(payload.size()));
   out += tail.take();
   out += payload;
+  io::BinaryWriter checksum;
+  checksum.put(crc32_of(out));
+  out += checksum.take();
   if (order_out) *order_out = std::move(order);
   return out;
 }
@@ -342,6 +367,34 @@ CompactHeader read_compact_header(std::string_view bytes, const fs::path& source
   if (h.version == 0 || h.version > kCompactFormatVersion) {
     fail("format version " + std::to_string(h.version) + " is not one this build reads (1.." +
          std::to_string(kCompactFormatVersion) + ")");
+  }
+  // From version 2 the whole file (header, metadata and payload) is covered by the
+  // CRC-32 at its end: checked before any other field is trusted.
+  std::size_t trailer = 0;
+  if (h.version >= kFirstChecksummedVersion) {
+    if (size < kFixedHeaderBytes + kChecksumBytes) {
+      fail("truncated: " + std::to_string(size) + " bytes, the header and checksum alone need " +
+           std::to_string(kFixedHeaderBytes + kChecksumBytes));
+    }
+    trailer = kChecksumBytes;
+    std::uint32_t stored = 0;
+    std::memcpy(&stored, bytes.data() + size - kChecksumBytes, kChecksumBytes);
+    const std::uint32_t computed = crc32_of(bytes.substr(0, size - kChecksumBytes));
+    if (stored != computed) {
+      // A cut-short file fails the checksum too; its declared sizes (read only for
+      // this message) say which it is.
+      std::uint64_t metadata = 0, payload = 0;
+      std::memcpy(&metadata, bytes.data() + kFixedHeaderBytes - 16, 8);
+      const std::uint64_t room = size - kFixedHeaderBytes - kChecksumBytes;  // for metadata and payload
+      if (metadata <= room) std::memcpy(&payload, bytes.data() + kFixedHeaderBytes - 8 + metadata, 8);
+      if (metadata > room || payload > room - metadata) {
+        fail("truncated: " + std::to_string(size) + " bytes, fewer than its header declares (and the checksum fails)");
+      }
+      char text[96];
+      std::snprintf(text, sizeof text, "checksum mismatch (CRC-32 stored %08x, computed %08x)", stored, computed);
+      fail(std::string(text) + ": the file was changed or damaged after it was written");
+    }
+    h.checksummed = true;
   }
   h.count = r.get<std::uint64_t>();
   h.bits.position_bits = r.get<std::uint8_t>();
@@ -373,12 +426,12 @@ CompactHeader read_compact_header(std::string_view bytes, const fs::path& source
     fail("metadata of " + std::to_string(h.metadata_bytes) + " bytes is more than the " +
          std::to_string(kMaxMetadataBytes) + " allowed");
   }
-  if (h.metadata_bytes > size - kFixedHeaderBytes) {
+  if (h.metadata_bytes > size - trailer - kFixedHeaderBytes) {
     fail("truncated: " + std::to_string(size) + " bytes, the header with its " + std::to_string(h.metadata_bytes) +
-         " bytes of metadata needs " + std::to_string(kFixedHeaderBytes + h.metadata_bytes));
+         " bytes of metadata needs " + std::to_string(kFixedHeaderBytes + h.metadata_bytes + trailer));
   }
   std::memcpy(&h.payload_bytes, bytes.data() + kFixedHeaderBytes - 8 + h.metadata_bytes, 8);
-  const std::uint64_t rest = size - kFixedHeaderBytes - h.metadata_bytes;
+  const std::uint64_t rest = size - trailer - kFixedHeaderBytes - h.metadata_bytes;
   if (h.payload_bytes > rest) {
     fail("truncated: the payload should be " + std::to_string(h.payload_bytes) + " bytes, the file holds " +
          std::to_string(rest));
@@ -387,11 +440,14 @@ CompactHeader read_compact_header(std::string_view bytes, const fs::path& source
     fail(std::to_string(rest - h.payload_bytes) + " bytes follow the payload of " + std::to_string(h.payload_bytes) +
          " bytes");
   }
-  // K × bytes per Gaussian must fit in 64 bits and in what the payload can expand to.
+  // K × bytes per Gaussian must fit in 64 bits and in what a model's payload of this
+  // size can hold (kMaxCompressionRatio), before anything that size is allocated.
   const std::uint64_t per = layout_of(h.bits).per_gaussian();
-  if (h.count > std::numeric_limits<std::uint64_t>::max() / 64 || h.count * per > h.payload_bytes * kMaxZstdExpansion) {
-    fail(std::to_string(h.count) + " Gaussians of " + std::to_string(per) + " bytes do not fit in a zstd frame of " +
-         std::to_string(h.payload_bytes) + " bytes");
+  if (h.count > std::numeric_limits<std::uint64_t>::max() / 64 ||
+      h.count * per > std::max(kFreeRawBytes, h.payload_bytes * kMaxCompressionRatio)) {
+    fail(std::to_string(h.count) + " Gaussians of " + std::to_string(per) + " bytes would be more than " +
+         std::to_string(kMaxCompressionRatio) + " times the payload of " + std::to_string(h.payload_bytes) +
+         " bytes; no model compresses that well (damaged, or not written by hisnegs)");
   }
   return h;
 }
@@ -418,7 +474,7 @@ Checkpoint decode_compact_checkpoint(std::string_view bytes, const fs::path& sou
   out.meta = checkpoint_meta_from_comments(lines, source);
 
   // The payload: one zstd frame that records its size, exactly K × per Gaussian.
-  const std::string_view payload = bytes.substr(bytes.size() - h.payload_bytes);
+  const std::string_view payload = bytes.substr(kFixedHeaderBytes + h.metadata_bytes, h.payload_bytes);
   const Layout layout = layout_of(h.bits);
   const std::uint64_t expected = h.count * layout.per_gaussian();
   // RFC 8878 §3.1.1: magic 28 B5 2F FD, then the frame header descriptor, whose

@@ -19,7 +19,9 @@ namespace hisnegs::gmf {
 
 // The compact format version this build reads and writes (the header's `version`;
 // independent of CheckpointMeta::format_version, which the metadata lines carry).
-inline constexpr std::uint32_t kCompactFormatVersion = 1;
+// Version 2 added the CRC-32 of the whole file at its end; version 1 files (no
+// checksum) are still read.
+inline constexpr std::uint32_t kCompactFormatVersion = 2;
 
 // The first 8 bytes of every compact checkpoint. As PNG's signature: the high first
 // byte catches 7-bit transfers and tells it from a PLY ("ply"), CR LF and LF catch
@@ -59,6 +61,7 @@ struct CompactHeader {
   std::uint64_t metadata_bytes = 0;  // of the metadata text
   std::uint64_t payload_bytes = 0;   // of the zstd frame
   std::uint64_t file_bytes = 0;      // the whole file
+  bool checksummed = false;          // a CRC-32 covers the file (version >= 2) and matched
 };
 
 // The largest difference between a Gaussian and its decoded copy that a file with
@@ -93,9 +96,11 @@ struct CompactBounds {
 [[nodiscard]] bool has_compact_magic(std::string_view bytes);
 
 // Reads and checks the header of the compact file `bytes` (the whole file) against
-// its size, before anything is allocated: magic, version, bit depths in range,
-// finite boxes with lo ≤ hi, metadata size, and payload size equal to the rest of
-// the file. Throws io::InputError, one line "SOURCE: compact checkpoint: problem".
+// its size, before anything is allocated: magic, version, the CRC-32 of the whole
+// file (version >= 2) before any other field, bit depths in range, finite boxes with
+// lo ≤ hi, metadata size, payload size equal to the rest of the file, and K × bytes
+// per Gaussian at most 1024 times the payload (or 1 MiB). Throws io::InputError,
+// one line "SOURCE: compact checkpoint: problem".
 [[nodiscard]] CompactHeader read_compact_header(std::string_view bytes, const std::filesystem::path& source);
 
 // Decodes a whole compact file. Beyond read_compact_header: the metadata lines parse

@@ -9,7 +9,7 @@ set -euo pipefail
 packages=(
   build-essential cmake ninja-build pkg-config
   libeigen3-dev libceres-dev libopenvdb-dev libboost-iostreams-dev libtbb-dev
-  libtiff-dev libpng-dev libgif-dev libhwy-dev libzstd-dev
+  libtiff-dev libpng-dev libgif-dev libhwy-dev libzstd-dev zlib1g-dev
   libcli11-dev libyaml-cpp-dev nlohmann-json3-dev libcpp-httplib-dev
   libgtest-dev libgmock-dev libbenchmark-dev
   libopenvdb-tools python3-openvdb

@@ -221,16 +221,21 @@ void run_export_html(const HtmlArgs& args, GlobalOptions& global) {
   settings.low_pass = config.splat.low_pass;
   settings.um_per_world = um_per_world(checkpoint.meta);
   settings.model_block = args.float32 ? ViewerModelBlock::kFloat32 : ViewerModelBlock::kCompact;
-  const std::string html = viewer_html(checkpoint.mixture, cameras, settings);
+  std::size_t block_bytes = 0;
+  const std::string html = viewer_html(checkpoint.mixture, cameras, settings, &block_bytes);
   io::write_file_atomic(args.out, html.data(), html.size());
   if (global.quiet) return;
   const auto model_bytes = static_cast<double>(std::filesystem::file_size(args.model));
-  const double k = static_cast<double>(checkpoint.mixture.size());
+  const double k = std::max(1.0, static_cast<double>(checkpoint.mixture.size()));
+  // The model block (what the Gaussians cost) and the page (the viewer's code too).
   std::printf(
-      "export html: wrote %s: %s (%zu Gaussians, %.1f B/Gaussian as %s; %s is %s), %zu views of %dx%d from %s; "
+      "export html: wrote %s: %s, %.1f B/Gaussian (%zu Gaussians; the model %s as %s, %.1f B/Gaussian, %.1f in "
+      "base64; %s is %s), %zu views of %dx%d from %s; "
       "hard MIP, cutoff %g, low-pass %g px^2; open it with #view=N&ui=0 for view N; %s\n",
-      args.out.c_str(), format_bytes(static_cast<double>(html.size())).c_str(), checkpoint.mixture.size(),
-      k > 0 ? static_cast<double>(html.size()) / k : 0.0, args.float32 ? "float32" : "compact .hgs", args.model.c_str(),
+      args.out.c_str(), format_bytes(static_cast<double>(html.size())).c_str(), static_cast<double>(html.size()) / k,
+      checkpoint.mixture.size(), format_bytes(static_cast<double>(block_bytes)).c_str(),
+      args.float32 ? "float32" : "compact .hgs", static_cast<double>(block_bytes) / k,
+      static_cast<double>((block_bytes + 2) / 3 * 4) / k, args.model.c_str(),
       format_bytes(model_bytes).c_str(), cameras.views.size(), cameras.intrinsics.width, cameras.intrinsics.height,
       args.cameras.empty() ? "the evaluation orbit" : args.cameras.c_str(), settings.cutoff, settings.low_pass,
       format_seconds(watch.elapsed()).c_str());

@@ -129,9 +129,10 @@ void info_checkpoint(const std::filesystem::path& path, bool compact) {
     const gmf::CompactBounds b = gmf::compact_bounds(h);
     char line[512];
     std::snprintf(line, sizeof line,
-                  "compact (.hgs) version %u: %s, %.2f B/Gaussian; bits position %d, log-scale %d, rotation %d, "
+                  "compact (.hgs) version %u (%s): %s, %.2f B/Gaussian; bits position %d, log-scale %d, rotation %d, "
                   "intensity %d; largest errors position %.3g, log-scale %.3g, quaternion %.3g, intensity %.3g",
-                  h.version, format_bytes(static_cast<double>(h.file_bytes)).c_str(),
+                  h.version, h.checksummed ? "CRC-32 of the whole file matches" : "no checksum: an older file",
+                  format_bytes(static_cast<double>(h.file_bytes)).c_str(),
                   h.count ? static_cast<double>(h.file_bytes) / static_cast<double>(h.count) : 0.0,
                   h.bits.position_bits, h.bits.scale_bits, h.bits.rotation_bits, h.bits.intensity_bits,
                   std::max({b.position[0], b.position[1], b.position[2]}),

@@ -48,12 +48,25 @@
     const cov = (r, c) => M[3 * r] * M[3 * c] + M[3 * r + 1] * M[3 * c + 1] + M[3 * r + 2] * M[3 * c + 2];
     out.set([mean[0], mean[1], mean[2], cov(0, 0), cov(0, 1), cov(0, 2), cov(1, 1), cov(1, 2), cov(2, 2), a], k * stride);
   }
+  // CRC-32 (the polynomial of zlib, gzip and PNG, reflected: 0xEDB88320) of a Uint8Array.
+  function crc32(bytes) {
+    let crc = 0xffffffff;
+    for (let i = 0; i < bytes.length; ++i) {
+      crc ^= bytes[i];
+      for (let b = 0; b < 8; ++b) crc = (crc >>> 1) ^ (0xedb88320 & -(crc & 1));
+    }
+    return (crc ^ 0xffffffff) >>> 0;
+  }
   // The compact checkpoint's decoder (gmf/compact_checkpoint.cpp decode_compact_checkpoint).
   function decodeHgs(bytes) {
     const fail = (what) => { throw new Error("model block: " + what); };
     const dv = new DataView(bytes.buffer, bytes.byteOffset, bytes.byteLength);
     [0x89, 0x48, 0x47, 0x53, 0x0d, 0x0a, 0x1a, 0x0a].forEach((b, i) => { if (bytes[i] !== b) fail("not a compact checkpoint"); });
-    if (dv.getUint32(8, true) !== 1) fail("compact format version " + dv.getUint32(8, true) + ", this page reads 1");
+    const version = dv.getUint32(8, true);
+    if (version < 1 || version > 2) fail("compact format version " + version + ", this page reads 1 and 2");
+    // Version 2 ends with the CRC-32 of every byte before it.
+    const end = version >= 2 ? bytes.length - 4 : bytes.length;
+    if (version >= 2 && crc32(bytes.subarray(0, end)) !== dv.getUint32(end, true)) fail("checksum mismatch: the page is damaged");
     const K = Number(dv.getBigUint64(12, true));
     const [P, S, Rb, A] = [bytes[20], bytes[21], bytes[22], bytes[23]];
     const f32 = (at) => dv.getFloat32(at, true);
@@ -61,8 +74,8 @@
     const slo = [0, 1, 2].map((d) => f32(48 + 4 * d)), shi = [0, 1, 2].map((d) => f32(60 + 4 * d));
     const zAt = 80 + Number(dv.getBigUint64(72, true));
     const Z = Number(dv.getBigUint64(zAt, true));
-    if (zAt + 8 + Z !== bytes.length) fail("payload size " + Z + " is not the rest of the block");
-    const raw = fzstd.decompress(bytes.subarray(zAt + 8));
+    if (zAt + 8 + Z !== end) fail("payload size " + Z + " is not the rest of the block");
+    const raw = fzstd.decompress(bytes.subarray(zAt + 8, end));
     const planes = (bits) => Math.ceil(bits / 8);
     const pp = planes(3 * P), sp = planes(S), rp = planes(2 + 3 * Rb), ip = planes(A);
     if (raw.length !== K * (pp + 3 * sp + rp + ip)) fail("payload holds " + raw.length + " bytes, not " + K + " Gaussians");

@@ -80,7 +80,7 @@ std::string base64_encode(const void* bytes, std::size_t size) {
 }
 
 std::string viewer_html(const gmf::GaussianMixture& mixture, const splat::CameraSet& cameras,
-                        const ViewerPageSettings& settings) {
+                        const ViewerPageSettings& settings, std::size_t* model_block_bytes) {
   if (!(std::isfinite(settings.cutoff) && settings.cutoff > 0.0)) {
     throw std::invalid_argument("viewer: cutoff must be a finite number > 0");
   }
@@ -98,6 +98,7 @@ std::string viewer_html(const gmf::GaussianMixture& mixture, const splat::Camera
     block.assign(reinterpret_cast<const char*>(packed.data()), packed.size() * sizeof(float));
   }
 
+  if (model_block_bytes) *model_block_bytes = block.size();
   nlohmann::ordered_json meta;
   meta["count"] = mixture.size();
   meta["model_format"] = compact ? "hgs" : "float32";

@@ -60,7 +60,8 @@ struct ViewerPageSettings {
 // viewer.js).
 // Opens from file:// with no server. Throws std::invalid_argument for settings out of
 // range or a camera set with no views.
+// `model_block_bytes`, if given, gets the size of the model block before base64.
 [[nodiscard]] std::string viewer_html(const gmf::GaussianMixture& mixture, const splat::CameraSet& cameras,
-                                      const ViewerPageSettings& settings);
+                                      const ViewerPageSettings& settings, std::size_t* model_block_bytes = nullptr);
 
 }  // namespace hisnegs::apps

@@ -6,6 +6,7 @@
 #include "gmf/compact_checkpoint.hpp"
 
 #include <gtest/gtest.h>
+#include <zlib.h>
 #include <zstd.h>
 
 #include <algorithm>
@@ -109,6 +110,16 @@ void write_bytes(const fs::path& path, std::string_view bytes) {
 template <class T>
 void poke(std::string& bytes, std::size_t at, T value) {
   std::memcpy(bytes.data() + at, &value, sizeof value);
+}
+
+// The file with its CRC-32 trailer recomputed (zlib's crc32, independent of the
+// reader's): a hostile file, not a damaged one, so the checks behind the checksum
+// are what refuses it.
+std::string resealed(std::string bytes) {
+  const std::size_t body = bytes.size() - 4;
+  const auto crc = static_cast<std::uint32_t>(::crc32(0L, reinterpret_cast<const Bytef*>(bytes.data()), body));
+  poke(bytes, body, crc);
+  return bytes;
 }
 
 // Expects `f` to throw one io::InputError line that names `source` and holds `expected`.
@@ -263,7 +274,8 @@ TEST(CompactCheckpoint, HeaderRecordsCountBitsSizeAndBox) {
   EXPECT_EQ(h.bits.scale_bits, CompactOptions{}.scale_bits);
   EXPECT_EQ(h.bits.intensity_bits, 11);
   EXPECT_EQ(h.file_bytes, bytes.size());
-  EXPECT_EQ(kMetaAt + h.metadata_bytes + 8 + h.payload_bytes, bytes.size());
+  EXPECT_EQ(kMetaAt + h.metadata_bytes + 8 + h.payload_bytes + 4, bytes.size());  // + the CRC-32
+  EXPECT_TRUE(h.checksummed);
   float lo = m[0].mean[0], hi = lo;
   for (const GaussianParams& g : m) {
     lo = std::min(lo, g.mean[0]);
@@ -310,7 +322,82 @@ TEST(CompactCheckpoint, CutShortFileIsRefusedAtEveryLength) {
 
 TEST(CompactCheckpoint, TrailingBytesAreRefused) {
   std::mt19937 rng(7);
-  expect_decode_refused(encode_compact_checkpoint(random_model(3, rng), {}) + "x", "1 bytes follow the payload");
+  std::string bytes = encode_compact_checkpoint(random_model(3, rng), {});
+  expect_decode_refused(bytes + "x", "checksum mismatch");
+  bytes.insert(bytes.size() - 4, "x");  // after the payload, inside the checksum
+  expect_decode_refused(resealed(bytes), "1 bytes follow the payload");
+}
+
+// Issue 32, item 10: the CRC-32 covers the header, the metadata and the payload, so
+// every single-bit flip anywhere in a file is refused (before: 8 of 100 random
+// flips were read as another model, e.g. x max 2.04e38 from a flip at byte 0x27).
+TEST(CompactCheckpoint, EverySingleBitFlipIsRefused) {
+  std::mt19937 rng(12);
+  const std::string bytes = encode_compact_checkpoint(random_model(12, rng), full_compact_meta());
+  ASSERT_NO_THROW((void)decode_compact_checkpoint(bytes, "m.hgs"));
+  int refused = 0, checksum = 0;
+  for (std::size_t at = 0; at < bytes.size(); ++at) {
+    for (int bit = 0; bit < 8; ++bit) {
+      std::string flipped = bytes;
+      flipped[at] = static_cast<char>(flipped[at] ^ (1 << bit));
+      try {
+        (void)decode_compact_checkpoint(flipped, "m.hgs");
+        ADD_FAILURE() << "a flip of bit " << bit << " of byte " << at << " was accepted";
+      } catch (const io::InputError& e) {
+        ++refused;
+        checksum += std::string(e.what()).find("checksum mismatch") != std::string::npos;
+      }
+    }
+  }
+  EXPECT_EQ(refused, static_cast<int>(8 * bytes.size()));
+  EXPECT_GT(checksum, refused * 9 / 10);  // the others: signature, version, sizes
+}
+
+// Version 1 files (no checksum) are still read, and say so.
+TEST(CompactCheckpoint, VersionOneWithoutChecksumIsStillRead) {
+  std::mt19937 rng(13);
+  const GaussianMixture m = random_model(9, rng);
+  const std::string v2 = encode_compact_checkpoint(m, full_compact_meta());
+  std::string v1 = v2.substr(0, v2.size() - 4);
+  poke<std::uint32_t>(v1, kVersionAt, 1);
+  const CompactHeader h1 = read_compact_header(v1, "v1.hgs"), h2 = read_compact_header(v2, "v2.hgs");
+  EXPECT_FALSE(h1.checksummed);
+  EXPECT_TRUE(h2.checksummed);
+  EXPECT_EQ(h2.version, 2u);
+  const Checkpoint a = decode_compact_checkpoint(v1, "v1.hgs"), b = decode_compact_checkpoint(v2, "v2.hgs");
+  ASSERT_EQ(a.mixture.size(), b.mixture.size());
+  for (std::size_t k = 0; k < a.mixture.size(); ++k) {
+    EXPECT_EQ(a.mixture[k].mean, b.mixture[k].mean) << k;
+    EXPECT_EQ(a.mixture[k].log_scale, b.mixture[k].log_scale) << k;
+    EXPECT_EQ(a.mixture[k].rotation, b.mixture[k].rotation) << k;
+    EXPECT_EQ(a.mixture[k].intensity_logit, b.mixture[k].intensity_logit) << k;
+  }
+}
+
+// Issue 32, item 11: a small file cannot make a reader allocate for a huge K. A
+// 2.5 KB file declaring 5,000,000 Gaussians (before: 327 MB in `info`) is refused
+// from its header; a regular grid, the most compressible model a fit could start
+// from, is not.
+TEST(CompactCheckpoint, KIsBoundedByWhatThePayloadCanHold) {
+  std::mt19937 rng(14);
+  std::string bytes = encode_compact_checkpoint(random_model(100, rng), {});
+  poke<std::uint64_t>(bytes, kCountAt, 5'000'000);
+  expect_refused([&] { (void)read_compact_header(resealed(bytes), "k.hgs"); }, "k.hgs",
+                 "5000000 Gaussians of 14 bytes would be more than 1024 times the payload");
+  // 64³ Gaussians on a grid, one scale, rotation and intensity: 3.5 MiB of columns.
+  GaussianMixture grid;
+  for (int i = 0; i < 64 * 64 * 64; ++i) {
+    GaussianParams g;
+    g.mean = {(i % 64) / 32.0f - 1.0f, (i / 64 % 64) / 32.0f - 1.0f, (i / 4096) / 32.0f - 1.0f};
+    g.log_scale = {-4.0f, -4.0f, -4.0f};
+    grid.push_back(g);
+  }
+  CompactOptions fast;
+  fast.zstd_level = 3;
+  const std::string file = encode_compact_checkpoint(grid, {}, fast);
+  const CompactHeader h = read_compact_header(file, "grid.hgs");
+  EXPECT_GT(h.count * 14, 100 * h.payload_bytes);  // it does compress very well
+  EXPECT_EQ(decode_compact_checkpoint(file, "grid.hgs").mixture.size(), grid.size());
 }
 
 struct HeaderCorruption {
@@ -326,7 +413,16 @@ TEST_P(CompactBadHeader, IsRefusedWithOneLine) {
   CheckpointMeta meta = full_compact_meta();
   std::string bytes = encode_compact_checkpoint(random_model(30, rng), meta);
   GetParam().corrupt(bytes);
-  expect_decode_refused(bytes, GetParam().expected);
+  try {  // damaged: the checksum fails, unless a check before it (signature, version, size) refuses it first
+    (void)decode_compact_checkpoint(bytes, "m.hgs");
+    ADD_FAILURE() << "accepted";
+  } catch (const io::InputError& e) {
+    const std::string m = e.what();
+    EXPECT_TRUE(m.find("checksum mismatch") != std::string::npos || m.find(GetParam().expected) != std::string::npos ||
+                m.find("truncated") != std::string::npos)
+        << m;
+  }
+  expect_decode_refused(resealed(bytes), GetParam().expected);  // hostile: the checks behind the checksum
 }
 
 std::uint64_t metadata_size(const std::string& bytes) {
@@ -339,17 +435,17 @@ INSTANTIATE_TEST_SUITE_P(
     CompactCheckpoint, CompactBadHeader,
     ::testing::Values(
         HeaderCorruption{"magic", [](std::string& b) { b[1] = 'h'; }, "does not start with the .hgs signature"},
-        HeaderCorruption{"version_2", [](std::string& b) { poke<std::uint32_t>(b, kVersionAt, 2); },
-                         "format version 2 is not one this build reads"},
+        HeaderCorruption{"version_3", [](std::string& b) { poke<std::uint32_t>(b, kVersionAt, 3); },
+                         "format version 3 is not one this build reads"},
         HeaderCorruption{"version_0", [](std::string& b) { poke<std::uint32_t>(b, kVersionAt, 0); },
                          "format version 0"},
         HeaderCorruption{"count_plus_one", [](std::string& b) { poke<std::uint64_t>(b, kCountAt, 31); },
                          "31 Gaussians of 14 bytes need 434"},
         HeaderCorruption{"count_huge", [](std::string& b) { poke<std::uint64_t>(b, kCountAt, std::uint64_t{1} << 60); },
-                         "do not fit in a zstd frame"},
+                         "no model compresses that well"},
         HeaderCorruption{"count_past_the_frame",
                          [](std::string& b) { poke<std::uint64_t>(b, kCountAt, std::uint64_t{1} << 40); },
-                         "do not fit in a zstd frame"},
+                         "no model compresses that well"},
         HeaderCorruption{"position_bits", [](std::string& b) { b[kBitsAt] = 40; },
                          "header position_bits = 40: must be in 8..21"},
         HeaderCorruption{"scale_bits", [](std::string& b) { b[kBitsAt + 1] = 3; }, "header scale_bits = 3"},
@@ -372,13 +468,13 @@ INSTANTIATE_TEST_SUITE_P(
         HeaderCorruption{"payload_size_larger",
                          [](std::string& b) {
                            const std::size_t at = kMetaAt + metadata_size(b);
-                           poke<std::uint64_t>(b, at, b.size() - at - 8 + 1);
+                           poke<std::uint64_t>(b, at, b.size() - at - 8 - 4 + 1);
                          },
                          "truncated: the payload should be"},
         HeaderCorruption{"payload_size_smaller",
                          [](std::string& b) {
                            const std::size_t at = kMetaAt + metadata_size(b);
-                           poke<std::uint64_t>(b, at, b.size() - at - 8 - 1);
+                           poke<std::uint64_t>(b, at, b.size() - at - 8 - 4 - 1);
                          },
                          "1 bytes follow the payload"},
         HeaderCorruption{"metadata_foreign_line", [](std::string& b) { b[kMetaAt] = 'x'; },
@@ -394,9 +490,9 @@ INSTANTIATE_TEST_SUITE_P(
         HeaderCorruption{"metadata_newer_version",
                          [](std::string& b) { b[b.find("format_version 1") + 15] = '7'; },
                          "format_version 7 is newer than this build supports"},
-        HeaderCorruption{"payload_checksum", [](std::string& b) { b.back() ^= 0x55; },
+        HeaderCorruption{"payload_checksum", [](std::string& b) { b[b.size() - 5] ^= 0x55; },
                          "payload: zstd: Restored data doesn't match checksum"},
-        HeaderCorruption{"payload_flipped_byte", [](std::string& b) { b[b.size() - 60] ^= 0x10; }, "payload: zstd: "},
+        HeaderCorruption{"payload_flipped_byte", [](std::string& b) { b[b.size() - 64] ^= 0x10; }, "payload: zstd: "},
         HeaderCorruption{"payload_magic",
                          [](std::string& b) {
                            const std::size_t at = kMetaAt + metadata_size(b) + 8;
@@ -412,7 +508,7 @@ std::string with_payload(const GaussianMixture& m, const CompactOptions& options
                          bool content_size = true) {
   const std::string file = encode_compact_checkpoint(m, {}, options);
   const std::size_t payload_at = kMetaAt + metadata_size(file) + 8;
-  const std::string_view payload = std::string_view(file).substr(payload_at);
+  const std::string_view payload = std::string_view(file).substr(payload_at, file.size() - payload_at - 4);
   std::string raw(ZSTD_getFrameContentSize(payload.data(), payload.size()), '\0');
   EXPECT_EQ(ZSTD_decompress(raw.data(), raw.size(), payload.data(), payload.size()), raw.size());
   edit(raw);
@@ -427,7 +523,7 @@ std::string with_payload(const GaussianMixture& m, const CompactOptions& options
   std::string rebuilt = file.substr(0, payload_at - 8);
   rebuilt.append(8, '\0');
   poke<std::uint64_t>(rebuilt, payload_at - 8, z.size());
-  return rebuilt + z;
+  return resealed(rebuilt + z + std::string(4, '\0'));
 }
 
 TEST(CompactCheckpoint, CodesBeyondTheirBitsAreRefused) {

@@ -228,7 +228,7 @@ TEST_F(CliExport, CompactIsSmallerAndEveryCommandReadsIt) {
 
   const auto info = run_hisnegs({"info", dir_ / "m.hgs"});
   ASSERT_EQ(info.exit_code, 0) << info.err;
-  EXPECT_NE(info.out.find("compact (.hgs) version 1"), std::string::npos) << info.out;
+  EXPECT_NE(info.out.find("compact (.hgs) version 2 (CRC-32 of the whole file matches)"), std::string::npos) << info.out;
   EXPECT_NE(info.out.find("gaussians    30 "), std::string::npos) << info.out;
   EXPECT_NE(info.out.find("normalized   minmax 0 1"), std::string::npos) << info.out;
 

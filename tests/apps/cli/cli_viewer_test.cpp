@@ -165,6 +165,14 @@ TEST_F(CliViewer, ExportHtmlIsSelfContainedAndReportsItsSize) {
   const std::string hgs = gmf::encode_compact_checkpoint(mixture_, gmf::CheckpointMeta{});
   EXPECT_EQ(model_block(html), apps::base64_encode(hgs.data(), hgs.size()));
   EXPECT_NE(html.find("\"model_format\":\"hgs\""), std::string::npos);
+  // Issue 32, item 12: the model's own cost (the .hgs inside) and the page's, each
+  // per Gaussian (before: the page size / K was called the .hgs figure).
+  char expected[96];
+  std::snprintf(expected, sizeof expected, "as compact .hgs, %.1f B/Gaussian, %.1f in base64",
+                static_cast<double>(hgs.size()) / 40.0, static_cast<double>((hgs.size() + 2) / 3 * 4) / 40.0);
+  EXPECT_NE(r.out.find(expected), std::string::npos) << r.out << "\nexpected: " << expected;
+  std::snprintf(expected, sizeof expected, ", %.1f B/Gaussian (40 Gaussians;", static_cast<double>(html.size()) / 40.0);
+  EXPECT_NE(r.out.find(expected), std::string::npos) << r.out << "\nexpected: " << expected;
   EXPECT_NE(html.find("fzstd"), std::string::npos);  // the decoder is inside
   // --float32: the exact parameters, 40 x 10 float32 = 1600 bytes -> 2136 characters.
   const auto f = run_hisnegs(
