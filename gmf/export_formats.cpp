@@ -87,9 +87,9 @@ void write_splat_ply(const std::filesystem::path& path, const GaussianMixture& m
 }
 
 std::vector<float> rasterize_dense(const GaussianMixture& mixture, const MixtureModel& model,
-                                   const io::WorldFrame& frame, double tail) {
+                                   const io::WorldFrame& frame, double tail, bool untruncated_sum) {
   if (!(tail > 0.0)) throw std::invalid_argument("rasterize_dense: tail must be > 0");
-  return rasterize_mixture(mixture, frame, RasterizeOptions::exported(model, tail));
+  return rasterize_mixture(mixture, frame, RasterizeOptions::exported(model, tail, untruncated_sum));
 }
 
 }  // namespace hisnegs::gmf

@@ -49,14 +49,15 @@ struct SplatPlyOptions {
 // Writes splat_ply_table atomically as binary little-endian PLY.
 void write_splat_ply(const std::filesystem::path& path, const GaussianMixture& mixture, const SplatPlyOptions& options);
 
-// The model's own f (`model`: its aggregation and β, and for a softmax its support
-// δ; model_of(checkpoint.meta, δ)) at every voxel centre of `frame`, x fastest like
-// io::Volume (float32), through gmf::rasterize_mixture with
-// RasterizeOptions::exported: every term a_k exp(-m/2) >= tail is included, so a
-// sum is below the exact f by at most tail × (Gaussians reaching the voxel). `tail`
-// > 0, the same meaning as VdbExportOptions::tail. Memory: 4 bytes per voxel of the
-// frame.
+// The model's own f (`model`: its aggregation, β and support δ; model_of(checkpoint.meta,
+// δ)) at every voxel centre of `frame`, x fastest like io::Volume (float32), through
+// gmf::rasterize_mixture with RasterizeOptions::exported: every term inside its
+// support with a_k exp(-m/2) >= tail is included, so a sum is below the fitted f by
+// at most tail × (Gaussians reaching the voxel). `tail` > 0, the same meaning as
+// VdbExportOptions::tail; `untruncated_sum` as VdbExportOptions'. Memory: 4 bytes
+// per voxel of the frame.
 [[nodiscard]] std::vector<float> rasterize_dense(const GaussianMixture& mixture, const MixtureModel& model,
-                                                 const io::WorldFrame& frame, double tail);
+                                                 const io::WorldFrame& frame, double tail,
+                                                 bool untruncated_sum = false);
 
 }  // namespace hisnegs::gmf

@@ -59,7 +59,8 @@ constexpr int kVdbFormatVersion = 1;
 FloatGrid::Ptr rasterize_density(const GaussianMixture& mixture, const MixtureModel& mixture_model,
                                  const VoxelLattice& lattice, const VdbExportOptions& options, const std::string& model,
                                  const ExportProgress& progress, VdbExportReport& report) {
-  const BlockRasterizer raster(mixture, lattice, RasterizeOptions::exported(mixture_model, options.tail), model);
+  const BlockRasterizer raster(mixture, lattice,
+                               RasterizeOptions::exported(mixture_model, options.tail, options.untruncated_sum), model);
   const std::size_t n_leaves = raster.blocks();
   report.candidate_leaves = static_cast<std::int64_t>(n_leaves);
   std::vector<std::unique_ptr<LeafT>> leaves(n_leaves);  // empty where nothing exceeds the cutoff
@@ -102,10 +103,10 @@ void put_density_meta(FloatGrid& g, const Checkpoint& checkpoint, const VoxelLat
   g.insertMeta("tail", openvdb::DoubleMetadata(options.tail));
   const bool soft = checkpoint.meta.aggregation == Aggregation::kSoftmax;
   g.insertMeta("aggregation", openvdb::StringMetadata(soft ? "softmax" : "sum"));
-  if (soft) {
-    g.insertMeta("beta", openvdb::DoubleMetadata(checkpoint.meta.beta));
-    g.insertMeta("support", openvdb::DoubleMetadata(options.support));
-  }
+  if (soft) g.insertMeta("beta", openvdb::DoubleMetadata(checkpoint.meta.beta));
+  const bool untruncated = !soft && options.untruncated_sum;
+  g.insertMeta("untruncated_sum", openvdb::BoolMetadata(untruncated));
+  if (!untruncated) g.insertMeta("support", openvdb::DoubleMetadata(options.support));
   g.insertMeta("model", openvdb::StringMetadata(model_source));
   std::string source;
   for (const auto& [key, value] : m.extra) {

@@ -29,9 +29,14 @@ struct VdbExportOptions {
   // below the exact f by at most tail × (Gaussians reaching that voxel); 1e-8 keeps
   // that under 1e-6 for up to 100 overlapping Gaussians at ~6.1 σ support radius.
   double tail = 1e-8;
-  // δ, > 0: for a softmax checkpoint, the support m_k <= δ inside which a term
-  // counts in f (the fit's gmf.mahalanobis_cutoff); a sum counts every term.
+  // δ, > 0: the support m_k <= δ inside which a term counts in f (the fit's
+  // gmf.mahalanobis_cutoff), for a sum and a softmax alike: the grid holds the
+  // function that was fitted.
   double support = 16.0;
+  // A sum checkpoint: count every term everywhere (report Eq. 1 without the support;
+  // not the fitted f, which differs from it where Gaussians crowd). Metadata
+  // untruncated_sum says which was written.
+  bool untruncated_sum = false;
   // Also write the `gaussians` PointDataGrid (every parameter of every Gaussian).
   bool points = false;
 

@@ -21,6 +21,10 @@ GaussianParams from_array(const std::array<float, kGaussianParamCount>& values) 
 }
 
 double evaluate_mixture(const GaussianMixture& mixture, const Eigen::Vector3d& x_world) {
+  return evaluate_mixture(mixture, x_world, std::numeric_limits<double>::infinity());
+}
+
+double evaluate_mixture(const GaussianMixture& mixture, const Eigen::Vector3d& x_world, double support) {
   double f = 0.0;
   for (const GaussianParams& g : mixture) {
     // dᵀ Σ⁻¹ d with Σ⁻¹ = R diag(1/s²) Rᵀ: rotate d into the Gaussian's frame and
@@ -28,7 +32,8 @@ double evaluate_mixture(const GaussianMixture& mixture, const Eigen::Vector3d& x
     const Eigen::Matrix3d r = rotation_matrix<double>(g);
     const Eigen::Vector3d d = x_world - Eigen::Vector3d(g.mean[0], g.mean[1], g.mean[2]);
     const Eigen::Vector3d local = (r.transpose() * d).cwiseQuotient(scales<double>(g));
-    f += intensity<double>(g) * std::exp(-0.5 * local.squaredNorm());
+    const double m = local.squaredNorm();
+    if (m <= support) f += intensity<double>(g) * std::exp(-0.5 * m);
   }
   return f;
 }

@@ -138,6 +138,9 @@ template <std::floating_point T = double>
 // evaluators are tested against; O(K) per call. 0 for an empty mixture.
 // Throws std::invalid_argument if a Gaussian has a zero quaternion.
 [[nodiscard]] double evaluate_mixture(const GaussianMixture& mixture, const Eigen::Vector3d& x_world);
+// The same counting only the terms with m_k = (x-μ_k)ᵀ Σ_k⁻¹ (x-μ_k) <= support (δ):
+// the sum a fit with gmf.mahalanobis_cutoff = δ fits and the renderer draws.
+[[nodiscard]] double evaluate_mixture(const GaussianMixture& mixture, const Eigen::Vector3d& x_world, double support);
 
 // ----- summary statistics (`hisnegs info`) -----
 

@@ -62,14 +62,16 @@ struct RasterizeOptions {
   [[nodiscard]] static RasterizeOptions of(const MixtureModel& model) {
     return {model.cutoff, 0.0, model.aggregation, model.beta};
   }
-  // The options an export evaluates `model`'s own f with, each term down to `tail`.
-  // A sum is report Eq. 1 over every term (no support cutoff: beyond δ a term adds
-  // less than a e^{-δ/2}). A softmax counts only the terms inside the model's support
-  // δ, as the fit and the renderer do: a far tail, though ~0, would still take
-  // softmax weight and pull f down wherever the signal is dim.
-  [[nodiscard]] static RasterizeOptions exported(const MixtureModel& model, double tail) {
+  // The options an export evaluates `model`'s own f with, each term down to `tail`:
+  // the function that was fitted, each term counted only inside the model's support
+  // δ, as the fit and the renderer count it (a sum's tails beyond δ add up to ~2e-3
+  // where Gaussians crowd; a softmax's far tails, though ~0, would take softmax weight
+  // and pull f down wherever the signal is dim). `untruncated_sum`: a sum counts
+  // every term everywhere instead (report Eq. 1 as written; not what was fitted).
+  [[nodiscard]] static RasterizeOptions exported(const MixtureModel& model, double tail,
+                                                 bool untruncated_sum = false) {
     RasterizeOptions o = of(model);
-    if (model.aggregation == Aggregation::kSum) o.cutoff = std::numeric_limits<double>::infinity();
+    if (model.aggregation == Aggregation::kSum && untruncated_sum) o.cutoff = std::numeric_limits<double>::infinity();
     o.tail = tail;
     return o;
   }

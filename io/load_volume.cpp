@@ -17,7 +17,11 @@ void VolumeOptions::validate() const {
     if (spacing_um.size() != 3) {
       fail_option("volume", "spacing_um", std::to_string(spacing_um.size()) + " values", "expected [] or 3 values");
     }
-    for (double s : spacing_um) require_positive("volume", "spacing_um", s);
+    for (double s : spacing_um) {
+      if (const std::string problem = voxel_size_problem(s); !problem.empty()) {
+        fail_option("volume", "spacing_um", number_text(s), problem);
+      }
+    }
     const auto [lo, hi] = std::minmax_element(spacing_um.begin(), spacing_um.end());
     if (*hi / *lo > kMaxSpacingRatio) {
       fail_option("volume", "spacing_um", number_text(*lo) + "," + number_text(*hi),

@@ -496,9 +496,8 @@ void TiffReadOptions::validate() const {
     static const char* const kAxis[3] = {"x", "y", "z"};
     for (int a = 0; a < 3; ++a) {
       const double v = (*spacing_um)[static_cast<std::size_t>(a)];
-      if (!std::isfinite(v) || v <= 0) {
-        throw InputError("spacing_um " + std::string(kAxis[a]) + " = " + std::to_string(v) +
-                         " is invalid: must be finite and > 0 (µm)");
+      if (const std::string problem = voxel_size_problem(v); !problem.empty()) {
+        throw InputError("spacing_um " + std::string(kAxis[a]) + " = " + number_text(v) + ": " + problem);
       }
     }
   }

@@ -90,8 +90,12 @@ void check_shape(std::span<const float> voxels, int nx, int ny, int nz) {
 }
 
 // The ImageJ description of the first page: slice count, z spacing, display range.
-std::string imagej_description(int nz, const TiffWriteOptions& options, double lo, double hi) {
-  std::string description = "ImageJ=1.11a\nimages=" + std::to_string(nz) + "\nslices=" + std::to_string(nz) + "\n";
+// `images=` promises readers the pages' data lies back to back from page 0's
+// (ImageJ and tifffile read it as one block): only written when it does.
+std::string imagej_description(int nz, const TiffWriteOptions& options, double lo, double hi, bool contiguous) {
+  std::string description = "ImageJ=1.11a\n";
+  if (contiguous) description += "images=" + std::to_string(nz) + "\n";
+  description += "slices=" + std::to_string(nz) + "\n";
   if (options.spacing_um) description += "unit=um\nspacing=" + shortest_text((*options.spacing_um)[2]) + "\n";
   description += "min=" + shortest_text(lo) + "\nmax=" + shortest_text(hi) + "\n";
   return description;
@@ -165,11 +169,18 @@ void write_tiff_stack(const fs::path& path, std::span<const float> voxels, int n
   const std::size_t row_bytes = static_cast<std::size_t>(nx) * bytes;
   // Classic TIFF offsets are 32-bit; leave room for IFDs and the description.
   const bool bigtiff = static_cast<double>(voxels.size()) * bytes > 3.5 * kGiB;
-  // One strip per page unless a page exceeds ~8 MiB: bounded buffers, and
-  // ImageJ/tifffile read multi-strip pages just as well.
+  // Uncompressed (the default): one strip per page, every IFD first and then the
+  // pages' data back to back, so the data is contiguous as the ImageJ description's
+  // images= promises (ImageJ and tifffile then read the stack from page 0's offset;
+  // with an IFD between pages, tifffile 2023 read a 2-page float stack as values up to
+  // 1.9e28). libtiff writes it with deferred strip arrays (TIFFDeferStrileArrayWriting).
+  // Deflate: pages of up to ~8 MiB strips, each followed by its IFD, and no images=
+  // promise (compressed data is never read as one block).
+  const bool contiguous = !options.deflate;
   const std::size_t rows_per_strip =
-      std::clamp<std::size_t>((std::size_t{8} << 20) / row_bytes, 1, static_cast<std::size_t>(ny));
-  const std::string description = imagej_description(nz, options, lo, hi);
+      contiguous ? static_cast<std::size_t>(ny)
+                 : std::clamp<std::size_t>((std::size_t{8} << 20) / row_bytes, 1, static_cast<std::size_t>(ny));
+  const std::string description = imagej_description(nz, options, lo, hi, contiguous);
 
   AtomicFile file(path);
   const int fd = ::open(file.temp_path().c_str(), O_RDWR | O_CREAT | O_TRUNC | O_CLOEXEC, 0666);
@@ -187,13 +198,28 @@ void write_tiff_stack(const fs::path& path, std::span<const float> voxels, int n
   if (!tif) fail_write("the TIFF header");
   errno = 0;
   std::vector<unsigned char> strip(rows_per_strip * row_bytes);
+  const auto page = [&](int z) { return voxels.data() + static_cast<std::size_t>(z) * page_voxels; };
   for (int z = 0; z < nz; ++z) {
     set_page_tags(tif, nx, ny, rows_per_strip, options, z == 0 ? &description : nullptr);
-    const float* page = voxels.data() + static_cast<std::size_t>(z) * page_voxels;
-    if (!write_page_strips(tif, page, nx, ny, rows_per_strip, options.type, strip)) {
+    if (contiguous) {
+      if (!TIFFDeferStrileArrayWriting(tif) || !TIFFWriteCheck(tif, 0, path.c_str())) {
+        fail_write("the directory of page " + std::to_string(z));
+      }
+    } else if (!write_page_strips(tif, page(z), nx, ny, rows_per_strip, options.type, strip)) {
       fail_write("page " + std::to_string(z));
     }
     if (!TIFFWriteDirectory(tif)) fail_write("the directory of page " + std::to_string(z));
+  }
+  if (contiguous) {  // back to each directory in turn: its data, then its strip offset and size
+    for (int z = 0; z < nz; ++z) {
+      if (!(z == 0 ? TIFFSetDirectory(tif, 0) : TIFFReadDirectory(tif))) {
+        fail_write("the directory of page " + std::to_string(z));
+      }
+      if (!write_page_strips(tif, page(z), nx, ny, rows_per_strip, options.type, strip) ||
+          !TIFFForceStrileArrayWriting(tif)) {
+        fail_write("page " + std::to_string(z));
+      }
+    }
   }
   handle.close();
   if (handle.messages().errors > 0) fail_write("the file");

@@ -48,6 +48,13 @@ std::string_view to_string(SpacingSource source) {
   return "?";
 }
 
+std::string voxel_size_problem(double um) {
+  if (std::isfinite(um) && um >= kMinVoxelUm && um <= kMaxVoxelUm) return "";
+  if (!std::isfinite(um) || um <= 0) return "must be a positive finite voxel size in um";
+  return "must be a voxel size in [" + number_text(kMinVoxelUm) + ", " + number_text(kMaxVoxelUm) +
+         "] um (1 pm to 1 m)";
+}
+
 std::string VoxelSpacing::describe() const {
   std::ostringstream s;
   s.precision(6);

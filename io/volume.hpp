@@ -31,6 +31,15 @@ enum class SpacingSource {
 };
 [[nodiscard]] std::string_view to_string(SpacingSource source);
 
+// The voxel sizes hisnegs takes, in µm: 1 pm to 1 m, wider than any microscope (EM
+// ~1 nm, light sheet ~10 µm, CT ~1 mm) and far from where the box's size or its
+// square overflows a double (--spacing 1e308 made `fit` fail with a NaN box).
+inline constexpr double kMinVoxelUm = 1e-6;
+inline constexpr double kMaxVoxelUm = 1e6;
+// "" when `um` is a voxel size in [kMinVoxelUm, kMaxVoxelUm], else what is wrong
+// ("must be a voxel size in [1e-06, 1e+06] um (1 pm to 1 m)").
+[[nodiscard]] std::string voxel_size_problem(double um);
+
 // Voxel size in µm along x (columns), y (rows), z (pages), and the origin of each.
 struct VoxelSpacing {
   std::array<double, 3> um{1.0, 1.0, 1.0};

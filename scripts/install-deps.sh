@@ -15,6 +15,7 @@ packages=(
   libopenvdb-tools python3-openvdb
   chromium  # tests/apps/cli/cli_viewer_test.cpp renders `export html` pages headless
   xz-utils  # scripts/device-bundle.sh packs the GPU bundle with xz
+  python3-tifffile  # tests/io/tiff_stack_test.cpp reads the stacks hisnegs writes with tifffile
 )
 
 missing=()

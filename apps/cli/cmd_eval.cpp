@@ -2,6 +2,7 @@
 // `hisnegs eval --model m.ply --data GTDIR -o DIR`: options of the evaluation stage
 // (pipeline/eval_stage.hpp) on GTDIR/eval, or GTDIR itself when it holds cameras.json.
 #include "apps/cli/cli_support.hpp"
+#include "apps/pipeline/ground_truth_stage.hpp"
 #include "apps/pipeline/eval_stage.hpp"
 #include "io/config.hpp"
 
@@ -26,9 +27,7 @@ void add_eval_command(CLI::App& app, GlobalOptions& global) {
     if (!args->mode.empty()) io::set_enum_field(config.splat, "mode", args->mode, "--mode");
     if (args->beta) config.splat.beta = *args->beta;
     config.splat.validate();
-    const std::filesystem::path data = args->data;
-    const std::filesystem::path set = std::filesystem::exists(data / "eval" / "cameras.json") ? data / "eval" : data;
-    evaluate_model(args->model, set, args->out, EvalConfig(config),
+    evaluate_model(args->model, ground_truth_set_dir(args->data, "eval"), args->out, EvalConfig(config),
                    splat::resolve_backend(splat::parse_backend_request(args->backend)), global.progress());
   });
 }

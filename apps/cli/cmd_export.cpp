@@ -53,6 +53,13 @@ std::string shape_text(const io::WorldFrame& frame) {
   return std::to_string(n.x()) + "x" + std::to_string(n.y()) + "x" + std::to_string(n.z());
 }
 
+// What an export evaluates: "softmax (beta B), support 16" / "sum, support 16" /
+// "sum of every term (untruncated)".
+std::string exported_function(const gmf::MixtureModel& model, bool untruncated_sum) {
+  if (model.aggregation == gmf::Aggregation::kSum && untruncated_sum) return "sum of every term (untruncated)";
+  return gmf::describe(model) + ", support " + io::number_text(model.cutoff);
+}
+
 struct VdbArgs {
   std::string model, out, match_volume;
   std::optional<double> voxel_size;
@@ -62,7 +69,7 @@ struct VdbArgs {
 
 void run_export_vdb(const VdbArgs& args, GlobalOptions& global) {
   gmf::VdbExportOptions options = args.options;
-  options.support = global.config().gmf.mahalanobis_cutoff;  // a softmax model's support, as its fit had it
+  options.support = global.config().gmf.mahalanobis_cutoff;  // the model's support, as its fit had it
   options.validate();
   io::Stopwatch watch;
   const gmf::Checkpoint checkpoint = gmf::load_checkpoint(args.model);
@@ -109,9 +116,11 @@ void run_export_vdb(const VdbArgs& args, GlobalOptions& global) {
     dense = ", dense float32 of the stack " + format_bytes(4.0 * n.x() * n.y() * n.z());
   }
   std::printf(
-      "export vdb: wrote %s: `density` (the model's %s f) on %s, %lld active voxels (f > %g) in %lld leaves of "
+      "export vdb: wrote %s: `density` (the model's f: %s) on %s, %lld active voxels (f > %g) in %lld leaves of "
       "%lld reached, K %lld%s; file %s%s; rasterize %s%s, write %s\n",
-      args.out.c_str(), gmf::describe(gmf::model_of(checkpoint.meta, options.support)).c_str(), lattice_text.c_str(),
+      args.out.c_str(),
+      exported_function(gmf::model_of(checkpoint.meta, options.support), options.untruncated_sum).c_str(),
+      lattice_text.c_str(),
       static_cast<long long>(r.active_voxels), args.options.cutoff, static_cast<long long>(r.leaf_count),
       static_cast<long long>(r.candidate_leaves), static_cast<long long>(r.gaussians),
       args.options.points ? " + `gaussians` points" : "", format_bytes(static_cast<double>(r.file_bytes)).c_str(),
@@ -123,6 +132,7 @@ void run_export_vdb(const VdbArgs& args, GlobalOptions& global) {
 struct VolumeArgs {
   std::string model, out, match_volume;
   double tail = gmf::VdbExportOptions{}.tail;
+  bool untruncated_sum = false;
   VolumeOverrides overrides;
 };
 
@@ -155,7 +165,7 @@ void run_export_volume(const VolumeArgs& args, GlobalOptions& global) {
   }
   const double t_load = watch.lap();
   const gmf::MixtureModel model = gmf::model_of(checkpoint.meta, global.config().gmf.mahalanobis_cutoff);
-  const std::vector<float> f = gmf::rasterize_dense(checkpoint.mixture, model, frame, args.tail);
+  const std::vector<float> f = gmf::rasterize_dense(checkpoint.mixture, model, frame, args.tail, args.untruncated_sum);
   const double t_raster = watch.lap();
   const Eigen::Vector3i& n = frame.shape();
   io::write_tiff_stack(args.out, f, n.x(), n.y(), n.z(), tiff);
@@ -168,8 +178,8 @@ void run_export_volume(const VolumeArgs& args, GlobalOptions& global) {
                   args.match_volume.c_str());
     psnr = buf;
   }
-  std::printf("export volume: wrote %s: the model's %s f, %s float32 (%s)%s; load %s, rasterize %s, write %s\n",
-              args.out.c_str(), gmf::describe(model).c_str(), shape_text(frame).c_str(),
+  std::printf("export volume: wrote %s: the model's f (%s), %s float32 (%s)%s; load %s, rasterize %s, write %s\n",
+              args.out.c_str(), exported_function(model, args.untruncated_sum).c_str(), shape_text(frame).c_str(),
               format_bytes(4.0 * static_cast<double>(f.size())).c_str(), psnr.c_str(), format_seconds(t_load).c_str(),
               format_seconds(t_raster).c_str(), format_seconds(t_write).c_str());
 }
@@ -264,6 +274,8 @@ void add_export_command(CLI::App& app, GlobalOptions& global) {
   vdb->add_option("--tail", vdb_args->options.tail, "leave out each Gaussian where its value is below this")
       ->capture_default_str();
   vdb->add_flag("--points", vdb_args->options.points, "also write every Gaussian's parameters as a PointDataGrid");
+  vdb->add_flag("--untruncated-sum", vdb_args->options.untruncated_sum,
+                "a sum checkpoint: every term everywhere (report Eq. 1), not the fitted f (terms inside gmf.mahalanobis_cutoff)");
   vdb_args->overrides.add_to(vdb);
   vdb->callback([vdb_args, &global] { run_export_vdb(*vdb_args, global); });
 
@@ -304,6 +316,8 @@ void add_export_command(CLI::App& app, GlobalOptions& global) {
                      "resample onto this stack's voxels and report the 3D PSNR against it");
   volume->add_option("--tail", volume_args->tail, "leave out each Gaussian where its value is below this")
       ->capture_default_str();
+  volume->add_flag("--untruncated-sum", volume_args->untruncated_sum,
+                   "a sum checkpoint: every term everywhere (report Eq. 1), not the fitted f (terms inside gmf.mahalanobis_cutoff)");
   volume_args->overrides.add_to(volume);
   volume->callback([volume_args, &global] { run_export_volume(*volume_args, global); });
 

@@ -2,6 +2,7 @@
 // `hisnegs train --init gmf.ply --data GTDIR [--volume V.tif] -o RUNDIR`: options of the training
 // stage (pipeline/train_stage.hpp) on GTDIR/train; --resume continues.
 #include "apps/cli/cli_support.hpp"
+#include "apps/pipeline/ground_truth_stage.hpp"
 #include "apps/pipeline/train_stage.hpp"
 
 namespace hisnegs::apps {
@@ -15,7 +16,7 @@ void add_train_command(CLI::App& app, GlobalOptions& global) {
   };
   auto args = std::make_shared<Args>();
   cmd->add_option("--init", args->init, "initial model (.ply or .hgs, e.g. from `hisnegs fit`)")->required();
-  cmd->add_option("--data", args->data, "ground-truth folder of `hisnegs gt` (uses GTDIR/train)")->required();
+  cmd->add_option("--data", args->data, "ground-truth folder of `hisnegs gt`: GTDIR/train (gt --orbit both), or GTDIR itself when it holds one set (cameras.json + mips.tif)")->required();
   cmd->add_option("-o,--output", args->out, "run folder (log.csv, checkpoints/, final.ply, training_curve.png)")
       ->required();
   cmd->add_option("--volume", args->volume,
@@ -29,7 +30,7 @@ void add_train_command(CLI::App& app, GlobalOptions& global) {
     if (args->epochs) config.train.epochs = *args->epochs;
     const splat::Backend backend = splat::resolve_backend(splat::parse_backend_request(args->backend));
     choose_train_schedule(config, backend, global.progress());
-    train_model({args->init, std::filesystem::path(args->data) / "train", args->out, backend, args->resume,
+    train_model({args->init, ground_truth_set_dir(args->data, "train"), args->out, backend, args->resume,
                  args->volume},
                 TrainConfig(config), global.progress());
   });

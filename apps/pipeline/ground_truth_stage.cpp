@@ -80,7 +80,8 @@ void write_ground_truth_set(const std::filesystem::path& dir, const std::string&
   const double render_s = watch.lap();
   splat::write_cameras_json(dir / "cameras.json", cameras);
   write_image_stack(dir, "mips.tif", stack);
-  const nlohmann::ordered_json meta = ground_truth_meta(loaded, volume_path, rm, stack, render_s);
+  nlohmann::ordered_json meta = ground_truth_meta(loaded, volume_path, rm, stack, render_s);
+  meta["set"] = label;
   const std::string text = meta.dump(2) + "\n";
   io::write_file_atomic(dir / "meta.json", text.data(), text.size());
   progress.say("gt: %s: %d views of %dx%d (%s mode, %s) in %s, median %.1f ms/view -> %s", label.c_str(), stack.views,
@@ -100,6 +101,26 @@ void write_ground_truth_sets(const std::filesystem::path& dir, const std::filesy
   for (const GroundTruthSet& set : sets) {
     write_ground_truth_set(sets.size() > 1 ? dir / set.label : dir, set.label, set.cameras, loaded,
                            volume_path.string(), config.slice<&AppConfig::raymarch>(), backend, progress);
+  }
+}
+
+std::filesystem::path ground_truth_set_dir(const std::filesystem::path& data, const std::string& set) {
+  namespace fs = std::filesystem;
+  if (fs::exists(data / set / "cameras.json")) return data / set;
+  if (fs::exists(data / "cameras.json")) return data;
+  io::fail_input(data, "no ground truth here: expected " + (data / set / "cameras.json").string() +
+                           " (gt --orbit both) or " + (data / "cameras.json").string() +
+                           " (gt with one set: --orbit train|eval|custom or --cameras)");
+}
+
+std::string ground_truth_set_label(const std::filesystem::path& dir) {
+  std::error_code ec;
+  if (!std::filesystem::is_regular_file(dir / "meta.json", ec)) return "";
+  try {
+    const nlohmann::json meta = nlohmann::json::parse(io::read_file(dir / "meta.json"));
+    return meta.is_object() && meta.contains("set") && meta["set"].is_string() ? meta["set"].get<std::string>() : "";
+  } catch (const std::exception&) {
+    return "";  // a label only names the set in a message; the data is checked where it is read
   }
 }
 

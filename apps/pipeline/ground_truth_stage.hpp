@@ -42,6 +42,16 @@ void write_ground_truth_sets(const std::filesystem::path& dir, const std::filesy
                              const std::vector<GroundTruthSet>& sets, const GroundTruthSetsConfig& config,
                              splat::Backend backend, const Progress& progress);
 
+// The ground-truth set a command reads from a `hisnegs gt` folder DATA: DATA/SET
+// when it holds cameras.json (`gt --orbit both`, a run's gt/), else DATA itself when
+// it does (one set: `gt --orbit train|eval|custom` or `--cameras`). Throws
+// io::InputError naming both places when neither holds one.
+[[nodiscard]] std::filesystem::path ground_truth_set_dir(const std::filesystem::path& data, const std::string& set);
+
+// The label `gt` recorded for the set in DIR (meta.json "set": "train", "eval",
+// "custom", "cameras"); "" when it recorded none (written by an older hisnegs).
+[[nodiscard]] std::string ground_truth_set_label(const std::filesystem::path& dir);
+
 // In a run folder: the training orbit in DIR/gt/train and the evaluation orbit in
 // DIR/gt/eval, from the volume file with the volume stage's settings.
 struct GroundTruthStage {

@@ -2,12 +2,15 @@
 // train_model (set up, run the epochs, finish) and the run folder's training stage.
 #include "apps/pipeline/train_stage.hpp"
 
+#include "apps/pipeline/ground_truth_stage.hpp"
+
 #include <algorithm>
 #include <optional>
 #include <string>
 #include <utility>
 
 #include "apps/pipeline/format.hpp"
+#include "apps/pipeline/ground_truth_stage.hpp"
 #include "apps/pipeline/training_log.hpp"
 #include "apps/pipeline/training_volume.hpp"
 #include "gmf/checkpoint.hpp"
@@ -184,7 +187,9 @@ TrainOutcome train_model(const TrainRequest& request, const TrainConfig& config,
   const io::FolderLock lock(request.run);  // one training per folder, before anything is written there
   check_training(request, config);         // again, now that no other process can start one here
   const int epochs = config.get<&AppConfig::train>().epochs;
-  progress.say("train: %d views of %dx%d, K %d, %d epochs%s, %s back end", s.views, s.width, s.height,
+  const std::string label = ground_truth_set_label(request.data);
+  progress.say("train: %d views of %dx%d from %s%s, K %d, %d epochs%s, %s back end", s.views, s.width, s.height,
+               request.data.c_str(), label.empty() ? "" : (" (gt set '" + label + "')").c_str(),
                s.trainer->gaussians(), epochs,
                request.resume ? (" (resuming after epoch " + std::to_string(s.trainer->epoch()) + ")").c_str() : "",
                std::string(splat::to_string(request.backend)).c_str());

@@ -403,6 +403,11 @@ VoxelSpacing resolve_spacing(const SpacingEvidence& evidence) {
       s.um[a] = 1.0;
       s.source[a] = SpacingSource::kDefault;
     }
+    if (const std::string problem = voxel_size_problem(s.um[a]); !problem.empty()) {
+      static const char* const kAxis[3] = {"x", "y", "z"};
+      throw InputError(std::string("voxel size ") + kAxis[a] + " = " + number_text(s.um[a]) + " um from " +
+                       std::string(to_string(s.source[a])) + " " + problem);
+    }
   }
   return s;
 }

@@ -78,8 +78,9 @@ Eigen::Vector3d world_of(const openvdb::FloatGrid& grid, const openvdb::Coord& c
   return {w.x(), w.y(), w.z()};
 }
 
-// The softmax f_β, brute force (report Eq. 8 in 3D): at world point x the terms
-// g_k = a_k exp(-m_k/2) with m_k <= support, weighted by softmax(β g); 0 where none.
+// The mixture's f, brute force in double: at world point x the terms
+// g_k = a_k exp(-m_k/2) with m_k <= support, weighted by softmax(β g) (report Eq. 8
+// in 3D; operator()) or summed (Eq. 1 inside the support; sum()); 0 where none.
 class SoftmaxReference {
  public:
   SoftmaxReference(const GaussianMixture& mixture, double beta, double support) : beta_(beta), support_(support) {
@@ -87,6 +88,15 @@ class SoftmaxReference {
       terms_.push_back(
           {Eigen::Vector3d(p.mean[0], p.mean[1], p.mean[2]), covariance(p).inverse(), intensity<double>(p)});
     }
+  }
+  double sum(const Eigen::Vector3d& x) const {
+    double f = 0;
+    for (const Term& t : terms_) {
+      const Eigen::Vector3d d = x - t.mean;
+      const double m = d.dot(t.precision * d);
+      if (m <= support_) f += t.a * std::exp(-0.5 * m);
+    }
+    return f;
   }
   double operator()(const Eigen::Vector3d& x) const {
     std::vector<double> g;
@@ -163,9 +173,11 @@ TEST(ExportVdb, DensityMatchesDirectEvaluationAndInactiveVoxelsStayBelowCutoff) 
   const openvdb::CoordBBox stack(openvdb::Coord(0, 0, 0), openvdb::Coord(39, 39, 19));
   EXPECT_TRUE(stack.isInside(grid->evalActiveVoxelBoundingBox()));
 
-  // Every voxel of the stack: active values are f within 1e-5 (the stored float and
-  // the per-Gaussian truncation at `tail` are both far below that), inactive voxels
-  // hold the background 0 and have f <= cutoff (+ the truncation bound, 25 × tail).
+  // Every voxel of the stack: active values are the fitted f (each term inside its
+  // support δ, as the fit and the renderer count it) within 1e-5 (the stored float
+  // and the per-Gaussian truncation at `tail` are both far below that), inactive
+  // voxels hold the background 0 and have f <= cutoff (+ the truncation bound, 25 × tail).
+  const SoftmaxReference fitted(cp.mixture, 1.0, options.support);
   const auto acc = grid->getConstAccessor();
   std::int64_t active = 0, inactive = 0;
   double max_diff = 0, max_inactive_f = 0;
@@ -173,7 +185,7 @@ TEST(ExportVdb, DensityMatchesDirectEvaluationAndInactiveVoxelsStayBelowCutoff) 
     for (int y = 0; y < 40; ++y)
       for (int x = 0; x < 40; ++x) {
         const openvdb::Coord c(x, y, z);
-        const double f = evaluate_mixture(cp.mixture, kFrame.world_from_index(Eigen::Vector3d(x, y, z)));
+        const double f = fitted.sum(kFrame.world_from_index(Eigen::Vector3d(x, y, z)));
         if (acc.isValueOn(c)) {
           ++active;
           max_diff = std::max(max_diff, std::abs(acc.getValue(c) - f));
@@ -188,6 +200,42 @@ TEST(ExportVdb, DensityMatchesDirectEvaluationAndInactiveVoxelsStayBelowCutoff) 
   EXPECT_GT(inactive, 10000);
   EXPECT_LT(max_diff, 1e-5);
   EXPECT_LE(max_inactive_f, options.cutoff + 25 * options.tail);
+}
+
+// Issue 32, item 15: a sum checkpoint exports the function that was fitted (every
+// term inside its support δ), not the untruncated sum (which differed from it by up
+// to 2.1e-3 on op1); the untruncated sum is an explicit option, and the metadata
+// says which.
+TEST(ExportVdb, SumCheckpointExportsTheFittedFUnlessAskedForTheWholeSum) {
+  ScratchDir dir;
+  const Checkpoint cp{random_mixture(60, 21), stack_meta()};  // dense: tails reach other Gaussians' cores
+  VdbExportOptions options;
+  options.support = 9.0;
+  export_vdb(dir / "fitted.vdb", cp, VoxelLattice::of(kFrame), options, "m.ply");
+  options.untruncated_sum = true;
+  export_vdb(dir / "whole.vdb", cp, VoxelLattice::of(kFrame), options, "m.ply");
+  const auto fitted = read_density(dir / "fitted.vdb"), whole = read_density(dir / "whole.vdb");
+  ASSERT_TRUE(fitted && whole);
+  EXPECT_EQ(fitted->metaValue<double>("support"), 9.0);
+  EXPECT_FALSE(fitted->metaValue<bool>("untruncated_sum"));
+  EXPECT_TRUE(whole->metaValue<bool>("untruncated_sum"));
+  EXPECT_FALSE(whole->getMetadata<openvdb::DoubleMetadata>("support"));
+  const SoftmaxReference reference(cp.mixture, 1.0, 9.0);
+  const auto a = fitted->getConstAccessor(), b = whole->getConstAccessor();
+  double fitted_diff = 0, whole_diff = 0, tails = 0;
+  for (int z = 0; z < 20; ++z)
+    for (int y = 0; y < 40; ++y)
+      for (int x = 0; x < 40; ++x) {
+        const openvdb::Coord c(x, y, z);
+        const Eigen::Vector3d w = kFrame.world_from_index(Eigen::Vector3d(x, y, z));
+        const double f = reference.sum(w), all = evaluate_mixture(cp.mixture, w);
+        if (f > 2 * options.cutoff) fitted_diff = std::max(fitted_diff, std::abs(a.getValue(c) - f));
+        if (all > 2 * options.cutoff) whole_diff = std::max(whole_diff, std::abs(b.getValue(c) - all));
+        tails = std::max(tails, all - f);
+      }
+  EXPECT_LT(fitted_diff, 1e-5);
+  EXPECT_LT(whole_diff, 1e-5);
+  EXPECT_GT(tails, 1e-3);  // the two functions do differ here: the test tells them apart
 }
 
 // A softmax checkpoint exports its own f_β (support δ), not the sum of its terms:
@@ -526,16 +574,22 @@ TEST(ExportFormats, FireColormapRampsBlackRedYellowWhite) {
 
 TEST(ExportFormats, DenseResamplingMatchesDirectEvaluation) {
   const GaussianMixture m = random_mixture(20, 10);
-  const std::vector<float> f = rasterize_dense(m, MixtureModel{}, kFrame, VdbExportOptions{}.tail);
+  const MixtureModel model;  // a sum with the default support δ
+  const std::vector<float> f = rasterize_dense(m, model, kFrame, VdbExportOptions{}.tail);
+  const std::vector<float> all = rasterize_dense(m, model, kFrame, VdbExportOptions{}.tail, /*untruncated_sum=*/true);
   ASSERT_EQ(f.size(), 40u * 40u * 20u);
-  double max_diff = 0;
+  const SoftmaxReference fitted(m, 1.0, model.cutoff);
+  double max_diff = 0, max_all_diff = 0;
   for (int z = 0; z < 20; ++z)
     for (int y = 0; y < 40; ++y)
       for (int x = 0; x < 40; ++x) {
-        const double exact = evaluate_mixture(m, kFrame.world_from_index(Eigen::Vector3d(x, y, z)));
-        max_diff = std::max(max_diff, std::abs(f[(static_cast<std::size_t>(z) * 40 + y) * 40 + x] - exact));
+        const Eigen::Vector3d w = kFrame.world_from_index(Eigen::Vector3d(x, y, z));
+        const std::size_t i = (static_cast<std::size_t>(z) * 40 + y) * 40 + x;
+        max_diff = std::max(max_diff, std::abs(f[i] - fitted.sum(w)));
+        max_all_diff = std::max(max_all_diff, std::abs(all[i] - evaluate_mixture(m, w)));
       }
   EXPECT_LT(max_diff, 1e-5);
+  EXPECT_LT(max_all_diff, 1e-5);
 }
 
 TEST(ExportFormats, DenseSoftmaxIsTheModelsOwnF) {

@@ -296,6 +296,86 @@ TEST(TiffStackWrite, WritesAnImageJDescription) {
   EXPECT_EQ(image_description(dir / "d.tif"), "ImageJ=1.11a\nimages=2\nslices=2\nunit=um\nspacing=2.5\nmin=0\nmax=7\n");
 }
 
+// Each page's data offsets and byte counts, read with libtiff.
+std::vector<std::pair<std::uint64_t, std::uint64_t>> page_strips(const fs::path& path) {
+  std::vector<std::pair<std::uint64_t, std::uint64_t>> out;
+  TIFF* tif = TIFFOpen(path.c_str(), "r");
+  if (!tif) return out;
+  do {
+    for (std::uint32_t s = 0; s < TIFFNumberOfStrips(tif); ++s) {
+      out.emplace_back(TIFFGetStrileOffset(tif, s), TIFFGetStrileByteCount(tif, s));
+    }
+  } while (TIFFReadDirectory(tif));
+  TIFFClose(tif);
+  return out;
+}
+
+// Issue 32, item 13: an uncompressed stack keeps the promise of its ImageJ
+// `images=`: the pages' data lies back to back from page 0's, for every page count
+// (a 2-page float stack, whose page 1 followed page 0's IFD, was read by tifffile
+// 2023.2.3 as values up to 1.9e28). A compressed one makes no such promise.
+TEST(TiffStackWrite, UncompressedPagesAreContiguousAsImagesPromises) {
+  ScratchDir dir;
+  for (const int nz : {1, 2, 3, 7}) {
+    for (const SampleType type : {SampleType::kFloat32, SampleType::kUint16, SampleType::kUint8}) {
+      SCOPED_TRACE(std::to_string(nz) + " pages of " + std::string(to_string(type)));
+      const int nx = 13, ny = 9;
+      const std::vector<float> values = random_values(static_cast<std::size_t>(nx) * ny * nz, type, 40u + nz);
+      const fs::path path = dir / "c.tif";
+      write_tiff_stack(path, values, nx, ny, nz, {.type = type});
+      const auto strips = page_strips(path);
+      ASSERT_EQ(strips.size(), static_cast<std::size_t>(nz));  // one strip per page
+      const std::uint64_t page_bytes = static_cast<std::uint64_t>(nx) * ny * (type == SampleType::kFloat32 ? 4 : type == SampleType::kUint16 ? 2 : 1);
+      for (int z = 0; z < nz; ++z) {
+        EXPECT_EQ(strips[z].first, strips[0].first + z * page_bytes) << "page " << z;
+        EXPECT_EQ(strips[z].second, page_bytes) << "page " << z;
+      }
+      EXPECT_EQ(strips[0].first + nz * page_bytes, fs::file_size(path));  // the data ends the file
+      EXPECT_NE(image_description(path).find("\nimages=" + std::to_string(nz) + "\n"), std::string::npos);
+      if (nz > 1) expect_bit_identical(read_tiff_stack(path).voxels, values);  // one page is no stack
+    }
+  }
+  const std::vector<float> values = random_values(8 * 4 * 3, SampleType::kFloat32, 50);
+  write_tiff_stack(dir / "z.tif", values, 8, 4, 3, {.type = SampleType::kFloat32, .deflate = true});
+  EXPECT_EQ(image_description(dir / "z.tif").find("images="), std::string::npos);
+  expect_bit_identical(read_tiff_stack(dir / "z.tif").voxels, values);
+}
+
+// The same files read back by tifffile (Debian's python3-tifffile, what many users
+// open hisnegs' stacks with): every page count, every sample type, both layouts.
+TEST(TiffStackWrite, TifffileReadsEveryPageCount) {
+  // Debian's interpreter, where python3-tifffile installs (not a python3 earlier on PATH).
+  if (std::system("/usr/bin/python3 -c 'import tifffile, numpy' 2>/dev/null") != 0) {
+    if (std::getenv("CI")) FAIL() << "python3-tifffile is missing; scripts/install-deps.sh installs it";
+    GTEST_SKIP() << "python3 with tifffile is not installed";
+  }
+  ScratchDir dir;
+  int files = 0;
+  for (const int nz : {1, 2, 3, 5}) {
+    for (const SampleType type : {SampleType::kFloat32, SampleType::kUint16}) {
+      for (const bool deflate : {false, true}) {
+        const int nx = 11, ny = 7;
+        const std::vector<float> values = random_values(static_cast<std::size_t>(nx) * ny * nz, type, 60u + nz);
+        const std::string name = "t" + std::to_string(files++);
+        write_tiff_stack(dir / (name + ".tif"), values, nx, ny, nz, {.type = type, .deflate = deflate});
+        std::ofstream(dir / (name + ".f32"), std::ios::binary)
+            .write(reinterpret_cast<const char*>(values.data()), static_cast<std::streamsize>(values.size() * 4));
+      }
+    }
+  }
+  // For each file: the largest difference from the values written, and the shape.
+  const testing::ShellResult r = testing::run_shell(
+      "cd " + testing::shell_quoted(dir.path()) +
+      " && /usr/bin/python3 -c 'import glob, numpy, tifffile\n"
+      "for t in sorted(glob.glob(\"t*.tif\")):\n"
+      "    a = tifffile.imread(t).astype(numpy.float64)\n"
+      "    b = numpy.fromfile(t[:-4] + \".f32\", dtype=\"<f4\").astype(numpy.float64)\n"
+      "    print(t, a.size == b.size and float(abs(a.ravel() - b).max()) == 0.0, a.shape)'");
+  ASSERT_EQ(r.status, 0) << r.out;
+  EXPECT_EQ(testing::count_lines(r.out), files) << r.out;
+  EXPECT_EQ(r.out.find("False"), std::string::npos) << r.out;
+}
+
 TEST(TiffStackWrite, Uint8RejectsOutOfRangeValue) {
   ScratchDir dir;
   std::vector<float> values(4 * 3 * 2, 1.0f);

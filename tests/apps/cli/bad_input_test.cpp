@@ -45,10 +45,12 @@ class BadInput : public ::testing::Test {
   }
 
   // Float32 pages with plain libtiff, no validation (for corrupt fixtures).
-  static void write_raw_float_stack(const fs::path& p, std::vector<float> v, int nx, int ny, int nz) {
+  static void write_raw_float_stack(const fs::path& p, std::vector<float> v, int nx, int ny, int nz,
+                                    const char* description = nullptr) {
     TIFF* t = TIFFOpen(p.c_str(), "w");
     ASSERT_NE(t, nullptr);
     for (int z = 0; z < nz; ++z) {
+      if (description && z == 0) TIFFSetField(t, TIFFTAG_IMAGEDESCRIPTION, description);
       TIFFSetField(t, TIFFTAG_IMAGEWIDTH, nx);
       TIFFSetField(t, TIFFTAG_IMAGELENGTH, ny);
       TIFFSetField(t, TIFFTAG_SAMPLESPERPIXEL, 1);
@@ -226,8 +228,20 @@ TEST_F(BadInput, HostileValuesAreRefusedUpFront) {
   expect_rejected({"--config", in("jitter_word.yaml"), "vdb", in("ok.tif"), "-o", out()},
                   {"sample_jitter", "expected a number or auto, got 'half'"});
   // Degenerate spacing, on the command line and through the box it makes.
-  expect_rejected({"vdb", in("ok.tif"), "--spacing", "1e-20,1,1", "-o", out()}, {"volume.spacing_um", "factor"});
+  expect_rejected({"vdb", in("ok.tif"), "--spacing", "0.0001,10,10", "-o", out()}, {"volume.spacing_um", "factor"});
   expect_rejected({"gt", in("ok.tif"), "--spacing", "1e-20,1,1", "-o", gt}, {"spacing_um"});
+  // Issue 32, item 16: voxel sizes no microscope has, refused up front by every
+  // command in one message (before: `info` took 1e308, `fit` failed on a NaN box
+  // and told the user to give the --spacing they had given).
+  for (const char* command : {"info", "fit", "vdb"}) {
+    std::vector<std::string> args = {command, in("ok.tif"), "--spacing", "1e308,1e308,1e308"};
+    if (std::string(command) != "info") args.insert(args.end(), {"-o", out()});
+    expect_rejected(args, {"volume.spacing_um = 1e+308: must be a voxel size in [1e-06, 1e+06] um"});
+  }
+  expect_rejected({"info", in("ok.tif"), "--spacing", "1e-9,1e-9,1e-9"}, {"volume.spacing_um = 1e-09"});
+  // The same from the file's own metadata: named with where it came from.
+  write_raw_float_stack(in("far.tif"), v, 16, 16, 4, "ImageJ=1.11a\nimages=4\nslices=4\nunit=um\nspacing=1e300\n");
+  expect_rejected({"info", in("far.tif")}, {"far.tif: voxel size z = 1e+300 um from ImageJ spacing=", "--spacing"});
   // NaN and absurd camera values, sizes that cannot fit.
   expect_rejected({"gt", in("ok.tif"), "--orbit", "custom", "--elevations", "nan", "--ring-views", "4", "-o", gt},
                   {"--elevations"});

@@ -125,7 +125,8 @@ TEST_F(CliExport, VdbIsReadByOpenVdbsOwnTools) {
     lines >> wx >> wy >> wz >> value;
     const Eigen::Vector3d expect = frame_.world_from_index(Eigen::Vector3d(i, j, k));
     EXPECT_LT((Eigen::Vector3d(wx, wy, wz) - expect).norm(), 1e-12) << i << " " << j << " " << k;
-    EXPECT_NEAR(value, gmf::evaluate_mixture(mixture_, expect), 1e-5) << i << " " << j << " " << k;
+    // The fitted f: each term inside the default support δ = 16 (issue 32, item 15).
+    EXPECT_NEAR(value, gmf::evaluate_mixture(mixture_, expect, 16.0), 1e-5) << i << " " << j << " " << k;
     ++checked;
   }
   EXPECT_GE(checked, 5) << py.out;
@@ -203,7 +204,8 @@ TEST_F(CliExport, VolumeIsTheResampledMixtureWithItsPsnr) {
   for (int z = 0; z < 10; ++z)
     for (int y = 0; y < 24; ++y)
       for (int x = 0; x < 20; ++x) {
-        const double exact = gmf::evaluate_mixture(mixture_, frame_.world_from_index(Eigen::Vector3d(x, y, z)));
+        const double exact =
+            gmf::evaluate_mixture(mixture_, frame_.world_from_index(Eigen::Vector3d(x, y, z)), 16.0);
         ASSERT_NEAR(f.at(x, y, z), exact, 1e-5) << x << " " << y << " " << z;
         sse += std::pow(static_cast<double>(f.at(x, y, z)) - truth.volume.at(x, y, z), 2);
       }

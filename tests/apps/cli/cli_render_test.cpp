@@ -125,6 +125,41 @@ TEST(CliTrain, WritesRunFolderResumesAndRejectsBadInput) {
   EXPECT_FALSE(fs::exists(dir / "run2"));
 }
 
+// Issue 32, item 14: `--data` takes a folder of any `gt --orbit` choice: one set
+// (cameras.json + mips.tif in the folder itself) as well as train/ and eval/, and
+// the first line says which views it trains on (before: "G/train/cameras.json: no
+// such file" for `gt --orbit train -o G`).
+TEST(CliTrain, DataIsAnyGroundTruthFolderAndNamesItsViews) {
+  testing::ScratchDir dir;
+  ASSERT_NO_FATAL_FAILURE(make_model_and_ground_truth(dir.path(), 16, "train"));
+  ASSERT_TRUE(fs::is_regular_file(dir / "gt" / "cameras.json"));
+  auto r = run_hisnegs({"train", "--init", dir / "m.ply", "--data", dir / "gt", "-o", dir / "run", "--epochs", "1",
+                        "--backend", "cpu"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("train: 106 views of 16x16 from " + (dir / "gt").string() + " (gt set 'train')"),
+            std::string::npos)
+      << r.out;
+  EXPECT_TRUE(fs::is_regular_file(dir / "run" / "final.ply"));
+  // A custom orbit's folder trains too, and says it is the custom set.
+  ASSERT_EQ(run_hisnegs({"-q", "gt", dir / "s.tif", "-o", dir / "gc", "--elevations", "0,30", "--ring-views", "4",
+                         "--size", "16", "--backend", "cpu"})
+                .exit_code,
+            0);
+  r = run_hisnegs({"train", "--init", dir / "m.ply", "--data", dir / "gc", "-o", dir / "run2", "--epochs", "1",
+                   "--backend", "cpu"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("8 views of 16x16 from " + (dir / "gc").string() + " (gt set 'custom')"), std::string::npos)
+      << r.out;
+  // A folder holding neither: one line naming both places looked at.
+  fs::create_directories(dir / "empty");
+  r = run_hisnegs({"train", "--init", dir / "m.ply", "--data", dir / "empty", "-o", dir / "run3", "--backend", "cpu"});
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("empty: no ground truth here: expected " + (dir / "empty" / "train" / "cameras.json").string()),
+            std::string::npos)
+      << r.err;
+  EXPECT_EQ(testing::count_lines(r.err), 1) << r.err;
+}
+
 // Training that makes the training views worse (a step 300x the report's) leaves
 // the initial model as final.ply, tagged and said; keep_better_init: false keeps
 // the trained one.
