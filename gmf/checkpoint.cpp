@@ -4,7 +4,10 @@
 // files to gmf/compact_checkpoint. No PLY parsing here.
 #include "gmf/checkpoint.hpp"
 
+#include <unistd.h>
+
 #include <cctype>
+#include <cerrno>
 #include <charconv>
 #include <cmath>
 #include <cstring>
@@ -373,14 +376,18 @@ Checkpoint load_checkpoint(const fs::path& path) {
   // By content, not by name: a compact file keeps working whatever it is called.
   // A file that is a cut-short compact magic goes to the compact reader too, which
   // says "truncated" rather than PLY's "not a PLY file".
+  // Only a regular file, opened without blocking (a FIFO would hang the reader).
   char head[kCompactMagic.size()] = {};
   std::size_t got = 0;
   {
-    std::ifstream in(path, std::ios::binary);
-    if (in) {
-      in.read(head, sizeof head);
-      got = static_cast<std::size_t>(in.gcount());
+    const int fd = io::open_regular_file(path);
+    ssize_t n = 0;
+    while (got < sizeof head && (n = ::read(fd, head + got, sizeof head - got)) != 0) {
+      if (n < 0 && errno == EINTR) continue;
+      if (n < 0) break;
+      got += static_cast<std::size_t>(n);
     }
+    ::close(fd);
   }
   if (got > 0 && std::memcmp(head, kCompactMagic.data(), got) == 0) return load_compact_checkpoint(path);
   return checkpoint_from_ply(io::read_ply(path), path);

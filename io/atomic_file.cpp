@@ -34,6 +34,29 @@ void require_regular_file(const fs::path& path) {
   if (!fs::is_regular_file(st)) fail_input(path, "is not a regular file");
 }
 
+int open_regular_file(const fs::path& path) {
+  const int fd = ::open(path.c_str(), O_RDONLY | O_NONBLOCK | O_CLOEXEC);
+  if (fd < 0) {
+    const int err = errno;
+    if (err == ENOENT || err == ENOTDIR) fail_input(path, "no such file");
+    fail_input(path, std::string("cannot open: ") + std::strerror(err));
+  }
+  struct stat st {};
+  const char* problem = nullptr;
+  if (::fstat(fd, &st) != 0) {
+    problem = "cannot be examined (fstat failed)";
+  } else if (S_ISDIR(st.st_mode)) {
+    problem = "is a directory, expected a file";
+  } else if (!S_ISREG(st.st_mode)) {
+    problem = "is not a regular file (a FIFO, device or socket)";
+  }
+  if (problem || ::fcntl(fd, F_SETFL, ::fcntl(fd, F_GETFL) & ~O_NONBLOCK) != 0) {
+    ::close(fd);
+    fail_input(path, problem ? problem : "cannot be read (fcntl failed)");
+  }
+  return fd;
+}
+
 std::string number_text(double v) {
   char buf[64];
   std::snprintf(buf, sizeof buf, "%g", v);
@@ -232,13 +255,22 @@ int remove_stale_in(const fs::path& dir, bool recursive) {
 int remove_stale_temporaries(const fs::path& dir, bool recursive) { return remove_stale_in(dir, recursive); }
 
 std::string read_file(const fs::path& path) {
-  require_regular_file(path);
-  std::ifstream in(path, std::ios::binary);
-  if (!in) fail_input(path, "cannot open");
-  std::ostringstream s;
-  s << in.rdbuf();
-  if (in.bad()) fail_input(path, "cannot be read");
-  return s.str();
+  const int fd = open_regular_file(path);
+  std::string bytes;
+  char buffer[1 << 16];
+  for (;;) {
+    const ssize_t n = ::read(fd, buffer, sizeof buffer);
+    if (n < 0 && errno == EINTR) continue;
+    if (n < 0) {
+      const int err = errno;
+      ::close(fd);
+      fail_input(path, std::string("cannot be read: ") + std::strerror(err));
+    }
+    if (n == 0) break;
+    bytes.append(buffer, static_cast<std::size_t>(n));
+  }
+  ::close(fd);
+  return bytes;
 }
 
 }  // namespace hisnegs::io

@@ -56,4 +56,11 @@ class WriteError : public std::runtime_error {
 // ("no such file", "is a directory", "is not a regular file") otherwise.
 void require_regular_file(const std::filesystem::path& path);
 
+// Opens the regular file `path` for reading without ever blocking on it: O_NONBLOCK
+// at open (a FIFO put in its place would otherwise wait for a writer, forever) and
+// the checks of require_regular_file on that very descriptor (fstat), so no swap
+// between a check and the open gets past. Returns the descriptor (O_CLOEXEC,
+// blocking again), which the caller closes. Throws InputError as require_regular_file.
+[[nodiscard]] int open_regular_file(const std::filesystem::path& path);
+
 }  // namespace hisnegs::io

@@ -4,6 +4,9 @@
 // Knows nothing of what the elements mean (see gmf/checkpoint.cpp).
 #include "io/ply.hpp"
 
+#include <sys/stat.h>
+#include <unistd.h>
+
 #include <algorithm>
 #include <cctype>
 #include <cerrno>
@@ -294,12 +297,15 @@ class PlyReader {
   explicit PlyReader(const fs::path& path) : path_(path) {}
 
   PlyTable read() {
-    require_regular_file(path_);
-    std::error_code ec;
-    file_size_ = fs::file_size(path_, ec);
-    if (ec) fail("cannot get file size: " + ec.message());
-    file_.reset(std::fopen(path_.c_str(), "rb"));
-    if (!file_) fail(std::string("cannot open: ") + std::strerror(errno));
+    const int fd = open_regular_file(path_);  // never blocks on a FIFO swapped in
+    file_.reset(::fdopen(fd, "rb"));
+    if (!file_) {
+      ::close(fd);
+      fail(std::string("cannot open: ") + std::strerror(errno));
+    }
+    struct stat st {};
+    if (::fstat(fd, &st) != 0) fail(std::string("cannot get file size: ") + std::strerror(errno));
+    file_size_ = static_cast<std::uintmax_t>(st.st_size);
     read_header();
     if (format_ == Format::kAscii) {
       read_ascii_body();

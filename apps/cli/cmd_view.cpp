@@ -53,6 +53,10 @@ void add_view_command(CLI::App& app, GlobalOptions& global) {
       ->capture_default_str();
   cmd->add_flag("--no-browser", args->no_browser, "do not open a browser");
   cmd->callback([args, &global] {
+    // A FIFO or device is refused as every reader refuses it (it would hang the
+    // server); a regular file that is bad or still being written is served as an
+    // error page until it is fixed.
+    io::require_regular_file(args->model);
     const AppConfig& config = global.config();
     ViewerSessionOptions options;
     options.model = args->model;
@@ -71,7 +75,7 @@ void add_view_command(CLI::App& app, GlobalOptions& global) {
       const gmf::Checkpoint checkpoint = session.model();
       what = std::to_string(checkpoint.mixture.size()) + " Gaussians";
     } catch (const std::exception& e) {
-      std::fprintf(stderr, "view: error: %s\n", e.what());
+      std::fprintf(stderr, "view: error: %s\n", io::printable(e.what()).c_str());
       what = "not readable yet: the page shows the error until the file is fixed";
     }
     if (!is_loopback_host(args->server.host)) {

@@ -445,7 +445,10 @@ void main() {
         gl.texSubImage2D(gl.TEXTURE_2D, 0, 0, 0, W, H, gl.RED, gl.FLOAT, data);
         refFor = key;
         const psnr = parseFloat(res.headers.get("X-Hisnegs-Psnr"));
-        el("psnr").textContent = "model (CPU hard MIP) vs volume MIP: " + psnr.toFixed(2) + " dB";
+        const peak = parseFloat(res.headers.get("X-Hisnegs-Truth-Max"));
+        el("psnr").textContent = "model (CPU hard MIP) vs volume MIP: " +
+            (isFinite(psnr) ? psnr.toFixed(2) + " dB" : "identical (MSE 0)") +
+            (peak === 0 ? "; the volume is empty in this view" : "");
         draw();
       } catch (err) {
         report(err.message);

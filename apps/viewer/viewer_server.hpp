@@ -1,10 +1,12 @@
 // SPDX-License-Identifier: Apache-2.0
 // `hisnegs view`'s local HTTP server (cpp-httplib): the viewer page at "/" (and
 // "/index.html"), optionally the ground-truth MIP at "/truth", and nothing else,
-// until SIGINT/SIGTERM. Knows nothing of models or cameras: the routes are
+// until SIGINT/SIGTERM; with bounds on what any client can hold or send
+// (ViewerServerLimits). Knows nothing of models or cameras: the routes are
 // functions (viewer_session.hpp provides them).
 #pragma once
 
+#include <cstddef>
 #include <functional>
 #include <map>
 #include <string>
@@ -13,9 +15,26 @@
 
 namespace hisnegs::apps {
 
+// What one client (one remote address) can hold or send; docs/reliability.md "The
+// viewer's server". Every bound is checked by the server itself, not by cpp-httplib's
+// compiled-in defaults (Debian builds those into its shared library).
+struct ViewerServerLimits {
+  int threads = 16;                 // requests served at once (the worker pool)
+  int connections_per_client = 6;   // open connections per remote address (a browser uses up to 6);
+                                    // more are answered 503 and closed at once
+  double head_timeout_s = 10.0;     // a request's line and headers must all arrive within this
+  double io_timeout_s = 5.0;        // one read or write waits at most this
+  double idle_timeout_s = 5.0;      // a kept-alive connection with no new request is closed after this
+  int requests_per_connection = 100;
+  std::size_t max_request_bytes = 64 * 1024;  // request line + headers (+ body), per request
+  int max_header_lines = 100;                 // header lines per request
+  double stop_grace_s = 1.5;  // after Ctrl-C, what is still running is cut off after this
+};
+
 struct ViewerServerOptions {
   std::string host = "127.0.0.1";  // address to bind; loopback unless told otherwise
   int port = 8080;                 // TCP port, [0, 65535]; 0 = any free port
+  ViewerServerLimits limits;
 };
 
 // What a route answers.
@@ -34,14 +53,19 @@ struct ViewerRoutes {
   std::function<ViewerReply(const ViewerQuery&)> truth;  // GET /truth; unset: 404
 };
 
-// Binds, calls `on_listening(url)` with the page's URL (http://HOST:PORT/), serves
-// `routes` until SIGINT or SIGTERM arrives, then stops cleanly and returns the signal
-// number. A route that throws answers 500 with the exception's text (one line on
-// stderr, "view: 500 GET /path: WHAT"); the server keeps running. Every other path
-// (traversal, encoded or absolute forms included) gets 404; methods other than
-// GET/HEAD get 405. Handles SIGINT/SIGTERM while it runs (the previous handlers
-// come back after). Throws io::InputError for a port out of range or an address
-// that cannot be bound.
+// Binds (exclusively: a second server on the same port fails, no SO_REUSEPORT), calls
+// `on_listening(url)` with the page's URL (http://HOST:PORT/), serves `routes` until
+// SIGINT or SIGTERM arrives, then stops within limits.stop_grace_s + ~0.2 s whatever
+// the clients do (open connections are shut down; a route still running after the
+// grace time is not waited for) and returns the signal number. A route that throws
+// answers 500 with the exception's text (one line on stderr, "view: 500 GET /path:
+// WHAT"); the server keeps running. Every other path (traversal, encoded or absolute
+// forms included) gets 404; a request with a body gets 413; a request whose head is
+// over the limits or too slow is cut off. Every line it logs goes through
+// io::printable (no client-sent control characters reach the terminal). Handles
+// SIGINT/SIGTERM while it runs (the previous handlers come back after). Throws
+// io::InputError for an empty host, a port out of range or an address that cannot
+// be bound.
 int serve_viewer(const ViewerRoutes& routes, const ViewerServerOptions& options,
                  const std::function<void(const std::string& url)>& on_listening);
 

@@ -4,11 +4,17 @@
 #include "apps/viewer/viewer_session.hpp"
 
 #include <Eigen/LU>
+#include <algorithm>
+#include <charconv>
 #include <cmath>
+#include <cstdlib>
+#include <optional>
+#include <string_view>
 #include <cstdio>
 #include <sstream>
 #include <stdexcept>
 
+#include "gmf/psnr.hpp"
 #include "io/error.hpp"
 #include "splat/metrics.hpp"
 #include "splat/raymarch.hpp"
@@ -39,24 +45,44 @@ std::string error_page(const std::string& message) {
          "</pre><p>The server keeps running: fix or replace the file, then reload this page.</p></body></html>";
 }
 
-// Comma-separated finite numbers of query field `name`, exactly `count` of them.
+// One decimal number as JavaScript's String(Number) writes it: digits, an optional
+// fraction and exponent (no hex, no inf/nan, no leading '+'); a value that underflows
+// to a subnormal or 0 is that value; one that overflows is not finite.
+std::optional<double> decimal_number(std::string_view text) {
+  double v = 0;
+  const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), v, std::chars_format::general);
+  if (end != text.data() + text.size() || text.empty()) return std::nullopt;
+  if (ec == std::errc::result_out_of_range) {
+    const double approx = std::strtod(std::string(text).c_str(), nullptr);  // ±HUGE_VAL or the underflowed value
+    return std::isfinite(approx) ? std::optional<double>(approx) : std::nullopt;
+  }
+  if (ec != std::errc() || !std::isfinite(v)) return std::nullopt;
+  return v;
+}
+
+// Comma-separated finite numbers of query field `name` (given once), exactly
+// `count` of them, no empty item.
 std::vector<double> numbers(const ViewerQuery& query, const std::string& name, std::size_t count) {
   const auto it = query.find(name);
   if (it == query.end()) throw io::InputError("/truth: missing field " + name);
+  if (query.count(name) > 1) {
+    throw io::InputError("/truth: field " + name + " is given " + std::to_string(query.count(name)) +
+                         " times; give it once");
+  }
+  const std::string& text = it->second;
   std::vector<double> out;
-  std::stringstream in(it->second);
-  for (std::string item; std::getline(in, item, ',');) {
-    std::size_t used = 0;
-    double v = 0;
-    try {
-      v = std::stod(item, &used);
-    } catch (const std::exception&) {
-      used = 0;
+  for (std::size_t start = 0;;) {
+    const std::size_t comma = text.find(',', start);
+    const std::string_view item =
+        std::string_view(text).substr(start, comma == std::string::npos ? std::string::npos : comma - start);
+    const std::optional<double> v = decimal_number(item);
+    if (!v) {
+      throw io::InputError("/truth: field " + name + " = '" + io::printable(text, 200) + "': '" +
+                           io::printable(item, 40) + "' is not a finite decimal number");
     }
-    if (used == 0 || used != item.size() || !std::isfinite(v)) {
-      throw io::InputError("/truth: field " + name + " = '" + it->second + "': '" + item + "' is not a finite number");
-    }
-    out.push_back(v);
+    out.push_back(*v);
+    if (comma == std::string::npos) break;
+    start = comma + 1;
   }
   if (out.size() != count) {
     throw io::InputError("/truth: field " + name + " has " + std::to_string(out.size()) + " numbers, expected " +
@@ -78,8 +104,14 @@ splat::CameraView camera_from_query(const ViewerQuery& query) {
   const double off = (view.R_cam_from_world * view.R_cam_from_world.transpose() - Eigen::Matrix3d::Identity())
                          .cwiseAbs()
                          .maxCoeff();
-  if (off > 1e-3 || view.R_cam_from_world.determinant() < 0) {
-    throw io::InputError("/truth: field R is not a rotation (|R Rᵀ − I| = " + std::to_string(off) + ")");
+  const double det = view.R_cam_from_world.determinant();
+  if (off > 1e-3) {
+    throw io::InputError("/truth: field R is not a rotation: not orthonormal (largest |R Rᵀ − I| = " +
+                         io::number_text(off) + ", at most 0.001)");
+  }
+  if (det < 0) {
+    throw io::InputError("/truth: field R is not a rotation: a reflection (det R = " + io::number_text(det) +
+                         ", a rotation has +1)");
   }
   return view;
 }
@@ -127,7 +159,7 @@ gmf::Checkpoint ViewerSession::model() {
 ViewerTruth ViewerSession::truth(const splat::CameraView& view) {
   if (!has_volume()) throw std::logic_error("ViewerSession::truth without a volume");
   std::lock_guard lock(mutex_);
-  if (!checkpoint_) reload_if_changed();
+  reload_if_changed();  // the model file as it is now, as "/" shows it: a broken file is an error here too
   const splat::Intrinsics& K = options_.cameras.intrinsics;
   ViewerTruth out;
   out.image.assign(static_cast<std::size_t>(K.width) * K.height, 0.0f);
@@ -139,6 +171,8 @@ ViewerTruth ViewerSession::truth(const splat::CameraView& view) {
   std::vector<float> model(out.image.size(), 0.0f);
   renderer_->forward(gmf::flat_params(checkpoint_->mixture), K, view, splat::SplatSettings::from(hard), model);
   out.psnr_db = splat::image_metrics(model, out.image, K.width, K.height).psnr;
+  out.mse = gmf::mean_squared_error(model, out.image);
+  out.truth_max = *std::max_element(out.image.begin(), out.image.end());
   return out;
 }
 
@@ -149,7 +183,7 @@ ViewerRoutes ViewerSession::routes() {
     try {
       reply.body = page();
     } catch (const std::exception& e) {
-      std::fprintf(stderr, "view: error: %s\n", e.what());
+      std::fprintf(stderr, "view: error: %s\n", io::printable(e.what()).c_str());
       reply.status = 500;
       reply.body = error_page(e.what());
     }
@@ -170,9 +204,20 @@ ViewerRoutes ViewerSession::routes() {
       const ViewerTruth t = truth(view);
       reply.content_type = "application/octet-stream";
       reply.body.assign(reinterpret_cast<const char*>(t.image.data()), t.image.size() * sizeof(float));
-      char psnr[32];
-      std::snprintf(psnr, sizeof psnr, "%.4f", t.psnr_db);
+      // PSNR in dB, or "Infinity" (what JavaScript's parseFloat reads) where the
+      // model's MIP equals the volume's (MSE 0: e.g. both blank); the MSE itself and
+      // the volume MIP's brightest pixel (0: the volume is empty in this view).
+      char psnr[32], mse[32], peak[32];
+      if (std::isfinite(t.psnr_db)) {
+        std::snprintf(psnr, sizeof psnr, "%.4f", t.psnr_db);
+      } else {
+        std::snprintf(psnr, sizeof psnr, "Infinity");
+      }
+      std::snprintf(mse, sizeof mse, "%.6g", t.mse);
+      std::snprintf(peak, sizeof peak, "%.6g", static_cast<double>(t.truth_max));
       reply.headers.emplace_back("X-Hisnegs-Psnr", psnr);
+      reply.headers.emplace_back("X-Hisnegs-Mse", mse);
+      reply.headers.emplace_back("X-Hisnegs-Truth-Max", peak);
       return reply;
     };
   }

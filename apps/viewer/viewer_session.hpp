@@ -38,7 +38,9 @@ struct ViewerSessionOptions {
 // The ray-marched MIP of one camera and how the model compares with it.
 struct ViewerTruth {
   std::vector<float> image;  // height x width, row-major, [0, 1]
-  double psnr_db = 0;        // the model's CPU hard MIP against `image` (CONVENTIONS Metrics)
+  double psnr_db = 0;        // the model's CPU hard MIP against `image` (CONVENTIONS Metrics); +inf for MSE 0
+  double mse = 0;            // its mean squared error
+  float truth_max = 0;       // the brightest pixel of `image` (0: the volume is empty in this view)
 };
 
 class ViewerSession {
@@ -57,13 +59,17 @@ class ViewerSession {
   [[nodiscard]] gmf::Checkpoint model();
 
   [[nodiscard]] bool has_volume() const { return static_cast<bool>(marcher_); }
-  // Renders `view` with the cameras' intrinsics. Requires has_volume().
+  // Renders `view` with the cameras' intrinsics, against the model file as it is now
+  // (re-read like page(); a broken file throws io::InputError here too, never an
+  // answer from the last good model). Requires has_volume().
   [[nodiscard]] ViewerTruth truth(const splat::CameraView& view);
 
   // The routes of serve_viewer: "/" answers the page, or a 500 error page naming the
   // problem (and one stderr line "view: error: ..."); "/truth?R=r00,...,r22&T=t0,t1,t2"
-  // (when a volume was given) answers W x H little-endian float32 with the PSNR in
-  // the header X-Hisnegs-Psnr, or 400 for a malformed camera.
+  // (when a volume was given) answers W x H little-endian float32 with the headers
+  // X-Hisnegs-Psnr (dB, or "Infinity" for MSE 0), X-Hisnegs-Mse and
+  // X-Hisnegs-Truth-Max; 400 for a malformed camera; 500 naming the problem when the
+  // model file is broken.
   [[nodiscard]] ViewerRoutes routes();
 
  private:
@@ -84,8 +90,9 @@ class ViewerSession {
   std::unique_ptr<splat::SplatRenderer> renderer_;
 };
 
-// The camera of a /truth query: R (9 numbers, row-major) and T (3), comma-separated,
-// finite, R orthonormal to 1e-3 with det +1. Throws io::InputError naming the field.
+// The camera of a /truth query: R (9 numbers, row-major) and T (3), each field given
+// once, comma-separated finite decimal numbers (no empty item, no hex), R
+// orthonormal to 1e-3 with det +1. Throws io::InputError naming the field.
 [[nodiscard]] splat::CameraView camera_from_query(const ViewerQuery& query);
 
 }  // namespace hisnegs::apps

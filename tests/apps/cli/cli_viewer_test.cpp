@@ -30,6 +30,7 @@
 #include "io/png.hpp"
 #include "io/tiff_stack.hpp"
 #include "splat/camera.hpp"
+#include "tests/apps/cli/view_process.hpp"
 #include "tests/test_support.hpp"
 
 // Last: OpenSSL headers it pulls in define macros that break Eigen when included before it.
@@ -39,6 +40,8 @@ namespace hisnegs {
 namespace {
 namespace fs = std::filesystem;
 using testing::run_hisnegs;
+using testing::served_port;
+using testing::ViewProcess;
 
 constexpr const char* kChromium = "/usr/bin/chromium";
 // Debian's Chromium 156 in headless mode lays pages out in a viewport at least 500 px
@@ -286,72 +289,6 @@ TEST_F(CliViewer, ChromiumScreenshotMatchesCpuHardMip) {
   }
 }
 
-// `hisnegs view ...` as a child process whose stdout and stderr are one pipe; SIGKILLed
-// if still alive.
-class ViewProcess {
- public:
-  explicit ViewProcess(const std::vector<std::string>& args) {
-    int fds[2];
-    if (::pipe(fds) != 0) return;
-    pid_ = ::fork();
-    if (pid_ == 0) {
-      ::dup2(fds[1], 1);
-      ::dup2(fds[1], 2);  // stderr too: errors and warnings are part of what is checked
-      ::close(fds[0]);
-      ::close(fds[1]);
-      std::vector<std::string> all = {HISNEGS_EXE};
-      all.insert(all.end(), args.begin(), args.end());
-      std::vector<char*> argv;
-      for (std::string& a : all) argv.push_back(a.data());
-      argv.push_back(nullptr);
-      ::execv(argv[0], argv.data());
-      ::_exit(127);
-    }
-    ::close(fds[1]);
-    out_ = fds[0];
-  }
-  ~ViewProcess() {
-    if (pid_ > 0 && !reaped_) {
-      ::kill(pid_, SIGKILL);
-      ::waitpid(pid_, nullptr, 0);
-    }
-    if (out_ >= 0) ::close(out_);
-  }
-  // Stdout up to the first line containing `needle`, waiting at most `seconds`.
-  std::string read_until(const std::string& needle, double seconds) {
-    const auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(seconds);
-    while (text_.find(needle) == std::string::npos && std::chrono::steady_clock::now() < end) {
-      pollfd p{out_, POLLIN, 0};
-      if (::poll(&p, 1, 100) <= 0) continue;
-      char buf[1024];
-      const ssize_t n = ::read(out_, buf, sizeof buf);
-      if (n <= 0) break;
-      text_.append(buf, static_cast<std::size_t>(n));
-    }
-    return text_;
-  }
-  // Sends `sig` and waits up to `seconds` for the exit; the exit status, or -1 on timeout.
-  int stop(int sig, double seconds) {
-    ::kill(pid_, sig);
-    const auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(seconds);
-    while (std::chrono::steady_clock::now() < end) {
-      int status = 0;
-      if (::waitpid(pid_, &status, WNOHANG) == pid_) {
-        reaped_ = true;
-        return WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
-      }
-      ::usleep(20000);
-    }
-    return -1;
-  }
-
- private:
-  pid_t pid_ = -1;
-  int out_ = -1;
-  bool reaped_ = false;
-  std::string text_;
-};
-
 TEST_F(CliViewer, ViewServesOnlyThePageOnLoopbackAndStopsOnCtrlC) {
   const fs::path cams = write_cameras("c.json", {96, 64, 45.0, 0.0, 1.0});
   ViewProcess view({"view", "--model", model().string(), "--cameras", cams.string(), "--port", "0", "--no-browser"});
@@ -383,13 +320,6 @@ TEST_F(CliViewer, ViewServesOnlyThePageOnLoopbackAndStopsOnCtrlC) {
   EXPECT_GE(post->status, 400);
   EXPECT_EQ(view.stop(SIGINT, 10.0), 0);
   EXPECT_NE(view.read_until("stopped", 2.0).find("view: stopped (Ctrl-C)"), std::string::npos);
-}
-
-// The port of a running `view` from its "serving ... at http://HOST:PORT/" line (0 if none).
-int served_port(const std::string& out, const std::string& host = "127.0.0.1") {
-  const std::string prefix = "at http://" + host + ":";
-  const std::size_t at = out.find(prefix);
-  return at == std::string::npos ? 0 : std::stoi(out.substr(at + prefix.size()));
 }
 
 // A bad model does not stop the server: one line names it, the page is an error page
