@@ -35,6 +35,26 @@ int temporaries_under(const fs::path& dir) {
   return n;
 }
 
+// A 16 KiB tmpfs at `path` for the life of the object (needs root or
+// CAP_SYS_ADMIN, as CI has; mounted() is false otherwise).
+class SmallDisk {
+ public:
+  explicit SmallDisk(const fs::path& path) : path_(path) {
+    fs::create_directories(path);
+    mounted_ = ::mount("tmpfs", path.c_str(), "tmpfs", 0, "size=16k") == 0;
+  }
+  ~SmallDisk() {
+    if (mounted_) ::umount(path_.c_str());
+  }
+  SmallDisk(const SmallDisk&) = delete;
+  SmallDisk& operator=(const SmallDisk&) = delete;
+  [[nodiscard]] bool mounted() const { return mounted_; }
+
+ private:
+  fs::path path_;
+  bool mounted_ = false;
+};
+
 class Reliability : public ::testing::Test {
  protected:
   testing::ScratchDir dir_;
@@ -67,12 +87,8 @@ class Reliability : public ::testing::Test {
 // every writer fails with the file and the errno, and leaves nothing there.
 TEST_F(Reliability, FullDiskIsAnErrorAndLeavesNothing) {
   const fs::path full = dir_ / "full";
-  fs::create_directories(full);
-  if (::mount("tmpfs", full.c_str(), "tmpfs", 0, "size=16k") != 0) GTEST_SKIP() << "cannot mount a tmpfs here";
-  struct Unmount {
-    fs::path p;
-    ~Unmount() { ::umount(p.c_str()); }
-  } unmount{full};
+  const SmallDisk disk(full);
+  if (!disk.mounted()) GTEST_SKIP() << "cannot mount a tmpfs here";
   const std::vector<std::vector<std::string>> commands = {
       {"vdb", dir_ / "v.tif", "-o", full / "a.vdb"},
       {"export", "vdb", "--points", "--model", dir_ / "m.ply", "-o", full / "p.vdb"},
@@ -165,12 +181,8 @@ TEST_F(Reliability, ASignalRemovesUnfinishedOutputs) {
 // (exit 1, "No space left on device"), as every other writer reports it.
 TEST_F(Reliability, ExportVolumeOnAFullDiskIsAWriteError) {
   const fs::path full = dir_ / "full";
-  fs::create_directories(full);
-  if (::mount("tmpfs", full.c_str(), "tmpfs", 0, "size=16k") != 0) GTEST_SKIP() << "cannot mount a tmpfs here";
-  struct Unmount {
-    fs::path p;
-    ~Unmount() { ::umount(p.c_str()); }
-  } unmount{full};
+  const SmallDisk disk(full);
+  if (!disk.mounted()) GTEST_SKIP() << "cannot mount a tmpfs here";
   {
     std::ofstream filler(full / "filler", std::ios::binary);
     const std::string block(1024, 'x');
