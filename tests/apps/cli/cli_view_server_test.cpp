@@ -36,7 +36,6 @@
 namespace hisnegs {
 namespace {
 namespace fs = std::filesystem;
-using testing::run_hisnegs;
 using testing::served_port;
 using testing::ViewProcess;
 using Clock = std::chrono::steady_clock;
@@ -164,11 +163,13 @@ TEST_F(ViewServer, AFifoAsTheModelNeverHangsTheServer) {
 TEST_F(ViewServer, ASecondServerOnThePortFails) {
   auto first = start();
   ASSERT_GT(port_, 0);
-  const auto second = run_hisnegs({"view", "--model", model(), "--port", std::to_string(port_), "--no-browser"});
-  EXPECT_EQ(second.exit_code, 2) << second.out << second.err;
-  EXPECT_NE(second.err.find("cannot listen on 127.0.0.1:" + std::to_string(port_) + " (in use"), std::string::npos)
-      << second.err;
-  EXPECT_EQ(testing::count_lines(second.err), 1) << second.err;
+  // As a process that is killed if it serves (a regression must fail, not hang).
+  ViewProcess second({"view", "--model", model().string(), "--port", std::to_string(port_), "--no-browser"});
+  EXPECT_EQ(second.stop(0, 10.0), 2);
+  const std::string said = second.read_until("\n", 1.0);
+  EXPECT_NE(said.find("cannot listen on 127.0.0.1:" + std::to_string(port_) + " (in use"), std::string::npos)
+      << said;
+  EXPECT_EQ(testing::count_lines(said), 1) << said;
   httplib::Client client("127.0.0.1", port_);
   for (int i = 0; i < 20; ++i) {
     const auto page = client.Get("/");
@@ -315,9 +316,9 @@ TEST_F(ViewServer, RequestPathsCannotForgeLogLinesOrSendEscapes) {
 // file as it is now (a broken file is an error there as on "/"); a blank view's
 // PSNR is "Infinity" with MSE 0, not "inf".
 TEST_F(ViewServer, EmptyHostBrokenModelAndBlankViews) {
-  const auto empty = run_hisnegs({"view", "--model", model(), "--host", "", "--no-browser"});
-  EXPECT_EQ(empty.exit_code, 2);
-  EXPECT_NE(empty.err.find("--host: empty address"), std::string::npos) << empty.err;
+  ViewProcess empty({"view", "--model", model().string(), "--host", "", "--port", "0", "--no-browser"});
+  EXPECT_EQ(empty.stop(0, 10.0), 2);
+  EXPECT_NE(empty.read_until("\n", 1.0).find("--host: empty address"), std::string::npos);
 
   io::Volume vol;
   vol.nx = vol.ny = vol.nz = 16;
