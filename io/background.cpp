@@ -1,0 +1,190 @@
+// SPDX-License-Identifier: Apache-2.0
+// estimate_background (foreground mask, its dilation by the guard, the histogram of
+// what is left) and BackgroundModel's order statistics and text form.
+#include "io/background.hpp"
+
+#include <algorithm>
+#include <charconv>
+#include <cmath>
+#include <map>
+#include <sstream>
+
+#include "io/error.hpp"
+
+namespace hisnegs::io {
+namespace {
+
+std::string shortest(double v) {
+  char text[64];
+  const auto result = std::to_chars(text, text + sizeof text, v);
+  return std::string(text, result.ptr);
+}
+
+// Dilates a 0/1 mask by `r` voxels along one axis (a running max over 2r + 1).
+void dilate_axis(std::vector<std::uint8_t>& mask, int nx, int ny, int nz, int axis, int r) {
+  const int n[3] = {nx, ny, nz};
+  const std::size_t stride[3] = {1, static_cast<std::size_t>(nx), static_cast<std::size_t>(nx) * ny};
+  const int len = n[axis];
+  std::vector<std::uint8_t> line(static_cast<std::size_t>(len)), out(static_cast<std::size_t>(len));
+  const int a1 = (axis + 1) % 3, a2 = (axis + 2) % 3;
+  for (int j = 0; j < n[a2]; ++j) {
+    for (int i = 0; i < n[a1]; ++i) {
+      const std::size_t base = static_cast<std::size_t>(i) * stride[a1] + static_cast<std::size_t>(j) * stride[a2];
+      for (int t = 0; t < len; ++t) line[static_cast<std::size_t>(t)] = mask[base + t * stride[axis]];
+      // Distance to the nearest set voxel, forwards and backwards.
+      int last = -1'000'000;
+      for (int t = 0; t < len; ++t) {
+        if (line[static_cast<std::size_t>(t)]) last = t;
+        out[static_cast<std::size_t>(t)] = t - last <= r ? 1 : 0;
+      }
+      last = 1'000'000;
+      for (int t = len - 1; t >= 0; --t) {
+        if (line[static_cast<std::size_t>(t)]) last = t;
+        if (last - t <= r) out[static_cast<std::size_t>(t)] = 1;
+      }
+      for (int t = 0; t < len; ++t) mask[base + t * stride[axis]] = out[static_cast<std::size_t>(t)];
+    }
+  }
+}
+
+}  // namespace
+
+void BackgroundOptions::validate() const {
+  if (!(foreground_level > 0.0 && foreground_level < 1.0)) {
+    throw InputError("background.foreground_level = " + number_text(foreground_level) + ": must be in (0, 1)");
+  }
+  if (guard_voxels < 0 || guard_voxels > 16) {
+    throw InputError("background.guard_voxels = " + std::to_string(guard_voxels) + ": must be in [0, 16]");
+  }
+  if (max_atoms < 16 || max_atoms > 4096) {
+    throw InputError("background.max_atoms = " + std::to_string(max_atoms) + ": must be in [16, 4096]");
+  }
+}
+
+bool BackgroundModel::none() const { return values.empty() || values.back() <= 0.0; }
+
+double BackgroundModel::expected_max(double n) const {
+  if (none()) return 0.0;
+  n = std::max(n, 1.0);
+  double previous = 0.0, sum = 0.0;
+  for (std::size_t i = 0; i < values.size(); ++i) {
+    const double now = std::pow(cdf[i], n);
+    sum += values[i] * (now - previous);
+    previous = now;
+  }
+  return sum;
+}
+
+double BackgroundModel::mean() const { return expected_max(1.0); }
+
+double BackgroundModel::quantile(double p) const {
+  for (std::size_t i = 0; i < values.size(); ++i) {
+    if (cdf[i] >= p) return values[i];
+  }
+  return values.empty() ? 0.0 : values.back();
+}
+
+std::string BackgroundModel::text() const {
+  std::string out = shortest(samples_per_voxel) + " " + std::to_string(values.size());
+  for (std::size_t i = 0; i < values.size(); ++i) out += " " + shortest(values[i]) + " " + shortest(cdf[i]);
+  return out;
+}
+
+void BackgroundModel::validate(const std::string& source) const {
+  const auto fail = [&](const std::string& problem) { fail_input(source, "background: " + problem); };
+  if (!(std::isfinite(samples_per_voxel) && samples_per_voxel > 0.0 && samples_per_voxel <= 1e3)) {
+    fail("samples per voxel " + number_text(samples_per_voxel) + " is not in (0, 1000]");
+  }
+  if (values.size() != cdf.size()) fail("values and probabilities differ in number");
+  if (values.size() > 4096) fail(std::to_string(values.size()) + " atoms, at most 4096");
+  for (std::size_t i = 0; i < values.size(); ++i) {
+    if (!(std::isfinite(values[i]) && values[i] >= 0.0 && values[i] <= 1.0)) {
+      fail("value " + number_text(values[i]) + " is not in [0, 1]");
+    }
+    if (!(cdf[i] > 0.0 && cdf[i] <= 1.0)) fail("probability " + number_text(cdf[i]) + " is not in (0, 1]");
+    if (i > 0 && !(values[i] > values[i - 1] && cdf[i] > cdf[i - 1])) {
+      fail("atom " + std::to_string(i) + " does not increase in value and probability");
+    }
+  }
+  if (!values.empty() && cdf.back() != 1.0) fail("the last probability is " + number_text(cdf.back()) + ", not 1");
+}
+
+BackgroundModel BackgroundModel::parse(std::string_view text, const std::string& source) {
+  std::istringstream in{std::string(text)};
+  BackgroundModel m;
+  std::size_t count = 0;
+  if (!(in >> m.samples_per_voxel >> count) || count > 4096) {
+    fail_input(source, "background: expected 'SAMPLES_PER_VOXEL N v_1 F_1 ... v_N F_N', got '" +
+                           printable(text, 60) + "'");
+  }
+  m.values.resize(count);
+  m.cdf.resize(count);
+  for (std::size_t i = 0; i < count; ++i) {
+    if (!(in >> m.values[i] >> m.cdf[i])) {
+      fail_input(source, "background: " + std::to_string(count) + " atoms declared, fewer given");
+    }
+  }
+  std::string extra;
+  if (in >> extra) fail_input(source, "background: more than the " + std::to_string(count) + " atoms declared");
+  m.validate(source);
+  return m;
+}
+
+BackgroundModel estimate_background(const Volume& volume, const BackgroundOptions& options) {
+  options.validate();
+  const std::size_t n = volume.size();
+  std::vector<std::uint8_t> mask(n);
+  for (std::size_t i = 0; i < n; ++i) mask[i] = volume.voxels[i] > options.foreground_level ? 1 : 0;
+  if (options.guard_voxels > 0) {
+    for (int axis = 0; axis < 3; ++axis) dilate_axis(mask, volume.nx, volume.ny, volume.nz, axis, options.guard_voxels);
+  }
+  std::map<float, std::int64_t> counts;  // distinct values first; binned below when too many
+  double largest = 0.0;
+  std::int64_t total = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    if (mask[i]) continue;
+    const float v = std::max(volume.voxels[i], 0.0f);
+    largest = std::max(largest, static_cast<double>(v));
+    ++total;
+    if (counts.size() <= static_cast<std::size_t>(options.max_atoms)) ++counts[v];
+  }
+  if (total == 0) {
+    fail_input(volume.source, "no background voxels (every voxel is within " + std::to_string(options.guard_voxels) +
+                                  " voxels of one above " + number_text(options.foreground_level) + ")");
+  }
+  BackgroundModel m;
+  m.voxels = total;
+  if (counts.size() > static_cast<std::size_t>(options.max_atoms)) {
+    // Too many distinct values: equal-width bins over [0, largest], each atom at its
+    // bin's mean value (so the mean of the distribution is kept).
+    const int bins = options.max_atoms;
+    std::vector<double> sum(static_cast<std::size_t>(bins), 0.0);
+    std::vector<std::int64_t> count(static_cast<std::size_t>(bins), 0);
+    for (std::size_t i = 0; i < n; ++i) {
+      if (mask[i]) continue;
+      const double v = std::max(volume.voxels[i], 0.0f);
+      const int b = std::min(bins - 1, static_cast<int>(v / largest * bins));
+      sum[static_cast<std::size_t>(b)] += v;
+      ++count[static_cast<std::size_t>(b)];
+    }
+    counts.clear();
+    std::int64_t running = 0;
+    for (int b = 0; b < bins; ++b) {
+      if (count[static_cast<std::size_t>(b)] == 0) continue;
+      running += count[static_cast<std::size_t>(b)];
+      m.values.push_back(sum[static_cast<std::size_t>(b)] / static_cast<double>(count[static_cast<std::size_t>(b)]));
+      m.cdf.push_back(static_cast<double>(running) / static_cast<double>(total));
+    }
+  } else {
+    std::int64_t running = 0;
+    for (const auto& [value, count] : counts) {
+      running += count;
+      m.values.push_back(value);
+      m.cdf.push_back(static_cast<double>(running) / static_cast<double>(total));
+    }
+  }
+  m.cdf.back() = 1.0;
+  return m;
+}
+
+}  // namespace hisnegs::io

@@ -1,0 +1,66 @@
+// SPDX-License-Identifier: Apache-2.0
+// The stack's background as a maximum-intensity projection sees it: the distribution
+// of the (normalized) background voxels, treated as i.i.d. noise, estimated from a
+// volume and written as one text line; and the expected maximum of n draws from it,
+// the MIP's floor along a ray that gathers n independent samples. Knows no camera
+// and no ray marcher (splat/background_floor.hpp turns this into per-pixel floors).
+#pragma once
+
+#include <cstdint>
+#include <filesystem>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "io/volume.hpp"
+
+namespace hisnegs::io {
+
+// How estimate_background tells background voxels from the neuron.
+struct BackgroundOptions {
+  // A voxel is foreground when its normalized value is above this; background voxels
+  // are those farther than guard_voxels (Chebyshev distance, in voxels) from every
+  // foreground voxel, so the neuron's dim PSF halo stays out of the noise. (0, 1).
+  double foreground_level = 0.2;
+  int guard_voxels = 3;  // [0, 16]
+  // At most this many distinct values (atoms) are kept; finer data is binned into
+  // equal-width bins over [0, the largest background value]. [16, 4096].
+  int max_atoms = 256;
+  void validate() const;  // throws InputError naming the field
+};
+
+// A discrete distribution of background values (atoms in normalized intensity with
+// their cumulative probabilities) and how many independent samples a ray through the
+// stack gathers per voxel of path (index-space length; calibrated against the ray
+// marcher by splat::calibrate_background). No atoms: no background (the floor is 0).
+struct BackgroundModel {
+  std::vector<double> values;  // increasing, >= 0
+  std::vector<double> cdf;     // P(X <= values[i]), increasing, last = 1
+  double samples_per_voxel = 1.0;  // c > 0: a ray crossing L voxels gathers c L samples
+  std::int64_t voxels = 0;         // how many background voxels the estimate rests on
+
+  // True when there is nothing to draw: no atoms, or every background voxel is 0.
+  [[nodiscard]] bool none() const;
+  // E[max of n i.i.d. draws] = Σ_i v_i (F_i^n − F_{i−1}^n), for real n >= 1 (n < 1
+  // is taken as 1); 0 when none().
+  [[nodiscard]] double expected_max(double n) const;
+  [[nodiscard]] double mean() const;
+  // The value at cumulative probability p (the smallest atom with F >= p).
+  [[nodiscard]] double quantile(double p) const;
+
+  // "c N v_1 F_1 ... v_N F_N" (shortest round-trip doubles); parse() reads it back
+  // and throws InputError("SOURCE: background: problem") for anything else.
+  [[nodiscard]] std::string text() const;
+  [[nodiscard]] static BackgroundModel parse(std::string_view text, const std::string& source);
+  void validate(const std::string& source) const;  // the rules parse() checks
+
+  friend bool operator==(const BackgroundModel&, const BackgroundModel&) = default;
+};
+
+// The distribution of `volume`'s background voxels (normalized volume, values in
+// [0, 1]) as BackgroundOptions defines them; samples_per_voxel is left at 1 for the
+// calibration. A stack whose background is exactly 0 gives atoms {0} (none()).
+// Throws InputError naming volume.source when no voxel is background.
+[[nodiscard]] BackgroundModel estimate_background(const Volume& volume, const BackgroundOptions& options = {});
+
+}  // namespace hisnegs::io

@@ -1,0 +1,135 @@
+// SPDX-License-Identifier: Apache-2.0
+// io::BackgroundModel: E[max of n] against a Monte-Carlo draw from the same
+// distribution, the estimate's atoms on a stack of known noise (the neuron and its
+// halo left out), a zero background as none, and the text form round trip.
+#include "io/background.hpp"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <random>
+
+#include "io/error.hpp"
+
+namespace hisnegs::io {
+namespace {
+
+// A stack of Poisson(lambda) counts / 255 (op1's noisy recipe) with a bright rod
+// through it whose dim halo (0.05) reaches 2 voxels out.
+Volume noisy_stack(double lambda, std::uint64_t seed) {
+  Volume v;
+  v.nx = 48, v.ny = 40, v.nz = 24;
+  v.voxels.assign(v.size(), 0.0f);
+  std::mt19937_64 rng(seed);
+  std::poisson_distribution<int> counts(lambda);
+  for (float& x : v.voxels) x = static_cast<float>(counts(rng)) / 255.0f;
+  for (int z = 8; z < 16; ++z)
+    for (int y = 18; y < 22; ++y)
+      for (int x = 0; x < v.nx; ++x) v.at(x, y, z) = 0.8f;
+  for (int z = 6; z < 18; ++z)
+    for (int y = 16; y < 24; ++y)
+      for (int x = 0; x < v.nx; ++x) {
+        if (v.at(x, y, z) < 0.5f) v.at(x, y, z) = 0.05f;
+      }
+  v.source = "noisy.tif";
+  return v;
+}
+
+TEST(Background, ExpectedMaxMatchesAMonteCarloDraw) {
+  BackgroundModel m;
+  m.values = {0.0, 1 / 255.0, 2 / 255.0, 3 / 255.0, 5 / 255.0};
+  m.cdf = {0.55, 0.88, 0.97, 0.995, 1.0};
+  std::mt19937_64 rng(3);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  for (const int n : {1, 7, 60, 400}) {
+    double sum = 0;
+    constexpr int kTrials = 20000;
+    for (int t = 0; t < kTrials; ++t) {
+      double top = 0;
+      for (int i = 0; i < n; ++i) top = std::max(top, m.quantile(u(rng)));
+      sum += top;
+    }
+    const double mc = sum / kTrials;
+    // The Monte-Carlo mean's standard error is below 0.5 % of these values.
+    EXPECT_NEAR(m.expected_max(n), mc, 0.01 * mc + 1e-6) << "n = " << n;
+  }
+  EXPECT_DOUBLE_EQ(m.expected_max(1), m.mean());
+  EXPECT_LE(m.expected_max(1e6), 5 / 255.0 + 1e-12);  // never past the largest atom
+  EXPECT_GT(m.expected_max(1e6), 4.99 / 255.0);
+}
+
+TEST(Background, EstimateLeavesTheNeuronAndItsHaloOut) {
+  const double lambda = 0.6;
+  const Volume v = noisy_stack(lambda, 11);
+  const BackgroundModel m = estimate_background(v);
+  ASSERT_FALSE(m.none());
+  EXPECT_EQ(m.values.front(), 0.0);
+  // Poisson(0.6): P(0) = e^-0.6 = 0.549, mean 0.6 / 255; the rod's 0.05 halo is not an atom.
+  EXPECT_NEAR(m.cdf.front(), std::exp(-lambda), 0.01);
+  EXPECT_NEAR(m.mean(), lambda / 255.0, 0.03 * lambda / 255.0);
+  for (const double value : m.values) EXPECT_LT(value, 0.04) << "halo or rod voxels counted as background";
+  EXPECT_GT(m.voxels, static_cast<std::int64_t>(v.size() / 2));
+  // Without the guard the halo comes in.
+  BackgroundOptions no_guard;
+  no_guard.guard_voxels = 0;
+  EXPECT_DOUBLE_EQ(estimate_background(v, no_guard).values.back(), 0.05f);
+}
+
+TEST(Background, AZeroBackgroundIsNone) {
+  Volume v = noisy_stack(0.0, 1);
+  const BackgroundModel m = estimate_background(v);
+  EXPECT_TRUE(m.none());
+  EXPECT_EQ(m.expected_max(500), 0.0);
+  EXPECT_TRUE(BackgroundModel{}.none());
+  // Every voxel foreground: an error naming the stack.
+  std::fill(v.voxels.begin(), v.voxels.end(), 0.9f);
+  EXPECT_THROW((void)estimate_background(v), InputError);
+}
+
+TEST(Background, ManyDistinctValuesAreBinnedKeepingTheMean) {
+  Volume v = noisy_stack(0.6, 5);
+  std::mt19937_64 rng(8);
+  std::exponential_distribution<double> noise(300.0);  // continuous: every value distinct
+  for (float& x : v.voxels) {
+    if (x < 0.04f) x = static_cast<float>(std::min(noise(rng), 0.15));
+  }
+  BackgroundOptions options;
+  options.max_atoms = 64;
+  const BackgroundModel m = estimate_background(v, options);
+  EXPECT_LE(m.values.size(), 64u);
+  double sum = 0;
+  std::int64_t count = 0;
+  for (int z = 0; z < v.nz; ++z)
+    for (int y = 0; y < v.ny; ++y)
+      for (int x = 0; x < v.nx; ++x) {
+        // The rod (z 8-15, y 18-21, above the foreground level) and 3 voxels around it.
+        const bool near_rod = z >= 8 - 3 && z < 16 + 3 && y >= 18 - 3 && y < 22 + 3;
+        if (!near_rod) {
+          sum += v.at(x, y, z);
+          ++count;
+        }
+      }
+  EXPECT_EQ(m.voxels, count);
+  EXPECT_NEAR(m.mean(), sum / static_cast<double>(count), 1e-6);
+}
+
+TEST(Background, TextRoundTripsAndBadTextIsRefused) {
+  BackgroundModel m;
+  m.values = {0.0, 0.1 / 3, 0.05};
+  m.cdf = {0.5, 0.9, 1.0};
+  m.samples_per_voxel = 0.7312;
+  EXPECT_EQ(BackgroundModel::parse(m.text(), "m.ply"), m);
+  for (const char* bad : {"", "x 2", "1 2 0 0.5", "1 1 0 0.5", "1 2 0.1 0.5 0.05 1", "0 1 0 1", "1 1 0 1 extra",
+                          "1 1 nan 1"}) {
+    EXPECT_THROW((void)BackgroundModel::parse(bad, "m.ply"), InputError) << bad;
+  }
+  try {
+    (void)BackgroundModel::parse("1 1 0 0.5", "m.ply");
+  } catch (const InputError& e) {
+    EXPECT_EQ(std::string(e.what()), "m.ply: background: the last probability is 0.5, not 1");
+  }
+}
+
+}  // namespace
+}  // namespace hisnegs::io
