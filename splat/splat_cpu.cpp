@@ -91,6 +91,9 @@ void CpuSplatRenderer::forward(std::span<const float> params, const Intrinsics& 
   }
   const std::size_t pixels = static_cast<std::size_t>(K.width) * K.height;
   if (image.size() != pixels) throw std::invalid_argument("splat: image span does not match the intrinsics");
+  if (!settings.floor.empty() && settings.floor.size() != pixels) {
+    throw std::invalid_argument("splat: floor span does not match the intrinsics");
+  }
   params_.assign(params.begin(), params.end());
   intrinsics_ = K;
   view_ = view;
@@ -152,6 +155,7 @@ void CpuSplatRenderer::forward(std::span<const float> params, const Intrinsics& 
   stats_.skipped_terms = 0;
   for (std::int64_t s : skipped) stats_.skipped_terms += s;
   std::copy(I_.begin(), I_.end(), image.begin());
+  settings_.floor = {};  // the caller's buffer; the backward reads only the state it left
 }
 
 // Gaussian k's tiles (GaussianTiles); false when its bounding box misses the image
@@ -270,6 +274,7 @@ detail::TileFrame CpuSplatRenderer::tile_frame(int tile) const {
   f.stride = intrinsics_.width;
   f.k = settings_;
   f.k.count_skipped = f.k.soft() && settings_.count_skipped;
+  f.floor = settings_.floor.empty() ? nullptr : settings_.floor.data();  // forward only
   return f;
 }
 

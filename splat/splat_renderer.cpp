@@ -22,13 +22,15 @@ class CudaSplatRenderer final : public SplatRenderer {
  public:
   void forward(std::span<const float> params, const Intrinsics& K, const CameraView& view,
                const SplatSettings& settings, std::span<float> image) override {
-    if (params.size() % gmf::kGaussianParamCount != 0 || image.size() != static_cast<std::size_t>(K.width) * K.height) {
-      throw std::invalid_argument("splat: parameter or image span of the wrong size");
+    if (params.size() % gmf::kGaussianParamCount != 0 || image.size() != static_cast<std::size_t>(K.width) * K.height ||
+        (!settings.floor.empty() && settings.floor.size() != image.size())) {
+      throw std::invalid_argument("splat: parameter, image or floor span of the wrong size");
     }
     count_ = params.size() / gmf::kGaussianParamCount;
     pixels_ = image.size();
     soft_ = settings.soft();
-    splatter_.forward(params.data(), count_, make_splat_view<float>(K, view), settings, image.data());
+    splatter_.forward(params.data(), count_, make_splat_view<float>(K, view), settings, image.data(),
+                      settings.floor.empty() ? nullptr : settings.floor.data());
     stats_.visible = splatter_.visible();
     stats_.tile_entries = splatter_.tile_entries();
     stats_.skipped_terms = splatter_.skipped_terms();

@@ -19,6 +19,11 @@ namespace hisnegs::splat {
 // The frame settings (splat_math.hpp's KernelSettings) made from the config section.
 struct SplatSettings : KernelSettings {
   static SplatSettings from(const SplatOptions& options);
+  // The background's MIP per pixel (splat/background_floor.hpp; H × W, row-major),
+  // or empty for none: one more term at every pixel where it is > 0, combined as the
+  // Gaussians' terms are (the max in hard mode, the softmax of Eq. 8 in soft mode).
+  // It takes no gradient. Read during forward() only; the caller keeps it alive.
+  std::span<const float> floor;
 };
 
 // Counters of the last forward (for benchmarks, `render` and tests).

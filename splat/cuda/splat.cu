@@ -118,6 +118,8 @@ struct CudaSplatter::Impl {
   const std::uint32_t* sorted_ids = nullptr;      // whichever of ids[] holds the sorted list
   DeviceBuffer<uint2> ranges;                     // tiles: [begin, end) into the sorted list
   DeviceBuffer<float> m, S, I;                    // pixels: softmax state kept for backward
+  DeviceBuffer<float> floor;                      // pixels: the background term (forward only)
+  bool has_floor = false;
   DeviceBuffer<kernels::FrameCounters> counters;  // 1
   DeviceBuffer<unsigned char> cub_temp;
   DeviceBuffer<float> dL_dI;                    // pixels
@@ -127,7 +129,9 @@ struct CudaSplatter::Impl {
 
   Event start, scan_done, sort_start, stop;
 
-  kernels::TileParams tile_params() const { return {view.width, view.height, tiles_x, settings}; }
+  kernels::TileParams tile_params() const {
+    return {view.width, view.height, tiles_x, settings, has_floor ? floor.data() : nullptr};
+  }
   void bin();
 };
 
@@ -179,7 +183,7 @@ void CudaSplatter::Impl::bin() {
 }
 
 void CudaSplatter::forward(const float* params, std::size_t count, const ViewParams<float>& view,
-                           const KernelSettings& settings, float* image) {
+                           const KernelSettings& settings, float* image, const float* floor) {
   Impl& d = *impl_;
   if (count > static_cast<std::size_t>(INT_MAX)) {
     throw std::invalid_argument("CudaSplatter::forward: " + std::to_string(count) + " Gaussians exceed INT_MAX");
@@ -211,6 +215,11 @@ void CudaSplatter::forward(const float* params, std::size_t count, const ViewPar
   reserve(d.S, d.pixels);
   reserve(d.I, d.pixels);
   reserve(d.counters, 1);
+  d.has_floor = floor != nullptr;
+  if (d.has_floor) {
+    reserve(d.floor, d.pixels);
+    HISNEGS_CUDA_CHECK(cudaMemcpy(d.floor.data(), floor, d.pixels * sizeof(float), cudaMemcpyHostToDevice));
+  }
   if (count > 0) {
     HISNEGS_CUDA_CHECK(
         cudaMemcpy(d.params.data(), params, kGaussianParamCount * count * sizeof(float), cudaMemcpyHostToDevice));

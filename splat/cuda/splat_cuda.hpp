@@ -22,10 +22,11 @@ class CudaSplatter {
   CudaSplatter& operator=(const CudaSplatter&) = delete;
 
   // Renders `count` Gaussians (host `params`, 11 floats each, gmf::GaussianParam
-  // order) into host `image` (view.height x view.width floats). Keeps the device
-  // state for backward(). Synchronous.
+  // order) into host `image` (view.height x view.width floats), with host `floor`
+  // (same size; null: none) as one more term per pixel. Keeps the device state for
+  // backward(). Synchronous.
   void forward(const float* params, std::size_t count, const ViewParams<float>& view, const KernelSettings& settings,
-               float* image);
+               float* image, const float* floor = nullptr);
   // Soft mode: adds dL/dparams (11 x count, host) for host `dL_dimage` (H x W) of the
   // last forward; when `screen_grad` is not null also adds |dL/dμ2D| per Gaussian.
   void backward(const float* dL_dimage, float* dL_dparams, float* screen_grad);

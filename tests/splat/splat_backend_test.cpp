@@ -224,6 +224,45 @@ TEST_P(SplatBackend, BackwardMatchesReference) {
   }
 }
 
+// A floor per pixel (the background's MIP): forward in both modes and the soft
+// backward match the reference with the same floor (tolerances as above), with the
+// skip rule on (the floor raises m, so more terms are skipped), on pixels no
+// Gaussian reaches too.
+TEST_P(SplatBackend, FloorIsOneMoreTermPerPixel) {
+  const auto scene = make_splat_scene(30, 71, 70, 45);
+  const ViewParams<double> view = make_splat_view<double>(scene.K, scene.view);
+  std::vector<float> floor(static_cast<std::size_t>(scene.K.width) * scene.K.height);
+  for (std::size_t i = 0; i < floor.size(); ++i) floor[i] = i % 7 == 0 ? 0.0f : 0.02f + 0.3f * ((i * 37) % 101) / 101.0f;
+  for (const MipMode mode : {MipMode::kSoft, MipMode::kHard}) {
+    SplatSettings s;
+    s.mode = mode;
+    s.beta = 30.0f;
+    s.cutoff = 1e6f;
+    s.skip_log_weight = 0.0f;
+    s.floor = floor;
+    const std::vector<double> ref = render_reference(scene.params, view, s);
+    const std::vector<float> img = render(*renderer_, scene, s);
+    EXPECT_LT(max_abs_diff(img, ref), 1e-4) << (mode == MipMode::kSoft ? "soft" : "hard");
+  }
+  SplatSettings s;
+  s.beta = 30.0f;
+  s.cutoff = 1e6f;
+  s.floor = floor;
+  const std::vector<double> w = random_weights(floor.size(), 72);
+  const std::vector<double> ref = render_reference_backward(scene.params, view, s, w);
+  render(*renderer_, scene, s);
+  std::vector<float> grad(scene.params.size(), 0.0f);
+  renderer_->backward(to_float(w), grad);
+  const std::vector<double> largest = largest_per_kind(ref);
+  for (std::size_t i = 0; i < ref.size(); ++i) {
+    EXPECT_LT(std::abs(grad[i] - ref[i]), 1e-3 * largest[i % 11] + 1e-9) << "param " << i;
+  }
+  // A floor of the wrong size is refused.
+  s.floor = std::span<const float>(floor.data(), floor.size() - 1);
+  std::vector<float> image(floor.size());
+  EXPECT_THROW(renderer_->forward(to_float(scene.params), scene.K, scene.view, s, image), std::invalid_argument);
+}
+
 // The backward with the skip rule on (the default): it differentiates exactly the
 // terms the forward summed (on the CPU: culled by the same row floors and whole-tile
 // test), and the terms it drops weigh

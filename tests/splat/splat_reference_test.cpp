@@ -8,6 +8,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <random>
 
 #include "tests/splat/splat_test_scenes.hpp"
 #include "tests/test_support.hpp"
@@ -52,6 +53,65 @@ TEST(SplatReference, BackwardMatchesFiniteDifferences) {
           << "seed " << seed << " param " << i << " (kind " << i % 11 << "): analytic " << grad[i] << " fd " << fd;
     }
   }
+}
+
+// With a floor (the background's MIP, one more term per pixel that takes no
+// gradient) the backward still matches finite differences, and a pixel no Gaussian
+// reaches shows the floor itself.
+TEST(SplatReference, BackwardWithAFloorMatchesFiniteDifferences) {
+  const auto scene = make_splat_scene(5, 7);
+  const ViewParams<double> view = make_splat_view<double>(scene.K, scene.view);
+  std::mt19937_64 rng(17);
+  std::uniform_real_distribution<double> u(-1, 1), level(0.0, 0.4);
+  std::vector<float> floor(static_cast<std::size_t>(view.width) * view.height);
+  for (float& b : floor) b = static_cast<float>(level(rng));
+  floor[3] = 0.0f;  // no floor at this pixel
+  for (const MipMode mode : {MipMode::kSoft, MipMode::kHard}) {
+    SplatSettings settings;
+    settings.mode = mode;
+    settings.beta = 20.0f;
+    settings.cutoff = 1e6f;
+    settings.floor = floor;
+    const std::vector<double> img = render_reference(scene.params, view, settings);
+    SplatSettings bare = settings;
+    bare.floor = {};
+    const std::vector<double> without = render_reference(scene.params, view, bare);
+    for (std::size_t i = 0; i < img.size(); ++i) {
+      if (mode == MipMode::kHard) {
+        EXPECT_DOUBLE_EQ(img[i], std::max<double>(without[i], floor[i])) << i;
+      } else {
+        EXPECT_GE(img[i], std::min<double>(without[i], floor[i]) - 1e-12) << i;
+      }
+    }
+  }
+  SplatSettings settings;
+  settings.beta = 20.0f;
+  settings.cutoff = 1e6f;
+  settings.floor = floor;
+  std::vector<double> w(floor.size());
+  for (double& x : w) x = u(rng);
+  const std::vector<double> grad = render_reference_backward(scene.params, view, settings, w);
+  auto loss = [&](const std::vector<double>& p) {
+    const std::vector<double> img = render_reference(p, view, settings);
+    double l = 0;
+    for (std::size_t i = 0; i < img.size(); ++i) l += w[i] * img[i];
+    return l;
+  };
+  for (std::size_t i = 0; i < scene.params.size(); ++i) {
+    double err = 0;
+    const double fd = hisnegs::testing::ridders_derivative(
+        [&](double x) {
+          std::vector<double> p = scene.params;
+          p[i] = x;
+          return loss(p);
+        },
+        scene.params[i], 1e-3, &err);
+    EXPECT_LT(std::abs(grad[i] - fd) / std::max(1e-3, std::abs(fd)), 1e-5)
+        << "param " << i << " (kind " << i % 11 << "): analytic " << grad[i] << " fd " << fd;
+  }
+  // Far from every Gaussian (a scene of none): the image is the floor.
+  const std::vector<double> empty = render_reference(std::vector<double>{}, view, settings);
+  for (std::size_t i = 0; i < empty.size(); ++i) EXPECT_DOUBLE_EQ(empty[i], floor[i]) << i;
 }
 
 // One Gaussian's brightest pixel is the one its centre projects to, with value a.
