@@ -406,6 +406,22 @@ std::string describe(const MixtureModel& model) {
   return "softmax (beta " + io::number_text(model.beta) + ")";
 }
 
+namespace {
+constexpr const char* kBackgroundKey = "background";
+}  // namespace
+
+io::BackgroundModel background_of(const CheckpointMeta& meta, const std::string& source) {
+  for (const auto& [key, value] : meta.extra) {
+    if (key == kBackgroundKey) return io::BackgroundModel::parse(value, source);
+  }
+  return {};
+}
+
+void set_background(CheckpointMeta& meta, const io::BackgroundModel& model) {
+  std::erase_if(meta.extra, [](const auto& kv) { return kv.first == kBackgroundKey; });
+  if (!model.none()) meta.extra.emplace_back(kBackgroundKey, model.text());
+}
+
 std::optional<io::WorldFrame> model_frame(const CheckpointMeta& meta) {
   if (!meta.volume_shape_zyx || !meta.aspect) return std::nullopt;
   const auto& s = *meta.volume_shape_zyx;

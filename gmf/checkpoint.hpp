@@ -14,6 +14,7 @@
 
 #include "gmf/aggregation.hpp"
 #include "gmf/gaussian_mixture.hpp"
+#include "io/background.hpp"
 #include "io/ply.hpp"
 #include "io/volume.hpp"
 
@@ -110,6 +111,15 @@ void save_checkpoint(const std::filesystem::path& path, const GaussianMixture& m
 // The frame of the stack a checkpoint was fitted to, from its `volume_shape` and
 // `aspect` metadata; nullopt when either is missing (e.g. a model made elsewhere).
 [[nodiscard]] std::optional<io::WorldFrame> model_frame(const CheckpointMeta& meta);
+
+// The background a checkpoint records ("comment hisnegs background ..." in the
+// io::BackgroundModel text form): what a ray through the stack samples of its noise,
+// from which renders draw the MIP's floor. A checkpoint without the line (every file
+// before it, and fits of zero-background stacks) has none: an empty model. Throws
+// io::InputError naming `source` for a line that does not parse.
+[[nodiscard]] io::BackgroundModel background_of(const CheckpointMeta& meta, const std::string& source);
+// Records `model` in `meta` (replacing any earlier one); a none() model removes it.
+void set_background(CheckpointMeta& meta, const io::BackgroundModel& model);
 
 // Checks that `frame` (the stack `volume`) spans the same world box as the stack the
 // model was fitted to (its `aspect` metadata, relative tolerance 1e-6), so that the

@@ -16,8 +16,14 @@
 
 namespace hisnegs::io {
 
-// How estimate_background tells background voxels from the neuron.
+// Config section `background`: whether a fit records the stack's background for
+// renders to draw its MIP floor, and how estimate_background tells background voxels
+// from the neuron.
 struct BackgroundOptions {
+  // Estimate the stack's background and record it in the fit's checkpoint (renders
+  // draw its floor); false: the checkpoint records none. A stack whose background is
+  // exactly 0 records none either way.
+  bool estimate = true;
   // A voxel is foreground when its normalized value is above this; background voxels
   // are those farther than guard_voxels (Chebyshev distance, in voxels) from every
   // foreground voxel, so the neuron's dim PSF halo stays out of the noise. (0, 1).
@@ -27,6 +33,13 @@ struct BackgroundOptions {
   // equal-width bins over [0, the largest background value]. [16, 4096].
   int max_atoms = 256;
   void validate() const;  // throws InputError naming the field
+  template <class V>
+  void visit(V&& v) {
+    v("estimate", estimate);
+    v("foreground_level", foreground_level);
+    v("guard_voxels", guard_voxels);
+    v("max_atoms", max_atoms);
+  }
 };
 
 // A discrete distribution of background values (atoms in normalized intensity with

@@ -109,6 +109,22 @@ std::vector<float> background_floor(const FloorTable& table, const io::WorldFram
   return floor;
 }
 
+BackgroundFloors::BackgroundFloors(const io::BackgroundModel& model, const io::WorldFrame& frame)
+    : table_(model), frame_(frame) {}
+
+std::vector<float> BackgroundFloors::operator()(const Intrinsics& K, const CameraView& view) const {
+  if (none()) return {};
+  return background_floor(table_, frame_, K, view);
+}
+
+BackgroundFloors floors_of(const gmf::CheckpointMeta& meta, const std::string& source, bool draw) {
+  if (!draw) return {};
+  const io::BackgroundModel model = gmf::background_of(meta, source);
+  const std::optional<io::WorldFrame> frame = gmf::model_frame(meta);
+  if (model.none() || !frame) return {};
+  return BackgroundFloors(model, *frame);
+}
+
 FloorCalibration calibrate_background(io::BackgroundModel& model, const io::WorldFrame& frame,
                                       const RaymarchOptions& options, std::uint64_t seed) {
   FloorCalibration out;

@@ -8,8 +8,10 @@
 #pragma once
 
 #include <cstdint>
+#include <string>
 #include <vector>
 
+#include "gmf/checkpoint.hpp"
 #include "io/background.hpp"
 #include "io/volume.hpp"
 #include "splat/camera.hpp"
@@ -42,6 +44,27 @@ class FloorTable {
 // misses the box. Parallel over rows.
 [[nodiscard]] std::vector<float> background_floor(const FloorTable& table, const io::WorldFrame& frame,
                                                   const Intrinsics& K, const CameraView& view);
+
+// The floors of one model: its background's FloorTable in its stack's frame. Empty
+// (none()) when there is nothing to draw; then every call gives an empty image.
+class BackgroundFloors {
+ public:
+  BackgroundFloors() = default;
+  BackgroundFloors(const io::BackgroundModel& model, const io::WorldFrame& frame);
+  [[nodiscard]] bool none() const { return table_.none(); }
+  // background_floor of this camera, or empty when none().
+  [[nodiscard]] std::vector<float> operator()(const Intrinsics& K, const CameraView& view) const;
+
+ private:
+  FloorTable table_;
+  io::WorldFrame frame_;
+};
+
+// The floors a checkpoint's renders draw: its recorded background in the frame of
+// its stack (volume_shape and aspect), when `draw` (SplatOptions::background) and the
+// checkpoint has both; else none. Throws io::InputError naming `source` for a
+// background line that does not parse.
+[[nodiscard]] BackgroundFloors floors_of(const gmf::CheckpointMeta& meta, const std::string& source, bool draw);
 
 // What calibrate_background measured: c, and how well E[max of c L] matches the
 // marcher's mean MIP of noise over the chords it saw.

@@ -10,7 +10,8 @@
 namespace hisnegs::splat {
 
 RenderedViews render_views(SplatRenderer& renderer, std::span<const float> params, const CameraSet& cameras,
-                           const SplatSettings& settings, const std::function<void(int, int)>& progress) {
+                           const SplatSettings& settings, const std::function<void(int, int)>& progress,
+                           const BackgroundFloors& floors) {
   RenderedViews out;
   MipStack& s = out.stack;
   s.width = cameras.intrinsics.width;
@@ -21,7 +22,10 @@ RenderedViews render_views(SplatRenderer& renderer, std::span<const float> param
   s.pixels.assign(pixels * cameras.views.size(), 0.0f);
   for (int i = 0; i < s.views; ++i) {
     io::Stopwatch watch;
-    renderer.forward(params, cameras.intrinsics, cameras.views[i], settings,
+    const std::vector<float> floor = floors(cameras.intrinsics, cameras.views[i]);
+    SplatSettings view_settings = settings;
+    view_settings.floor = floor;
+    renderer.forward(params, cameras.intrinsics, cameras.views[i], view_settings,
                      std::span<float>(s.pixels.data() + pixels * i, pixels));
     s.seconds_per_view.push_back(watch.elapsed());
     out.stats.push_back(renderer.stats());

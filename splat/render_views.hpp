@@ -8,6 +8,7 @@
 #include <span>
 #include <vector>
 
+#include "splat/background_floor.hpp"
 #include "splat/ground_truth.hpp"
 #include "splat/splat_renderer.hpp"
 
@@ -19,8 +20,11 @@ struct RenderedViews {
 };
 
 // `params` is 11 K floats (flat_params). `progress(done, total)` after each view.
+// `floors` (the model's background, splat/background_floor.hpp) are drawn under the
+// Gaussians when not none(); settings.floor is ignored (set per view).
 RenderedViews render_views(SplatRenderer& renderer, std::span<const float> params, const CameraSet& cameras,
-                           const SplatSettings& settings, const std::function<void(int, int)>& progress = {});
+                           const SplatSettings& settings, const std::function<void(int, int)>& progress = {},
+                           const BackgroundFloors& floors = {});
 
 // A 360° orbit of `frames` views at `elevation_deg` (azimuths evenly spaced from 0),
 // radius and intrinsics from `options`; views named orbit_000...

@@ -62,6 +62,22 @@ Trainer::Trainer(const TrainOptions& options, const SplatSettings& splat, Traini
 
 Trainer::~Trainer() = default;
 
+void Trainer::set_floors(std::vector<std::vector<float>> floors) {
+  const std::size_t pixels = static_cast<std::size_t>(data_.intrinsics.width) * data_.intrinsics.height;
+  if (!floors.empty() && floors.size() != static_cast<std::size_t>(data_.count())) {
+    throw std::invalid_argument("Trainer::set_floors: " + std::to_string(floors.size()) + " floors for " +
+                                std::to_string(data_.count()) + " views");
+  }
+  for (const std::vector<float>& f : floors) {
+    if (f.size() != pixels) throw std::invalid_argument("Trainer::set_floors: a floor of the wrong size");
+  }
+  floors_ = std::move(floors);
+}
+
+std::span<const float> Trainer::floor_of(int view) const {
+  return floors_.empty() ? std::span<const float>() : std::span<const float>(floors_[static_cast<std::size_t>(view)]);
+}
+
 void Trainer::resize_state(std::size_t K) {
   grad_accum_.assign(K, 0.0);
   grad_count_.assign(K, 0);
@@ -79,15 +95,23 @@ Trainer::StepSums Trainer::train_step(std::span<const int> view_indices) {
     if (i < 0 || i >= data_.count()) throw std::out_of_range("Trainer::step: view index " + std::to_string(i));
     Intrinsics intr = data_.intrinsics;
     std::span<const float> target = data_.image(i);
+    settings.floor = floor_of(i);
     if (options_.crop_size > 0) {
       // A random crop is the same pinhole camera with its principal point shifted.
       const int c = options_.crop_size;
       const int x0 = std::uniform_int_distribution<int>(0, intr.width - c)(rng_);
       const int y0 = std::uniform_int_distribution<int>(0, intr.height - c)(rng_);
-      target_crop_.resize(static_cast<std::size_t>(c) * c);
-      for (int r = 0; r < c; ++r) {
-        std::copy_n(target.begin() + static_cast<std::ptrdiff_t>(y0 + r) * intr.width + x0, c,
-                    target_crop_.begin() + static_cast<std::ptrdiff_t>(r) * c);
+      const auto crop = [&](std::span<const float> image, std::vector<float>& out) {
+        out.resize(static_cast<std::size_t>(c) * c);
+        for (int r = 0; r < c; ++r) {
+          std::copy_n(image.begin() + static_cast<std::ptrdiff_t>(y0 + r) * intr.width + x0, c,
+                      out.begin() + static_cast<std::ptrdiff_t>(r) * c);
+        }
+      };
+      crop(target, target_crop_);
+      if (!settings.floor.empty()) {
+        crop(settings.floor, floor_crop_);
+        settings.floor = floor_crop_;
       }
       intr.cx -= x0;
       intr.cy -= y0;
@@ -165,6 +189,7 @@ Trainer::Evaluation Trainer::evaluate(std::span<const float> params, double beta
   const double reg = options_.lambda_scale *
                      scale_regularizer(params, options_.scale_min, options_.scale_max, 0.0, std::span<float>());
   for (int i = 0; i < data_.count(); ++i) {
+    settings.floor = floor_of(i);
     renderer_->forward(params, intr, data_.views[static_cast<std::size_t>(i)], settings, image_);
     e.loss +=
         combined_image_loss(image_, data_.image(i), intr.width, intr.height, weights_, std::span<float>(), workspace_)

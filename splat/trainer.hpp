@@ -81,6 +81,11 @@ class Trainer {
   // step on, each step adds the term on volume_blocks blocks drawn with the trainer's
   // RNG, and prune() also removes Gaussians whose centre `term` says is in empty space.
   void attach_volume(std::shared_ptr<const VolumeTerm> term) { volume_ = std::move(term); }
+  // Renders every view over its background floor (one per training view, each the
+  // image size: splat/background_floor.hpp), in the steps and in evaluate(), so the
+  // loss compares what the ground truth shows: the Gaussians and the noise's MIP.
+  // Empty: none. Throws std::invalid_argument for a count or size that does not fit.
+  void set_floors(std::vector<std::vector<float>> floors);
   [[nodiscard]] bool has_volume() const { return volume_ != nullptr; }
 
   // Runs epoch epoch()+1 and its density control. Precondition: !finished().
@@ -173,7 +178,9 @@ class Trainer {
   std::mt19937_64 rng_;
 
   // Scratch reused by every step.
-  std::vector<float> grad_, image_, dimage_, target_crop_, view_screen_grad_;
+  std::vector<float> grad_, image_, dimage_, target_crop_, floor_crop_, view_screen_grad_;
+  std::vector<std::vector<float>> floors_;  // per training view, or none
+  [[nodiscard]] std::span<const float> floor_of(int view) const;
   LossWorkspace workspace_;
 };
 

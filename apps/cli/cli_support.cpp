@@ -41,6 +41,20 @@ void VolumeOverrides::apply(io::VolumeOptions& options) const {
   options.validate();
 }
 
+void BackgroundOverride::add_to(CLI::App* command) {
+  command->add_option("--background", value,
+                      "model | none: draw the MIP floor of the background the checkpoint records, or the Gaussians "
+                      "alone (default from config: splat.background)");
+}
+
+void BackgroundOverride::apply(splat::SplatOptions& options) const {
+  if (value.empty()) return;
+  if (value != "model" && value != "none") {
+    throw io::InputError("--background = '" + io::printable(value, 40) + "': expected model or none");
+  }
+  options.background = value == "model";
+}
+
 CLI::Validator finite_number() {
   return CLI::Validator(
       [](std::string& text) -> std::string {

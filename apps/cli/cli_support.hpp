@@ -39,6 +39,15 @@ struct VolumeOverrides {
   void apply(io::VolumeOptions& options) const;
 };
 
+// `--background model|none` of the commands that render a checkpoint: draw the MIP
+// floor of the background the checkpoint records (splat.background) or not.
+struct BackgroundOverride {
+  std::string value;  // "" = the config's splat.background
+  void add_to(CLI::App* command);
+  // Applies the flag to `options`; throws io::InputError for another word.
+  void apply(splat::SplatOptions& options) const;
+};
+
 // Each registers one subcommand whose callback does the work.
 void add_info_command(CLI::App& app, GlobalOptions& global);
 void add_synth_command(CLI::App& app, GlobalOptions& global);

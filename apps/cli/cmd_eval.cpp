@@ -14,6 +14,7 @@ void add_eval_command(CLI::App& app, GlobalOptions& global) {
   struct Args {
     std::string model, data, out, mode, backend = "auto";
     std::optional<double> beta;
+    BackgroundOverride background;
   };
   auto args = std::make_shared<Args>();
   cmd->add_option("--model", args->model, "checkpoint (.ply or .hgs)")->required();
@@ -22,10 +23,12 @@ void add_eval_command(CLI::App& app, GlobalOptions& global) {
   cmd->add_option("--mode", args->mode, "soft | hard (default splat.mode)");
   cmd->add_option("--beta", args->beta, "soft-MIP beta (default splat.beta)");
   cmd->add_option("--backend", args->backend, "auto | cpu | cuda");
+  args->background.add_to(cmd);
   cmd->callback([args, &global] {
     AppConfig config = global.config();
     if (!args->mode.empty()) io::set_enum_field(config.splat, "mode", args->mode, "--mode");
     if (args->beta) config.splat.beta = *args->beta;
+    args->background.apply(config.splat);
     config.splat.validate();
     evaluate_model(args->model, ground_truth_set_dir(args->data, "eval"), args->out, EvalConfig(config),
                    splat::resolve_backend(splat::parse_backend_request(args->backend)), global.progress());

@@ -13,6 +13,7 @@ void add_render_command(CLI::App& app, GlobalOptions& global) {
   struct Args {
     std::string model, cameras, out, mode, backend = "auto";
     std::optional<double> beta;
+    BackgroundOverride background;
     std::optional<int> orbit, size;
     double elevation = 20.0;
     int delay_ms = 50;
@@ -24,6 +25,7 @@ void add_render_command(CLI::App& app, GlobalOptions& global) {
   cmd->add_option("--mode", args->mode, "soft | hard (default splat.mode)");
   cmd->add_option("--beta", args->beta, "soft-MIP beta (default splat.beta)");
   cmd->add_option("--backend", args->backend, "auto | cpu | cuda");
+  args->background.add_to(cmd);
   cmd->add_option("--orbit", args->orbit, "also write orbit.gif: N frames of a 360 degree orbit");
   cmd->add_option("--elevation", args->elevation, "orbit elevation in degrees")->capture_default_str();
   cmd->add_option("--size", args->size, "orbit image width = height (default camera.width/height)");
@@ -32,6 +34,7 @@ void add_render_command(CLI::App& app, GlobalOptions& global) {
     AppConfig config = global.config();
     if (!args->mode.empty()) io::set_enum_field(config.splat, "mode", args->mode, "--mode");
     if (args->beta) config.splat.beta = *args->beta;
+    args->background.apply(config.splat);
     if (args->size) config.camera.width = config.camera.height = *args->size;
     config.splat.validate();
     config.camera.validate();

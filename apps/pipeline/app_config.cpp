@@ -8,6 +8,7 @@ namespace hisnegs::apps {
 
 void AppConfig::validate() const {
   volume.validate();
+  background.validate();
   sparse_grid.validate();
   synth.validate();
   camera.validate();
@@ -21,7 +22,7 @@ namespace {
 
 AppConfig overlay(const io::ConfigFile& file, const std::string& origin) {
   AppConfig config;
-  file.check_sections({"volume", "sparse_grid", "synth", "camera", "raymarch", "splat", "train", "gmf"});
+  file.check_sections({"volume", "background", "sparse_grid", "synth", "camera", "raymarch", "splat", "train", "gmf"});
   config.for_each_section([&](const char* name, auto& options) { file.read(name, options); });
   try {
     config.validate();

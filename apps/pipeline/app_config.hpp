@@ -9,6 +9,7 @@
 #include <string>
 
 #include "gmf/gmf_options.hpp"
+#include "io/background.hpp"
 #include "io/load_volume.hpp"
 #include "io/sparse_grid.hpp"
 #include "io/synthetic_neuron.hpp"
@@ -18,6 +19,7 @@ namespace hisnegs::apps {
 
 struct AppConfig {
   io::VolumeOptions volume;
+  io::BackgroundOptions background;
   io::SparseGridOptions sparse_grid;
   io::SyntheticNeuronOptions synth;
   splat::CameraOptions camera;
@@ -30,6 +32,7 @@ struct AppConfig {
   template <class F>
   void for_each_section(F&& f) {
     f("volume", volume);
+    f("background", background);
     f("sparse_grid", sparse_grid);
     f("synth", synth);
     f("camera", camera);

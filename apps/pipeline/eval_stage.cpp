@@ -62,8 +62,10 @@ EvalOutcome evaluate_model(const std::filesystem::path& model, const std::filesy
   const splat::SplatSettings settings = splat::SplatSettings::from(config.get<&AppConfig::splat>());
   auto renderer = splat::make_splat_renderer(backend);
   const splat::CameraSet cameras{truth.intrinsics, truth.views};
+  const splat::BackgroundFloors floors =
+      splat::floors_of(checkpoint.meta, model.string(), config.get<&AppConfig::splat>().background);
   const splat::RenderedViews r =
-      splat::render_views(*renderer, splat::flat_params(checkpoint.mixture), cameras, settings);
+      splat::render_views(*renderer, splat::flat_params(checkpoint.mixture), cameras, settings, {}, floors);
   ViewMeasurements m;
   measure_views(truth, r, dir, m);
   const EvalOutcome outcome{truth.count(), splat::summarize(m.psnr), splat::summarize(m.mae), splat::summarize(m.ssim)};
@@ -73,6 +75,7 @@ EvalOutcome evaluate_model(const std::filesystem::path& model, const std::filesy
   meta["gaussians"] = checkpoint.mixture.size();
   meta["mode"] = settings.mode == splat::MipMode::kSoft ? "soft" : "hard";
   meta["beta"] = settings.beta;
+  meta["background"] = floors.none() ? "none" : "the model's floor";
   meta["backend"] = std::string(splat::to_string(backend));
   meta["views"] = truth.count();
   meta["psnr"] = summary_json(outcome.psnr);

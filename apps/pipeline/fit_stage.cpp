@@ -10,6 +10,7 @@
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
 #include "io/timer.hpp"
+#include "splat/background_floor.hpp"
 
 namespace hisnegs::apps {
 namespace {
@@ -28,6 +29,31 @@ void report_iteration(const gmf::FitIteration& it, const Progress& progress) {
 }
 
 }  // namespace
+
+void record_background(const io::LoadedVolume& loaded, const FitConfig& config, gmf::CheckpointMeta& meta,
+                       const Progress& progress) {
+  const io::BackgroundOptions& options = config.get<&AppConfig::background>();
+  if (!options.estimate) {
+    progress.say("fit: background: not estimated (background.estimate: false): renders draw no floor");
+    return;
+  }
+  io::Stopwatch watch;
+  io::BackgroundModel model = io::estimate_background(loaded.volume, options);
+  if (model.none()) {
+    progress.say("fit: background: exactly 0 outside the neuron (%lld voxels): no floor to draw",
+                 static_cast<long long>(model.voxels));
+    return;
+  }
+  const double mean = model.mean(), p99 = model.quantile(0.99);
+  const long long voxels = model.voxels;
+  const splat::FloorCalibration c = splat::calibrate_background(model, loaded.frame, config.get<&AppConfig::raymarch>());
+  gmf::set_background(meta, model);
+  progress.say(
+      "fit: background: %lld voxels, mean %.4g, p99 %.4g; a ray gathers %.2f samples per voxel (fits the ray "
+      "marcher's MIP of noise to %.1f %% on %d rays); renders draw its MIP floor, %s",
+      voxels, mean, p99, c.samples_per_voxel, 100.0 * c.worst_relative_error, c.rays,
+      format_seconds(watch.elapsed()).c_str());
+}
 
 std::string fit_log_csv_header() { return "iteration,seconds,loss,psnr_fg,psnr_3d,gaussians,round,beta"; }
 
@@ -103,6 +129,7 @@ FitOutcome fit_to_checkpoint(const std::string& volume, const FitConfig& config,
   gmf::CheckpointMeta meta = checkpoint_meta(setup.loaded, volume);
   meta.aggregation = gmf.aggregation;
   meta.beta = result.final_beta;
+  record_background(setup.loaded, config, meta, progress);
   gmf::save_checkpoint(out, mixture, meta);
   if (!log_csv.empty()) {
     std::ostringstream s;

@@ -19,7 +19,8 @@
 
 namespace hisnegs::apps {
 
-using FitConfig = ConfigSlice<&AppConfig::volume, &AppConfig::sparse_grid, &AppConfig::gmf>;
+using FitConfig = ConfigSlice<&AppConfig::volume, &AppConfig::background, &AppConfig::sparse_grid, &AppConfig::gmf,
+                              &AppConfig::raymarch>;
 
 // What the GMF fit starts from: the normalized volume, its samples (from the
 // sparse grid with the fit's background share, gmf.background_fraction; the grid
@@ -45,8 +46,15 @@ void append_fit_log_csv(std::ostringstream& s, std::span<const gmf::FitIteration
 // Checkpoint metadata of a model fitted to `loaded` (shape, spacing, aspect, normalization, source).
 gmf::CheckpointMeta checkpoint_meta(const io::LoadedVolume& loaded, const std::string& source);
 
-// prepare_fit(), the fit, the checkpoint `out` and, unless empty, the iteration log
-// `log_csv`; a line per iteration report and density-control round, one at the end.
+// Estimates the background of `loaded` (config section `background`), calibrates it
+// against the ray marcher (`raymarch`) and records it in `meta`, with one line; does
+// nothing (but say so) when background.estimate is false or the background is 0.
+void record_background(const io::LoadedVolume& loaded, const FitConfig& config, gmf::CheckpointMeta& meta,
+                       const Progress& progress);
+
+// prepare_fit(), the fit, the checkpoint `out` (with the stack's background,
+// record_background) and, unless empty, the iteration log `log_csv`; a line per
+// iteration report and density-control round, one at the end.
 struct FitOutcome {
   std::size_t gaussians = 0;
   double psnr_3d = 0;  // of the final mixture against the normalized volume

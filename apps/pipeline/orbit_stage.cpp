@@ -15,11 +15,11 @@ namespace hisnegs::apps {
 
 std::vector<double> write_orbit_gif(const std::filesystem::path& gif, splat::SplatRenderer& renderer,
                                     std::span<const float> params, const OrbitConfig& config,
-                                    const OrbitOptions& orbit) {
+                                    const OrbitOptions& orbit, const splat::BackgroundFloors& floors) {
   const splat::CameraSet cameras =
       splat::turntable(config.get<&AppConfig::camera>(), orbit.frames, orbit.elevation_deg);
-  const splat::RenderedViews r =
-      splat::render_views(renderer, params, cameras, splat::SplatSettings::from(config.get<&AppConfig::splat>()));
+  const splat::RenderedViews r = splat::render_views(
+      renderer, params, cameras, splat::SplatSettings::from(config.get<&AppConfig::splat>()), {}, floors);
   std::vector<io::Image8> images;
   for (int i = 0; i < r.stack.views; ++i)
     images.push_back(io::to_gray8(r.stack.view(i), r.stack.width, r.stack.height));
@@ -36,8 +36,11 @@ nlohmann::ordered_json OrbitStage::run(const RunRequest& request, const Config& 
   const std::filesystem::path& dir = request.dir;
   const gmf::Checkpoint model = gmf::load_checkpoint((dir / "train" / "final.ply").string());
   auto renderer = splat::make_splat_renderer(request.backend);
-  const std::vector<double> seconds = write_orbit_gif(dir / "orbit.gif", *renderer, splat::flat_params(model.mixture),
-                                                      config, {request.orbit_frames, request.orbit_elevation, 50});
+  const splat::BackgroundFloors floors = splat::floors_of(model.meta, (dir / "train" / "final.ply").string(),
+                                                         config.get<&AppConfig::splat>().background);
+  const std::vector<double> seconds =
+      write_orbit_gif(dir / "orbit.gif", *renderer, splat::flat_params(model.mixture), config,
+                      {request.orbit_frames, request.orbit_elevation, 50}, floors);
   const splat::CameraOptions& camera = config.get<&AppConfig::camera>();
   const nlohmann::ordered_json info{{"frames", request.orbit_frames},
                                     {"elevation_deg", request.orbit_elevation},

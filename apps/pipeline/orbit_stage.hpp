@@ -10,6 +10,7 @@
 #include "apps/pipeline/config_slice.hpp"
 #include "apps/pipeline/progress.hpp"
 #include "apps/pipeline/run_stage.hpp"
+#include "splat/background_floor.hpp"
 #include "splat/splat_renderer.hpp"
 
 namespace hisnegs::apps {
@@ -23,10 +24,11 @@ struct OrbitOptions {
 };
 
 // Renders the orbit of `params` (camera intrinsics and radius from `camera`, splatting
-// settings from `splat`) and writes it to `gif`; returns each frame's render time (s).
+// settings from `splat`) over the model's background `floors` and writes it to `gif`;
+// returns each frame's render time (s).
 std::vector<double> write_orbit_gif(const std::filesystem::path& gif, splat::SplatRenderer& renderer,
                                     std::span<const float> params, const OrbitConfig& config,
-                                    const OrbitOptions& orbit);
+                                    const OrbitOptions& orbit, const splat::BackgroundFloors& floors = {});
 
 // In a run folder: DIR/orbit.gif of DIR/train/final.ply and DIR/orbit.json (frames,
 // elevation, size, K, back end, seconds per frame).

@@ -30,6 +30,8 @@ void render_model(const RenderRequest& request, const RenderConfig& config, cons
   const gmf::Checkpoint checkpoint = gmf::load_checkpoint(request.model.string());
   const auto params = splat::flat_params(checkpoint.mixture);
   const splat::SplatSettings settings = splat::SplatSettings::from(config.get<&AppConfig::splat>());
+  const splat::BackgroundFloors floors =
+      splat::floors_of(checkpoint.meta, request.model.string(), config.get<&AppConfig::splat>().background);
   auto renderer = splat::make_splat_renderer(request.backend);
   const std::filesystem::path& dir = request.dir;
   const char* mode = settings.mode == splat::MipMode::kSoft ? "soft" : "hard";
@@ -40,9 +42,10 @@ void render_model(const RenderRequest& request, const RenderConfig& config, cons
   meta["mode"] = mode;
   meta["beta"] = settings.beta;
   meta["backend"] = backend;
+  meta["background"] = floors.none() ? "none" : "the model's floor";
   if (!request.cameras.empty()) {
     const splat::CameraSet cameras = splat::read_cameras_json(request.cameras);
-    const splat::RenderedViews r = splat::render_views(*renderer, params, cameras, settings);
+    const splat::RenderedViews r = splat::render_views(*renderer, params, cameras, settings, {}, floors);
     const splat::MipStack& s = r.stack;
     write_image_stack(dir, "render.tif", s);
     meta["cameras"] = io::printable(request.cameras.string(), 500);
@@ -50,13 +53,14 @@ void render_model(const RenderRequest& request, const RenderConfig& config, cons
     meta["width"] = s.width;
     meta["height"] = s.height;
     meta["median_ms_per_view"] = median_ms(s.seconds_per_view);
-    progress.say("render: %d views of %dx%d, K %zu (%d visible in view 0), %s MIP, %s, median %.2f ms/view -> %s",
+    progress.say("render: %d views of %dx%d, K %zu (%d visible in view 0), %s MIP%s, %s, median %.2f ms/view -> %s",
                  s.views, s.width, s.height, checkpoint.mixture.size(), r.stats.empty() ? 0 : r.stats[0].visible, mode,
-                 backend.c_str(), median_ms(s.seconds_per_view), (dir / "render.tif").c_str());
+                 floors.none() ? "" : " over the background's floor", backend.c_str(), median_ms(s.seconds_per_view),
+                 (dir / "render.tif").c_str());
   }
   if (request.orbit) {
     const OrbitOptions& o = *request.orbit;
-    const std::vector<double> seconds = write_orbit_gif(dir / "orbit.gif", *renderer, params, config, o);
+    const std::vector<double> seconds = write_orbit_gif(dir / "orbit.gif", *renderer, params, config, o, floors);
     meta["orbit"] = {
         {"frames", o.frames}, {"elevation_deg", o.elevation_deg}, {"median_ms_per_frame", median_ms(seconds)}};
     progress.say("render: orbit of %d frames at %.3g deg elevation, median %.2f ms/frame -> %s", o.frames,

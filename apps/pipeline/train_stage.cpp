@@ -2,8 +2,6 @@
 // train_model (set up, run the epochs, finish) and the run folder's training stage.
 #include "apps/pipeline/train_stage.hpp"
 
-#include "apps/pipeline/ground_truth_stage.hpp"
-
 #include <algorithm>
 #include <optional>
 #include <string>
@@ -18,6 +16,7 @@
 #include "io/error.hpp"
 #include "io/folder_lock.hpp"
 #include "io/timer.hpp"
+#include "splat/background_floor.hpp"
 #include "splat/trainer.hpp"
 #include "splat/training_checkpoint.hpp"
 
@@ -74,9 +73,19 @@ TrainingSession start_training(const TrainRequest& request, const TrainConfig& c
   s.views = data.count();
   s.width = data.intrinsics.width;
   s.height = data.intrinsics.height;
+  // The model's background floor under every training view, as the ground truth has it.
+  const splat::BackgroundFloors floors =
+      splat::floors_of(init.meta, request.init.string(), config.get<&AppConfig::splat>().background);
+  std::vector<std::vector<float>> view_floors;
+  if (!floors.none()) {
+    for (const splat::CameraView& view : data.views) view_floors.push_back(floors(data.intrinsics, view));
+    progress.say("train: the views are rendered over the MIP floor of the background the model records "
+                 "(splat.background: false trains the Gaussians alone)");
+  }
   s.trainer.emplace(config.get<&AppConfig::train>(), splat::SplatSettings::from(config.get<&AppConfig::splat>()),
                     std::move(data), std::vector<float>(flat.begin(), flat.end()),
                     splat::make_splat_renderer(request.backend), scene_scale);
+  s.trainer->set_floors(std::move(view_floors));
   if (!request.volume.empty()) {
     s.trainer->attach_volume(make_training_volume(request.volume, config.get<&AppConfig::volume>(),
                                                   config.get<&AppConfig::sparse_grid>(), config.get<&AppConfig::gmf>(),
