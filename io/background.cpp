@@ -59,6 +59,10 @@ void BackgroundOptions::validate() const {
   if (max_atoms < 16 || max_atoms > 4096) {
     throw InputError("background.max_atoms = " + std::to_string(max_atoms) + ": must be in [16, 4096]");
   }
+  if (!(subtracted_zero_fraction > 0.0 && subtracted_zero_fraction <= 1.0)) {
+    throw InputError("background.subtracted_zero_fraction = " + number_text(subtracted_zero_fraction) +
+                     ": must be in (0, 1]");
+  }
 }
 
 bool BackgroundModel::none() const { return values.empty() || values.back() <= 0.0; }
@@ -140,12 +144,13 @@ BackgroundModel estimate_background(const Volume& volume, const BackgroundOption
   }
   std::map<float, std::int64_t> counts;  // distinct values first; binned below when too many
   double largest = 0.0;
-  std::int64_t total = 0;
+  std::int64_t total = 0, zeros = 0;
   for (std::size_t i = 0; i < n; ++i) {
     if (mask[i]) continue;
     const float v = std::max(volume.voxels[i], 0.0f);
     largest = std::max(largest, static_cast<double>(v));
     ++total;
+    zeros += v == 0.0f ? 1 : 0;
     if (counts.size() <= static_cast<std::size_t>(options.max_atoms)) ++counts[v];
   }
   if (total == 0) {
@@ -154,6 +159,11 @@ BackgroundModel estimate_background(const Volume& volume, const BackgroundOption
   }
   BackgroundModel m;
   m.voxels = total;
+  if (static_cast<double>(zeros) >= options.subtracted_zero_fraction * static_cast<double>(total)) {
+    m.values = {0.0};  // a subtracted background: none()
+    m.cdf = {1.0};
+    return m;
+  }
   if (counts.size() > static_cast<std::size_t>(options.max_atoms)) {
     // Too many distinct values: equal-width bins over [0, largest], each atom at its
     // bin's mean value (so the mean of the distribution is kept).

@@ -78,6 +78,8 @@ class CpuSplatRenderer final : public SplatRenderer {
   std::vector<std::uint32_t> entries_;       // Gaussian id per (tile, rank)
   std::vector<detail::PackedSplat> packed_;  // per Gaussian: its 2D parameters for the tile kernels
   std::vector<float> m_, S_, I_;             // per pixel
+  std::vector<std::uint8_t> floor_above_;    // per pixel, soft mode with a floor: the floor won the max
+  std::vector<float> masked_dL_;             // backward scratch: dL/dI with floor_above_ pixels zeroed
   std::vector<float> entry_grads_;           // 6 per entry
   std::vector<double> gaussian_grads_;       // 6 per Gaussian
   SplatFrameStats stats_;
@@ -155,6 +157,14 @@ void CpuSplatRenderer::forward(std::span<const float> params, const Intrinsics& 
   stats_.skipped_terms = 0;
   for (std::int64_t s : skipped) stats_.skipped_terms += s;
   std::copy(I_.begin(), I_.end(), image.begin());
+  floor_above_.clear();
+  if (settings.soft() && !settings.floor.empty()) {  // max(soft MIP, floor); no gradient where the floor wins
+    floor_above_.resize(pixels);
+    for (std::size_t i = 0; i < pixels; ++i) {
+      floor_above_[i] = settings.floor[i] > I_[i] ? 1 : 0;
+      if (floor_above_[i]) image[i] = settings.floor[i];
+    }
+  }
   settings_.floor = {};  // the caller's buffer; the backward reads only the state it left
 }
 
@@ -290,6 +300,14 @@ void CpuSplatRenderer::backward(std::span<const float> dL_dimage, std::span<floa
   if (dL_dimage.size() != I_.size() || dL_dparams.size() != params_.size() ||
       (!screen_grad.empty() && screen_grad.size() != splats_.size())) {
     throw std::invalid_argument("splat: backward spans do not match the last forward");
+  }
+  // Pixels where the floor was above the soft MIP pass no gradient on.
+  if (!floor_above_.empty()) {
+    masked_dL_.assign(dL_dimage.begin(), dL_dimage.end());
+    for (std::size_t i = 0; i < masked_dL_.size(); ++i) {
+      if (floor_above_[i]) masked_dL_[i] = 0.0f;
+    }
+    dL_dimage = masked_dL_;
   }
   // 1. Per (tile, Gaussian) sums of the 2D gradients.
   entry_grads_.resize(6 * entries_.size());

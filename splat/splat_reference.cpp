@@ -39,14 +39,9 @@ void touching(const Projected& p, double px, double py, double cutoff,
   }
 }
 
-// The floor's term (splat_renderer.hpp SplatSettings::floor), an index no Gaussian has.
-constexpr std::size_t kFloorTerm = std::numeric_limits<std::size_t>::max();
-
-void add_floor(const SplatSettings& settings, int width, int r, int c,
-               std::vector<std::pair<std::size_t, double>>& terms) {
-  if (settings.floor.empty()) return;
-  const double b = settings.floor[static_cast<std::size_t>(r) * width + c];
-  if (b > 0.0) terms.emplace_back(kFloorTerm, b);
+// The floor at pixel (r, c) (splat_renderer.hpp SplatSettings::floor), 0 when none.
+double floor_at(const SplatSettings& settings, int width, int r, int c) {
+  return settings.floor.empty() ? 0.0 : settings.floor[static_cast<std::size_t>(r) * width + c];
 }
 
 }  // namespace
@@ -60,7 +55,9 @@ std::vector<double> render_reference(std::span<const double> params, const ViewP
   for (int r = 0; r < view.height; ++r) {
     for (int c = 0; c < view.width; ++c) {
       touching(p, c + 0.5, r + 0.5, settings.cutoff, terms);
-      add_floor(settings, view.width, r, c, terms);
+      const double b = floor_at(settings, view.width, r, c);
+      double& pixel = image[static_cast<std::size_t>(r) * view.width + c];
+      pixel = b;  // max(splat, floor); the splat is 0 where nothing reaches
       if (terms.empty()) continue;
       double g_max = -std::numeric_limits<double>::infinity();
       for (const auto& [k, g] : terms) g_max = std::max(g_max, g);
@@ -74,7 +71,7 @@ std::vector<double> render_reference(std::span<const double> params, const ViewP
         }
         value = W / S;
       }
-      image[static_cast<std::size_t>(r) * view.width + c] = value;
+      pixel = std::max(value, b);
     }
   }
   return image;
@@ -94,7 +91,6 @@ std::vector<double> render_reference_backward(std::span<const double> params, co
       if (dL_dI == 0.0) continue;
       const double px = c + 0.5, py = r + 0.5;
       touching(p, px, py, settings.cutoff, terms);
-      add_floor(settings, view.width, r, c, terms);
       if (terms.empty()) continue;
       double m = -std::numeric_limits<double>::infinity();
       for (const auto& [k, g] : terms) m = std::max(m, beta * g);
@@ -105,8 +101,8 @@ std::vector<double> render_reference_backward(std::span<const double> params, co
         W += e * g;
       }
       const double I = W / S;
+      if (floor_at(settings, view.width, r, c) > I) continue;  // the floor won the max: no gradient
       for (const auto& [k, g] : terms) {
-        if (k == kFloorTerm) continue;  // the floor takes no gradient
         accumulate_pixel_grad(p.splats[k], px, py, dL_dI * gmf::softmax_dvalue_dterm(g, beta, m, S, I), grads[k]);
       }
     }

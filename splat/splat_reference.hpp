@@ -11,8 +11,8 @@
 
 namespace hisnegs::splat {
 
-// Image (H x W, row-major) of the Gaussians `params` (11 K doubles) in `view`, with
-// settings.floor (if any) as one more term per pixel.
+// Image (H x W, row-major) of the Gaussians `params` (11 K doubles) in `view`, the
+// max with settings.floor (if any) per pixel.
 std::vector<double> render_reference(std::span<const double> params, const ViewParams<double>& view,
                                      const SplatSettings& settings);
 

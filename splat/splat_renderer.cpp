@@ -3,7 +3,9 @@
 // view conversion, the flat parameter view, and the back-end factory.
 #include "splat/splat_renderer.hpp"
 
+#include <cstdint>
 #include <stdexcept>
+#include <vector>
 
 #include "io/error.hpp"
 #if HISNEGS_HAVE_CUDA
@@ -29,8 +31,19 @@ class CudaSplatRenderer final : public SplatRenderer {
     count_ = params.size() / gmf::kGaussianParamCount;
     pixels_ = image.size();
     soft_ = settings.soft();
+    // Hard mode: the floor is a term of the kernels' max. Soft mode: max(soft MIP,
+    // floor) here, and no gradient where the floor wins (as the CPU back end).
+    const bool soft_floor = settings.soft() && !settings.floor.empty();
     splatter_.forward(params.data(), count_, make_splat_view<float>(K, view), settings, image.data(),
-                      settings.floor.empty() ? nullptr : settings.floor.data());
+                      settings.floor.empty() || soft_floor ? nullptr : settings.floor.data());
+    floor_above_.clear();
+    if (soft_floor) {
+      floor_above_.resize(pixels_);
+      for (std::size_t i = 0; i < pixels_; ++i) {
+        floor_above_[i] = settings.floor[i] > image[i] ? 1 : 0;
+        if (floor_above_[i]) image[i] = settings.floor[i];
+      }
+    }
     stats_.visible = splatter_.visible();
     stats_.tile_entries = splatter_.tile_entries();
     stats_.skipped_terms = splatter_.skipped_terms();
@@ -41,12 +54,21 @@ class CudaSplatRenderer final : public SplatRenderer {
         (!screen_grad.empty() && screen_grad.size() != count_)) {
       throw std::invalid_argument("splat: backward spans do not match the last forward");
     }
+    if (!floor_above_.empty()) {  // no gradient where the floor won the max
+      masked_dL_.assign(dL_dimage.begin(), dL_dimage.end());
+      for (std::size_t i = 0; i < masked_dL_.size(); ++i) {
+        if (floor_above_[i]) masked_dL_[i] = 0.0f;
+      }
+      dL_dimage = masked_dL_;
+    }
     splatter_.backward(dL_dimage.data(), dL_dparams.data(), screen_grad.empty() ? nullptr : screen_grad.data());
   }
   [[nodiscard]] const SplatFrameStats& stats() const override { return stats_; }
   [[nodiscard]] Backend backend() const override { return Backend::kCuda; }
 
  private:
+  std::vector<std::uint8_t> floor_above_;  // soft mode with a floor: the floor won the max
+  std::vector<float> masked_dL_;
   cuda::CudaSplatter splatter_;
   std::size_t count_ = 0, pixels_ = 0;
   bool soft_ = true;

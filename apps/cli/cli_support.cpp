@@ -136,6 +136,7 @@ int run_cli(int argc, char** argv) {
   app.add_flag("-q,--quiet", global.quiet, "no progress output");
   add_demo_command(app, global);
   add_synth_command(app, global);
+  add_noise_command(app, global);
   add_info_command(app, global);
   add_vdb_command(app, global);
   add_gt_command(app, global);

@@ -51,6 +51,7 @@ struct BackgroundOverride {
 // Each registers one subcommand whose callback does the work.
 void add_info_command(CLI::App& app, GlobalOptions& global);
 void add_synth_command(CLI::App& app, GlobalOptions& global);
+void add_noise_command(CLI::App& app, GlobalOptions& global);
 void add_vdb_command(CLI::App& app, GlobalOptions& global);
 void add_gt_command(CLI::App& app, GlobalOptions& global);
 void add_fit_command(CLI::App& app, GlobalOptions& global);

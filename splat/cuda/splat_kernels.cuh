@@ -187,8 +187,8 @@ __device__ __forceinline__ unsigned long long warp_sum(unsigned long long x) {
 //     (with the final M the skip rule culls as much as it ever can), and stopping
 //     once that holds for every later Gaussian of every pixel.
 // Writes m, S, I per pixel (soft: m = M, I = W / S; hard: m = I = e^{lm}, S = 1
-// where touched; m = −∞ where nothing reaches the pixel). A floor b > 0 (tp.floor)
-// is one more term at its pixel, as in the CPU back end.
+// where touched; m = −∞ where nothing reaches the pixel). In hard mode a floor b > 0
+// (tp.floor) is one more term at its pixel, as in the CPU back end.
 template <bool kSoft>
 __global__ void __launch_bounds__(kBlock)
     forward_kernel(const uint2* __restrict__ ranges, const std::uint32_t* __restrict__ ids,
@@ -202,8 +202,10 @@ __global__ void __launch_bounds__(kBlock)
   const float px = static_cast<float>(col) + 0.5f, py = static_cast<float>(row) + 0.5f;
   const uint2 range = ranges[tile];
 
-  // The floor b > 0, when there is one, is the pixel's first term: ln b in the log max.
-  const float b = inside && tp.floor != nullptr ? tp.floor[static_cast<std::size_t>(row) * tp.width + col] : 0.0f;
+  // Hard mode: the floor b > 0, when there is one, is the pixel's first term, ln b in
+  // the log max (soft mode takes the max with it on the host: splat_renderer.cpp).
+  const float b = !kSoft && inside && tp.floor != nullptr ? tp.floor[static_cast<std::size_t>(row) * tp.width + col]
+                                                          : 0.0f;
   // Pass 1: the log max.
   float lm = b > 0.0f ? logf(b) : -INFINITY;
   bool done = !inside;
@@ -233,8 +235,7 @@ __global__ void __launch_bounds__(kBlock)
     // Pass 2: the softmax sums against the final M (+∞ where untouched: nothing to add).
     const float M = touched ? tp.k.beta * expf(lm) : INFINITY;
     const bool skipping = tp.k.skip_log_weight > 0.0f;
-    float S = b > 0.0f ? expf(tp.k.beta * b - M) : 0.0f;  // the floor's term (M >= βb)
-    float W = S * b;
+    float S = 0.0f, W = 0.0f;
     unsigned long long skipped = 0;
     done = !inside || !touched;
     for_each_batch(batch, ids, splats, range, [&](int n) {

@@ -386,11 +386,13 @@ void ForwardTile(const TileFrame& f, const TileGaussians& gs, float* m_out, floa
   // (they never lower a row's floor) and are never written by the passes.
   HWY_ALIGN float lm[kTileSize * kTileSize], M[kTileSize * kTileSize], S[kTileSize * kTileSize],
       W[kTileSize * kTileSize];
-  // The floor, when there is one, is each pixel's first term: ln b in the log max.
+  // Hard mode: the floor, when there is one, is each pixel's first term, ln b in the
+  // log max (soft mode takes the max with it outside: splat_cpu.cpp).
+  const bool hard_floor = f.floor != nullptr && !f.k.soft();
   for (int r = 0; r < kTileSize; ++r) {
     for (int c = 0; c < kTileSize; ++c) {
       float init = c < f.width ? -kInf : kInf;
-      if (f.floor != nullptr && c < f.width && r < f.height) {
+      if (hard_floor && c < f.width && r < f.height) {
         const float b = f.floor[static_cast<std::size_t>(f.y0 + r) * f.stride + f.x0 + c];
         if (b > 0.0f) init = std::log(b);
       }
@@ -409,17 +411,6 @@ void ForwardTile(const TileFrame& f, const TileGaussians& gs, float* m_out, floa
   if (f.k.soft()) {
     std::fill(S, S + kTileSize * kTileSize, 0.0f);
     std::fill(W, W + kTileSize * kTileSize, 0.0f);
-    if (f.floor != nullptr) {  // the floor's term e^{βb − M} (M >= βb: no overflow)
-      for (int r = 0; r < f.height; ++r) {
-        for (int c = 0; c < f.width; ++c) {
-          const float b = f.floor[static_cast<std::size_t>(f.y0 + r) * f.stride + f.x0 + c];
-          if (!(b > 0.0f)) continue;
-          const int at = r * kTileSize + c;
-          S[at] = std::exp(f.k.beta * b - M[at]);
-          W[at] = S[at] * b;
-        }
-      }
-    }
     *skipped_out += SoftPass(f, gs, M, S, W);
   }
   for (int r = 0; r < f.height; ++r) {

@@ -40,7 +40,7 @@ struct TileFrame {
   int width, height;  // pixels of the tile inside the image (<= kTileSize)
   int stride;         // floats per image row
   KernelSettings k;   // the frame's settings (count_skipped only counts in soft mode)
-  const float* floor = nullptr;  // image-sized (`stride`), the background term per pixel; null: none
+  const float* floor = nullptr;  // image-sized (`stride`), the background term per pixel (hard mode); null: none
 };
 
 // Binning, for the tile rows ty0 .. ty0 + rows − 1 (rows <= kBandsAtOnce) of a
@@ -63,8 +63,9 @@ void tile_bands(const BandJob* jobs, std::size_t count);
 
 // Renders the tile: writes the per-pixel softmax state m (β-scaled max), S and the
 // image value I (all image-sized, row-major, `stride`), and adds the soft-MIP terms
-// skipped to `*skipped`. Hard mode writes m = I = max g and S = 1 where touched. A
-// pixel's floor b > 0 (frame.floor) is one more term g = b in both.
+// skipped to `*skipped`. Hard mode writes m = I = max g and S = 1 where touched, a
+// pixel's floor b > 0 (frame.floor) one more term g = b; soft mode ignores the floor
+// (the renderer takes the max with it after the tiles).
 void forward_tile(const TileFrame& frame, const TileGaussians& gaussians, float* m, float* S, float* I,
                   std::int64_t* skipped);
 

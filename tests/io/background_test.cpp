@@ -87,6 +87,23 @@ TEST(Background, AZeroBackgroundIsNone) {
   EXPECT_THROW((void)estimate_background(v), InputError);
 }
 
+// A background-subtracted stack (the shared ones: 99.9 % to 100 % of the background
+// exactly 0) keeps a few remnants of structure, not a noise floor: none.
+TEST(Background, ASubtractedBackgroundIsNone) {
+  Volume v = noisy_stack(0.0, 2);
+  for (std::size_t i = 0; i < v.voxels.size(); i += 997) {
+    if (v.voxels[i] == 0.0f) v.voxels[i] = 0.03f;  // ~0.1 % speckles
+  }
+  EXPECT_TRUE(estimate_background(v).none());
+  BackgroundOptions keep;
+  keep.subtracted_zero_fraction = 1.0;  // only an all-zero background is none
+  const BackgroundModel m = estimate_background(v, keep);
+  EXPECT_FALSE(m.none());
+  EXPECT_NEAR(m.cdf.front(), 0.999, 0.0005);
+  keep.subtracted_zero_fraction = 0.0;
+  EXPECT_THROW(keep.validate(), InputError);
+}
+
 TEST(Background, ManyDistinctValuesAreBinnedKeepingTheMean) {
   Volume v = noisy_stack(0.6, 5);
   std::mt19937_64 rng(8);
