@@ -58,6 +58,9 @@ MixtureStats compute_stats(const GaussianMixture& mixture) {
     }
     const Eigen::Vector3d s = scales<double>(g);
     for (int i = 0; i < 3; ++i) stats.mean_scale[i] += s[i];
+    const double ratio = s.maxCoeff() / s.minCoeff();
+    stats.largest_axis_ratio = std::max(stats.largest_axis_ratio, ratio);
+    stats.needles += ratio > kNeedleAxisRatio ? 1 : 0;
     const double a = intensity<double>(g);
     stats.intensity_min = std::min(stats.intensity_min, a);
     stats.intensity_max = std::max(stats.intensity_max, a);

@@ -158,9 +158,28 @@ void info_checkpoint(const std::filesystem::path& path, bool compact) {
     print_row("aspect", vec3(Eigen::Vector3d(a[0], a[1], a[2])));
   }
   if (!ckpt.meta.normalization.empty()) print_row("normalized", ckpt.meta.normalization);
-  for (const auto& [k, v] : ckpt.meta.extra) print_row(k.c_str(), v);
+  for (const auto& [k, v] : ckpt.meta.extra) {
+    if (k != "background") print_row(k.c_str(), v);  // summarized below
+  }
   if (st.count == 0) return;
   print_row("mean scale", vec3(Eigen::Vector3d(st.mean_scale[0], st.mean_scale[1], st.mean_scale[2])) + " world units");
+  char needles[160];
+  std::snprintf(needles, sizeof needles, "%zu (%.2f %% of K) with an axis ratio above %g; the largest ratio %.3g",
+                st.needles, st.count ? 100.0 * static_cast<double>(st.needles) / static_cast<double>(st.count) : 0.0,
+                gmf::kNeedleAxisRatio, st.largest_axis_ratio);
+  print_row("needles", needles);
+  const io::BackgroundModel background = gmf::background_of(ckpt.meta, path.string());
+  if (background.none()) {
+    print_row("background", "none recorded (renders draw no floor)");
+  } else {
+    char bg[200];
+    std::snprintf(bg, sizeof bg,
+                  "%zu levels of a ray sample, mean %.4g, p99 %.4g; %.3g samples per voxel of path: renders draw "
+                  "its MIP floor (--background none: not)",
+                  background.values.size(), background.mean(), background.quantile(0.99),
+                  background.samples_per_voxel);
+    print_row("background", bg);
+  }
   print_row("intensity", "a in [" + fmt("%.4g", st.intensity_min) + ", " + fmt("%.4g", st.intensity_max) + "], mean " +
                              fmt("%.4g", st.intensity_mean));
   std::printf("%-16s %12s %12s %12s\n", "parameter", "min", "max", "mean");
