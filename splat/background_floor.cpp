@@ -73,6 +73,8 @@ FloorTable::FloorTable(const io::BackgroundModel& model) : samples_per_voxel_(mo
   }
 }
 
+int FloorTable::points_per_octave() { return kPerOctave; }
+
 double FloorTable::at_voxels(double voxels) const {
   if (values_.empty() || !(voxels > 0.0)) return 0.0;
   const double n = samples_per_voxel_ * voxels;

@@ -28,6 +28,11 @@ class FloorTable {
   // E[max of model.samples_per_voxel × voxels], within 1e-4 relative of the exact sum.
   [[nodiscard]] double at_voxels(double voxels) const;
   [[nodiscard]] bool none() const { return values_.empty(); }
+  // The table itself (what the viewer page interpolates on the GPU): E[max of n] at
+  // n = 2^(i / points_per_octave()), i = 0, 1, ...
+  [[nodiscard]] const std::vector<double>& values() const { return values_; }
+  [[nodiscard]] static int points_per_octave();
+  [[nodiscard]] double samples_per_voxel() const { return samples_per_voxel_; }
 
  private:
   double samples_per_voxel_ = 1.0;
@@ -54,6 +59,8 @@ class BackgroundFloors {
   [[nodiscard]] bool none() const { return table_.none(); }
   // background_floor of this camera, or empty when none().
   [[nodiscard]] std::vector<float> operator()(const Intrinsics& K, const CameraView& view) const;
+  [[nodiscard]] const FloorTable& table() const { return table_; }
+  [[nodiscard]] const io::WorldFrame& frame() const { return frame_; }
 
  private:
   FloorTable table_;

@@ -216,17 +216,20 @@ void run_export_compact(const CompactArgs& args, GlobalOptions& global) {
 struct HtmlArgs {
   std::string model, cameras, out;
   bool float32 = false;
+  BackgroundOverride background;
 };
 
 // Without --cameras the page gets the evaluation orbit of the `camera` config section,
 // so #view=N still names a definite camera.
 void run_export_html(const HtmlArgs& args, GlobalOptions& global) {
   io::Stopwatch watch;
-  const AppConfig& config = global.config();
+  AppConfig config = global.config();
+  args.background.apply(config.splat);
   const gmf::Checkpoint checkpoint = gmf::load_checkpoint(args.model);
   const splat::CameraSet cameras =
       args.cameras.empty() ? splat::evaluation_orbit(config.camera) : splat::read_cameras_json(args.cameras);
   ViewerPageSettings settings;
+  settings.floor = splat::floors_of(checkpoint.meta, args.model, config.splat.background);
   settings.cutoff = config.splat.mahalanobis_cutoff;
   settings.low_pass = config.splat.low_pass;
   settings.um_per_world = um_per_world(checkpoint.meta);
@@ -352,6 +355,7 @@ void add_export_command(CLI::App& app, GlobalOptions& global) {
   html->add_option("-o,--output", html_args->out, "output .html")->required();
   html->add_flag("--float32", html_args->float32,
                  "embed exact float32 parameters instead of the compact .hgs encoding (about 3x larger)");
+  html_args->background.add_to(html);
   html->callback([html_args, &global] { run_export_html(*html_args, global); });
 }
 

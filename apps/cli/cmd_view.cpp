@@ -43,6 +43,7 @@ void add_view_command(CLI::App& app, GlobalOptions& global) {
     std::string model, volume, cameras;
     ViewerServerOptions server;
     bool no_browser = false;
+    BackgroundOverride background;
   };
   auto args = std::make_shared<Args>();
   cmd->add_option("--model", args->model, "checkpoint (.ply or .hgs); re-read when it changes")->required();
@@ -52,18 +53,21 @@ void add_view_command(CLI::App& app, GlobalOptions& global) {
   cmd->add_option("--host", args->server.host, "address to bind (not loopback: reachable from the network)")
       ->capture_default_str();
   cmd->add_flag("--no-browser", args->no_browser, "do not open a browser");
+  args->background.add_to(cmd);
   cmd->callback([args, &global] {
     // A FIFO or device is refused as every reader refuses it (it would hang the
     // server); a regular file that is bad or still being written is served as an
     // error page until it is fixed.
     io::require_regular_file(args->model);
-    const AppConfig& config = global.config();
+    AppConfig config = global.config();
+    args->background.apply(config.splat);
     ViewerSessionOptions options;
     options.model = args->model;
     options.cameras =
         args->cameras.empty() ? splat::evaluation_orbit(config.camera) : splat::read_cameras_json(args->cameras);
     options.page.cutoff = config.splat.mahalanobis_cutoff;
     options.page.low_pass = config.splat.low_pass;
+    options.background = config.splat.background;
     if (!args->volume.empty()) options.volume = args->volume;
     options.volume_options = config.volume;
     options.raymarch = config.raymarch;

@@ -254,6 +254,35 @@ void main() {
   if (q > cutoff) discard;
   value = vec4(amplitude * exp(-0.5 * q), 0.0, 0.0, 1.0);
 }`;
+  // The background's MIP floor (meta.floor; splat/background_floor.cpp): per pixel the
+  // chord of its ray through the stack's box in voxels, L, and E[max of c L samples]
+  // from the table of E[max of n] at n = 2^(i / perOctave), interpolated in log n.
+  const floorFS = `#version 300 es
+precision highp float;
+uniform vec3 r0, r1, r2, t;              // rows of R, translation
+uniform vec4 K;                          // fx fy cx cy
+uniform float height;
+uniform vec3 aspect, voxel;              // the box's half-extents and voxel size, world units
+uniform float perVoxel, perOctave;       // samples per voxel of path; table points per doubling
+uniform highp sampler2D table;           // E[max of 2^(i / perOctave)], i = 0 .. N-1: an N x 1 R32F texture
+out vec4 value;
+void main() {
+  vec2 px = vec2(gl_FragCoord.x, height - gl_FragCoord.y);
+  vec3 dc = vec3((px.x - K.z) / K.x, (px.y - K.w) / K.y, 1.0);
+  vec3 d = normalize(r0 * dc.x + r1 * dc.y + r2 * dc.z);   // Rᵀ d_cam
+  vec3 C = -(r0 * t.x + r1 * t.y + r2 * t.z);               // −Rᵀ t
+  vec3 safe = mix(d, vec3(1e-20), equal(d, vec3(0.0)));
+  vec3 t0 = (-aspect - C) / safe, t1 = (aspect - C) / safe;
+  vec3 lo = min(t0, t1), hi = max(t0, t1);
+  float tin = max(max(lo.x, lo.y), max(lo.z, 0.0)), tout = min(min(hi.x, hi.y), hi.z);
+  if (!(tout > tin)) discard;
+  float n = perVoxel * length((tout - tin) * d / voxel);
+  int last = textureSize(table, 0).x - 1;
+  float x = n <= 1.0 ? 0.0 : min(log2(n) * perOctave, float(last));
+  int i = int(floor(x));
+  float a = texelFetch(table, ivec2(i, 0), 0).r, b = texelFetch(table, ivec2(min(i + 1, last), 0), 0).r;
+  value = vec4(mix(a, b, x - float(i)), 0.0, 0.0, 1.0);
+}`;
   const displayVS = `#version 300 es
 void main() {
   vec2 p = vec2(float((gl_VertexID & 1) << 2) - 1.0, float((gl_VertexID & 2) << 1) - 1.0);
@@ -313,6 +342,18 @@ void main() {
   }
   const splat = program(splatVS, splatFS, "splat");
   const display = program(displayVS, displayFS, "display");
+  const floorPass = meta.floor ? program(displayVS, floorFS, "floor") : null;
+  const floorTable = meta.floor ? (function () {
+    const values = new Float32Array(meta.floor.values);
+    const tex = gl.createTexture();
+    gl.bindTexture(gl.TEXTURE_2D, tex);
+    gl.texStorage2D(gl.TEXTURE_2D, 1, gl.R32F, values.length, 1);
+    gl.texSubImage2D(gl.TEXTURE_2D, 0, 0, 0, values.length, 1, gl.RED, gl.FLOAT, values);
+    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.NEAREST);
+    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, gl.NEAREST);
+    return tex;
+  })() : null;
+  let showFloor = !!meta.floor;  // the "background" check box
 
   const vao = gl.createVertexArray();
   gl.bindVertexArray(vao);
@@ -386,6 +427,24 @@ void main() {
     gl.enable(gl.BLEND);
     gl.blendEquation(gl.MAX);
     gl.blendFunc(gl.ONE, gl.ONE);
+    if (floorPass && showFloor) {  // max(splats, floor): MAX blending is order-free
+      const f = floorPass.u;
+      gl.useProgram(floorPass.p);
+      gl.uniform3fv(f.r0, c.R[0]);
+      gl.uniform3fv(f.r1, c.R[1]);
+      gl.uniform3fv(f.r2, c.R[2]);
+      gl.uniform3fv(f.t, c.t);
+      gl.uniform4f(f.K, K.fx, K.fy, K.cx, K.cy);
+      gl.uniform1f(f.height, t.h);
+      gl.uniform3fv(f.aspect, meta.floor.aspect);
+      gl.uniform3fv(f.voxel, meta.floor.voxel);
+      gl.uniform1f(f.perVoxel, meta.floor.samples_per_voxel);
+      gl.uniform1f(f.perOctave, meta.floor.per_octave);
+      gl.activeTexture(gl.TEXTURE0);
+      gl.bindTexture(gl.TEXTURE_2D, floorTable);
+      gl.uniform1i(f.table, 0);
+      gl.drawArrays(gl.TRIANGLES, 0, 3);
+    }
     gl.useProgram(splat.p);
     const u = splat.u;
     gl.uniform3fv(u.r0, c.R[0]);
@@ -567,6 +626,9 @@ void main() {
       if (!isFinite(v)) throw new Error("#" + key + "=" + h.params.get(key) + ": expected a number");
       el(id).value = String(v);
     });
+    // #background=0: the Gaussians alone (a model with a recorded background draws its floor).
+    if (h.params.has("background")) el("background").checked = h.params.get("background") !== "0";
+    showFloor = !!meta.floor && el("background").checked;
     // #compare=1&swipe=F: the comparison with the volume's MIP (hisnegs view --volume).
     if (h.params.has("compare")) el("compare").checked = h.params.get("compare") === "1";
     if (h.params.has("swipe")) el("swipe").value = h.params.get("swipe");
@@ -579,6 +641,8 @@ void main() {
   el("shot-h").value = String(H);
   el("slab-unit").textContent = umPerWorld ? "µm" : "world units";
   el("compare-box").hidden = !meta.truth;
+  el("background-box").hidden = !meta.floor;
+  el("background").addEventListener("input", () => { showFloor = !!meta.floor && el("background").checked; draw(); });
   window.addEventListener("hashchange", applyHash);
   window.addEventListener("resize", updateScaleBar);
   select.addEventListener("change", () => { camera = cameraOfView(parseInt(select.value, 10)); draw(); });

@@ -111,6 +111,19 @@ std::string viewer_html(const gmf::GaussianMixture& mixture, const splat::Camera
     meta["um_per_world"] = nullptr;
   }
   meta["truth"] = settings.truth;
+  if (settings.floor.none()) {
+    meta["floor"] = nullptr;
+  } else {
+    const splat::FloorTable& table = settings.floor.table();
+    const io::WorldFrame& frame = settings.floor.frame();
+    const Eigen::Vector3d& a = frame.aspect();
+    const Eigen::Vector3d& v = frame.voxel_size();
+    meta["floor"] = {{"samples_per_voxel", table.samples_per_voxel()},
+                     {"per_octave", splat::FloorTable::points_per_octave()},
+                     {"aspect", {a.x(), a.y(), a.z()}},
+                     {"voxel", {v.x(), v.y(), v.z()}},
+                     {"values", table.values()}};
+  }
   meta["cameras"] = nlohmann::ordered_json::parse(splat::cameras_json_text(cameras));
 
   std::string data;

@@ -13,6 +13,7 @@
 
 #include "gmf/checkpoint.hpp"
 #include "gmf/gaussian_mixture.hpp"
+#include "splat/background_floor.hpp"
 #include "splat/camera.hpp"
 
 namespace hisnegs::apps {
@@ -36,6 +37,9 @@ struct ViewerPageSettings {
   std::optional<std::array<double, 3>> um_per_world;
   bool truth = false;  // the page may ask its server for /truth (hisnegs view --volume)
   ViewerModelBlock model_block = ViewerModelBlock::kCompact;
+  // The model's background floor (splat/background_floor.hpp), drawn by the page as
+  // the CPU renderer draws it (a check box and #background=0 hide it); none: none().
+  splat::BackgroundFloors floor;
 };
 
 // µm per world unit along x, y, z from the checkpoint's volume shape, spacing and

@@ -138,8 +138,10 @@ void ViewerSession::reload_if_changed() {
   if (options_.volume) gmf::require_same_world_box(checkpoint->meta, volume_.frame, options_.volume->string());
   ViewerPageSettings settings = options_.page;
   settings.um_per_world = um_per_world(checkpoint->meta);
+  settings.floor = splat::floors_of(checkpoint->meta, path.string(), options_.background);
   settings.truth = has_volume();
   page_ = viewer_html(checkpoint->mixture, options_.cameras, settings);
+  floors_ = std::move(settings.floor);
   checkpoint_ = std::move(checkpoint);
   stamp_ = ec ? std::nullopt : std::optional<FileStamp>(now);
 }
@@ -169,7 +171,10 @@ ViewerTruth ViewerSession::truth(const splat::CameraView& view) {
   hard.mahalanobis_cutoff = options_.page.cutoff;
   hard.low_pass = options_.page.low_pass;
   std::vector<float> model(out.image.size(), 0.0f);
-  renderer_->forward(gmf::flat_params(checkpoint_->mixture), K, view, splat::SplatSettings::from(hard), model);
+  splat::SplatSettings settings = splat::SplatSettings::from(hard);
+  const std::vector<float> floor = floors_(K, view);  // as the page draws it
+  settings.floor = floor;
+  renderer_->forward(gmf::flat_params(checkpoint_->mixture), K, view, settings, model);
   out.psnr_db = splat::image_metrics(model, out.image, K.width, K.height).psnr;
   out.mse = gmf::mean_squared_error(model, out.image);
   out.truth_max = *std::max_element(out.image.begin(), out.image.end());

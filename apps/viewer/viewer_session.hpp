@@ -33,6 +33,7 @@ struct ViewerSessionOptions {
   std::optional<std::filesystem::path> volume;  // TIFF stack for /truth
   io::VolumeOptions volume_options;
   splat::RaymarchOptions raymarch;
+  bool background = true;  // draw the background floor the model records (splat.background)
 };
 
 // The ray-marched MIP of one camera and how the model compares with it.
@@ -84,6 +85,7 @@ class ViewerSession {
   std::mutex mutex_;
   std::optional<FileStamp> stamp_;
   std::shared_ptr<const gmf::Checkpoint> checkpoint_;
+  splat::BackgroundFloors floors_;  // of checkpoint_, or none
   std::string page_;
   io::LoadedVolume volume_;
   std::unique_ptr<splat::RayMarcher> marcher_;

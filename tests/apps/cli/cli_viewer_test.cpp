@@ -247,6 +247,44 @@ TEST(ViewerPage, PackedCovarianceIsTheModelsSigma) {
 }
 
 // Chromium's screenshot of each `#view=N&ui=0` against `render --mode hard` of view N.
+// Issue 33: a model that records its stack's background: the page draws the same
+// MIP floor as the CPU hard MIP (`render --mode hard`, the chord of each pixel's ray
+// through the box in a fragment shader), and #background=0 draws the Gaussians alone.
+TEST_F(CliViewer, ChromiumDrawsTheBackgroundFloorAsTheCpuDoes) {
+  REQUIRE_CHROMIUM();
+  gmf::Checkpoint c{mixture_, {}};
+  c.meta.volume_shape_zyx = std::array<int, 3>{40, 120, 100};
+  c.meta.aspect = std::array<double, 3>{0.8, 1.0, 0.6};
+  io::BackgroundModel bg;  // a bright floor, so that 8-bit screenshots resolve it well
+  bg.values = {0.0, 0.02, 0.05, 0.1, 0.15};
+  bg.cdf = {0.5, 0.8, 0.95, 0.99, 1.0};
+  bg.samples_per_voxel = 1.6;
+  gmf::set_background(c.meta, bg);
+  gmf::save_checkpoint(dir_ / "bg.ply", c.mixture, c.meta);
+  const CameraCase cc{150, 110, 45.0, 4.0, 1.1};
+  const fs::path cams = write_cameras("bg.json", cc);
+  ASSERT_EQ(run_hisnegs({"-q", "export", "html", "--model", dir_ / "bg.ply", "--cameras", cams, "-o", dir_ / "bg.html"})
+                .exit_code,
+            0);
+  const auto r = run_hisnegs({"-q", "render", "--model", dir_ / "bg.ply", "--cameras", cams, "-o", dir_ / "rbg",
+                              "--mode", "hard", "--backend", "cpu"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const auto n = run_hisnegs({"-q", "render", "--model", dir_ / "bg.ply", "--cameras", cams, "-o", dir_ / "rno",
+                              "--mode", "hard", "--background", "none", "--backend", "cpu"});
+  ASSERT_EQ(n.exit_code, 0) << n.err;
+  const io::Volume with = io::read_tiff_stack(dir_ / "rbg" / "render.tif");
+  const io::Volume without = io::read_tiff_stack(dir_ / "rno" / "render.tif");
+  const std::size_t plane = static_cast<std::size_t>(cc.width) * cc.height;
+  const std::span<const float> cpu(with.voxels.data() + plane, plane), bare(without.voxels.data() + plane, plane);
+  ASSERT_LT(gmf::psnr(cpu, bare), 30.0) << "the floor must show";
+  const std::vector<float> page =
+      chromium_view("file://" + (dir_ / "bg.html").string() + "#view=1&ui=0", cc.width, cc.height, "bg");
+  EXPECT_GE(gmf::psnr(std::span<const float>(page.data(), plane), cpu), kMinPsnrDb);
+  const std::vector<float> page_bare = chromium_view(
+      "file://" + (dir_ / "bg.html").string() + "#view=1&ui=0&background=0", cc.width, cc.height, "bgn");
+  EXPECT_GE(gmf::psnr(std::span<const float>(page_bare.data(), plane), bare), kMinPsnrDb);
+}
+
 TEST_F(CliViewer, ChromiumScreenshotMatchesCpuHardMip) {
   REQUIRE_CHROMIUM();
   // Landscape narrow FOV with an off-centre principal point; portrait wide FOV with
