@@ -148,7 +148,8 @@ TEST(StageDeclarations, SectionsUpstreamAndOutputs) {
   using V = std::vector<std::string>;
   EXPECT_EQ(sections.at("volume"), (V{"volume", "sparse_grid"}));
   EXPECT_EQ(sections.at("ground_truth"), (V{"volume", "camera", "raymarch"}));
-  EXPECT_EQ(sections.at("fit"), (V{"volume", "sparse_grid", "gmf"}));  // gmf.background_fraction, gmf.gaussians
+  // gmf.background_fraction, gmf.gaussians; the background's estimate and its calibration against the ray marcher.
+  EXPECT_EQ(sections.at("fit"), (V{"volume", "background", "sparse_grid", "raymarch", "gmf"}));
   // The 3D term samples the volume as the fit does (volume, sparse_grid, gmf).
   EXPECT_EQ(sections.at("train"), (V{"volume", "sparse_grid", "splat", "train", "gmf"}));
   EXPECT_EQ(sections.at("eval"), (V{"splat"}));
