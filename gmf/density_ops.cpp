@@ -9,6 +9,25 @@
 
 namespace hisnegs::gmf {
 
+template <class T>
+std::size_t bound_axis_ratio(std::span<T> params, double max_ratio) {
+  const double limit = std::log(max_ratio);
+  std::size_t changed = 0;
+  for (std::size_t at = 0; at + kGaussianParamCount <= params.size(); at += kGaussianParamCount) {
+    T* s = params.data() + at + kLogScale0;
+    const double lo = std::min({double(s[0]), double(s[1]), double(s[2])});
+    const double hi = std::max({double(s[0]), double(s[1]), double(s[2])});
+    const double excess = hi - lo - limit;
+    if (!(excess > 0.0)) continue;
+    const double new_lo = lo + 0.5 * excess, new_hi = hi - 0.5 * excess;
+    for (int i = 0; i < 3; ++i) s[i] = static_cast<T>(std::clamp(double(s[i]), new_lo, new_hi));
+    ++changed;
+  }
+  return changed;
+}
+template std::size_t bound_axis_ratio<float>(std::span<float>, double);
+template std::size_t bound_axis_ratio<double>(std::span<double>, double);
+
 int longest_axis(const GaussianParams& g) {
   int axis = 0;
   for (int a = 1; a < 3; ++a) {

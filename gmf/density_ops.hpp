@@ -14,6 +14,15 @@
 
 namespace hisnegs::gmf {
 
+// Keeps every Gaussian of the flat parameters `params` (11 per Gaussian) within an
+// axis ratio: where the largest scale is more than max_ratio times the smallest, the
+// two are moved towards each other by the same factor (in log-scale, the nearest
+// point with max − min = ln max_ratio; a middle axis outside that range is moved to
+// its end), so that no Gaussian becomes a needle (issue 33: long thin shapes fitted
+// on noise). Returns how many Gaussians were changed. max_ratio > 1.
+template <class T>
+std::size_t bound_axis_ratio(std::span<T> params, double max_ratio);
+
 // Index (0, 1, 2) of the largest log-scale (the first of equal ones).
 [[nodiscard]] int longest_axis(const GaussianParams& g);
 

@@ -236,6 +236,7 @@ RoundOutcome solve_adam(const FitObjective& objective, const FitObjective* repor
     if (log.add(it)) break;  // at stop_loss: x is the point that reached it
     adam.step(params, g, rates);
     for (std::size_t i = 0; i < n; ++i) x[i] = std::clamp(x[i], lower[i], upper[i]);
+    (void)bound_axis_ratio(std::span<double>(x, n), options.max_axis_ratio);
     step_seconds = round_watch.elapsed() - t0;
   }
   out.iterations = step;
@@ -361,7 +362,9 @@ RoundOutcome solve_round(RoundProblem& r, const SampleSet& samples, const io::Wo
 }
 
 // Back to float, pruning a < prune_intensity; returns how many were pruned.
-int take_round_result(const RoundProblem& r, const GmfOptions& options, GaussianMixture& mixture) {
+int take_round_result(RoundProblem& r, const GmfOptions& options, GaussianMixture& mixture) {
+  // Every optimizer's result within the axis ratio (Adam keeps it at each step).
+  (void)bound_axis_ratio(std::span<double>(r.x(), r.params.size() * kGaussianParamCount), options.max_axis_ratio);
   for (std::size_t k = 0; k < r.params.size(); ++k) mixture[k] = to_float(r.params[k]);
   const std::vector<std::uint32_t> kept = bright_gaussians(flat_params(mixture), options.prune_intensity);
   const int pruned = static_cast<int>(mixture.size() - kept.size());

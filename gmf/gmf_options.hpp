@@ -85,6 +85,10 @@ struct GmfOptions {
   int brick_gaussians = 32;
   int brick_iterations = 8;          // brick-lm: LM iterations per brick per round, [1, 1000]
   double adam_learning_rate = 0.01;  // Adam baseline step size, > 0
+  // Largest axis ratio of a Gaussian (longest / shortest scale), kept by a projection
+  // after every step and round (gmf::bound_axis_ratio): no needles fitted on noise
+  // (issue 33; a needle is a ratio above 20). [1.5, 1e6].
+  double max_axis_ratio = 16.0;
   std::uint64_t seed = 0;            // init jitter and sampling seed
   // Not a config key (set by compare-optimizers): softmax only, when > 0 every
   // logged loss is the objective at this β while the rounds follow the schedule, so
@@ -136,6 +140,7 @@ struct GmfOptions {
     v("brick_gaussians", brick_gaussians);
     v("brick_iterations", brick_iterations);
     v("adam_learning_rate", adam_learning_rate);
+    v("max_axis_ratio", max_axis_ratio);
     v("seed", seed);
   }
 };

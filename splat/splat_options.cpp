@@ -50,6 +50,7 @@ void SplatOptions::validate() const {
 void TrainOptions::validate() const {
   constexpr const char* s = "train";
   io::require_in_range(s, "epochs", epochs, 1, 1e7);
+  io::require_in_range(s, "max_axis_ratio", max_axis_ratio, 1.5, 1e6);
   io::require_positive(s, "lr_initial", lr_initial);
   io::require_in_range(s, "lr_final", lr_final, 1e-300, lr_initial);
   for (auto [name, value] : {std::pair{"lr_means", lr_means}, std::pair{"lr_log_scales", lr_log_scales},

@@ -110,6 +110,9 @@ struct TrainOptions {
   double lambda_scale = 1.0;       // weight of the scale regularizer (Eq. 15), >= 0
   double scale_min = 0.001;        // s_min of Eq. 15, world units, > 0
   double scale_max = 0.5;          // s_max of Eq. 15, world units, > scale_min
+  // Largest axis ratio of a Gaussian, kept by a projection after every Adam step
+  // (gmf::bound_axis_ratio), as the fit keeps it (gmf.max_axis_ratio). [1.5, 1e6].
+  double max_axis_ratio = 16.0;
   int densify_every = 100;         // split/clone period, epochs, >= 1
   int densify_from = 100;          // first epoch of split/clone, >= 0
   int densify_until = 1500;        // last epoch of split/clone, >= densify_from
@@ -159,6 +162,7 @@ struct TrainOptions {
     v("lambda_scale", lambda_scale);
     v("scale_min", scale_min);
     v("scale_max", scale_max);
+    v("max_axis_ratio", max_axis_ratio);
     v("densify_every", densify_every);
     v("densify_from", densify_from);
     v("densify_until", densify_until);

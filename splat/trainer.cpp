@@ -10,6 +10,7 @@
 #include <numeric>
 #include <stdexcept>
 
+#include "gmf/density_ops.hpp"
 #include "gmf/psnr.hpp"
 #include "io/fault_injection.hpp"
 #include "io/timer.hpp"
@@ -173,6 +174,7 @@ void Trainer::adam_update(std::span<const float> grad, double lr) {
   const gmf::GroupRates rates = {lr * options_.lr_means * scene_scale_, lr * options_.lr_log_scales,
                                  lr * options_.lr_rotation, lr * options_.lr_intensity};
   adam_.step(params_, grad, rates);
+  (void)gmf::bound_axis_ratio(std::span<float>(params_), options_.max_axis_ratio);
 }
 
 Trainer::Evaluation Trainer::evaluate() { return evaluate(params_, soft_mip_beta(options_, epoch_)); }

@@ -77,6 +77,36 @@ TEST(DensityOps, SplitOfARotatedGaussianFollowsItsPrincipalAxis) {
   }
 }
 
+// Issue 33: the axis-ratio bound moves a needle's longest and shortest scales towards
+// each other by the same factor and leaves Gaussians within the bound alone.
+TEST(DensityOps, BoundAxisRatioTurnsNeedlesIntoShapesWithinTheRatio) {
+  std::vector<double> p(3 * kGaussianParamCount, 0.0);
+  const auto set = [&](int k, double a, double b, double c) {
+    p[k * kGaussianParamCount + kLogScale0] = a;
+    p[k * kGaussianParamCount + kLogScale0 + 1] = b;
+    p[k * kGaussianParamCount + kLogScale0 + 2] = c;
+  };
+  set(0, std::log(0.5), std::log(0.01), std::log(0.02));  // ratio 50: a needle
+  set(1, std::log(0.1), std::log(0.02), std::log(0.05));  // ratio 5
+  set(2, std::log(1.0), std::log(0.001), std::log(0.5));  // ratio 1000, middle axis in range afterwards
+  const std::vector<double> before = p;
+  EXPECT_EQ(bound_axis_ratio(std::span<double>(p), 16.0), 2u);
+  for (int k = 0; k < 3; ++k) {
+    const double* s = &p[k * kGaussianParamCount + kLogScale0];
+    const double lo = std::min({s[0], s[1], s[2]}), hi = std::max({s[0], s[1], s[2]});
+    EXPECT_LE(hi - lo, std::log(16.0) + 1e-12) << k;
+  }
+  // The needle: both ends moved by the same factor sqrt(50 / 16).
+  EXPECT_NEAR(p[kLogScale0] - before[kLogScale0], -0.5 * std::log(50.0 / 16.0), 1e-12);
+  EXPECT_NEAR(p[kLogScale0 + 1] - before[kLogScale0 + 1], 0.5 * std::log(50.0 / 16.0), 1e-12);
+  EXPECT_DOUBLE_EQ(p[kLogScale0 + 2], before[kLogScale0 + 2]);  // the middle one was inside the new range
+  for (int i = 0; i < kGaussianParamCount; ++i) {
+    EXPECT_EQ(p[kGaussianParamCount + i], before[kGaussianParamCount + i]) << i;  // within the bound: untouched
+  }
+  std::vector<float> f(before.begin(), before.end());
+  EXPECT_EQ(bound_axis_ratio(std::span<float>(f), 16.0), 2u);
+}
+
 TEST(DensityOps, LongestAxisIsTheFirstLargestLogScale) {
   EXPECT_EQ(longest_axis(with_log_scales(1, 2, 3)), 2);
   EXPECT_EQ(longest_axis(with_log_scales(3, 2, 1)), 0);

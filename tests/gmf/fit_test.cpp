@@ -138,6 +138,28 @@ TEST(GmfFit, EveryOptimizerLowersTheLoss) {
   }
 }
 
+// Issue 33: whatever the optimizer and density control do, no fitted Gaussian leaves
+// the axis-ratio bound (a start full of needles included).
+TEST(GmfFit, NoGaussianLeavesTheAxisRatioBound) {
+  const Scene scene = make_scene(13);
+  const io::SparseGrid grid = grid_of(scene, 0.05);
+  GaussianMixture start = scene.truth;
+  for (auto& g : start) g.log_scale = {g.log_scale[0] + 2.0f, g.log_scale[1] - 1.5f, g.log_scale[2]};  // needles
+  for (const Optimizer opt : {Optimizer::kAdam, Optimizer::kLevenbergMarquardt, Optimizer::kBrickLm}) {
+    GmfOptions o;
+    o.optimizer = opt;
+    o.rounds = 3;
+    o.iterations_per_round = opt == Optimizer::kAdam ? 30 : 6;
+    o.max_axis_ratio = 8.0;
+    GaussianMixture m = start;
+    (void)fit_mixture(scene.volume, grid, m, o);
+    ASSERT_FALSE(m.empty());
+    const MixtureStats st = compute_stats(m);
+    EXPECT_LE(st.largest_axis_ratio, 8.0 * (1 + 1e-5)) << static_cast<int>(opt);
+    EXPECT_EQ(st.needles, 0u);
+  }
+}
+
 // gmf.max_iterations caps the solver iterations over all rounds, and
 // gmf.stop_loss ends the fit at the first logged loss at or below it.
 TEST(GmfFit, IterationCapAndStopLoss) {

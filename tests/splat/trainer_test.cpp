@@ -220,6 +220,34 @@ Trainer densify_trainer(int max_gaussians) {
   return trainer;
 }
 
+// Issue 33: after every step and every density-control epoch no Gaussian exceeds the
+// axis-ratio bound, from a start of needles.
+TEST(Trainer, TheAxisRatioBoundHoldsAfterEveryStepAndDensityStep) {
+  TrainOptions o = quiet_options(4);
+  o.densify_from = 1;
+  o.densify_until = 4;
+  o.densify_every = 1;
+  o.densify_grad_threshold = 0.0;  // every Gaussian is a candidate
+  o.prune_every = 2;
+  o.max_axis_ratio = 6.0;
+  std::vector<float> init = perturbed(true_params());
+  for (std::size_t k = 0; k * kP < init.size(); ++k) {
+    init[k * kP + gmf::kLogScale0] += 1.5f;  // a ratio of e^3 = 20 and more
+    init[k * kP + gmf::kLogScale0 + 1] -= 1.5f;
+  }
+  Trainer trainer = make_trainer(o, init);
+  while (!trainer.finished()) {
+    (void)trainer.run_epoch();
+    const std::span<const float> p = trainer.params();
+    double worst = 0;
+    for (std::size_t k = 0; k * kP < p.size(); ++k) {
+      const float* s = &p[k * kP + gmf::kLogScale0];
+      worst = std::max(worst, double(std::max({s[0], s[1], s[2]}) - std::min({s[0], s[1], s[2]})));
+    }
+    EXPECT_LE(worst, std::log(6.0) + 1e-5) << "after epoch " << trainer.epoch();
+  }
+}
+
 TEST(Trainer, DensifyRespectsMaxGaussiansAndKeepsArraysAligned) {
   Trainer trainer = densify_trainer(8);  // room for 3 of the 5 candidates
   const DensifyChange change = trainer.densify();
