@@ -7,8 +7,10 @@
 
 #include <Eigen/LU>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdlib>
+#include <filesystem>
 #include <numbers>
 
 #include "io/error.hpp"
@@ -217,6 +219,25 @@ TEST(Camera, JsonMessageQuotingAKeyStaysOneLine) {
   } catch (const io::InputError& e) {
     EXPECT_NE(std::string(e.what()).find("wid th: unknown key"), std::string::npos) << e.what();
   }
+}
+
+// The camera files shipped for the benchmarks (configs/cameras/) read as CONVENTIONS
+// cameras.json: the unseen-camera set is non-square with an off-centre principal
+// point and f_y != f_x, at several radii.
+TEST(Camera, ShippedCameraFilesRead) {
+  const CameraSet set = read_cameras_json(std::filesystem::path(HISNEGS_SOURCE_DIR) / "configs" / "cameras" /
+                                          "unseen_320x200.json");
+  EXPECT_EQ(set.views.size(), 10u);
+  EXPECT_EQ(set.intrinsics.width, 320);
+  EXPECT_EQ(set.intrinsics.height, 200);
+  EXPECT_NE(set.intrinsics.fx, set.intrinsics.fy);
+  double closest = 1e9, farthest = 0;
+  for (const CameraView& v : set.views) {
+    closest = std::min(closest, v.center_world().norm());
+    farthest = std::max(farthest, v.center_world().norm());
+  }
+  EXPECT_LT(closest, 2.5);
+  EXPECT_GT(farthest, 3.0);
 }
 
 }  // namespace

@@ -18,6 +18,31 @@ namespace {
 
 using testing::make_splat_scene;
 
+// L = Σ w_p I_p with fixed weights w: render_reference_backward(w) against Ridders'
+// central differences of render_reference for every parameter, to 1e-5 relative.
+void expect_backward_matches_fd(const std::vector<double>& params, const ViewParams<double>& view,
+                                const SplatSettings& settings, const std::vector<double>& w) {
+  const std::vector<double> grad = render_reference_backward(params, view, settings, w);
+  auto loss = [&](const std::vector<double>& p) {
+    const std::vector<double> img = render_reference(p, view, settings);
+    double l = 0;
+    for (std::size_t i = 0; i < img.size(); ++i) l += w[i] * img[i];
+    return l;
+  };
+  for (std::size_t i = 0; i < params.size(); ++i) {
+    double err = 0;
+    const double fd = hisnegs::testing::ridders_derivative(
+        [&](double x) {
+          std::vector<double> p = params;
+          p[i] = x;
+          return loss(p);
+        },
+        params[i], 1e-3, &err);
+    EXPECT_LT(std::abs(grad[i] - fd) / std::max(1e-3, std::abs(fd)), 1e-5)
+        << "param " << i << " (kind " << i % 11 << "): analytic " << grad[i] << " fd " << fd;
+  }
+}
+
 // L = Σ w_p I_p with fixed random weights w; its gradient is render_reference_backward(w).
 TEST(SplatReference, BackwardMatchesFiniteDifferences) {
   for (std::uint64_t seed : {1u, 2u, 3u}) {
@@ -32,26 +57,8 @@ TEST(SplatReference, BackwardMatchesFiniteDifferences) {
     std::uniform_real_distribution<double> u(-1, 1);
     std::vector<double> w(static_cast<std::size_t>(view.width) * view.height);
     for (double& x : w) x = u(rng);
-    const std::vector<double> grad = render_reference_backward(scene.params, view, settings, w);
-    auto loss = [&](const std::vector<double>& p) {
-      const std::vector<double> img = render_reference(p, view, settings);
-      double l = 0;
-      for (std::size_t i = 0; i < img.size(); ++i) l += w[i] * img[i];
-      return l;
-    };
-    for (std::size_t i = 0; i < scene.params.size(); ++i) {
-      double err = 0;
-      const double fd = hisnegs::testing::ridders_derivative(
-          [&](double x) {
-            std::vector<double> p = scene.params;
-            p[i] = x;
-            return loss(p);
-          },
-          scene.params[i], 1e-3, &err);
-      const double scale = std::max(1e-3, std::abs(fd));
-      EXPECT_LT(std::abs(grad[i] - fd) / scale, 1e-5)
-          << "seed " << seed << " param " << i << " (kind " << i % 11 << "): analytic " << grad[i] << " fd " << fd;
-    }
+    SCOPED_TRACE("seed " + std::to_string(seed));
+    expect_backward_matches_fd(scene.params, view, settings, w);
   }
 }
 
@@ -90,25 +97,7 @@ TEST(SplatReference, BackwardWithAFloorMatchesFiniteDifferences) {
   settings.floor = floor;
   std::vector<double> w(floor.size());
   for (double& x : w) x = u(rng);
-  const std::vector<double> grad = render_reference_backward(scene.params, view, settings, w);
-  auto loss = [&](const std::vector<double>& p) {
-    const std::vector<double> img = render_reference(p, view, settings);
-    double l = 0;
-    for (std::size_t i = 0; i < img.size(); ++i) l += w[i] * img[i];
-    return l;
-  };
-  for (std::size_t i = 0; i < scene.params.size(); ++i) {
-    double err = 0;
-    const double fd = hisnegs::testing::ridders_derivative(
-        [&](double x) {
-          std::vector<double> p = scene.params;
-          p[i] = x;
-          return loss(p);
-        },
-        scene.params[i], 1e-3, &err);
-    EXPECT_LT(std::abs(grad[i] - fd) / std::max(1e-3, std::abs(fd)), 1e-5)
-        << "param " << i << " (kind " << i % 11 << "): analytic " << grad[i] << " fd " << fd;
-  }
+  expect_backward_matches_fd(scene.params, view, settings, w);
   // Far from every Gaussian (a scene of none): the image is the floor.
   const std::vector<double> empty = render_reference(std::vector<double>{}, view, settings);
   for (std::size_t i = 0; i < empty.size(); ++i) EXPECT_DOUBLE_EQ(empty[i], floor[i]) << i;
