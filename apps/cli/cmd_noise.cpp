@@ -3,6 +3,8 @@
 // [--offset O] [--shot-noise] [--seed N]`: raw-like test data from a
 // background-subtracted stack (io/detector_noise.hpp), and what its background
 // looks like after normalization, to compare with a raw stack's.
+// `hisnegs noise STACK --estimate [--offset O]`: the stack's own Poisson–Gaussian
+// parameters (io::estimate_detector_noise), in the same units as the options above.
 #include <cstdio>
 
 #include "apps/cli/cli_support.hpp"
@@ -19,11 +21,14 @@ void add_noise_command(CLI::App& app, GlobalOptions& global) {
   struct Args {
     std::string in, out;
     io::DetectorNoiseOptions noise;
+    bool estimate = false;
     VolumeOverrides overrides;
   };
   auto args = std::make_shared<Args>();
   cmd->add_option("STACK", args->in, "TIFF stack (counts, e.g. ../shared/data/op1_neuron.tif)")->required();
-  cmd->add_option("-o,--output", args->out, "output TIFF (the input's sample type and spacing)")->required();
+  cmd->add_option("-o,--output", args->out, "output TIFF (the input's sample type and spacing); required unless --estimate");
+  cmd->add_flag("--estimate", args->estimate,
+                "measure the stack's gain, read noise and background photons instead (--offset: its known camera bias)");
   cmd->add_option("--background-photons", args->noise.background_photons,
                   "expected background (dark, autofluorescence) photons per voxel")
       ->capture_default_str();
@@ -38,6 +43,13 @@ void add_noise_command(CLI::App& app, GlobalOptions& global) {
     AppConfig config = global.config();
     args->overrides.apply(config.volume);
     args->noise.validate();
+    if (args->estimate) {
+      if (!args->out.empty()) throw CLI::ValidationError("--estimate writes nothing: drop -o " + args->out);
+      const io::Volume raw = io::read_tiff_stack(args->in, io::tiff_read_options(config.volume));
+      std::printf("noise: %s: %s\n", args->in.c_str(), io::estimate_detector_noise(raw, args->noise.offset).describe().c_str());
+      return;
+    }
+    if (args->out.empty()) throw CLI::RequiredError("--output");
     const io::Volume raw = io::read_tiff_stack(args->in, io::tiff_read_options(config.volume));
     const io::Volume noisy = io::add_detector_noise(raw, args->noise);
     io::TiffWriteOptions write;

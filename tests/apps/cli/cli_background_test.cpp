@@ -45,6 +45,30 @@ TEST(CliNoise, AddsDetectorNoiseDeterministicallyAndSaysWhatTheBackgroundBecame)
   EXPECT_FALSE(fs::exists(dir / "b.tif"));
 }
 
+// --estimate measures a stack's noise (the library's recovery is tested in
+// io/detector_noise_test.cpp): here the synthetic stack with a 5-photon background at
+// gain 2 and offset 10 reads back near those, and the flags that make no sense together
+// are refused.
+TEST(CliNoise, EstimateReportsTheStacksNoise) {
+  testing::ScratchDir dir;
+  ASSERT_EQ(run_hisnegs({"-q", "synth", "-o", dir / "s.tif", "--shape", "24,96,96"}).exit_code, 0);
+  ASSERT_EQ(run_hisnegs({"-q", "noise", dir / "s.tif", "-o", dir / "n.tif", "--background-photons", "5", "--gain", "2",
+                         "--offset", "10", "--shot-noise"})
+                .exit_code,
+            0);
+  const auto r = run_hisnegs({"noise", dir / "n.tif", "--estimate", "--offset", "10"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("counts/photon, read noise"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("(offset 10 given)"), std::string::npos) << r.out;
+  const auto both = run_hisnegs({"noise", dir / "n.tif", "--estimate", "-o", dir / "x.tif"});
+  EXPECT_EQ(both.exit_code, 2);
+  EXPECT_NE(both.err.find("--estimate writes nothing"), std::string::npos) << both.err;
+  EXPECT_FALSE(fs::exists(dir / "x.tif"));
+  const auto none = run_hisnegs({"noise", dir / "n.tif"});
+  EXPECT_NE(none.exit_code, 0);
+  EXPECT_NE(none.err.find("--output"), std::string::npos) << none.err;
+}
+
 // A fit records the background of a raw stack (and none of a subtracted one); render
 // and eval draw its floor unless told --background none, and say which.
 TEST(CliBackground, FitRecordsItAndRendersDrawItsFloor) {
