@@ -50,7 +50,9 @@ DensityChange adapt_density(GaussianMixture& mixture, const SampleSet& samples, 
         const double share = soft ? std::exp(model.beta * g[i] - all.soft.m) / all.soft.S : g[i] / all.sum;
         error[ids[i]] += share * r * r;
       }
-      if (s < samples.foreground && -r > options.clone_residual) under.push_back({-r, s});
+      if (s < samples.foreground && -r > options.clone_residual && samples.value[s] > options.clone_floor) {
+        under.push_back({-r, s});
+      }
     }
   }
   const int per_call = std::max(1, static_cast<int>(options.densify_fraction * static_cast<double>(K)));

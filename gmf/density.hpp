@@ -24,7 +24,8 @@ struct DensityChange {
 // max-mixture (the Gaussian that shows there). Split: the largest-error Gaussians
 // (error above mean + 2 sd, largest scale above one voxel) become two at
 // μ ± split_offset s_max along the longest axis with scales × split_scale. Clone:
-// foreground samples with V − f > gmf.clone_residual, strongest first, at least two
+// foreground samples with V − f > gmf.clone_residual and V above gmf.clone_floor
+// (the background's noise ceiling: no clone on a noise peak), strongest first, at least two
 // voxels apart, each a new isotropic Gaussian of one voxel with a = V − f (sum) or
 // a = V (softmax: it shows alone). At most gmf.densify_fraction × K of each per
 // call, and never past gmf.gaussians.

@@ -23,6 +23,7 @@ void GmfOptions::validate() const {
   io::require_in_range(s, "split_offset", split_offset, 0.0, 2.0);
   io::require_in_range(s, "densify_fraction", densify_fraction, 1e-9, 1.0);
   io::require_in_range(s, "clone_residual", clone_residual, 1e-9, 1.0 - 1e-9);
+  io::require_in_range(s, "clone_floor", clone_floor, 0.0, 1.0 - 1e-9);
   io::require_in_range(s, "background_fraction", background_fraction, 0.0, 1.0);
   io::require_in_range(s, "background_weight", background_weight, 0.0, 1e9);
   io::require_positive(s, "adam_learning_rate", adam_learning_rate);

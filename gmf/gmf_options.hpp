@@ -53,6 +53,10 @@ struct GmfOptions {
   bool densify = true;               // split/clone between rounds (adapt_density)
   double densify_fraction = 0.05;    // at most this share of K split, and as many cloned, per round, (0, 1]
   double clone_residual = 0.1;       // clone where V − f exceeds this (normalized units), (0, 1)
+  // Not a config field: set by the fit stage to the stack background's 99.9th
+  // percentile (0 for a subtracted background), so no clone lands where noise alone
+  // could explain V (clones need V above it). [0, 1).
+  double clone_floor = 0.0;
   // Share of the empty voxels sampled for the fit, [0, 1] (overrides
   // sparse_grid.background_fraction for the fit). Without samples in empty space
   // nothing stops Gaussians from spreading mass there: on op1 the 3D PSNR stayed

@@ -30,20 +30,23 @@ void report_iteration(const gmf::FitIteration& it, const Progress& progress) {
 
 }  // namespace
 
-void record_background(const io::LoadedVolume& loaded, const FitConfig& config, gmf::CheckpointMeta& meta,
-                       const Progress& progress) {
+io::BackgroundModel stack_background(const io::LoadedVolume& loaded, const FitConfig& config, const Progress& progress) {
   const io::BackgroundOptions& options = config.get<&AppConfig::background>();
   if (!options.estimate) {
     progress.say("fit: background: not estimated (background.estimate: false): renders draw no floor");
-    return;
+    return {};
   }
-  io::Stopwatch watch;
   io::BackgroundModel model = io::estimate_background(loaded.volume, options);
   if (model.none()) {
     progress.say("fit: background: exactly 0 outside the neuron (%lld voxels): no floor to draw",
                  static_cast<long long>(model.voxels));
-    return;
   }
+  return model;
+}
+
+void record_background(const io::LoadedVolume& loaded, const FitConfig& config, io::BackgroundModel model,
+                       gmf::CheckpointMeta& meta, const Progress& progress) {
+  io::Stopwatch watch;
   const double mean = model.mean(), p99 = model.quantile(0.99);
   const long long voxels = model.voxels;
   const splat::FloorCalibration c = splat::calibrate_background(model, loaded.frame, config.get<&AppConfig::raymarch>());
@@ -119,8 +122,13 @@ FitOutcome fit_to_checkpoint(const std::string& volume, const FitConfig& config,
                sum ? "sum (report Eq. 1)" : strf("softmax (beta %g -> %g)", gmf.beta_start, gmf.beta_end).c_str(),
                gmf.jitter() > 0 ? "moved within their voxels each round" : "at the voxel centres",
                jitter_source.c_str(), gmf.jitter());
+  // A raw stack's noise peaks are not structure: density control clones nothing that
+  // the background's 99.9th percentile could explain.
+  const io::BackgroundModel background = stack_background(setup.loaded, config, progress);
+  gmf::GmfOptions fit_options = gmf;
+  fit_options.clone_floor = background.none() ? 0.0 : background.quantile(0.999);
   gmf::GaussianMixture& mixture = setup.mixture;
-  const gmf::FitResult result = gmf::fit_mixture(setup.loaded.volume, setup.samples, setup.loaded.frame, mixture, gmf,
+  const gmf::FitResult result = gmf::fit_mixture(setup.loaded.volume, setup.samples, setup.loaded.frame, mixture, fit_options,
                                                  [&](const gmf::FitIteration& it) { report_iteration(it, progress); });
   for (const gmf::FitRound& r : result.rounds) {
     progress.say("fit: round %d density control: %d pruned, %d split, %d cloned -> K %d", r.round, r.pruned, r.split,
@@ -129,7 +137,7 @@ FitOutcome fit_to_checkpoint(const std::string& volume, const FitConfig& config,
   gmf::CheckpointMeta meta = checkpoint_meta(setup.loaded, volume);
   meta.aggregation = gmf.aggregation;
   meta.beta = result.final_beta;
-  record_background(setup.loaded, config, meta, progress);
+  if (!background.none()) record_background(setup.loaded, config, background, meta, progress);
   gmf::save_checkpoint(out, mixture, meta);
   if (!log_csv.empty()) {
     std::ostringstream s;

@@ -46,14 +46,16 @@ void append_fit_log_csv(std::ostringstream& s, std::span<const gmf::FitIteration
 // Checkpoint metadata of a model fitted to `loaded` (shape, spacing, aspect, normalization, source).
 gmf::CheckpointMeta checkpoint_meta(const io::LoadedVolume& loaded, const std::string& source);
 
-// Estimates the background of `loaded` (config section `background`), calibrates it
-// against the ray marcher (`raymarch`) and records it in `meta`, with one line; does
-// nothing (but say so) when background.estimate is false or the background is 0.
-void record_background(const io::LoadedVolume& loaded, const FitConfig& config, gmf::CheckpointMeta& meta,
-                       const Progress& progress);
+// The background of `loaded` (config section `background`); none, with one line
+// saying why, when background.estimate is false or the background is 0.
+io::BackgroundModel stack_background(const io::LoadedVolume& loaded, const FitConfig& config, const Progress& progress);
+// Calibrates `model` (not none) against the ray marcher (`raymarch`) and records it
+// in `meta`, with one line.
+void record_background(const io::LoadedVolume& loaded, const FitConfig& config, io::BackgroundModel model,
+                       gmf::CheckpointMeta& meta, const Progress& progress);
 
 // prepare_fit(), the fit, the checkpoint `out` (with the stack's background,
-// record_background) and, unless empty, the iteration log `log_csv`; a line per
+// record_background; density control clones nothing below its 99.9th percentile) and, unless empty, the iteration log `log_csv`; a line per
 // iteration report and density-control round, one at the end.
 struct FitOutcome {
   std::size_t gaussians = 0;

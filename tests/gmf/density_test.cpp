@@ -98,5 +98,47 @@ TEST(GmfDensity, NeverExceedsTheGaussianBudget) {
   }
 }
 
+// A raw stack's noise peak (a dim voxel at 0.25 where the model is near 0) draws a
+// clone while gmf.clone_floor is 0, and none once the floor (the background's 99.9th
+// percentile, as the fit stage sets it) is at or above it; a missing Gaussian above
+// the floor is still cloned back.
+TEST(GmfDensity, ClonesNoNoisePeakBelowTheCloneFloor) {
+  const Scene scene = make_scene(17);
+  const io::SparseGrid grid = grid_of(scene, 0.01);
+  SampleSet samples = extract_samples(grid, 1.0, 2);
+  GmfOptions o;
+  o.aggregation = Aggregation::kSum;
+  o.densify_fraction = 0.5;
+  const GaussianMixture full = scene.truth;
+  const SampleSet clean = samples;
+  // Noise peaks: the dimmest foreground samples lifted to 0.25.
+  int peaks = 0;
+  for (std::uint32_t s = 0; s < samples.foreground && peaks < 5; ++s) {
+    if (samples.value[s] < 0.03f) {
+      samples.value[s] = 0.25f;
+      ++peaks;
+    }
+  }
+  ASSERT_EQ(peaks, 5);
+  const BlockIndex index = build_block_index(full, samples, scene.frame, o.mahalanobis_cutoff);
+  const auto clones = [&](const SampleSet& set, double floor) {
+    GaussianMixture m = full;
+    o.clone_floor = floor;
+    return adapt_density(m, set, index, scene.frame, o, o.model(0)).cloned;
+  };
+  // Without a floor the peaks draw clones; with the floor at their level they draw
+  // none: exactly the clones of the stack without them.
+  EXPECT_GT(clones(samples, 0.0), clones(clean, 0.0));
+  EXPECT_EQ(clones(samples, 0.3), clones(clean, 0.3));
+  // The missing Gaussian (its voxels well above the floor) is still cloned back.
+  GaussianMixture missing;
+  for (std::size_t k = 0; k < scene.truth.size(); ++k) {
+    if (k != 3) missing.push_back(scene.truth[k]);
+  }
+  o.clone_floor = 0.05;
+  const BlockIndex index2 = build_block_index(missing, samples, scene.frame, o.mahalanobis_cutoff);
+  EXPECT_GE(adapt_density(missing, samples, index2, scene.frame, o, o.model(0)).cloned, 1);
+}
+
 }  // namespace
 }  // namespace hisnegs::gmf
