@@ -29,6 +29,9 @@ find_package(PkgConfig REQUIRED)
 pkg_check_modules(ZSTD REQUIRED IMPORTED_TARGET libzstd)
 # cpp-httplib (libcpp-httplib-dev; Debian builds it as a shared library) for `hisnegs view`.
 pkg_check_modules(HTTPLIB REQUIRED IMPORTED_TARGET cpp-httplib)
+# HDF5 (libhdf5-dev, the serial C library): BigDataViewer, Imaris and plain HDF5
+# stacks. Through its pkg-config file: CMake's FindHDF5 needs the C language enabled.
+pkg_check_modules(HDF5 REQUIRED IMPORTED_TARGET hdf5)
 if(BUILD_TESTING)
   find_package(GTest CONFIG REQUIRED)
 endif()

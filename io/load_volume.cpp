@@ -7,6 +7,7 @@
 #include <sstream>
 
 #include "io/error.hpp"
+#include "io/stack_file.hpp"
 #include "io/tiff_stack.hpp"
 
 namespace hisnegs::io {
@@ -29,6 +30,8 @@ void VolumeOptions::validate() const {
     }
   }
   if (channel < -1) fail_option("volume", "channel", std::to_string(channel), "must be -1 (none) or >= 0");
+  if (timepoint < -1) fail_option("volume", "timepoint", std::to_string(timepoint), "must be -1 (none) or >= 0");
+  if (dataset.size() > 1024) fail_option("volume", "dataset", printable(dataset, 40), "longer than 1024 characters");
   require_in_range("volume", "foreground_threshold", foreground_threshold, 1e-9, 1.0 - 1e-9);
 }
 
@@ -41,10 +44,18 @@ TiffReadOptions tiff_read_options(const VolumeOptions& options) {
   return read;
 }
 
+StackReadOptions stack_read_options(const VolumeOptions& options) {
+  StackReadOptions read;
+  read.tiff = tiff_read_options(options);
+  read.dataset = options.dataset;
+  if (options.timepoint >= 0) read.timepoint = options.timepoint;
+  return read;
+}
+
 LoadedVolume load_volume(const std::filesystem::path& path, const VolumeOptions& options) {
   options.validate();
   LoadedVolume out;
-  out.volume = read_tiff_stack(path, tiff_read_options(options));
+  out.volume = read_stack(path, stack_read_options(options));
   normalize(out.volume, options.normalization);
   const Volume& v = out.volume;
   const Eigen::Vector3d aspect = aspect_scales(v.nx, v.ny, v.nz, v.spacing, options.aspect);

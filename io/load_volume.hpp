@@ -4,6 +4,7 @@
 #pragma once
 
 #include <filesystem>
+#include <string>
 #include <vector>
 
 #include "io/config.hpp"
@@ -17,6 +18,8 @@ struct VolumeOptions {
   AspectMode aspect = AspectMode::kPhysical;  // physical | shape (report Eq. 9)
   std::vector<double> spacing_um;             // [] = from the file; else [sx, sy, sz] µm, each > 0
   int channel = -1;                           // channel of multi-channel files, -1 = none (error if needed)
+  std::string dataset;                        // HDF5: the dataset's path, "" = the only stack in the file
+  int timepoint = -1;                         // HDF5 time series: the time point, -1 = none (error if needed)
   double foreground_threshold = 0.2;          // relative level for the "foreground fraction" statistic, (0, 1)
 
   void validate() const;  // throws InputError("volume.FIELD = VALUE: rule")
@@ -30,13 +33,18 @@ struct VolumeOptions {
     v("aspect", aspect, EnumNames<AspectMode>{{"physical", AspectMode::kPhysical}, {"shape", AspectMode::kShape}});
     v("spacing_um", spacing_um);
     v("channel", channel);
+    v("dataset", dataset);
+    v("timepoint", timepoint);
     v("foreground_threshold", foreground_threshold);
   }
 };
 
 struct TiffReadOptions;
+struct StackReadOptions;
 // The TIFF reader's view of `options` (channel, spacing override).
 TiffReadOptions tiff_read_options(const VolumeOptions& options);
+// Any stack reader's view of `options` (also the HDF5 dataset and time point).
+StackReadOptions stack_read_options(const VolumeOptions& options);
 
 struct LoadedVolume {
   Volume volume;     // normalized to [0, 1]
@@ -47,7 +55,7 @@ struct LoadedVolume {
 // beyond it the world frame is degenerate in float and OpenVDB's transforms singular.
 inline constexpr double kMaxSpacingRatio = 1e4;
 
-// Reads the TIFF stack at `path`, normalizes it and computes its world frame.
+// Reads the stack at `path` (TIFF or HDF5, io/stack_file.hpp), normalizes it and computes its world frame.
 // Throws InputError naming the file for any bad input (also a voxel size or box
 // whose edges differ by more than kMaxSpacingRatio).
 

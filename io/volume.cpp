@@ -44,6 +44,8 @@ std::string_view to_string(SpacingSource source) {
       return "TIFF X/YResolution (cm)";
     case SpacingSource::kFile:
       return "file metadata";
+    case SpacingSource::kHdf5:
+      return "HDF5 metadata";
   }
   return "?";
 }

@@ -28,6 +28,7 @@ enum class SpacingSource {
   kImageJResolution,  // X/YResolution with the ImageJ description's `unit=`
   kTiffResolution,    // X/YResolution with ResolutionUnit = centimeter
   kFile,              // a hisnegs file's own metadata (.vdb, .ply)
+  kHdf5,              // HDF5 metadata: element_size_um, BigDataViewer's voxelSize, Imaris' extents
 };
 [[nodiscard]] std::string_view to_string(SpacingSource source);
 

@@ -9,13 +9,14 @@ set -euo pipefail
 packages=(
   build-essential cmake ninja-build pkg-config
   libeigen3-dev libceres-dev libopenvdb-dev libboost-iostreams-dev libtbb-dev
-  libtiff-dev libpng-dev libgif-dev libhwy-dev libzstd-dev zlib1g-dev
+  libtiff-dev libhdf5-dev libpng-dev libgif-dev libhwy-dev libzstd-dev zlib1g-dev
   libcli11-dev libyaml-cpp-dev nlohmann-json3-dev libcpp-httplib-dev
   libgtest-dev libgmock-dev libbenchmark-dev
   libopenvdb-tools python3-openvdb
   chromium  # tests/apps/cli/cli_viewer_test.cpp renders `export html` pages headless
   xz-utils  # scripts/device-bundle.sh packs the GPU bundle with xz
   python3-tifffile  # tests/io/tiff_stack_test.cpp reads the stacks hisnegs writes with tifffile
+  python3-h5py  # tests/io/hdf5_stack_test.cpp reads the HDF5 stacks hisnegs writes with h5py
 )
 
 missing=()

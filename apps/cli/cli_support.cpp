@@ -25,7 +25,9 @@ Progress GlobalOptions::progress() const { return console_progress(quiet); }
 
 void VolumeOverrides::add_to(CLI::App* command) {
   command->add_option("--spacing", spacing_um, "voxel size x,y,z in um (overrides the file)")->delimiter(',');
-  command->add_option("--channel", channel, "channel of a multi-channel stack (0-based)");
+  command->add_option("--channel", channel, "channel of a multi-channel stack (0-based; BigDataViewer: the setup)");
+  command->add_option("--dataset", dataset, "HDF5: the dataset holding the stack, e.g. /data (default: the only one)");
+  command->add_option("--timepoint", timepoint, "HDF5 time series: the time point (0-based)");
   command->add_option("--normalization", normalization, "minmax | percentile (default from config)");
   command->add_option("--aspect", aspect, "physical | shape (report Eq. 9)");
 }
@@ -33,6 +35,8 @@ void VolumeOverrides::add_to(CLI::App* command) {
 void VolumeOverrides::apply(io::VolumeOptions& options) const {
   if (!spacing_um.empty()) options.spacing_um = spacing_um;
   if (channel) options.channel = *channel;
+  if (!dataset.empty()) options.dataset = dataset;
+  if (timepoint) options.timepoint = *timepoint;
   if (!normalization.empty()) io::set_enum_field(options, "normalization", normalization, "--normalization");
   if (!aspect.empty()) io::set_enum_field(options, "aspect", aspect, "--aspect");
   if (!spacing_um.empty() && spacing_um.size() != 3) {

@@ -47,7 +47,7 @@ void add_bench_options(CLI::App* cmd, BenchArgs& a) {
   cmd->add_option("--max-frames", a.report.max_frames, "report: most frames per timed case")->capture_default_str();
   cmd->add_option("--seconds-per-case", a.report.seconds_per_case, "report: time budget per timed case")
       ->capture_default_str();
-  cmd->add_option("--volume", a.volume, "TIFF stack to measure (default: a synthetic stack written to a temp folder)");
+  cmd->add_option("--volume", a.volume, "stack (TIFF or HDF5) to measure (default: a synthetic stack written to a temp folder)");
   cmd->allow_extras();
 }
 

@@ -20,6 +20,7 @@
 #include "io/error.hpp"
 #include "io/load_volume.hpp"
 #include "io/memory_limit.hpp"
+#include "io/stack_file.hpp"
 #include "io/tiff_stack.hpp"
 #include "io/timer.hpp"
 #include "splat/camera.hpp"
@@ -33,7 +34,7 @@ constexpr double kProgressAfterSeconds = 2.0;
 // The frame of the stack at `path` from its header alone (no pixels are read),
 // with the spacing and aspect rules of the `volume` section, as load_volume would.
 io::WorldFrame header_frame(const std::string& path, const io::VolumeOptions& options) {
-  const io::TiffStackInfo info = io::inspect_tiff_stack(path, io::tiff_read_options(options));
+  const io::StackHeader info = io::inspect_stack(path, io::stack_read_options(options));
   return io::WorldFrame(info.nx, info.ny, info.nz,
                         io::aspect_scales(info.nx, info.ny, info.nz, info.spacing, options.aspect));
 }

@@ -15,6 +15,7 @@
 #include "io/error.hpp"
 #include "io/load_volume.hpp"
 #include "io/sparse_grid.hpp"
+#include "io/stack_file.hpp"
 #include "io/tiff_stack.hpp"
 #include "io/timer.hpp"
 
@@ -33,11 +34,13 @@ FileKind detect_kind(const std::filesystem::path& path) {
     return FileKind::kTiff;
   }
   if (magic[0] == 'p' && magic[1] == 'l' && magic[2] == 'y') return FileKind::kPly;
+  if (io::is_hdf5_stack(path)) return FileKind::kTiff;  // a stack either way: io::read_stack tells them apart
   if (gmf::has_compact_magic(std::string_view(reinterpret_cast<const char*>(magic), 8))) return FileKind::kCompact;
   // OpenVDB files start with the int32 magic 0x56444220 (" BDV" little-endian).
   if (magic[0] == 0x20 && magic[1] == 0x42 && magic[2] == 0x44 && magic[3] == 0x56) return FileKind::kVdb;
   io::fail_input(
-      path, "unrecognized file type (expected a TIFF stack, an OpenVDB .vdb, a .ply or a compact .hgs checkpoint)");
+      path, "unrecognized file type (expected a TIFF or HDF5 stack, an OpenVDB .vdb, a .ply or a compact .hgs "
+      "checkpoint)");
 }
 
 void print_row(const char* key, const std::string& value) { std::printf("%-12s %s\n", key, value.c_str()); }
@@ -56,10 +59,10 @@ std::string vec3(const Eigen::Vector3d& v) {
 void info_tiff(const std::filesystem::path& path, GlobalOptions& global, const VolumeOverrides& overrides) {
   io::VolumeOptions options = global.config().volume;
   overrides.apply(options);
-  const io::TiffReadOptions read = io::tiff_read_options(options);
-  const io::TiffStackInfo header = io::inspect_tiff_stack(path, read);
+  const io::StackReadOptions read = io::stack_read_options(options);
+  const io::StackHeader header = io::inspect_stack(path, read);
   io::Stopwatch watch;
-  io::Volume raw = io::read_tiff_stack(path, read);
+  io::Volume raw = io::read_stack(path, read);
   const double t_read = watch.lap();
   const io::VolumeStats raw_stats = io::compute_stats(raw, options.foreground_threshold);
   watch.lap();
@@ -68,10 +71,7 @@ void info_tiff(const std::filesystem::path& path, GlobalOptions& global, const V
   const io::Volume& volume = raw;
 
   print_row("file", path.string());
-  print_row("format", std::string("TIFF") + (header.bigtiff ? " (BigTIFF)" : "") + ", " + std::to_string(header.pages) +
-                          " pages, " + std::string(io::to_string(header.type)) + ", " + header.compression + ", " +
-                          (header.tiled ? "tiled" : "striped") +
-                          (header.channels > 1 ? ", " + std::to_string(header.channels) + " channels" : ""));
+  print_row("format", header.format);
   print_row("shape", "Z=" + std::to_string(raw.nz) + " Y=" + std::to_string(raw.ny) + " X=" + std::to_string(raw.nx) +
                          " (" + fmt("%.2f", raw.size() / 1e6) + " M voxels, " +
                          format_bytes(static_cast<double>(raw.size()) * 4.0) + " as float32)");
@@ -192,10 +192,10 @@ void info_checkpoint(const std::filesystem::path& path, bool compact) {
 }  // namespace
 
 void add_info_command(CLI::App& app, GlobalOptions& global) {
-  auto* cmd = app.add_subcommand("info", "describe a TIFF stack, an OpenVDB file or a checkpoint (.ply, .hgs)");
+  auto* cmd = app.add_subcommand("info", "describe a stack (TIFF, HDF5, BigDataViewer, Imaris), an OpenVDB file or a checkpoint (.ply, .hgs)");
   auto path = std::make_shared<std::string>();
   auto overrides = std::make_shared<VolumeOverrides>();
-  cmd->add_option("FILE", *path, "TIFF stack, .vdb, .ply or .hgs")->required();
+  cmd->add_option("FILE", *path, "stack (TIFF, HDF5 .h5, BigDataViewer .xml, Imaris .ims), .vdb, .ply or .hgs")->required();
   overrides->add_to(cmd);
   cmd->callback([path, overrides, &global] {
     const FileKind kind = detect_kind(*path);

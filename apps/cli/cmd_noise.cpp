@@ -11,6 +11,7 @@
 #include "io/background.hpp"
 #include "io/detector_noise.hpp"
 #include "io/error.hpp"
+#include "io/stack_file.hpp"
 #include "io/tiff_stack.hpp"
 
 namespace hisnegs::apps {
@@ -25,7 +26,7 @@ void add_noise_command(CLI::App& app, GlobalOptions& global) {
     VolumeOverrides overrides;
   };
   auto args = std::make_shared<Args>();
-  cmd->add_option("STACK", args->in, "TIFF stack (counts, e.g. ../shared/data/op1_neuron.tif)")->required();
+  cmd->add_option("STACK", args->in, "stack (TIFF or HDF5; counts, e.g. ../shared/data/op1_neuron.tif)")->required();
   cmd->add_option("-o,--output", args->out, "output TIFF (the input's sample type and spacing); required unless --estimate");
   cmd->add_flag("--estimate", args->estimate,
                 "measure the stack's gain, read noise and background photons instead (--offset: its known camera bias)");
@@ -45,12 +46,12 @@ void add_noise_command(CLI::App& app, GlobalOptions& global) {
     args->noise.validate();
     if (args->estimate) {
       if (!args->out.empty()) throw CLI::ValidationError("--estimate writes nothing: drop -o " + args->out);
-      const io::Volume raw = io::read_tiff_stack(args->in, io::tiff_read_options(config.volume));
+      const io::Volume raw = io::read_stack(args->in, io::stack_read_options(config.volume));
       std::printf("noise: %s: %s\n", args->in.c_str(), io::estimate_detector_noise(raw, args->noise.offset).describe().c_str());
       return;
     }
     if (args->out.empty()) throw CLI::RequiredError("--output");
-    const io::Volume raw = io::read_tiff_stack(args->in, io::tiff_read_options(config.volume));
+    const io::Volume raw = io::read_stack(args->in, io::stack_read_options(config.volume));
     const io::Volume noisy = io::add_detector_noise(raw, args->noise);
     io::TiffWriteOptions write;
     write.type = raw.stored_as;

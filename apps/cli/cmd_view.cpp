@@ -47,7 +47,7 @@ void add_view_command(CLI::App& app, GlobalOptions& global) {
   };
   auto args = std::make_shared<Args>();
   cmd->add_option("--model", args->model, "checkpoint (.ply or .hgs); re-read when it changes")->required();
-  cmd->add_option("--volume", args->volume, "TIFF stack the model was fitted to: compare with its ray-marched MIP");
+  cmd->add_option("--volume", args->volume, "stack (TIFF or HDF5) the model was fitted to: compare with its ray-marched MIP");
   cmd->add_option("--cameras", args->cameras, "cameras.json whose views #view=N shows (default: eval orbit)");
   cmd->add_option("--port", args->server.port, "TCP port; 0 = any free port")->capture_default_str();
   cmd->add_option("--host", args->server.host, "address to bind (not loopback: reachable from the network)")

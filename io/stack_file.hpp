@@ -1,0 +1,40 @@
+// SPDX-License-Identifier: Apache-2.0
+// Any stack file hisnegs reads, by what the file is (not its name): TIFF/BigTIFF
+// (tiff_stack.hpp) or HDF5 (hdf5_stack.hpp: plain, BigDataViewer .xml/.h5, Imaris
+// .ims). Every command that reads a stack goes through here.
+#pragma once
+
+#include <filesystem>
+#include <string>
+
+#include "io/hdf5_stack.hpp"
+#include "io/tiff_stack.hpp"
+#include "io/volume.hpp"
+
+namespace hisnegs::io {
+
+// How a stack file is chosen and interpreted, whatever its format (CLI --channel,
+// --timepoint, --dataset, --spacing). tiff.channel and tiff.spacing_um serve both.
+struct StackReadOptions {
+  TiffReadOptions tiff;
+  std::string dataset;           // HDF5: the dataset's path ("" = the only stack)
+  std::optional<int> timepoint;  // HDF5 time series
+  [[nodiscard]] Hdf5ReadOptions hdf5() const;
+};
+
+// A stack's header: what inspect_tiff_stack / inspect_hdf5_stack found, in common.
+struct StackHeader {
+  int nx = 0, ny = 0, nz = 0;
+  SampleType type = SampleType::kUint8;
+  VoxelSpacing spacing;
+  int channels = 1;
+  std::string format;  // "TIFF (BigTIFF), 60 pages, uint8, LZW, striped" / Hdf5StackInfo::describe()
+};
+
+[[nodiscard]] StackHeader inspect_stack(const std::filesystem::path& path, const StackReadOptions& options = {});
+
+// The whole stack (raw values, normalization kNone). A TIFF refuses --dataset and
+// --timepoint (one line naming them).
+[[nodiscard]] Volume read_stack(const std::filesystem::path& path, const StackReadOptions& options = {});
+
+}  // namespace hisnegs::io
