@@ -522,6 +522,10 @@ TiffStackInfo inspect_tiff_stack(const fs::path& path, const TiffReadOptions& op
 }
 
 Volume read_tiff_stack(const fs::path& path, const TiffReadOptions& options) {
+  return read_tiff_slab(path, options, 0, -1);
+}
+
+Volume read_tiff_slab(const fs::path& path, const TiffReadOptions& options, int z_begin, int z_end) {
   options.validate();
   const std::unique_ptr<TiffHandle> handle = open_for_read(path);
   TIFF* tif = handle->get();
@@ -536,6 +540,12 @@ Volume read_tiff_stack(const fs::path& path, const TiffReadOptions& options) {
     fail_input(path, "has a single Z slice (" + std::to_string(s.pages) + " pages, " + std::to_string(s.channels()) +
                          " channels); expected a 3D stack");
   }
+  if (z_end < 0) z_end = s.nz;
+  if (z_begin < 0 || z_end > s.nz || z_begin >= z_end) {
+    throw std::invalid_argument("read_tiff_slab: pages [" + std::to_string(z_begin) + ", " + std::to_string(z_end) +
+                                ") are not inside the stack's " + std::to_string(s.nz));
+  }
+  const int slab = z_end - z_begin;
   const int channel = options.channel.value_or(0);
   const int page_channel = channel / s.format.samples;
   const int sample = channel % s.format.samples;
@@ -553,22 +563,22 @@ Volume read_tiff_stack(const fs::path& path, const TiffReadOptions& options) {
                            " bytes; truncated or damaged");
     }
   }
-  check_allocation(path, 4.0 * nx * ny * s.nz,
-                   std::to_string(nx) + "x" + std::to_string(ny) + "x" + std::to_string(s.nz) + " float32 voxels");
+  check_allocation(path, 4.0 * nx * ny * slab,
+                   std::to_string(nx) + "x" + std::to_string(ny) + "x" + std::to_string(slab) + " float32 voxels");
 
-  // z of each page we need (-1: another channel).
+  // z (within the slab) of each page we need (-1: another channel, or outside the slab).
   std::vector<int> z_of_page(static_cast<std::size_t>(s.pages), -1);
   int last_page = 0;
-  for (int z = 0; z < s.nz; ++z) {
+  for (int z = z_begin; z < z_end; ++z) {
     const int page = z * s.stride_z + page_channel * s.stride_c;
-    z_of_page[static_cast<std::size_t>(page)] = z;
+    z_of_page[static_cast<std::size_t>(page)] = z - z_begin;
     last_page = std::max(last_page, page);
   }
 
   Volume volume;
   volume.nx = nx;
   volume.ny = ny;
-  volume.nz = s.nz;
+  volume.nz = slab;
   volume.stored_as = s.type;
   volume.spacing = s.spacing;
   volume.normalization = Normalization{};
@@ -600,7 +610,7 @@ Volume read_tiff_stack(const fs::path& path, const TiffReadOptions& options) {
       if (bad != dst + page_voxels) {
         const auto i = static_cast<std::size_t>(bad - dst);
         fail_input(path, "voxel (x=" + std::to_string(i % nx) + ", y=" + std::to_string(i / nx) + ", z=" +
-                             std::to_string(z) + ") is " + non_finite_text(*bad) + "; float stacks must be finite");
+                             std::to_string(z + z_begin) + ") is " + non_finite_text(*bad) + "; float stacks must be finite");
       }
     }
   }

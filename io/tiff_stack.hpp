@@ -43,6 +43,13 @@ struct TiffReadOptions {
 // MemAvailable, or the environment variable HISNEGS_MAX_ALLOC_GB in GiB).
 [[nodiscard]] Volume read_tiff_stack(const std::filesystem::path& path, const TiffReadOptions& options = {});
 
+// Pages [z_begin, z_end) of the stack (of the chosen channel) as a Volume of
+// z_end - z_begin slices, with every check read_tiff_stack makes; z_end = -1 means
+// the last page. Only those pages are decoded (libtiff still walks the directories
+// before them). The memory limit is checked for the slab, not the stack.
+[[nodiscard]] Volume read_tiff_slab(const std::filesystem::path& path, const TiffReadOptions& options, int z_begin,
+                                    int z_end);
+
 // How write_tiff_stack stores a stack.
 struct TiffWriteOptions {
   // Sample type on disk. kUint8/kUint16 require every value to be an integer in

@@ -1,0 +1,195 @@
+// SPDX-License-Identifier: Apache-2.0
+// VolumeSource implementations (memory, TIFF slabs, HDF5 hyperslabs) and the
+// streaming statistics pass.
+#include "io/volume_source.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+#include <stdexcept>
+
+#include "io/error.hpp"
+
+namespace hisnegs::io {
+namespace {
+
+// Copies the x-y window of `box` out of whole pages `pages` (nx × ny × box depth).
+void crop_pages(const std::vector<float>& pages, int nx, int ny, const VoxelBox& box, float* out) {
+  const std::size_t w = static_cast<std::size_t>(box.hi[0] - box.lo[0]);
+  for (int z = 0; z < box.hi[2] - box.lo[2]; ++z) {
+    for (int y = box.lo[1]; y < box.hi[1]; ++y) {
+      const float* row = pages.data() + (static_cast<std::size_t>(z) * ny + y) * nx + box.lo[0];
+      out = std::copy(row, row + w, out);
+    }
+  }
+}
+
+void describe_into(VolumeSource& s, const Volume& v) {
+  s.nx = v.nx;
+  s.ny = v.ny;
+  s.nz = v.nz;
+  s.stored_as = v.stored_as;
+  s.spacing = v.spacing;
+  s.source = v.source.empty() ? "memory" : v.source;
+}
+
+class MemorySource final : public VolumeSource {
+ public:
+  explicit MemorySource(Volume v) : volume_(std::move(v)) {
+    describe_into(*this, volume_);
+    format = "in memory";
+  }
+  void read(const VoxelBox& box, float* out) const override {
+    check_box(box);
+    const std::size_t w = static_cast<std::size_t>(box.hi[0] - box.lo[0]);
+    for (int z = box.lo[2]; z < box.hi[2]; ++z) {
+      for (int y = box.lo[1]; y < box.hi[1]; ++y) {
+        const float* row = volume_.voxels.data() + volume_.index(box.lo[0], y, z);
+        out = std::copy(row, row + w, out);
+      }
+    }
+  }
+
+ private:
+  Volume volume_;
+};
+
+// Each read opens the file on its own handle: concurrent reads share nothing.
+class TiffSource final : public VolumeSource {
+ public:
+  TiffSource(std::filesystem::path path, TiffReadOptions options) : path_(std::move(path)), options_(std::move(options)) {}
+  void read(const VoxelBox& box, float* out) const override {
+    check_box(box);
+    const Volume slab = read_tiff_slab(path_, options_, box.lo[2], box.hi[2]);
+    crop_pages(slab.voxels, nx, ny, box, out);
+  }
+
+ private:
+  std::filesystem::path path_;
+  TiffReadOptions options_;
+};
+
+class Hdf5Source final : public VolumeSource {
+ public:
+  explicit Hdf5Source(Hdf5StackInfo info) : info_(std::move(info)) {}
+  void read(const VoxelBox& box, float* out) const override {
+    check_box(box);
+    read_hdf5_region(info_, box.lo, box.hi, out);
+  }
+
+ private:
+  Hdf5StackInfo info_;
+};
+
+}  // namespace
+
+void VolumeSource::check_box(const VoxelBox& box) const {
+  const std::array<int, 3> n{nx, ny, nz};
+  for (int a = 0; a < 3; ++a) {
+    if (box.lo[a] < 0 || box.hi[a] > n[a] || box.lo[a] >= box.hi[a]) {
+      throw std::invalid_argument("VolumeSource::read: the box is empty or outside the stack (" + source + ")");
+    }
+  }
+}
+
+std::unique_ptr<VolumeSource> open_volume_source(const std::filesystem::path& path, const StackReadOptions& options) {
+  const StackHeader header = inspect_stack(path, options);
+  std::unique_ptr<VolumeSource> s;
+  if (is_hdf5_stack(path)) {
+    s = std::make_unique<Hdf5Source>(inspect_hdf5_stack(path, options.hdf5()));
+  } else {
+    if (header.channels > 1 && !options.tiff.channel) {
+      fail_input(path, "has " + std::to_string(header.channels) + " channels; choose one with --channel (0.." +
+                           std::to_string(header.channels - 1) + ")");
+    }
+    if (header.nz < 2) fail_input(path, "has a single Z slice; expected a 3D stack");
+    s = std::make_unique<TiffSource>(path, options.tiff);
+  }
+  s->nx = header.nx;
+  s->ny = header.ny;
+  s->nz = header.nz;
+  s->stored_as = header.type;
+  s->spacing = header.spacing;
+  s->source = path.string();
+  s->format = header.format;
+  return s;
+}
+
+std::unique_ptr<VolumeSource> memory_source(Volume volume) { return std::make_unique<MemorySource>(std::move(volume)); }
+
+double SourceStatistics::percentile(double p) const {
+  if (voxels == 0) return 0.0;
+  if (p <= 0.0) return min;
+  if (p >= 100.0) return max;
+  if (histogram.empty()) throw std::logic_error("float32 percentiles from a streaming pass are not implemented");
+  // The order statistics k and k + 1 at pos = p/100 (n - 1), as percentiles_of().
+  const double pos = p / 100.0 * static_cast<double>(voxels - 1);
+  const auto k = static_cast<std::int64_t>(std::floor(pos));
+  auto value_at_rank = [&](std::int64_t rank) {
+    std::int64_t seen = 0;
+    for (std::size_t v = 0; v < histogram.size(); ++v) {
+      seen += histogram[v];
+      if (seen > rank) return static_cast<double>(v);
+    }
+    return max;
+  };
+  const double a = value_at_rank(k);
+  const double b = k + 1 < voxels ? value_at_rank(k + 1) : a;
+  return a + (pos - static_cast<double>(k)) * (b - a);
+}
+
+SourceStatistics scan_statistics(const VolumeSource& source, std::size_t slab_bytes) {
+  SourceStatistics st;
+  const bool integer = source.stored_as != SampleType::kFloat32;
+  if (integer) st.histogram.assign(source.stored_as == SampleType::kUint8 ? 256 : 65536, 0);
+  const std::size_t page = static_cast<std::size_t>(source.nx) * static_cast<std::size_t>(source.ny);
+  const int depth = static_cast<int>(std::clamp<std::size_t>(slab_bytes / (4 * page), 1, static_cast<std::size_t>(source.nz)));
+  std::vector<float> block;
+  st.min = std::numeric_limits<double>::infinity();
+  st.max = -std::numeric_limits<double>::infinity();
+  for (int z = 0; z < source.nz; z += depth) {
+    const VoxelBox box{{0, 0, z}, {source.nx, source.ny, std::min(source.nz, z + depth)}};
+    block.resize(box.voxels());
+    source.read(box, block.data());
+    for (const float v : block) {
+      if (!std::isfinite(v)) fail_input(source.source, "holds a NaN/Inf voxel in pages " + std::to_string(z) + "..");
+      st.min = std::min(st.min, static_cast<double>(v));
+      st.max = std::max(st.max, static_cast<double>(v));
+      if (integer) ++st.histogram[static_cast<std::size_t>(v)];
+    }
+    st.voxels += static_cast<std::int64_t>(block.size());
+  }
+  return st;
+}
+
+Normalization normalization_from(const SourceStatistics& stats, const NormalizationOptions& options,
+                                 const std::string& source) {
+  options.validate();
+  if (stats.voxels == 0) fail_input(source, "volume is empty");
+  if (!(stats.max > stats.min)) {
+    std::ostringstream s;
+    s << "volume is constant (every voxel is " << stats.min << "); cannot normalize";
+    fail_input(source, s.str());
+  }
+  Normalization n;
+  n.method = options.method;
+  n.raw_lo = stats.min;
+  n.raw_hi = stats.max;
+  if (options.method == NormalizationMethod::kPercentile) {
+    n.raw_lo = stats.percentile(options.percentile_lo);
+    n.raw_hi = stats.percentile(options.percentile_hi);
+    if (!(n.raw_hi > n.raw_lo)) {
+      std::ostringstream s;
+      s << "percentiles " << options.percentile_lo << " and " << options.percentile_hi << " are both " << n.raw_lo
+        << "; use a wider range or `minmax`";
+      fail_input(source, s.str());
+    }
+    // Voxels outside [lo, hi] that normalize() clips.
+    for (std::size_t v = 0; v < stats.histogram.size(); ++v) {
+      if (static_cast<double>(v) < n.raw_lo || static_cast<double>(v) > n.raw_hi) n.clipped_voxels += stats.histogram[v];
+    }
+  }
+  return n;
+}
+
+}  // namespace hisnegs::io

@@ -1,0 +1,77 @@
+// SPDX-License-Identifier: Apache-2.0
+// A stack that is read by regions instead of held whole: its shape, spacing, sample
+// type and provenance, and read(box) of raw values. Implementations: a Volume in
+// memory, a TIFF/BigTIFF file (the pages of the box's z range) and an HDF5 file (a
+// hyperslab: the chunks the box touches). Statistics for normalization come from one
+// streaming pass over the source (exact for 8/16-bit stacks), so a stack larger than
+// memory can be normalized as load_volume normalizes one that fits.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <filesystem>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "io/stack_file.hpp"
+#include "io/volume.hpp"
+
+namespace hisnegs::io {
+
+// Voxels [lo, hi) along x, y, z (half-open, index space).
+struct VoxelBox {
+  std::array<int, 3> lo{0, 0, 0};
+  std::array<int, 3> hi{0, 0, 0};
+  [[nodiscard]] std::size_t voxels() const {
+    return static_cast<std::size_t>(hi[0] - lo[0]) * static_cast<std::size_t>(hi[1] - lo[1]) *
+           static_cast<std::size_t>(hi[2] - lo[2]);
+  }
+};
+
+class VolumeSource {
+ public:
+  virtual ~VolumeSource() = default;
+  int nx = 0, ny = 0, nz = 0;
+  SampleType stored_as = SampleType::kFloat32;
+  VoxelSpacing spacing;
+  std::string source;  // the path (or "memory")
+  std::string format;  // as `info` shows it
+  // Raw values of `box` (inside the stack, not empty), x fastest, into `out`
+  // (box.voxels() floats). Safe to call from several threads at once. Throws
+  // InputError naming the file when it cannot be decoded, std::invalid_argument
+  // for a box outside the stack.
+  virtual void read(const VoxelBox& box, float* out) const = 0;
+  [[nodiscard]] VoxelBox whole() const { return {{0, 0, 0}, {nx, ny, nz}}; }
+
+ protected:
+  void check_box(const VoxelBox& box) const;
+};
+
+// The source of a stack file (TIFF or HDF5, by its signature), header read and
+// checked now, voxels on each read().
+[[nodiscard]] std::unique_ptr<VolumeSource> open_volume_source(const std::filesystem::path& path,
+                                                              const StackReadOptions& options = {});
+// A Volume already in memory (raw or normalized values, as they are).
+[[nodiscard]] std::unique_ptr<VolumeSource> memory_source(Volume volume);
+
+// What normalization needs of a source, from one pass over z-slabs.
+struct SourceStatistics {
+  double min = 0.0, max = 0.0;
+  std::int64_t voxels = 0;
+  // 8/16-bit stacks: the count of every value (exact percentiles); float32: empty.
+  std::vector<std::int64_t> histogram;
+  // The value at percentile p (0..100), interpolated between order statistics as
+  // normalize() does: exact from the histogram; for float32 (no histogram) min or
+  // max at p = 0 or 100 and otherwise throws std::logic_error (not implemented).
+  [[nodiscard]] double percentile(double p) const;
+};
+// One streaming pass: slabs of whole pages, each at most slab_bytes of float32.
+[[nodiscard]] SourceStatistics scan_statistics(const VolumeSource& source, std::size_t slab_bytes = 256u << 20);
+
+// The map normalize() would apply to the whole stack, from its statistics (the same
+// errors: a constant stack, percentiles that coincide).
+[[nodiscard]] Normalization normalization_from(const SourceStatistics& stats, const NormalizationOptions& options,
+                                               const std::string& source);
+
+}  // namespace hisnegs::io

@@ -1,0 +1,121 @@
+// SPDX-License-Identifier: Apache-2.0
+// io/volume_source: the memory, TIFF and HDF5 sources of one stack read the same
+// voxels for any box, also from several threads at once; the streaming statistics
+// pass gives exactly the normalization normalize() computes on the whole stack.
+#include "io/volume_source.hpp"
+
+#include <gtest/gtest.h>
+
+#include <random>
+#include <thread>
+
+#include "io/error.hpp"
+#include "io/hdf5_stack.hpp"
+#include "io/tiff_stack.hpp"
+#include "tests/test_support.hpp"
+
+namespace hisnegs::io {
+namespace {
+using hisnegs::testing::ScratchDir;
+
+Volume stack(SampleType type, std::uint64_t seed) {
+  Volume v;
+  v.nx = 45, v.ny = 31, v.nz = 13;
+  v.stored_as = type;
+  v.source = "s";
+  v.voxels.resize(v.size());
+  std::mt19937_64 rng(seed);
+  // Mostly background, some bright: percentiles then differ from min and max.
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  const double top = type == SampleType::kUint8 ? 255.0 : 4000.0;
+  for (float& x : v.voxels) x = static_cast<float>(std::floor(u(rng) < 0.9 ? u(rng) * 5 : u(rng) * top));
+  return v;
+}
+
+std::vector<float> read_box(const VolumeSource& s, const VoxelBox& b) {
+  std::vector<float> out(b.voxels());
+  s.read(b, out.data());
+  return out;
+}
+
+TEST(VolumeSource, MemoryTiffAndHdf5ReadTheSameBoxes) {
+  ScratchDir dir;
+  const Volume v = stack(SampleType::kUint16, 3);
+  write_tiff_stack(dir / "s.tif", v.voxels, v.nx, v.ny, v.nz, {.type = SampleType::kUint16});
+  write_hdf5_stack(dir / "s.h5", v, {.type = SampleType::kUint16, .chunk_zyx = {4, 8, 8}});
+  const auto mem = memory_source(v);
+  const auto tif = open_volume_source(dir / "s.tif");
+  const auto h5 = open_volume_source(dir / "s.h5");
+  for (const VolumeSource* s : {tif.get(), h5.get()}) {
+    EXPECT_EQ(s->nx, v.nx);
+    EXPECT_EQ(s->ny, v.ny);
+    EXPECT_EQ(s->nz, v.nz);
+    EXPECT_EQ(s->stored_as, SampleType::kUint16);
+  }
+  EXPECT_NE(h5->format.find("HDF5, data 13x31x45"), std::string::npos) << h5->format;
+  std::mt19937 rng(5);
+  for (int k = 0; k < 25; ++k) {
+    VoxelBox b;
+    const std::array<int, 3> n{v.nx, v.ny, v.nz};
+    for (int a = 0; a < 3; ++a) {
+      b.lo[a] = std::uniform_int_distribution<int>(0, n[a] - 1)(rng);
+      b.hi[a] = std::uniform_int_distribution<int>(b.lo[a] + 1, n[a])(rng);
+    }
+    const std::vector<float> expected = read_box(*mem, b);
+    ASSERT_EQ(read_box(*tif, b), expected) << k;
+    ASSERT_EQ(read_box(*h5, b), expected) << k;
+  }
+  EXPECT_EQ(read_box(*h5, h5->whole()), v.voxels);
+  EXPECT_THROW(read_box(*tif, VoxelBox{{0, 0, 0}, {v.nx + 1, 1, 1}}), std::invalid_argument);
+}
+
+TEST(VolumeSource, ConcurrentReadsAgree) {
+  ScratchDir dir;
+  const Volume v = stack(SampleType::kUint8, 4);
+  write_tiff_stack(dir / "s.tif", v.voxels, v.nx, v.ny, v.nz, {.type = SampleType::kUint8});
+  write_hdf5_stack(dir / "s.h5", v, {.type = SampleType::kUint8, .chunk_zyx = {2, 16, 16}});
+  for (const char* name : {"s.tif", "s.h5"}) {
+    const auto s = open_volume_source(dir / name);
+    std::vector<std::vector<float>> slabs(static_cast<std::size_t>(v.nz));
+    std::vector<std::thread> threads;
+    for (int t = 0; t < 4; ++t) {
+      threads.emplace_back([&, t] {
+        for (int z = t; z < v.nz; z += 4) slabs[static_cast<std::size_t>(z)] = read_box(*s, {{0, 0, z}, {v.nx, v.ny, z + 1}});
+      });
+    }
+    for (auto& th : threads) th.join();
+    std::vector<float> all;
+    for (const auto& slab : slabs) all.insert(all.end(), slab.begin(), slab.end());
+    EXPECT_EQ(all, v.voxels) << name;
+  }
+}
+
+TEST(VolumeSource, StreamingStatisticsNormalizeAsTheWholeStackDoes) {
+  for (const SampleType type : {SampleType::kUint8, SampleType::kUint16}) {
+    const Volume v = stack(type, 9);
+    const auto s = memory_source(v);
+    // Slabs of one page, of four, and the whole stack: the same statistics.
+    for (const std::size_t slab : {std::size_t{1}, std::size_t{4 * 45 * 31 * 4}, std::size_t{1} << 30}) {
+      const SourceStatistics st = scan_statistics(*s, slab);
+      EXPECT_EQ(st.voxels, static_cast<std::int64_t>(v.size()));
+      for (const NormalizationMethod m : {NormalizationMethod::kMinMax, NormalizationMethod::kPercentile}) {
+        NormalizationOptions o;
+        o.method = m;
+        o.percentile_lo = 2.5;
+        o.percentile_hi = 97.3;
+        Volume whole = v;
+        normalize(whole, o);
+        const Normalization n = normalization_from(st, o, "s");
+        EXPECT_EQ(n.raw_lo, whole.normalization.raw_lo) << to_string(type) << " " << to_string(m);
+        EXPECT_EQ(n.raw_hi, whole.normalization.raw_hi) << to_string(type) << " " << to_string(m);
+        EXPECT_EQ(n.clipped_voxels, whole.normalization.clipped_voxels) << to_string(type) << " " << to_string(m);
+      }
+    }
+  }
+  Volume flat = stack(SampleType::kUint8, 1);
+  std::fill(flat.voxels.begin(), flat.voxels.end(), 7.0f);
+  EXPECT_THROW((void)normalization_from(scan_statistics(*memory_source(flat)), {}, "flat.tif"), InputError);
+}
+
+}  // namespace
+}  // namespace hisnegs::io
