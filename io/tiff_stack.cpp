@@ -408,6 +408,12 @@ void check_page_data(TIFF* tif, const fs::path& path, int page, const StackLayou
   }
 }
 
+// The part of a page a read needs, in pixels: [x0, x1) x [y0, y1).
+struct PageWindow {
+  std::uint32_t x0 = 0, x1 = std::numeric_limits<std::uint32_t>::max();
+  std::uint32_t y0 = 0, y1 = std::numeric_limits<std::uint32_t>::max();
+};
+
 // A growable byte buffer reused for every strip/tile of the whole read.
 class DecodeBuffer {
  public:
@@ -425,9 +431,11 @@ class DecodeBuffer {
   std::size_t size_ = 0;
 };
 
-// Decodes sample `sample` of the current directory (page `page`) into `dst` (ny*nx floats).
+// Decodes sample `sample` of the current directory (page `page`) into `dst` (ny*nx
+// floats): the tiles or strips that meet `window` (all of them by default; the
+// rest of dst is left as it was).
 void decode_page(TIFF* tif, const TiffHandle& handle, const fs::path& path, int page, const StackLayout& s, int sample,
-                 float* dst, DecodeBuffer& buffer) {
+                 float* dst, DecodeBuffer& buffer, const PageWindow& window) {
   const std::size_t nx = s.format.width, ny = s.format.height;
   const std::size_t bytes = bytes_of(s.type);
   std::uint16_t compression = COMPRESSION_NONE;
@@ -455,7 +463,9 @@ void decode_page(TIFF* tif, const TiffHandle& handle, const fs::path& path, int 
     unsigned char* buf = buffer.reserve(path, need);
     const auto need_bytes = static_cast<tmsize_t>(need);
     for (std::uint32_t ty = 0; ty < ny; ty += th) {
+      if (ty >= window.y1 || ty + th <= window.y0) continue;
       for (std::uint32_t tx = 0; tx < nx; tx += tw) {
+        if (tx >= window.x1 || tx + tw <= window.x0) continue;
         const std::uint32_t tile = TIFFComputeTile(tif, tx, ty, 0, plane);
         if (TIFFReadEncodedTile(tif, tile, buf, need_bytes) < need_bytes) {
           fail_read("tile " + std::to_string(tile));
@@ -475,6 +485,7 @@ void decode_page(TIFF* tif, const TiffHandle& handle, const fs::path& path, int 
   if (rows_per_strip == 0 || rows_per_strip > ny) rows_per_strip = static_cast<std::uint32_t>(ny);
   unsigned char* buf = buffer.reserve(path, static_cast<double>(rows_per_strip) * nx * stride * bytes);
   for (std::uint32_t row = 0; row < ny; row += rows_per_strip) {
+    if (row >= window.y1 || row + rows_per_strip <= window.y0) continue;
     const std::size_t rows = std::min<std::size_t>(rows_per_strip, ny - row);
     const auto need = static_cast<tmsize_t>(rows * nx * stride * bytes);
     const std::uint32_t strip = TIFFComputeStrip(tif, row, plane);
@@ -525,7 +536,8 @@ Volume read_tiff_stack(const fs::path& path, const TiffReadOptions& options) {
   return read_tiff_slab(path, options, 0, -1);
 }
 
-Volume read_tiff_slab(const fs::path& path, const TiffReadOptions& options, int z_begin, int z_end) {
+Volume read_tiff_slab(const fs::path& path, const TiffReadOptions& options, int z_begin, int z_end,
+                      std::array<int, 4> xy_window) {
   options.validate();
   const std::unique_ptr<TiffHandle> handle = open_for_read(path);
   TIFF* tif = handle->get();
@@ -585,6 +597,11 @@ Volume read_tiff_slab(const fs::path& path, const TiffReadOptions& options, int 
   volume.source = path.string();
   volume.voxels.resize(volume.size());
 
+  PageWindow window;
+  if (xy_window[1] > xy_window[0] && xy_window[3] > xy_window[2]) {
+    window = {static_cast<std::uint32_t>(std::max(0, xy_window[0])), static_cast<std::uint32_t>(xy_window[1]),
+              static_cast<std::uint32_t>(std::max(0, xy_window[2])), static_cast<std::uint32_t>(xy_window[3])};
+  }
   DecodeBuffer buffer;
   const std::size_t page_voxels = static_cast<std::size_t>(nx) * ny;
   for (int page = 0; page <= last_page; ++page) {
@@ -601,7 +618,7 @@ Volume read_tiff_slab(const fs::path& path, const TiffReadOptions& options, int 
     if (z < 0) continue;
     if (page > 0) check_page_data(tif, path, page, s, file_size);  // page 0: checked before allocating
     float* dst = volume.voxels.data() + static_cast<std::size_t>(z) * page_voxels;
-    decode_page(tif, *handle, path, page, s, sample, dst, buffer);
+    decode_page(tif, *handle, path, page, s, sample, dst, buffer, window);
     if (handle->messages().errors > 0) {
       fail_input(path, "cannot decode page " + std::to_string(page) + handle->detail());
     }

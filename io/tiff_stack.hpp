@@ -46,9 +46,11 @@ struct TiffReadOptions {
 // Pages [z_begin, z_end) of the stack (of the chosen channel) as a Volume of
 // z_end - z_begin slices, with every check read_tiff_stack makes; z_end = -1 means
 // the last page. Only those pages are decoded (libtiff still walks the directories
-// before them). The memory limit is checked for the slab, not the stack.
+// before them), and of each only the strips or tiles that meet xy_window = {x0, x1,
+// y0, y1} (pixels, half-open; an empty window means the whole page): voxels outside
+// it are left 0. The memory limit is checked for the slab, not the stack.
 [[nodiscard]] Volume read_tiff_slab(const std::filesystem::path& path, const TiffReadOptions& options, int z_begin,
-                                    int z_end);
+                                    int z_end, std::array<int, 4> xy_window = {0, 0, 0, 0});
 
 // How write_tiff_stack stores a stack.
 struct TiffWriteOptions {

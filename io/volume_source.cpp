@@ -54,13 +54,15 @@ class MemorySource final : public VolumeSource {
   Volume volume_;
 };
 
-// Each read opens the file on its own handle: concurrent reads share nothing.
+// Each read opens the file on its own handle: concurrent reads share nothing. A read
+// decodes the pages of the box's z range, and of them the strips/tiles it meets.
 class TiffSource final : public VolumeSource {
  public:
   TiffSource(std::filesystem::path path, TiffReadOptions options) : path_(std::move(path)), options_(std::move(options)) {}
   void read(const VoxelBox& box, float* out) const override {
     check_box(box);
-    const Volume slab = read_tiff_slab(path_, options_, box.lo[2], box.hi[2]);
+    const Volume slab =
+        read_tiff_slab(path_, options_, box.lo[2], box.hi[2], {box.lo[0], box.hi[0], box.lo[1], box.hi[1]});
     crop_pages(slab.voxels, nx, ny, box, out);
   }
 

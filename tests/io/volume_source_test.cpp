@@ -6,6 +6,7 @@
 
 #include <gtest/gtest.h>
 
+#include <cstdlib>
 #include <random>
 #include <thread>
 
@@ -115,6 +116,39 @@ TEST(VolumeSource, StreamingStatisticsNormalizeAsTheWholeStackDoes) {
   Volume flat = stack(SampleType::kUint8, 1);
   std::fill(flat.voxels.begin(), flat.voxels.end(), 7.0f);
   EXPECT_THROW((void)normalization_from(scan_statistics(*memory_source(flat)), {}, "flat.tif"), InputError);
+}
+
+// Tiled and many-strip TIFFs (written by tifffile): a region read decodes only the
+// tiles or strips it meets, and reads the same voxels as the whole stack.
+TEST(VolumeSource, TiledAndStripedTiffRegions) {
+  if (std::system("/usr/bin/python3 -c 'import tifffile, numpy' 2>/dev/null") != 0) {
+    if (std::getenv("CI")) FAIL() << "python3-tifffile is missing; scripts/install-deps.sh installs it";
+    GTEST_SKIP() << "python3 with tifffile is not installed";
+  }
+  ScratchDir dir;
+  const Volume v = stack(SampleType::kUint16, 6);
+  write_tiff_stack(dir / "s.tif", v.voxels, v.nx, v.ny, v.nz, {.type = SampleType::kUint16});
+  const auto r = hisnegs::testing::run_shell(
+      "cd " + hisnegs::testing::shell_quoted(dir.path()) +
+      " && /usr/bin/python3 -c 'import tifffile\n"
+      "a = tifffile.imread(\"s.tif\")\n"
+      "tifffile.imwrite(\"tiled.tif\", a, tile=(16, 16))\n"
+      "tifffile.imwrite(\"strips.tif\", a, rowsperstrip=3)'");
+  ASSERT_EQ(r.status, 0) << r.out;
+  const auto mem = memory_source(v);
+  for (const char* name : {"tiled.tif", "strips.tif"}) {
+    const auto s = open_volume_source(dir / name);
+    std::mt19937 rng(8);
+    for (int k = 0; k < 20; ++k) {
+      VoxelBox b;
+      const std::array<int, 3> n{v.nx, v.ny, v.nz};
+      for (int a = 0; a < 3; ++a) {
+        b.lo[a] = std::uniform_int_distribution<int>(0, n[a] - 1)(rng);
+        b.hi[a] = std::uniform_int_distribution<int>(b.lo[a] + 1, n[a])(rng);
+      }
+      ASSERT_EQ(read_box(*s, b), read_box(*mem, b)) << name << " box " << k;
+    }
+  }
 }
 
 }  // namespace
