@@ -16,6 +16,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <fstream>
+#include <functional>
 #include <limits>
 #include <memory>
 #include <mutex>
@@ -536,8 +537,21 @@ Volume read_tiff_stack(const fs::path& path, const TiffReadOptions& options) {
   return read_tiff_slab(path, options, 0, -1);
 }
 
-Volume read_tiff_slab(const fs::path& path, const TiffReadOptions& options, int z_begin, int z_end,
-                      std::array<int, 4> xy_window) {
+namespace {
+
+// Where page z (within the slab) is decoded, and what happens to it then.
+struct PageSink {
+  std::function<float*(int z)> target;
+  std::function<void(int z, const float* page)> done;
+};
+
+// The shared page loop of read_tiff_slab and read_tiff_region: fills `shape`'s
+// header (nz = the slab's depth), calls `allocate` once the file has been checked
+// (before any page is decoded), then decodes each page of the slab into
+// sink.target(z) and hands it to sink.done.
+void read_pages(const fs::path& path, const TiffReadOptions& options, int z_begin, int z_end,
+                std::array<int, 4> xy_window, Volume& shape, const std::function<void(Volume&)>& allocate,
+                const PageSink& sink) {
   options.validate();
   const std::unique_ptr<TiffHandle> handle = open_for_read(path);
   TIFF* tif = handle->get();
@@ -575,9 +589,6 @@ Volume read_tiff_slab(const fs::path& path, const TiffReadOptions& options, int 
                            " bytes; truncated or damaged");
     }
   }
-  check_allocation(path, 4.0 * nx * ny * slab,
-                   std::to_string(nx) + "x" + std::to_string(ny) + "x" + std::to_string(slab) + " float32 voxels");
-
   // z (within the slab) of each page we need (-1: another channel, or outside the slab).
   std::vector<int> z_of_page(static_cast<std::size_t>(s.pages), -1);
   int last_page = 0;
@@ -587,7 +598,7 @@ Volume read_tiff_slab(const fs::path& path, const TiffReadOptions& options, int 
     last_page = std::max(last_page, page);
   }
 
-  Volume volume;
+  Volume& volume = shape;
   volume.nx = nx;
   volume.ny = ny;
   volume.nz = slab;
@@ -595,7 +606,7 @@ Volume read_tiff_slab(const fs::path& path, const TiffReadOptions& options, int 
   volume.spacing = s.spacing;
   volume.normalization = Normalization{};
   volume.source = path.string();
-  volume.voxels.resize(volume.size());
+  allocate(volume);
 
   PageWindow window;
   if (xy_window[1] > xy_window[0] && xy_window[3] > xy_window[2]) {
@@ -617,7 +628,7 @@ Volume read_tiff_slab(const fs::path& path, const TiffReadOptions& options, int 
     const int z = z_of_page[static_cast<std::size_t>(page)];
     if (z < 0) continue;
     if (page > 0) check_page_data(tif, path, page, s, file_size);  // page 0: checked before allocating
-    float* dst = volume.voxels.data() + static_cast<std::size_t>(z) * page_voxels;
+    float* dst = sink.target(z);
     decode_page(tif, *handle, path, page, s, sample, dst, buffer, window);
     if (handle->messages().errors > 0) {
       fail_input(path, "cannot decode page " + std::to_string(page) + handle->detail());
@@ -630,8 +641,48 @@ Volume read_tiff_slab(const fs::path& path, const TiffReadOptions& options, int 
                              std::to_string(z + z_begin) + ") is " + non_finite_text(*bad) + "; float stacks must be finite");
       }
     }
+    if (sink.done) sink.done(z, dst);
   }
+}
+
+}  // namespace
+
+Volume read_tiff_slab(const fs::path& path, const TiffReadOptions& options, int z_begin, int z_end,
+                      std::array<int, 4> xy_window) {
+  Volume volume;
+  read_pages(
+      path, options, z_begin, z_end, xy_window, volume,
+      [&](Volume& v) {
+        check_allocation(path, 4.0 * v.nx * v.ny * static_cast<double>(v.nz),
+                         std::to_string(v.nx) + "x" + std::to_string(v.ny) + "x" + std::to_string(v.nz) +
+                             " float32 voxels");
+        v.voxels.resize(v.size());
+      },
+      PageSink{[&](int z) { return volume.voxels.data() + static_cast<std::size_t>(z) * volume.nx * volume.ny; }, {}});
   return volume;
+}
+
+void read_tiff_region(const fs::path& path, const TiffReadOptions& options, const std::array<int, 3>& lo,
+                      const std::array<int, 3>& hi, float* out) {
+  Volume shape;
+  std::vector<float> scratch;
+  read_pages(
+      path, options, lo[2], hi[2], {lo[0], hi[0], lo[1], hi[1]}, shape,
+      [&](Volume& v) {
+        if (lo[0] < 0 || lo[1] < 0 || hi[0] > v.nx || hi[1] > v.ny || lo[0] >= hi[0] || lo[1] >= hi[1]) {
+          throw std::invalid_argument("read_tiff_region: the box is empty or outside the stack");
+        }
+        scratch.resize(static_cast<std::size_t>(v.nx) * v.ny);
+      },
+      PageSink{[&](int) { return scratch.data(); },
+               [&](int z, const float* page) {
+                 const std::size_t w = static_cast<std::size_t>(hi[0] - lo[0]);
+                 float* dst = out + static_cast<std::size_t>(z) * w * static_cast<std::size_t>(hi[1] - lo[1]);
+                 for (int y = lo[1]; y < hi[1]; ++y) {
+                   const float* row = page + static_cast<std::size_t>(y) * shape.nx + lo[0];
+                   dst = std::copy(row, row + w, dst);
+                 }
+               }});
 }
 
 }  // namespace hisnegs::io

@@ -52,6 +52,13 @@ struct TiffReadOptions {
 [[nodiscard]] Volume read_tiff_slab(const std::filesystem::path& path, const TiffReadOptions& options, int z_begin,
                                     int z_end, std::array<int, 4> xy_window = {0, 0, 0, 0});
 
+// The voxels [lo, hi) (x, y, z) of the stack into `out` (x fastest), decoding only
+// the pages, strips and tiles the box meets into one reused page buffer: memory is
+// one page plus `out`. Same checks as read_tiff_slab; std::invalid_argument for a
+// box outside the stack.
+void read_tiff_region(const std::filesystem::path& path, const TiffReadOptions& options, const std::array<int, 3>& lo,
+                      const std::array<int, 3>& hi, float* out);
+
 // How write_tiff_stack stores a stack.
 struct TiffWriteOptions {
   // Sample type on disk. kUint8/kUint16 require every value to be an integer in

@@ -13,17 +13,6 @@
 namespace hisnegs::io {
 namespace {
 
-// Copies the x-y window of `box` out of whole pages `pages` (nx × ny × box depth).
-void crop_pages(const std::vector<float>& pages, int nx, int ny, const VoxelBox& box, float* out) {
-  const std::size_t w = static_cast<std::size_t>(box.hi[0] - box.lo[0]);
-  for (int z = 0; z < box.hi[2] - box.lo[2]; ++z) {
-    for (int y = box.lo[1]; y < box.hi[1]; ++y) {
-      const float* row = pages.data() + (static_cast<std::size_t>(z) * ny + y) * nx + box.lo[0];
-      out = std::copy(row, row + w, out);
-    }
-  }
-}
-
 void describe_into(VolumeSource& s, const Volume& v) {
   s.nx = v.nx;
   s.ny = v.ny;
@@ -61,9 +50,7 @@ class TiffSource final : public VolumeSource {
   TiffSource(std::filesystem::path path, TiffReadOptions options) : path_(std::move(path)), options_(std::move(options)) {}
   void read(const VoxelBox& box, float* out) const override {
     check_box(box);
-    const Volume slab =
-        read_tiff_slab(path_, options_, box.lo[2], box.hi[2], {box.lo[0], box.hi[0], box.lo[1], box.hi[1]});
-    crop_pages(slab.voxels, nx, ny, box, out);
+    read_tiff_region(path_, options_, box.lo, box.hi, out);
   }
 
  private:
