@@ -33,6 +33,17 @@ Volume stack(SampleType type, std::uint64_t seed) {
   return v;
 }
 
+// A box of random position and extent inside `v` (at least one voxel).
+VoxelBox random_box(const Volume& v, std::mt19937& rng) {
+  VoxelBox b;
+  const std::array<int, 3> n{v.nx, v.ny, v.nz};
+  for (int a = 0; a < 3; ++a) {
+    b.lo[a] = std::uniform_int_distribution<int>(0, n[a] - 1)(rng);
+    b.hi[a] = std::uniform_int_distribution<int>(b.lo[a] + 1, n[a])(rng);
+  }
+  return b;
+}
+
 std::vector<float> read_box(const VolumeSource& s, const VoxelBox& b) {
   std::vector<float> out(b.voxels());
   s.read(b, out.data());
@@ -56,12 +67,7 @@ TEST(VolumeSource, MemoryTiffAndHdf5ReadTheSameBoxes) {
   EXPECT_NE(h5->format.find("HDF5, data 13x31x45"), std::string::npos) << h5->format;
   std::mt19937 rng(5);
   for (int k = 0; k < 25; ++k) {
-    VoxelBox b;
-    const std::array<int, 3> n{v.nx, v.ny, v.nz};
-    for (int a = 0; a < 3; ++a) {
-      b.lo[a] = std::uniform_int_distribution<int>(0, n[a] - 1)(rng);
-      b.hi[a] = std::uniform_int_distribution<int>(b.lo[a] + 1, n[a])(rng);
-    }
+    const VoxelBox b = random_box(v, rng);
     const std::vector<float> expected = read_box(*mem, b);
     ASSERT_EQ(read_box(*tif, b), expected) << k;
     ASSERT_EQ(read_box(*h5, b), expected) << k;
@@ -140,12 +146,7 @@ TEST(VolumeSource, TiledAndStripedTiffRegions) {
     const auto s = open_volume_source(dir / name);
     std::mt19937 rng(8);
     for (int k = 0; k < 20; ++k) {
-      VoxelBox b;
-      const std::array<int, 3> n{v.nx, v.ny, v.nz};
-      for (int a = 0; a < 3; ++a) {
-        b.lo[a] = std::uniform_int_distribution<int>(0, n[a] - 1)(rng);
-        b.hi[a] = std::uniform_int_distribution<int>(b.lo[a] + 1, n[a])(rng);
-      }
+      const VoxelBox b = random_box(v, rng);
       ASSERT_EQ(read_box(*s, b), read_box(*mem, b)) << name << " box " << k;
     }
   }
