@@ -414,11 +414,10 @@ void resolve_plain(const fs::path& path, hid_t file, const Hdf5ReadOptions& opti
 void resolve_bdv(const fs::path& shown, const fs::path& h5, hid_t file, const BdvXml* xml,
                  const Hdf5ReadOptions& options, Hdf5StackInfo& info) {
   info.layout = Hdf5Layout::kBigDataViewer;
-  int setups = 0;
-  for (const std::string& name : group_members(file, "/")) {
-    if (name.size() == 3 && name[0] == 's' && std::isdigit(static_cast<unsigned char>(name[1]))) ++setups;
-  }
   const std::vector<std::string> members = group_members(file, "/");
+  const int setups = static_cast<int>(std::count_if(members.begin(), members.end(), [](const std::string& n) {
+    return n.size() == 3 && n[0] == 's' && std::isdigit(static_cast<unsigned char>(n[1]));
+  }));
   info.timepoints = static_cast<int>(std::count_if(members.begin(), members.end(), [](const std::string& n) {
     return n.size() == 6 && n[0] == 't' && std::all_of(n.begin() + 1, n.end(), [](char c) { return std::isdigit(static_cast<unsigned char>(c)); });
   }));
@@ -503,6 +502,16 @@ void resolve_imaris(const fs::path& path, hid_t file, const Hdf5ReadOptions& opt
     info.spacing.um[a] = um;
     info.spacing.source[a] = SpacingSource::kHdf5;
   }
+}
+
+// Integers are read as stored and widened here: libhdf5's own integer-to-float
+// conversion is several times slower than the decode.
+template <class Stored>
+herr_t read_widened(hid_t dataset, hid_t memtype, hid_t memory, hid_t space, hsize_t voxels, float* out) {
+  std::vector<Stored> stored(voxels);
+  const herr_t status = H5Dread(dataset, memtype, memory, space, H5P_DEFAULT, stored.data());
+  std::copy(stored.begin(), stored.end(), out);
+  return status;
 }
 
 void apply_user_spacing(const Hdf5ReadOptions& options, Hdf5StackInfo& info) {
@@ -616,20 +625,13 @@ void read_hdf5_region(const Hdf5StackInfo& info, const std::array<int, 3>& lo, c
   Handle memory(H5Screate_simple(static_cast<int>(rank), count.data(), nullptr), H5Sclose);
   herr_t status = 0;
   if (info.bdv_signed16) {
-    // H5T_NATIVE_UINT16 from int16 would clip the negatives to 0: read the bits instead.
-    std::vector<std::int16_t> words(voxels);
-    status = H5Dread(d, H5T_NATIVE_INT16, memory, space, H5P_DEFAULT, words.data());
-    for (hsize_t i = 0; i < voxels && status >= 0; ++i) out[i] = static_cast<float>(static_cast<std::uint16_t>(words[i]));
+    // Converting int16 to H5T_NATIVE_UINT16 would clip the negatives to 0: read the
+    // int16 bits into uint16 words, which then hold the uint16 BigDataViewer stored.
+    status = read_widened<std::uint16_t>(d, H5T_NATIVE_INT16, memory, space, voxels, out);
   } else if (info.type == SampleType::kUint8) {
-    // Integers are read as they are stored and widened here: libhdf5's own
-    // integer-to-float conversion is several times slower than the decode.
-    std::vector<std::uint8_t> bytes(voxels);
-    status = H5Dread(d, H5T_NATIVE_UINT8, memory, space, H5P_DEFAULT, bytes.data());
-    std::copy(bytes.begin(), bytes.end(), out);
+    status = read_widened<std::uint8_t>(d, H5T_NATIVE_UINT8, memory, space, voxels, out);
   } else if (info.type == SampleType::kUint16) {
-    std::vector<std::uint16_t> words(voxels);
-    status = H5Dread(d, H5T_NATIVE_UINT16, memory, space, H5P_DEFAULT, words.data());
-    std::copy(words.begin(), words.end(), out);
+    status = read_widened<std::uint16_t>(d, H5T_NATIVE_UINT16, memory, space, voxels, out);
   } else {
     status = H5Dread(d, H5T_NATIVE_FLOAT, memory, space, H5P_DEFAULT, out);
   }

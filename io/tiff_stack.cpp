@@ -533,10 +533,6 @@ TiffStackInfo inspect_tiff_stack(const fs::path& path, const TiffReadOptions& op
   return info;
 }
 
-Volume read_tiff_stack(const fs::path& path, const TiffReadOptions& options) {
-  return read_tiff_slab(path, options, 0, -1);
-}
-
 namespace {
 
 // Where page z (within the slab) is decoded, and what happens to it then.
@@ -545,13 +541,13 @@ struct PageSink {
   std::function<void(int z, const float* page)> done;
 };
 
-// The shared page loop of read_tiff_slab and read_tiff_region: fills `shape`'s
-// header (nz = the slab's depth), calls `allocate` once the file has been checked
-// (before any page is decoded), then decodes each page of the slab into
-// sink.target(z) and hands it to sink.done.
-void read_pages(const fs::path& path, const TiffReadOptions& options, int z_begin, int z_end,
-                std::array<int, 4> xy_window, Volume& shape, const std::function<void(Volume&)>& allocate,
-                const PageSink& sink) {
+// The shared page loop of read_tiff_stack and read_tiff_region: fills `shape`'s
+// header (nz = z_end - z_begin; z_end -1: the last page), calls `allocate` once the
+// file has been checked (before any page is decoded), then decodes the strips or
+// tiles of each page of [z_begin, z_end) that meet `window` into sink.target(z) and
+// hands the page to sink.done.
+void read_pages(const fs::path& path, const TiffReadOptions& options, int z_begin, int z_end, const PageWindow& window,
+                Volume& shape, const std::function<void(Volume&)>& allocate, const PageSink& sink) {
   options.validate();
   const std::unique_ptr<TiffHandle> handle = open_for_read(path);
   TIFF* tif = handle->get();
@@ -568,7 +564,7 @@ void read_pages(const fs::path& path, const TiffReadOptions& options, int z_begi
   }
   if (z_end < 0) z_end = s.nz;
   if (z_begin < 0 || z_end > s.nz || z_begin >= z_end) {
-    throw std::invalid_argument("read_tiff_slab: pages [" + std::to_string(z_begin) + ", " + std::to_string(z_end) +
+    throw std::invalid_argument("read_tiff_region: pages [" + std::to_string(z_begin) + ", " + std::to_string(z_end) +
                                 ") are not inside the stack's " + std::to_string(s.nz));
   }
   const int slab = z_end - z_begin;
@@ -608,11 +604,6 @@ void read_pages(const fs::path& path, const TiffReadOptions& options, int z_begi
   volume.source = path.string();
   allocate(volume);
 
-  PageWindow window;
-  if (xy_window[1] > xy_window[0] && xy_window[3] > xy_window[2]) {
-    window = {static_cast<std::uint32_t>(std::max(0, xy_window[0])), static_cast<std::uint32_t>(xy_window[1]),
-              static_cast<std::uint32_t>(std::max(0, xy_window[2])), static_cast<std::uint32_t>(xy_window[3])};
-  }
   DecodeBuffer buffer;
   const std::size_t page_voxels = static_cast<std::size_t>(nx) * ny;
   for (int page = 0; page <= last_page; ++page) {
@@ -647,11 +638,10 @@ void read_pages(const fs::path& path, const TiffReadOptions& options, int z_begi
 
 }  // namespace
 
-Volume read_tiff_slab(const fs::path& path, const TiffReadOptions& options, int z_begin, int z_end,
-                      std::array<int, 4> xy_window) {
+Volume read_tiff_stack(const fs::path& path, const TiffReadOptions& options) {
   Volume volume;
   read_pages(
-      path, options, z_begin, z_end, xy_window, volume,
+      path, options, 0, -1, PageWindow{}, volume,
       [&](Volume& v) {
         check_allocation(path, 4.0 * v.nx * v.ny * static_cast<double>(v.nz),
                          std::to_string(v.nx) + "x" + std::to_string(v.ny) + "x" + std::to_string(v.nz) +
@@ -664,14 +654,17 @@ Volume read_tiff_slab(const fs::path& path, const TiffReadOptions& options, int 
 
 void read_tiff_region(const fs::path& path, const TiffReadOptions& options, const std::array<int, 3>& lo,
                       const std::array<int, 3>& hi, float* out) {
+  if (lo[0] < 0 || lo[1] < 0 || lo[0] >= hi[0] || lo[1] >= hi[1]) {
+    throw std::invalid_argument("read_tiff_region: the box is empty or outside the stack");
+  }
   Volume shape;
   std::vector<float> scratch;
+  const PageWindow window{static_cast<std::uint32_t>(lo[0]), static_cast<std::uint32_t>(hi[0]),
+                          static_cast<std::uint32_t>(lo[1]), static_cast<std::uint32_t>(hi[1])};
   read_pages(
-      path, options, lo[2], hi[2], {lo[0], hi[0], lo[1], hi[1]}, shape,
+      path, options, lo[2], hi[2], window, shape,
       [&](Volume& v) {
-        if (lo[0] < 0 || lo[1] < 0 || hi[0] > v.nx || hi[1] > v.ny || lo[0] >= hi[0] || lo[1] >= hi[1]) {
-          throw std::invalid_argument("read_tiff_region: the box is empty or outside the stack");
-        }
+        if (hi[0] > v.nx || hi[1] > v.ny) throw std::invalid_argument("read_tiff_region: the box is outside the stack");
         scratch.resize(static_cast<std::size_t>(v.nx) * v.ny);
       },
       PageSink{[&](int) { return scratch.data(); },

@@ -43,19 +43,11 @@ struct TiffReadOptions {
 // MemAvailable, or the environment variable HISNEGS_MAX_ALLOC_GB in GiB).
 [[nodiscard]] Volume read_tiff_stack(const std::filesystem::path& path, const TiffReadOptions& options = {});
 
-// Pages [z_begin, z_end) of the stack (of the chosen channel) as a Volume of
-// z_end - z_begin slices, with every check read_tiff_stack makes; z_end = -1 means
-// the last page. Only those pages are decoded (libtiff still walks the directories
-// before them), and of each only the strips or tiles that meet xy_window = {x0, x1,
-// y0, y1} (pixels, half-open; an empty window means the whole page): voxels outside
-// it are left 0. The memory limit is checked for the slab, not the stack.
-[[nodiscard]] Volume read_tiff_slab(const std::filesystem::path& path, const TiffReadOptions& options, int z_begin,
-                                    int z_end, std::array<int, 4> xy_window = {0, 0, 0, 0});
-
-// The voxels [lo, hi) (x, y, z) of the stack into `out` (x fastest), decoding only
-// the pages, strips and tiles the box meets into one reused page buffer: memory is
-// one page plus `out`. Same checks as read_tiff_slab; std::invalid_argument for a
-// box outside the stack.
+// The voxels [lo, hi) (x, y, z) of the stack into `out` (x fastest), with every
+// check read_tiff_stack makes, decoding only the pages, strips and tiles the box
+// meets (libtiff still walks the directories before them) into one reused page
+// buffer: memory is one page plus `out`. std::invalid_argument for a box that is
+// empty or outside the stack.
 void read_tiff_region(const std::filesystem::path& path, const TiffReadOptions& options, const std::array<int, 3>& lo,
                       const std::array<int, 3>& hi, float* out);
 

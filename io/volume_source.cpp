@@ -82,25 +82,28 @@ void VolumeSource::check_box(const VoxelBox& box) const {
 }
 
 std::unique_ptr<VolumeSource> open_volume_source(const std::filesystem::path& path, const StackReadOptions& options) {
-  const StackHeader header = inspect_stack(path, options);
   std::unique_ptr<VolumeSource> s;
   if (is_hdf5_stack(path)) {
-    s = std::make_unique<Hdf5Source>(inspect_hdf5_stack(path, options.hdf5()));
+    const Hdf5StackInfo info = inspect_hdf5_stack(path, options.hdf5());
+    s = std::make_unique<Hdf5Source>(info);
+    s->nx = info.nx, s->ny = info.ny, s->nz = info.nz;
+    s->stored_as = info.type;
+    s->spacing = info.spacing;
+    s->format = info.describe();
   } else {
+    const StackHeader header = inspect_stack(path, options);
     if (header.channels > 1 && !options.tiff.channel) {
       fail_input(path, "has " + std::to_string(header.channels) + " channels; choose one with --channel (0.." +
                            std::to_string(header.channels - 1) + ")");
     }
     if (header.nz < 2) fail_input(path, "has a single Z slice; expected a 3D stack");
     s = std::make_unique<TiffSource>(path, options.tiff);
+    s->nx = header.nx, s->ny = header.ny, s->nz = header.nz;
+    s->stored_as = header.type;
+    s->spacing = header.spacing;
+    s->format = header.format;
   }
-  s->nx = header.nx;
-  s->ny = header.ny;
-  s->nz = header.nz;
-  s->stored_as = header.type;
-  s->spacing = header.spacing;
   s->source = path.string();
-  s->format = header.format;
   return s;
 }
 

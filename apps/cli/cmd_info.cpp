@@ -22,7 +22,7 @@
 namespace hisnegs::apps {
 namespace {
 
-enum class FileKind { kTiff, kVdb, kPly, kCompact };
+enum class FileKind { kStack, kVdb, kPly, kCompact };
 
 FileKind detect_kind(const std::filesystem::path& path) {
   io::require_regular_file(path);
@@ -31,10 +31,10 @@ FileKind detect_kind(const std::filesystem::path& path) {
   in.read(reinterpret_cast<char*>(magic), 8);
   if ((magic[0] == 'I' && magic[1] == 'I' && (magic[2] == 42 || magic[2] == 43) && magic[3] == 0) ||
       (magic[0] == 'M' && magic[1] == 'M' && magic[2] == 0 && (magic[3] == 42 || magic[3] == 43))) {
-    return FileKind::kTiff;
+    return FileKind::kStack;
   }
   if (magic[0] == 'p' && magic[1] == 'l' && magic[2] == 'y') return FileKind::kPly;
-  if (io::is_hdf5_stack(path)) return FileKind::kTiff;  // a stack either way: io::read_stack tells them apart
+  if (io::is_hdf5_stack(path)) return FileKind::kStack;  // TIFF or HDF5: io::read_stack tells them apart
   if (gmf::has_compact_magic(std::string_view(reinterpret_cast<const char*>(magic), 8))) return FileKind::kCompact;
   // OpenVDB files start with the int32 magic 0x56444220 (" BDV" little-endian).
   if (magic[0] == 0x20 && magic[1] == 0x42 && magic[2] == 0x44 && magic[3] == 0x56) return FileKind::kVdb;
@@ -56,7 +56,7 @@ std::string vec3(const Eigen::Vector3d& v) {
   return buf;
 }
 
-void info_tiff(const std::filesystem::path& path, GlobalOptions& global, const VolumeOverrides& overrides) {
+void info_stack(const std::filesystem::path& path, GlobalOptions& global, const VolumeOverrides& overrides) {
   io::VolumeOptions options = global.config().volume;
   overrides.apply(options);
   const io::StackReadOptions read = io::stack_read_options(options);
@@ -200,8 +200,8 @@ void add_info_command(CLI::App& app, GlobalOptions& global) {
   cmd->callback([path, overrides, &global] {
     const FileKind kind = detect_kind(*path);
     switch (kind) {
-      case FileKind::kTiff:
-        info_tiff(*path, global, *overrides);
+      case FileKind::kStack:
+        info_stack(*path, global, *overrides);
         break;
       case FileKind::kVdb:
         info_vdb(*path);
