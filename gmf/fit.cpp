@@ -278,7 +278,8 @@ RoundProblem prepare_round(const GaussianMixture& mixture, const SampleSet& samp
   const std::size_t n = r.params.size() * kGaussianParamCount;
   r.lower.assign(n, -std::numeric_limits<double>::infinity());
   r.upper.assign(n, std::numeric_limits<double>::infinity());
-  const double scale_lo = std::log(0.2 * min_voxel), scale_hi = std::log(std::min(0.5, 32.0 * max_voxel));
+  const double largest = options.max_scale_world > 0 ? options.max_scale_world : std::min(0.5, 32.0 * max_voxel);
+  const double scale_lo = std::log(0.2 * min_voxel), scale_hi = std::log(std::max(0.2 * min_voxel, largest));
   for (std::size_t k = 0; k < r.params.size(); ++k) {
     Params& p = r.params[k];
     double* lo = r.lower.data() + kGaussianParamCount * k;
@@ -289,6 +290,10 @@ RoundProblem prepare_round(const GaussianMixture& mixture, const SampleSet& samp
       hi[kLogScale0 + i] = std::max(scale_lo, std::min(scale_hi, p[kLogScale0 + i] + std::log(kScaleGrowth)));
       lo[kMeanX + i] = p[kMeanX + i] - move;
       hi[kMeanX + i] = p[kMeanX + i] + move;
+    }
+    if (k < options.frozen) {  // held fixed: a box of one point (Adam projects onto it)
+      std::copy(p.begin(), p.end(), lo);
+      std::copy(p.begin(), p.end(), hi);
     }
   }
   return r;

@@ -2,6 +2,8 @@
 // GmfOptions::validate and the round's mixture model.
 #include "gmf/gmf_options.hpp"
 
+#include "io/memory_limit.hpp"
+
 #include <algorithm>
 #include <cmath>
 #include <string>
@@ -44,6 +46,13 @@ void GmfOptions::validate() const {
   io::require_in_range(s, "brick_gaussians", brick_gaussians, 1, 10000);
   io::require_in_range(s, "brick_iterations", brick_iterations, 1, 1000);
   io::require_in_range(s, "outside_voxels", outside_voxels, 0, 8);
+  io::require_in_range(s, "stream_brick_voxels", stream_brick_voxels, 0, 65536);
+  io::require_in_range(s, "stream_scale_voxels", stream_scale_voxels, 0.5, 64.0);
+  io::require_in_range(s, "seam_iterations", seam_iterations, 0, 100000);
+  (void)io::parse_memory_size(max_memory, "gmf.max_memory");
+  if (frozen > 0 && (optimizer != Optimizer::kAdam || densify)) {
+    io::fail_option(s, "optimizer", "frozen Gaussians", "only Adam without density control holds Gaussians fixed");
+  }
   if (sample_jitter) io::require_in_range(s, "sample_jitter", *sample_jitter, 0.0, 1.0);
   if (residual_block_voxels != 1 && residual_block_voxels != 2 && residual_block_voxels != 4 &&
       residual_block_voxels != 8) {

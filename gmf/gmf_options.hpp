@@ -94,6 +94,24 @@ struct GmfOptions {
   // (issue 33; a needle is a ratio above 20). [1.5, 1e6].
   double max_axis_ratio = 16.0;
   std::uint64_t seed = 0;            // init jitter and sampling seed
+  // Stacks larger than memory: the streamed brick fit (apps/pipeline/streamed_fit.hpp,
+  // docs/user-guide.md "Stacks larger than memory").
+  // The most memory the fit may use: "auto" (half the machine's RAM) or a size
+  // ("1GiB", "512MiB", "2GB", "1.5G"; K/M/G/T without B are binary). A stack whose
+  // in-memory fit fits under it is fitted whole, as always; a larger one in bricks.
+  std::string max_memory = "auto";
+  // Edge of a brick's core in voxels, [0, 65536]: 0 = planned from max_memory (one
+  // brick when the stack fits); > 0 = bricks of this core even when it fits.
+  int stream_brick_voxels = 0;
+  // The largest Gaussian scale of a bricked fit, in smallest voxels, [0.5, 64]: it
+  // bounds a Gaussian's reach (sqrt(mahalanobis_cutoff) scales) and so the halo.
+  double stream_scale_voxels = 6.0;
+  int seam_iterations = 200;  // Adam steps of the seam pass per brick, [0, 100000]; 0 = no seam pass
+  // Not config keys (set by the streamed fit): the largest scale in world units (0:
+  // min(0.5, 32 largest voxels)), and how many Gaussians at the start of the mixture
+  // are held fixed (the seam pass; Adam only, no density control).
+  double max_scale_world = 0.0;
+  std::size_t frozen = 0;
   // Not a config key (set by compare-optimizers): softmax only, when > 0 every
   // logged loss is the objective at this β while the rounds follow the schedule, so
   // that runs with and without β continuation are measured on one objective. Only
@@ -146,6 +164,10 @@ struct GmfOptions {
     v("adam_learning_rate", adam_learning_rate);
     v("max_axis_ratio", max_axis_ratio);
     v("seed", seed);
+    v("max_memory", max_memory);
+    v("stream_brick_voxels", stream_brick_voxels);
+    v("stream_scale_voxels", stream_scale_voxels);
+    v("seam_iterations", seam_iterations);
   }
 };
 

@@ -134,7 +134,34 @@ BackgroundModel BackgroundModel::parse(std::string_view text, const std::string&
   return m;
 }
 
-BackgroundModel estimate_background(const Volume& volume, const BackgroundOptions& options) {
+void BackgroundCounts::add(float v, std::int64_t n) {
+  total += n;
+  zeros += v == 0.0f ? n : 0;
+  if (!rounded && values.size() >= kMaxValues && !values.contains(v)) {
+    rounded = true;  // too many distinct values: round everything counted so far, and from now on
+    std::map<float, std::int64_t> old;
+    old.swap(values);
+    for (const auto& [value, count] : old) values[round(value)] += count;
+  }
+  values[rounded ? round(v) : v] += n;
+}
+
+float BackgroundCounts::round(float v) {
+  const double step = 1.0 / static_cast<double>(kMaxValues);
+  return static_cast<float>(std::round(static_cast<double>(v) / step) * step);
+}
+
+void BackgroundCounts::merge(const BackgroundCounts& other) {
+  if (other.rounded && !rounded) {
+    BackgroundCounts copy = other;
+    copy.merge(*this);
+    *this = std::move(copy);
+    return;
+  }
+  for (const auto& [value, count] : other.values) add(value, count);
+}
+
+BackgroundCounts count_background(const Volume& volume, const BackgroundOptions& options, const VoxelBox& box) {
   options.validate();
   const std::size_t n = volume.size();
   std::vector<std::uint8_t> mask(n);
@@ -142,43 +169,46 @@ BackgroundModel estimate_background(const Volume& volume, const BackgroundOption
   if (options.guard_voxels > 0) {
     for (int axis = 0; axis < 3; ++axis) dilate_axis(mask, volume.nx, volume.ny, volume.nz, axis, options.guard_voxels);
   }
-  std::map<float, std::int64_t> counts;  // distinct values first; binned below when too many
-  double largest = 0.0;
-  std::int64_t total = 0, zeros = 0;
-  for (std::size_t i = 0; i < n; ++i) {
-    if (mask[i]) continue;
-    const float v = std::max(volume.voxels[i], 0.0f);
-    largest = std::max(largest, static_cast<double>(v));
-    ++total;
-    zeros += v == 0.0f ? 1 : 0;
-    if (counts.size() <= static_cast<std::size_t>(options.max_atoms)) ++counts[v];
+  BackgroundCounts counts;
+  for (int z = box.lo[2]; z < box.hi[2]; ++z) {
+    for (int y = box.lo[1]; y < box.hi[1]; ++y) {
+      for (int x = box.lo[0]; x < box.hi[0]; ++x) {
+        const std::size_t i = volume.index(x, y, z);
+        if (!mask[i]) counts.add(std::max(volume.voxels[i], 0.0f));
+      }
+    }
   }
+  return counts;
+}
+
+BackgroundModel background_from_counts(const BackgroundCounts& counts, const BackgroundOptions& options,
+                                       const std::string& source) {
+  options.validate();
+  const std::int64_t total = counts.total;
   if (total == 0) {
-    fail_input(volume.source, "no background voxels (every voxel is within " + std::to_string(options.guard_voxels) +
-                                  " voxels of one above " + number_text(options.foreground_level) + ")");
+    fail_input(source, "no background voxels (every voxel is within " + std::to_string(options.guard_voxels) +
+                           " voxels of one above " + number_text(options.foreground_level) + ")");
   }
   BackgroundModel m;
   m.voxels = total;
-  if (static_cast<double>(zeros) >= options.subtracted_zero_fraction * static_cast<double>(total)) {
+  if (static_cast<double>(counts.zeros) >= options.subtracted_zero_fraction * static_cast<double>(total)) {
     m.values = {0.0};  // a subtracted background: none()
     m.cdf = {1.0};
     return m;
   }
-  if (counts.size() > static_cast<std::size_t>(options.max_atoms)) {
+  std::int64_t running = 0;
+  if (counts.values.size() > static_cast<std::size_t>(options.max_atoms)) {
     // Too many distinct values: equal-width bins over [0, largest], each atom at its
     // bin's mean value (so the mean of the distribution is kept).
     const int bins = options.max_atoms;
+    const double largest = counts.values.rbegin()->first;
     std::vector<double> sum(static_cast<std::size_t>(bins), 0.0);
     std::vector<std::int64_t> count(static_cast<std::size_t>(bins), 0);
-    for (std::size_t i = 0; i < n; ++i) {
-      if (mask[i]) continue;
-      const double v = std::max(volume.voxels[i], 0.0f);
-      const int b = std::min(bins - 1, static_cast<int>(v / largest * bins));
-      sum[static_cast<std::size_t>(b)] += v;
-      ++count[static_cast<std::size_t>(b)];
+    for (const auto& [value, c] : counts.values) {
+      const int b = std::min(bins - 1, static_cast<int>(value / largest * bins));
+      sum[static_cast<std::size_t>(b)] += static_cast<double>(value) * static_cast<double>(c);
+      count[static_cast<std::size_t>(b)] += c;
     }
-    counts.clear();
-    std::int64_t running = 0;
     for (int b = 0; b < bins; ++b) {
       if (count[static_cast<std::size_t>(b)] == 0) continue;
       running += count[static_cast<std::size_t>(b)];
@@ -186,15 +216,19 @@ BackgroundModel estimate_background(const Volume& volume, const BackgroundOption
       m.cdf.push_back(static_cast<double>(running) / static_cast<double>(total));
     }
   } else {
-    std::int64_t running = 0;
-    for (const auto& [value, count] : counts) {
-      running += count;
+    for (const auto& [value, c] : counts.values) {
+      running += c;
       m.values.push_back(value);
       m.cdf.push_back(static_cast<double>(running) / static_cast<double>(total));
     }
   }
   m.cdf.back() = 1.0;
   return m;
+}
+
+BackgroundModel estimate_background(const Volume& volume, const BackgroundOptions& options) {
+  const VoxelBox all{{0, 0, 0}, {volume.nx, volume.ny, volume.nz}};
+  return background_from_counts(count_background(volume, options, all), options, volume.source);
 }
 
 }  // namespace hisnegs::io

@@ -8,11 +8,13 @@
 
 #include <cstdint>
 #include <filesystem>
+#include <map>
 #include <string>
 #include <string_view>
 #include <vector>
 
 #include "io/volume.hpp"
+#include "io/volume_source.hpp"
 
 namespace hisnegs::io {
 
@@ -82,5 +84,27 @@ struct BackgroundModel {
 // subtracted_zero_fraction of it, gives atoms {0} (none()).
 // Throws InputError naming volume.source when no voxel is background.
 [[nodiscard]] BackgroundModel estimate_background(const Volume& volume, const BackgroundOptions& options = {});
+
+// The histogram estimate_background rests on, counted piecewise: the background
+// voxels of `volume` inside `box` (index space of `volume`; the foreground mask and
+// its guard still see all of `volume`, so a brick's halo supplies the guard at its
+// core's faces). Counts of bricks whose boxes tile a stack merge into the stack's.
+struct BackgroundCounts {
+  std::map<float, std::int64_t> values;  // count of every distinct value (at most kMaxValues)
+  std::int64_t total = 0, zeros = 0;
+  // Past kMaxValues distinct values (float32 stacks), values are rounded to a grid
+  // of 1/kMaxValues over [0, 1] (normalized) before counting.
+  static constexpr std::size_t kMaxValues = 65536;
+  bool rounded = false;
+  void add(float v, std::int64_t n = 1);
+  [[nodiscard]] static float round(float v);
+  void merge(const BackgroundCounts& other);
+};
+[[nodiscard]] BackgroundCounts count_background(const Volume& volume, const BackgroundOptions& options,
+                                                const VoxelBox& box);
+// The model of the counted voxels (as estimate_background describes it); throws
+// InputError naming `source` when nothing was counted.
+[[nodiscard]] BackgroundModel background_from_counts(const BackgroundCounts& counts, const BackgroundOptions& options,
+                                                     const std::string& source);
 
 }  // namespace hisnegs::io

@@ -52,20 +52,25 @@ StackReadOptions stack_read_options(const VolumeOptions& options) {
   return read;
 }
 
+WorldFrame stack_frame(int nx, int ny, int nz, const VoxelSpacing& spacing, AspectMode mode,
+                       const std::filesystem::path& path) {
+  const Eigen::Vector3d aspect = aspect_scales(nx, ny, nz, spacing, mode);
+  if (!aspect.allFinite() || !(aspect.minCoeff() * kMaxSpacingRatio >= 1.0)) {
+    fail_input(path, "voxel size " + number_text(spacing.um[0]) + " x " + number_text(spacing.um[1]) + " x " +
+                         number_text(spacing.um[2]) + " um makes the stack's box " +
+                         number_text(1.0 / aspect.minCoeff()) + " times thinner than it is long (at most " +
+                         number_text(kMaxSpacingRatio) + "); give --spacing or --aspect shape");
+  }
+  return WorldFrame(nx, ny, nz, aspect);
+}
+
 LoadedVolume load_volume(const std::filesystem::path& path, const VolumeOptions& options) {
   options.validate();
   LoadedVolume out;
   out.volume = read_stack(path, stack_read_options(options));
   normalize(out.volume, options.normalization);
   const Volume& v = out.volume;
-  const Eigen::Vector3d aspect = aspect_scales(v.nx, v.ny, v.nz, v.spacing, options.aspect);
-  if (!aspect.allFinite() || !(aspect.minCoeff() * kMaxSpacingRatio >= 1.0)) {
-    fail_input(path, "voxel size " + number_text(v.spacing.um[0]) + " x " + number_text(v.spacing.um[1]) + " x " +
-                         number_text(v.spacing.um[2]) + " um makes the stack's box " +
-                         number_text(1.0 / aspect.minCoeff()) + " times thinner than it is long (at most " +
-                         number_text(kMaxSpacingRatio) + "); give --spacing or --aspect shape");
-  }
-  out.frame = WorldFrame(v.nx, v.ny, v.nz, aspect);
+  out.frame = stack_frame(v.nx, v.ny, v.nz, v.spacing, options.aspect, path);
   return out;
 }
 

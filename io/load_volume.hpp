@@ -55,6 +55,11 @@ struct LoadedVolume {
 // beyond it the world frame is degenerate in float and OpenVDB's transforms singular.
 inline constexpr double kMaxSpacingRatio = 1e4;
 
+// The world frame of a stack of this shape and spacing (the aspect scales of `mode`);
+// throws InputError naming `path` when its edges differ by more than kMaxSpacingRatio.
+[[nodiscard]] WorldFrame stack_frame(int nx, int ny, int nz, const VoxelSpacing& spacing, AspectMode mode,
+                                     const std::filesystem::path& path);
+
 // Reads the stack at `path` (TIFF or HDF5, io/stack_file.hpp), normalizes it and computes its world frame.
 // Throws InputError naming the file for any bad input (also a voxel size or box
 // whose edges differ by more than kMaxSpacingRatio).

@@ -2,7 +2,11 @@
 // The allocation limit for untrusted sizes: HISNEGS_MAX_ALLOC_GB or MemAvailable.
 #include "io/memory_limit.hpp"
 
+#include <unistd.h>
+
+#include <cctype>
 #include <cmath>
+#include <utility>
 #include <cstdio>
 #include <cstdlib>
 #include <fstream>
@@ -40,6 +44,38 @@ double allocation_limit_bytes(std::string* source) {
   }
   what = "unknown";
   return std::numeric_limits<double>::infinity();
+}
+
+std::optional<double> parse_memory_size(std::string_view text, std::string_view field) {
+  if (text == "auto") return std::nullopt;
+  const auto fail = [&](const std::string& why) -> std::optional<double> {
+    throw InputError(std::string(field) + " = '" + printable(std::string(text), 40) + "': " + why);
+  };
+  std::size_t end = 0;
+  while (end < text.size() && (std::isdigit(static_cast<unsigned char>(text[end])) || text[end] == '.')) ++end;
+  const std::optional<double> number = detail::parse_double(std::string(text.substr(0, end)));
+  if (end == 0 || !number || !std::isfinite(*number)) {
+    return fail("expected auto or a size such as 1GiB, 512MiB, 2GB");
+  }
+  std::string unit(text.substr(end));
+  unit.erase(0, unit.find_first_not_of(' '));
+  static const std::pair<const char*, double> kUnits[] = {
+      {"", 1.0},           {"B", 1.0},           {"K", 1024.0},        {"KiB", 1024.0},      {"KB", 1e3},
+      {"M", 1048576.0},    {"MiB", 1048576.0},   {"MB", 1e6},          {"G", kGiBytes},      {"GiB", kGiBytes},
+      {"GB", 1e9},         {"T", kGiBytes * 1024}, {"TiB", kGiBytes * 1024}, {"TB", 1e12}};
+  for (const auto& [name, factor] : kUnits) {
+    if (unit == name) {
+      const double bytes = *number * factor;
+      if (!(bytes >= 1.0)) return fail("must be at least 1 byte");
+      return bytes;
+    }
+  }
+  return fail("unknown unit '" + printable(unit, 16) + "' (B, KiB, MiB, GiB, TiB, KB, MB, GB, TB)");
+}
+
+double physical_memory_bytes() {
+  const long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGESIZE);
+  return pages > 0 && page > 0 ? static_cast<double>(pages) * static_cast<double>(page) : 0.0;
 }
 
 std::string gib_text(double bytes) {

@@ -5,6 +5,8 @@
 #pragma once
 
 #include <filesystem>
+#include <optional>
+#include <string_view>
 #include <string>
 
 namespace hisnegs::io {
@@ -17,6 +19,14 @@ namespace hisnegs::io {
 // Throws InputError "PATH: would need X GiB for WHAT but the limit is Y GiB (source)"
 // when `bytes` exceeds allocation_limit_bytes().
 void check_allocation(const std::filesystem::path& path, double bytes, const std::string& what);
+
+// A memory size as users write it: "auto" (nullopt), or a positive number with an
+// optional unit: B, K/KiB, M/MiB, G/GiB, T/TiB (binary), KB/MB/GB/TB (decimal);
+// "1GiB", "512M", "1.5 GB". Throws InputError("FIELD = 'TEXT': ...") otherwise.
+[[nodiscard]] std::optional<double> parse_memory_size(std::string_view text, std::string_view field);
+
+// The machine's physical memory in bytes (0 if unknown).
+[[nodiscard]] double physical_memory_bytes();
 
 // "1.50 GiB".
 [[nodiscard]] std::string gib_text(double bytes);

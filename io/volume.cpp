@@ -209,6 +209,14 @@ void normalize(Volume& volume, const NormalizationOptions& options) {
     }
   }
 
+  Normalization map{options.method, lo, hi, 0};
+  map.clipped_voxels = apply_normalization(volume.voxels, map);
+  volume.normalization = map;
+}
+
+std::int64_t apply_normalization(std::span<float> values, const Normalization& map) {
+  if (map.method == NormalizationMethod::kNone) return 0;
+  const double lo = map.raw_lo, hi = map.raw_hi;
   // A float stack may span more than the float range (e.g. -3e38 .. 3e38): then
   // v - lo and hi - lo overflow to inf and x would be NaN. Halving every term (a
   // power of two, exact but for denormals) keeps them finite; other data keep
@@ -217,11 +225,11 @@ void normalize(Volume& volume, const NormalizationOptions& options) {
   const float flo = static_cast<float>(lo * scale);
   // Divide (not multiply by a reciprocal) so that the maximum maps to exactly 1.
   const float range = static_cast<float>((hi - lo) * scale);
-  const bool clip = options.method == NormalizationMethod::kPercentile;
-  const std::int64_t clipped = tbb::parallel_reduce(
-      tbb::blocked_range<std::size_t>(0, volume.voxels.size(), 1 << 16), std::int64_t{0},
+  const bool clip = map.method == NormalizationMethod::kPercentile;
+  return tbb::parallel_reduce(
+      tbb::blocked_range<std::size_t>(0, values.size(), 1 << 16), std::int64_t{0},
       [&](const tbb::blocked_range<std::size_t>& r, std::int64_t n) {
-        float* v = volume.voxels.data();
+        float* v = values.data();
         for (std::size_t i = r.begin(); i != r.end(); ++i) {
           float x = (v[i] * scale - flo) / range;
           if (clip) {
@@ -233,7 +241,6 @@ void normalize(Volume& volume, const NormalizationOptions& options) {
         return n;
       },
       std::plus<>());
-  volume.normalization = Normalization{options.method, lo, hi, clipped};
 }
 
 VolumeStats compute_stats(const Volume& volume, double fg_rel) {

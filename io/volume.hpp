@@ -9,6 +9,7 @@
 #include <array>
 #include <cstddef>
 #include <cstdint>
+#include <span>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -90,6 +91,11 @@ struct Volume {
 // the map in volume.normalization. Throws InputError naming volume.source if the
 // volume is constant (max == min) or holds non-finite values.
 void normalize(Volume& volume, const NormalizationOptions& options);
+
+// Applies `map` (from normalize(), or io::normalization_from for a stack read by
+// regions) to raw values in place, exactly as normalize() does; returns how many
+// were clipped (percentile maps). kNone leaves them.
+std::int64_t apply_normalization(std::span<float> values, const Normalization& map);
 
 // Summary statistics of the stored values (raw or normalized).
 struct VolumeStats {

@@ -109,19 +109,50 @@ std::unique_ptr<VolumeSource> open_volume_source(const std::filesystem::path& pa
 
 std::unique_ptr<VolumeSource> memory_source(Volume volume) { return std::make_unique<MemorySource>(std::move(volume)); }
 
+namespace {
+
+// Calls fn(box, values) for slabs of the stack in order: whole pages while a page is
+// under slab_bytes of float32, else bands of rows of one page.
+template <class F>
+void for_each_slab(const VolumeSource& source, std::size_t slab_bytes, F&& fn) {
+  const std::size_t row = 4 * static_cast<std::size_t>(source.nx);
+  const std::size_t page = row * static_cast<std::size_t>(source.ny);
+  const int depth = static_cast<int>(std::clamp<std::size_t>(slab_bytes / page, 1, static_cast<std::size_t>(source.nz)));
+  const int rows = page <= slab_bytes ? source.ny
+                                      : static_cast<int>(std::clamp<std::size_t>(slab_bytes / row, 1,
+                                                                                  static_cast<std::size_t>(source.ny)));
+  std::vector<float> block;
+  for (int z = 0; z < source.nz; z += depth) {
+    for (int y = 0; y < source.ny; y += rows) {
+      const VoxelBox box{{0, y, z}, {source.nx, std::min(source.ny, y + rows), std::min(source.nz, z + depth)}};
+      block.resize(box.voxels());
+      source.read(box, block.data());
+      fn(box, std::span<const float>(block));
+    }
+  }
+}
+
+}  // namespace
+
 double SourceStatistics::percentile(double p) const {
   if (voxels == 0) return 0.0;
   if (p <= 0.0) return min;
   if (p >= 100.0) return max;
-  if (histogram.empty()) throw std::logic_error("float32 percentiles from a streaming pass are not implemented");
+  if (histogram.empty()) throw std::logic_error("percentile: no histogram (scan_statistics did not build one)");
   // The order statistics k and k + 1 at pos = p/100 (n - 1), as percentiles_of().
   const double pos = p / 100.0 * static_cast<double>(voxels - 1);
   const auto k = static_cast<std::int64_t>(std::floor(pos));
+  const bool binned = bin_width > 0;
   auto value_at_rank = [&](std::int64_t rank) {
     std::int64_t seen = 0;
     for (std::size_t v = 0; v < histogram.size(); ++v) {
+      if (seen + histogram[v] > rank) {
+        if (!binned) return static_cast<double>(v);
+        // float32: ranks spread evenly over the bin
+        const double within = (static_cast<double>(rank - seen) + 0.5) / static_cast<double>(histogram[v]);
+        return std::min(max, min + (static_cast<double>(v) + within) * bin_width);
+      }
       seen += histogram[v];
-      if (seen > rank) return static_cast<double>(v);
     }
     return max;
   };
@@ -134,22 +165,29 @@ SourceStatistics scan_statistics(const VolumeSource& source, std::size_t slab_by
   SourceStatistics st;
   const bool integer = source.stored_as != SampleType::kFloat32;
   if (integer) st.histogram.assign(source.stored_as == SampleType::kUint8 ? 256 : 65536, 0);
-  const std::size_t page = static_cast<std::size_t>(source.nx) * static_cast<std::size_t>(source.ny);
-  const int depth = static_cast<int>(std::clamp<std::size_t>(slab_bytes / (4 * page), 1, static_cast<std::size_t>(source.nz)));
-  std::vector<float> block;
   st.min = std::numeric_limits<double>::infinity();
   st.max = -std::numeric_limits<double>::infinity();
-  for (int z = 0; z < source.nz; z += depth) {
-    const VoxelBox box{{0, 0, z}, {source.nx, source.ny, std::min(source.nz, z + depth)}};
-    block.resize(box.voxels());
-    source.read(box, block.data());
+  for_each_slab(source, slab_bytes, [&](const VoxelBox& box, std::span<const float> block) {
     for (const float v : block) {
-      if (!std::isfinite(v)) fail_input(source.source, "holds a NaN/Inf voxel in pages " + std::to_string(z) + "..");
+      if (!std::isfinite(v)) {
+        fail_input(source.source, "holds a NaN/Inf voxel in pages " + std::to_string(box.lo[2]) + "..");
+      }
       st.min = std::min(st.min, static_cast<double>(v));
       st.max = std::max(st.max, static_cast<double>(v));
       if (integer) ++st.histogram[static_cast<std::size_t>(v)];
     }
     st.voxels += static_cast<std::int64_t>(block.size());
+  });
+  if (!integer && st.voxels > 0 && st.max > st.min) {
+    // float32: a second pass into kFloatBins equal bins over [min, max]
+    st.bin_width = (st.max - st.min) / static_cast<double>(SourceStatistics::kFloatBins);
+    st.histogram.assign(SourceStatistics::kFloatBins, 0);
+    for_each_slab(source, slab_bytes, [&](const VoxelBox&, std::span<const float> block) {
+      for (const float v : block) {
+        const auto b = static_cast<std::size_t>((static_cast<double>(v) - st.min) / st.bin_width);
+        ++st.histogram[std::min(b, SourceStatistics::kFloatBins - 1)];
+      }
+    });
   }
   return st;
 }
@@ -177,8 +215,12 @@ Normalization normalization_from(const SourceStatistics& stats, const Normalizat
       fail_input(source, s.str());
     }
     // Voxels outside [lo, hi] that normalize() clips.
-    for (std::size_t v = 0; v < stats.histogram.size(); ++v) {
-      if (static_cast<double>(v) < n.raw_lo || static_cast<double>(v) > n.raw_hi) n.clipped_voxels += stats.histogram[v];
+    if (stats.bin_width == 0) {  // 8/16-bit: exact
+      for (std::size_t v = 0; v < stats.histogram.size(); ++v) {
+        if (static_cast<double>(v) < n.raw_lo || static_cast<double>(v) > n.raw_hi) {
+          n.clipped_voxels += stats.histogram[v];
+        }
+      }
     }
   }
   return n;

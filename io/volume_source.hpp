@@ -11,6 +11,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <memory>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -59,14 +60,19 @@ class VolumeSource {
 struct SourceStatistics {
   double min = 0.0, max = 0.0;
   std::int64_t voxels = 0;
-  // 8/16-bit stacks: the count of every value (exact percentiles); float32: empty.
+  // 8/16-bit stacks: the count of every value (exact percentiles). float32: counts
+  // of kFloatBins equal bins of bin_width over [min, max] from a second pass.
   std::vector<std::int64_t> histogram;
+  double bin_width = 0.0;  // 0: one bin per integer value
+  static constexpr std::size_t kFloatBins = std::size_t{1} << 20;
   // The value at percentile p (0..100), interpolated between order statistics as
-  // normalize() does: exact from the histogram; for float32 (no histogram) min or
-  // max at p = 0 or 100 and otherwise throws std::logic_error (not implemented).
+  // normalize() does: exact for 8/16-bit stacks; for float32 within one bin width
+  // ((max - min) / 2^20) of normalize()'s value, each bin's ranks spread evenly
+  // over it (and clipped_voxels is not counted).
   [[nodiscard]] double percentile(double p) const;
 };
-// One streaming pass: slabs of whole pages, each at most slab_bytes of float32.
+// One streaming pass (two for float32): slabs of whole pages, or bands of rows of
+// one page, each at most slab_bytes of float32.
 [[nodiscard]] SourceStatistics scan_statistics(const VolumeSource& source, std::size_t slab_bytes = 256u << 20);
 
 // The map normalize() would apply to the whole stack, from its statistics (the same

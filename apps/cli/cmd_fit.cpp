@@ -13,6 +13,8 @@ void add_fit_command(CLI::App& app, GlobalOptions& global) {
     std::string volume, out, optimizer, aggregation, log;
     std::optional<int> gaussians;
     std::optional<double> time_budget;
+    std::optional<std::string> max_memory;
+    std::optional<int> brick_voxels;
     VolumeOverrides overrides;
   };
   auto args = std::make_shared<Args>();
@@ -23,6 +25,11 @@ void add_fit_command(CLI::App& app, GlobalOptions& global) {
                   "softmax (f -> max, what MIPs show) | sum (report Eq. 1, density export) (gmf.aggregation)");
   cmd->add_option("--gaussians", args->gaussians, "Gaussian budget (gmf.gaussians)");
   cmd->add_option("--time-budget", args->time_budget, "wall-clock limit in seconds (gmf.time_budget_s)");
+  cmd->add_option("--max-memory", args->max_memory,
+                  "most memory the fit may use (gmf.max_memory: auto = half the RAM, or 1GiB, 512MiB); a stack that "
+                  "does not fit is fitted in bricks");
+  cmd->add_option("--brick-voxels", args->brick_voxels,
+                  "fit in bricks of this core edge (voxels) even when the stack fits (gmf.stream_brick_voxels)");
   cmd->add_option("--log", args->log, "CSV of iteration, seconds, loss, foreground and 3D PSNR, K, round, beta");
   args->overrides.add_to(cmd);
   cmd->callback([args, &global] {
@@ -34,6 +41,8 @@ void add_fit_command(CLI::App& app, GlobalOptions& global) {
     }
     if (args->gaussians) config.gmf.gaussians = *args->gaussians;
     if (args->time_budget) config.gmf.time_budget_s = *args->time_budget;
+    if (args->max_memory) config.gmf.max_memory = *args->max_memory;
+    if (args->brick_voxels) config.gmf.stream_brick_voxels = *args->brick_voxels;
     config.gmf.validate();
     fit_to_checkpoint(args->volume, FitConfig(config), args->out, args->log, global.progress());
   });

@@ -5,6 +5,8 @@
 #include <sstream>
 
 #include "apps/pipeline/format.hpp"
+#include "apps/pipeline/streamed_fit.hpp"
+#include "io/stack_file.hpp"
 #include "gmf/fit.hpp"
 #include "gmf/init.hpp"
 #include "io/atomic_file.hpp"
@@ -44,12 +46,12 @@ io::BackgroundModel stack_background(const io::LoadedVolume& loaded, const FitCo
   return model;
 }
 
-void record_background(const io::LoadedVolume& loaded, const FitConfig& config, io::BackgroundModel model,
+void record_background(const io::WorldFrame& frame, const FitConfig& config, io::BackgroundModel model,
                        gmf::CheckpointMeta& meta, const Progress& progress) {
   io::Stopwatch watch;
   const double mean = model.mean(), p99 = model.quantile(0.99);
   const long long voxels = model.voxels;
-  const splat::FloorCalibration c = splat::calibrate_background(model, loaded.frame, config.get<&AppConfig::raymarch>());
+  const splat::FloorCalibration c = splat::calibrate_background(model, frame, config.get<&AppConfig::raymarch>());
   gmf::set_background(meta, model);
   progress.say(
       "fit: background: %lld voxels, mean %.4g, p99 %.4g; a ray gathers %.2f samples per voxel (fits the ray "
@@ -113,6 +115,14 @@ FitOutcome fit_to_checkpoint(const std::string& volume, const FitConfig& config,
                              const std::filesystem::path& log_csv, const Progress& progress) {
   const gmf::GmfOptions& gmf = config.get<&AppConfig::gmf>();
   gmf.validate();
+  {  // a stack larger than gmf.max_memory (or asked to) is fitted in bricks
+    const io::VolumeOptions& vo = config.get<&AppConfig::volume>();
+    vo.validate();
+    const io::StackHeader header = io::inspect_stack(volume, io::stack_read_options(vo));
+    const io::WorldFrame frame = io::stack_frame(header.nx, header.ny, header.nz, header.spacing, vo.aspect, volume);
+    const FitPlanChoice choice = choose_fit_plan({header.nx, header.ny, header.nz}, frame, gmf);
+    if (choice.bricked) return fit_streamed(volume, config, choice, out, log_csv, progress);
+  }
   io::Stopwatch watch;
   FitSetup setup = prepare_fit(volume, config, "fit", progress);
   const bool sum = gmf.aggregation == gmf::Aggregation::kSum;
@@ -137,7 +147,7 @@ FitOutcome fit_to_checkpoint(const std::string& volume, const FitConfig& config,
   gmf::CheckpointMeta meta = checkpoint_meta(setup.loaded, volume);
   meta.aggregation = gmf.aggregation;
   meta.beta = result.final_beta;
-  if (!background.none()) record_background(setup.loaded, config, background, meta, progress);
+  if (!background.none()) record_background(setup.loaded.frame, config, background, meta, progress);
   gmf::save_checkpoint(out, mixture, meta);
   if (!log_csv.empty()) {
     std::ostringstream s;

@@ -51,7 +51,7 @@ gmf::CheckpointMeta checkpoint_meta(const io::LoadedVolume& loaded, const std::s
 io::BackgroundModel stack_background(const io::LoadedVolume& loaded, const FitConfig& config, const Progress& progress);
 // Calibrates `model` (not none) against the ray marcher (`raymarch`) and records it
 // in `meta`, with one line.
-void record_background(const io::LoadedVolume& loaded, const FitConfig& config, io::BackgroundModel model,
+void record_background(const io::WorldFrame& frame, const FitConfig& config, io::BackgroundModel model,
                        gmf::CheckpointMeta& meta, const Progress& progress);
 
 // prepare_fit(), the fit, the checkpoint `out` (with the stack's background,

@@ -76,6 +76,31 @@ TEST(Background, EstimateLeavesTheNeuronAndItsHaloOut) {
   EXPECT_DOUBLE_EQ(estimate_background(v, no_guard).values.back(), 0.05f);
 }
 
+// Bricks: counting each core of a tiling inside its region (core + a halo as wide as
+// the guard) and merging gives the whole stack's estimate exactly.
+TEST(Background, CountsOfBricksWithAGuardHaloMergeIntoTheWholeEstimate) {
+  const Volume v = noisy_stack(0.6, 4);
+  const BackgroundOptions options;
+  const int g = options.guard_voxels;
+  BackgroundCounts merged;
+  for (int z0 = 0; z0 < v.nz; z0 += 10) {
+    for (int x0 = 0; x0 < v.nx; x0 += 20) {
+      const VoxelBox core{{x0, 0, z0}, {std::min(v.nx, x0 + 20), v.ny, std::min(v.nz, z0 + 10)}};
+      const VoxelBox region{{std::max(0, x0 - g), 0, std::max(0, z0 - g)},
+                            {std::min(v.nx, core.hi[0] + g), v.ny, std::min(v.nz, core.hi[2] + g)}};
+      Volume r;
+      r.nx = region.hi[0] - region.lo[0], r.ny = v.ny, r.nz = region.hi[2] - region.lo[2];
+      for (int z = region.lo[2]; z < region.hi[2]; ++z)
+        for (int y = 0; y < v.ny; ++y)
+          for (int x = region.lo[0]; x < region.hi[0]; ++x) r.voxels.push_back(v.at(x, y, z));
+      const VoxelBox local{{core.lo[0] - region.lo[0], 0, core.lo[2] - region.lo[2]},
+                           {core.hi[0] - region.lo[0], v.ny, core.hi[2] - region.lo[2]}};
+      merged.merge(count_background(r, options, local));
+    }
+  }
+  EXPECT_EQ(background_from_counts(merged, options, "bricks"), estimate_background(v, options));
+}
+
 TEST(Background, AZeroBackgroundIsNone) {
   Volume v = noisy_stack(0.0, 1);
   const BackgroundModel m = estimate_background(v);

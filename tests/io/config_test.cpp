@@ -6,6 +6,7 @@
 #include <gtest/gtest.h>
 
 #include "io/error.hpp"
+#include "io/memory_limit.hpp"
 
 namespace hisnegs::io {
 namespace {
@@ -176,6 +177,27 @@ TEST(Config, RangeHelpersNameSectionFieldAndValue) {
   }
   EXPECT_THROW(require_positive("a", "b", 0.0), InputError);
   EXPECT_NO_THROW(require_positive("a", "b", 1e-9));
+}
+
+TEST(MemorySize, ParsesBinaryAndDecimalUnitsAndAuto) {
+  EXPECT_EQ(parse_memory_size("auto", "gmf.max_memory"), std::nullopt);
+  EXPECT_EQ(*parse_memory_size("1GiB", "f"), 1073741824.0);
+  EXPECT_EQ(*parse_memory_size("1G", "f"), 1073741824.0);
+  EXPECT_EQ(*parse_memory_size("1.5 GB", "f"), 1.5e9);
+  EXPECT_EQ(*parse_memory_size("512MiB", "f"), 512.0 * 1048576.0);
+  EXPECT_EQ(*parse_memory_size("4096", "f"), 4096.0);
+  EXPECT_GT(physical_memory_bytes(), 0.0);
+}
+
+TEST(MemorySize, RefusesWhatIsNotASizeNamingTheField) {
+  for (const char* bad : {"", "lots", "1 parsec", "-1G", "0", "GiB", "1e400G", "1..2G"}) {
+    try {
+      (void)parse_memory_size(bad, "gmf.max_memory");
+      ADD_FAILURE() << "accepted '" << bad << "'";
+    } catch (const InputError& e) {
+      EXPECT_NE(std::string(e.what()).find("gmf.max_memory = '"), std::string::npos) << e.what();
+    }
+  }
 }
 
 }  // namespace

@@ -124,6 +124,33 @@ TEST(VolumeSource, StreamingStatisticsNormalizeAsTheWholeStackDoes) {
   EXPECT_THROW((void)normalization_from(scan_statistics(*memory_source(flat)), {}, "flat.tif"), InputError);
 }
 
+// float32 stacks: percentiles from two streaming passes (2^20 bins over [min, max])
+// within one bin width of normalize()'s exact ones; slabs smaller than a page (bands
+// of rows) see the same statistics.
+TEST(VolumeSource, Float32PercentilesAreWithinOneBinOfTheExactOnes) {
+  Volume v = stack(SampleType::kUint16, 3);
+  v.stored_as = SampleType::kFloat32;
+  std::mt19937 rng(2);
+  std::normal_distribution<float> jitter(0.0f, 3.0f);
+  for (float& x : v.voxels) x = x * 1.37f + jitter(rng);
+  const auto s = memory_source(v);
+  for (const std::size_t slab : {std::size_t{100}, std::size_t{1} << 30}) {
+    const SourceStatistics st = scan_statistics(*s, slab);
+    const double bin = (st.max - st.min) / static_cast<double>(SourceStatistics::kFloatBins);
+    for (const double lo : {0.1, 2.5, 50.0}) {
+      NormalizationOptions o;
+      o.method = NormalizationMethod::kPercentile;
+      o.percentile_lo = lo;
+      o.percentile_hi = 99.9;
+      Volume whole = v;
+      normalize(whole, o);
+      const Normalization n = normalization_from(st, o, "f");
+      EXPECT_NEAR(n.raw_lo, whole.normalization.raw_lo, bin) << lo << " slab " << slab;
+      EXPECT_NEAR(n.raw_hi, whole.normalization.raw_hi, bin) << "slab " << slab;
+    }
+  }
+}
+
 // Tiled and many-strip TIFFs (written by tifffile): a region read decodes only the
 // tiles or strips it meets, and reads the same voxels as the whole stack.
 TEST(VolumeSource, TiledAndStripedTiffRegions) {

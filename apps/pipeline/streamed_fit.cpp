@@ -1,0 +1,669 @@
+// SPDX-License-Identifier: Apache-2.0
+// choose_fit_plan and fit_streamed: statistics, plan, the brick folder (plan.json
+// with the fingerprint of stack and config; brick_NNNNN.ply + .json per finished
+// brick), the brick pass, the seam pass, the measuring pass and the checkpoint.
+#include "apps/pipeline/streamed_fit.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <numeric>
+#include <sstream>
+
+#include "apps/pipeline/app_config.hpp"
+#include "apps/pipeline/format.hpp"
+#include "gmf/density_ops.hpp"
+#include "gmf/fit.hpp"
+#include "gmf/init.hpp"
+#include "gmf/psnr.hpp"
+#include "gmf/rasterize.hpp"
+#include "io/atomic_file.hpp"
+#include "io/background.hpp"
+#include "io/error.hpp"
+#include "io/fault_injection.hpp"
+#include "io/folder_lock.hpp"
+#include "io/hash.hpp"
+#include "io/memory_limit.hpp"
+#include "io/timer.hpp"
+#include "io/volume_source.hpp"
+
+namespace hisnegs::apps {
+namespace {
+
+constexpr int kBrickFolderFormat = 1;
+
+// The largest scale of a bricked fit, world units (gmf.stream_scale_voxels smallest voxels).
+double brick_max_scale(const io::WorldFrame& frame, const gmf::GmfOptions& gmf) {
+  return gmf.stream_scale_voxels * frame.voxel_size().minCoeff();
+}
+
+std::size_t region_voxels(const std::array<int, 3>& shape, int core, const std::array<int, 3>& halo) {
+  std::size_t n = 1;
+  for (int a = 0; a < 3; ++a) n *= static_cast<std::size_t>(std::min(shape[a], std::min(core, shape[a]) + 2 * halo[a]));
+  return n;
+}
+
+}  // namespace
+
+std::filesystem::path brick_folder(const std::filesystem::path& out) {
+  std::filesystem::path dir = out;
+  dir += ".bricks";
+  return dir;
+}
+
+FitPlanChoice choose_fit_plan(const std::array<int, 3>& shape, const io::WorldFrame& frame,
+                              const gmf::GmfOptions& gmf, const FitMemoryModel& memory) {
+  FitPlanChoice c;
+  const std::optional<double> limit = io::parse_memory_size(gmf.max_memory, "gmf.max_memory");
+  if (limit) {
+    c.max_memory = *limit;
+    c.memory_source = "gmf.max_memory " + io::gib_text(*limit);
+  } else {
+    const double ram = io::physical_memory_bytes();
+    c.max_memory = ram > 0 ? 0.5 * ram : 8.0 * 1073741824.0;
+    c.memory_source = ram > 0 ? "auto: half of " + io::gib_text(ram) + " of RAM" : "auto: 8 GiB (RAM unknown)";
+  }
+  const std::size_t voxels = static_cast<std::size_t>(shape[0]) * shape[1] * shape[2];
+  const auto K = static_cast<std::size_t>(gmf.gaussians);
+  c.whole_need = memory.need(voxels, K);
+  if (gmf.stream_brick_voxels == 0 && c.whole_need <= c.max_memory) return c;  // today's fit
+  c.bricked = true;
+  const std::array<int, 3> halo = gmf::halo_voxels(frame, gmf.mahalanobis_cutoff, brick_max_scale(frame, gmf));
+  const int smallest = std::max(16, 2 * *std::max_element(halo.begin(), halo.end()));
+  int core = gmf.stream_brick_voxels;
+  if (core == 0) {
+    // the largest core (a multiple of 16 voxels) whose brick fits beside the model
+    core = *std::max_element(shape.begin(), shape.end());
+    while (core > smallest && memory.need(region_voxels(shape, core, halo), K) > c.max_memory) {
+      core = std::max(smallest, (core * 3 / 4) / 16 * 16);
+    }
+  }
+  c.brick_need = memory.need(region_voxels(shape, core, halo), K);
+  if (c.brick_need > c.max_memory) {
+    throw io::InputError("gmf.max_memory = " + gmf.max_memory + ": too small for this fit: a brick of core " +
+                         std::to_string(core) + " voxels with its halo (" + std::to_string(halo[0]) + " x " +
+                         std::to_string(halo[1]) + " x " + std::to_string(halo[2]) + ") and a model of K " +
+                         std::to_string(K) + " need " + io::gib_text(c.brick_need) + "; allow at least that");
+  }
+  c.plan = gmf::plan_bricks(shape, {core, core, core}, halo);
+  return c;
+}
+
+namespace {
+
+// What every brick of one fit shares.
+struct StreamContext {
+  std::string path;
+  const FitConfig* config = nullptr;
+  gmf::GmfOptions gmf;  // the config's, with the bricked fit's scale bound
+  std::unique_ptr<io::VolumeSource> source;
+  io::Normalization normalization;
+  io::WorldFrame frame;
+  gmf::BrickPlan plan;
+  std::int64_t foreground = 0;  // voxels above sparse_grid.threshold, whole stack
+  std::string fingerprint;
+  std::filesystem::path folder;
+};
+
+// Raw values of `box`, normalized as the whole stack is.
+io::Volume read_region(const StreamContext& c, const io::VoxelBox& box) {
+  io::Volume v;
+  v.nx = box.hi[0] - box.lo[0];
+  v.ny = box.hi[1] - box.lo[1];
+  v.nz = box.hi[2] - box.lo[2];
+  v.voxels.resize(box.voxels());
+  c.source->read(box, v.voxels.data());
+  for (float x : v.voxels) {
+    if (!std::isfinite(x)) io::fail_input(c.path, "holds a non-finite value; cannot normalize");
+  }
+  (void)io::apply_normalization(v.voxels, c.normalization);
+  v.normalization = c.normalization;
+  v.stored_as = c.source->stored_as;
+  v.spacing = c.source->spacing;
+  v.source = c.path;
+  return v;
+}
+
+std::int64_t count_above(std::span<const float> values, double threshold) {
+  return std::count_if(values.begin(), values.end(), [&](float v) { return v > threshold; });
+}
+
+std::int64_t count_above(const io::Volume& v, const io::VoxelBox& box, double threshold) {
+  std::int64_t n = 0;
+  for (int z = box.lo[2]; z < box.hi[2]; ++z) {
+    for (int y = box.lo[1]; y < box.hi[1]; ++y) {
+      const float* row = &v.voxels[v.index(box.lo[0], y, z)];
+      n += count_above(std::span<const float>(row, static_cast<std::size_t>(box.hi[0] - box.lo[0])), threshold);
+    }
+  }
+  return n;
+}
+
+// Voxels above `threshold` after normalization: from the histogram (8/16-bit: each
+// stored value normalized as apply_normalization does), else one pass of slabs.
+std::int64_t count_foreground(const StreamContext& c, const io::SourceStatistics& stats, double threshold) {
+  if (!stats.histogram.empty()) {
+    std::vector<float> values(stats.histogram.size());
+    std::iota(values.begin(), values.end(), 0.0f);
+    (void)io::apply_normalization(values, c.normalization);
+    std::int64_t n = 0;
+    for (std::size_t v = 0; v < values.size(); ++v) n += values[v] > threshold ? stats.histogram[v] : 0;
+    return n;
+  }
+  std::int64_t n = 0;
+  const int pages = std::max<int>(1, static_cast<int>((64u << 20) / (4ull * c.source->nx * c.source->ny)));
+  for (int z = 0; z < c.source->nz; z += pages) {
+    const io::VoxelBox slab{{0, 0, z}, {c.source->nx, c.source->ny, std::min(c.source->nz, z + pages)}};
+    std::vector<float> values(slab.voxels());
+    c.source->read(slab, values.data());
+    (void)io::apply_normalization(values, c.normalization);
+    n += count_above(values, threshold);
+  }
+  return n;
+}
+
+// The box `b` in the index space of `region`.
+io::VoxelBox local_box(const io::VoxelBox& b, const io::VoxelBox& region) {
+  io::VoxelBox l;
+  for (int a = 0; a < 3; ++a) {
+    l.lo[a] = b.lo[a] - region.lo[a];
+    l.hi[a] = b.hi[a] - region.lo[a];
+  }
+  return l;
+}
+
+void shift_means(gmf::GaussianMixture& m, const Eigen::Vector3d& shift) {
+  for (gmf::GaussianParams& g : m) {
+    for (int a = 0; a < 3; ++a) g.mean[a] = static_cast<float>(static_cast<double>(g.mean[a]) + shift[a]);
+  }
+}
+
+// ---- the brick folder ------------------------------------------------------
+
+std::filesystem::path brick_path(const StreamContext& c, int id, const char* ext) {
+  char name[32];
+  std::snprintf(name, sizeof name, "brick_%05d.%s", id, ext);
+  return c.folder / name;
+}
+
+// The fingerprint of what decides the bricks: the stack (path, size, time, shape),
+// the fit's config sections and the plan.
+std::string fingerprint_of(const std::string& path, const io::VolumeSource& source, const FitConfig& config,
+                           const gmf::BrickPlan& plan) {
+  AppConfig slice;
+  slice.volume = config.get<&AppConfig::volume>();
+  slice.background = config.get<&AppConfig::background>();
+  slice.sparse_grid = config.get<&AppConfig::sparse_grid>();
+  slice.gmf = config.get<&AppConfig::gmf>();
+  std::error_code ec;
+  const auto size = std::filesystem::file_size(path, ec);
+  const auto time = std::filesystem::last_write_time(path, ec).time_since_epoch().count();
+  std::ostringstream s;
+  s << std::filesystem::absolute(path).lexically_normal().string() << "\n" << size << " " << time << "\n"
+    << source.nx << " " << source.ny << " " << source.nz << "\n"
+    << plan.describe() << "\n"
+    << dump_app_config(slice);
+  char hex[17];
+  std::snprintf(hex, sizeof hex, "%016llx", static_cast<unsigned long long>(io::fnv1a64(s.str())));
+  return hex;
+}
+
+// Creates the folder with its plan.json, or checks that the one there is this fit's.
+void open_brick_folder(const StreamContext& c, const io::SourceStatistics* stats) {
+  const std::filesystem::path plan_file = c.folder / "plan.json";
+  if (std::filesystem::exists(plan_file)) {
+    nlohmann::json j;
+    try {
+      std::ifstream in(plan_file);
+      j = nlohmann::json::parse(in);
+    } catch (const std::exception&) {
+      io::fail_input(plan_file, "not a hisnegs brick plan; remove the folder or choose another -o");
+    }
+    if (!j.is_object() || j.value("fingerprint", std::string()) != c.fingerprint) {
+      io::fail_input(c.folder, "holds the bricks of another stack, config or plan (" +
+                                   (j.is_object() ? j.value("stack", std::string("?")) : std::string("?")) +
+                                   "); remove it or choose another -o");
+    }
+    return;
+  }
+  std::filesystem::create_directories(c.folder);
+  nlohmann::json j;
+  j["format"] = kBrickFolderFormat;
+  j["fingerprint"] = c.fingerprint;
+  j["stack"] = c.path;
+  j["plan"] = c.plan.describe();
+  j["normalization"] = c.normalization.describe();
+  j["raw_lo"] = c.normalization.raw_lo;
+  j["raw_hi"] = c.normalization.raw_hi;
+  j["foreground"] = c.foreground;
+  j["voxels"] = stats ? stats->voxels : 0;
+  const std::string text = j.dump(2) + "\n";
+  io::write_file_atomic(plan_file, text.data(), text.size());
+}
+
+// What a finished brick leaves: its Gaussians (brick_N.ply) and this (brick_N.json,
+// written last: a brick is finished when it exists).
+struct BrickResult {
+  gmf::GaussianMixture kept;
+  io::BackgroundCounts background;
+  std::vector<gmf::FitIteration> log;
+  std::int64_t foreground_core = 0;
+  std::int64_t samples = 0;
+  double seconds = 0;
+  double final_beta = 0;
+};
+
+nlohmann::json counts_json(const io::BackgroundCounts& b) {
+  nlohmann::json values = nlohmann::json::array();
+  for (const auto& [v, n] : b.values) values.push_back({v, n});
+  return {{"total", b.total}, {"zeros", b.zeros}, {"rounded", b.rounded}, {"values", values}};
+}
+
+io::BackgroundCounts counts_from(const nlohmann::json& j) {
+  io::BackgroundCounts b;
+  b.rounded = j.at("rounded").get<bool>();
+  for (const auto& pair : j.at("values")) b.values[pair.at(0).get<float>()] += pair.at(1).get<std::int64_t>();
+  b.total = j.at("total").get<std::int64_t>();
+  b.zeros = j.at("zeros").get<std::int64_t>();
+  return b;
+}
+
+void save_brick(const StreamContext& c, int id, const BrickResult& r) {
+  io::fault_point("brick-save");
+  gmf::CheckpointMeta meta;
+  meta.extra.emplace_back("brick", std::to_string(id));
+  gmf::save_checkpoint(brick_path(c, id, "ply"), r.kept, meta);
+  nlohmann::json log = nlohmann::json::array();
+  for (const gmf::FitIteration& it : r.log) {
+    log.push_back({it.round, it.iteration, it.seconds, it.loss, it.psnr_fg, it.psnr_3d, it.gaussians, it.beta});
+  }
+  nlohmann::json j = {{"fingerprint", c.fingerprint}, {"brick", id},          {"kept", r.kept.size()},
+                      {"foreground_core", r.foreground_core}, {"samples", r.samples}, {"seconds", r.seconds},
+                      {"final_beta", r.final_beta}, {"background", counts_json(r.background)}, {"log", log}};
+  const std::string text = j.dump() + "\n";
+  io::write_file_atomic(brick_path(c, id, "json"), text.data(), text.size());
+}
+
+std::optional<BrickResult> load_brick(const StreamContext& c, int id) {
+  const std::filesystem::path json_path = brick_path(c, id, "json");
+  if (!std::filesystem::exists(json_path)) return std::nullopt;
+  BrickResult r;
+  try {
+    std::ifstream in(json_path);
+    const nlohmann::json j = nlohmann::json::parse(in);
+    if (j.at("fingerprint").get<std::string>() != c.fingerprint || j.at("brick").get<int>() != id) {
+      io::fail_input(json_path, "belongs to another fit; remove the folder or choose another -o");
+    }
+    r.foreground_core = j.at("foreground_core").get<std::int64_t>();
+    r.samples = j.at("samples").get<std::int64_t>();
+    r.seconds = j.at("seconds").get<double>();
+    r.final_beta = j.at("final_beta").get<double>();
+    r.background = counts_from(j.at("background"));
+    for (const auto& row : j.at("log")) {
+      gmf::FitIteration it;
+      it.round = row.at(0).get<int>();
+      it.iteration = row.at(1).get<int>();
+      it.seconds = row.at(2).get<double>();
+      it.loss = row.at(3).get<double>();
+      it.psnr_fg = row.at(4).get<double>();
+      it.psnr_3d = row.at(5).get<double>();
+      it.gaussians = row.at(6).get<int>();
+      it.beta = row.at(7).get<double>();
+      r.log.push_back(it);
+    }
+    r.kept = gmf::load_checkpoint(brick_path(c, id, "ply")).mixture;
+    if (r.kept.size() != j.at("kept").get<std::size_t>()) {
+      io::fail_input(brick_path(c, id, "ply"), "holds a different count of Gaussians than its .json says");
+    }
+  } catch (const nlohmann::json::exception& e) {
+    io::fail_input(json_path, std::string("not a hisnegs brick record: ") + e.what());
+  }
+  return r;
+}
+
+// ---- the passes -------------------------------------------------------------
+
+std::uint64_t brick_seed(const gmf::GmfOptions& gmf, int id) {
+  return io::splitmix64(gmf.seed ^ (0x9e3779b97f4a7c15ull * static_cast<std::uint64_t>(id + 1)));
+}
+
+// One brick: read, count, sample, initialize with its share of K, fit, keep the
+// core's. Its time: `left` shared by its core's foreground among `rest` still to fit.
+BrickResult fit_brick(const StreamContext& c, const gmf::StreamBrick& b, double left, std::int64_t rest) {
+  io::Stopwatch watch;
+  const FitConfig& config = *c.config;
+  const io::Volume v = read_region(c, b.region);
+  const gmf::RegionFrame rf = gmf::region_frame(c.frame, b.region);
+  const io::VoxelBox core = local_box(b.core, b.region);
+  const double threshold = config.get<&AppConfig::sparse_grid>().threshold;
+  const io::BackgroundOptions& bg = config.get<&AppConfig::background>();
+  BrickResult r;
+  if (bg.estimate) r.background = io::count_background(v, bg, core);
+  r.foreground_core = count_above(v, core, threshold);
+  const std::int64_t foreground_region = count_above(v.voxels, threshold);
+  if (foreground_region == 0 || c.foreground == 0) {
+    r.seconds = watch.elapsed();
+    return r;  // nothing to fit
+  }
+  gmf::GmfOptions options = c.gmf;
+  options.seed = brick_seed(c.gmf, b.id);
+  options.time_budget_s = std::max(1e-3, left * std::min(1.0, static_cast<double>(r.foreground_core) /
+                                                                  static_cast<double>(std::max<std::int64_t>(1, rest))));
+  options.gaussians = static_cast<int>(std::clamp<double>(
+      std::llround(static_cast<double>(c.gmf.gaussians) * static_cast<double>(foreground_region) /
+                   static_cast<double>(c.foreground)),
+      1.0, 1e7));
+  // The brick's own background's 99.9th percentile (fit_to_checkpoint uses the stack's).
+  if (r.background.total > 0) {
+    const io::BackgroundModel local = io::background_from_counts(r.background, bg, c.path);
+    options.clone_floor = local.none() ? 0.0 : local.quantile(0.999);
+  }
+  io::SparseGridOptions sparse = config.get<&AppConfig::sparse_grid>();
+  sparse.background_fraction = options.background_fraction;
+  sparse.seed = options.seed;
+  gmf::SampleSet samples;
+  {
+    const io::SparseGrid grid = io::build_sparse_grid(v, rf.frame.aspect(), sparse);
+    samples = gmf::fit_samples(grid, options);
+  }
+  r.samples = static_cast<std::int64_t>(samples.size());
+  gmf::GaussianMixture mixture = gmf::initialize_mixture(v, rf.frame, threshold, options);
+  const gmf::FitResult fit = gmf::fit_mixture(v, samples, rf.frame, mixture, options);
+  r.log = fit.log;
+  r.final_beta = fit.final_beta;
+  shift_means(mixture, rf.shift);
+  for (const gmf::GaussianParams& g : mixture) {
+    if (c.plan.owner(c.frame, Eigen::Vector3d(g.mean[0], g.mean[1], g.mean[2])) == b.id) r.kept.push_back(g);
+  }
+  r.seconds = watch.elapsed();
+  return r;
+}
+
+Eigen::Vector3d index_of(const StreamContext& c, const gmf::GaussianParams& g) {
+  return c.frame.index_from_world(Eigen::Vector3d(g.mean[0], g.mean[1], g.mean[2]));
+}
+
+// True when the centre (continuous index) lies within `halo` of `box` grown by `grow` voxels.
+bool within(const Eigen::Vector3d& ijk, const io::VoxelBox& box, const std::array<int, 3>& grow) {
+  for (int a = 0; a < 3; ++a) {
+    if (ijk[a] < box.lo[a] - grow[a] - 0.5 || ijk[a] >= box.hi[a] + grow[a] - 0.5) return false;
+  }
+  return true;
+}
+
+// Distance in voxels (per axis, scaled by the halo) from the centre to the nearest
+// face of `b`'s core that another brick shares; true when under one halo.
+bool near_shared_face(const StreamContext& c, const gmf::StreamBrick& b, const Eigen::Vector3d& ijk) {
+  for (int a = 0; a < 3; ++a) {
+    if (b.cell[a] > 0 && ijk[a] - (b.core.lo[a] - 0.5) < c.plan.halo[a]) return true;
+    if (b.cell[a] + 1 < c.plan.count[a] && (b.core.hi[a] - 0.5) - ijk[a] < c.plan.halo[a]) return true;
+  }
+  return false;
+}
+
+struct SeamStats {
+  std::size_t refitted = 0, held = 0;
+  double seconds = 0;
+};
+
+// Refits brick b's Gaussians near its shared faces with every other Gaussian that
+// reaches its region held fixed; `owned[b]` is replaced by the result.
+SeamStats seam_brick(const StreamContext& c, const gmf::StreamBrick& b, std::vector<gmf::GaussianMixture>& owned,
+                     double beta, double seconds) {
+  io::Stopwatch watch;
+  SeamStats s;
+  gmf::GaussianMixture fixed, free;
+  std::vector<gmf::GaussianParams> stay;  // b's Gaussians away from its faces
+  for (const gmf::GaussianParams& g : owned[static_cast<std::size_t>(b.id)]) {
+    (near_shared_face(c, b, index_of(c, g)) ? free : fixed).push_back(g);
+  }
+  if (free.empty()) return s;
+  for (const gmf::StreamBrick& other : c.plan.bricks) {
+    if (other.id == b.id) continue;
+    for (const gmf::GaussianParams& g : owned[static_cast<std::size_t>(other.id)]) {
+      if (within(index_of(c, g), b.region, c.plan.halo)) fixed.push_back(g);
+    }
+  }
+  const io::Volume v = read_region(c, b.region);
+  const gmf::RegionFrame rf = gmf::region_frame(c.frame, b.region);
+  gmf::GmfOptions options = c.gmf;
+  options.seed = brick_seed(c.gmf, b.id) ^ 0x5ea4ull;
+  options.optimizer = gmf::Optimizer::kAdam;
+  options.densify = false;
+  options.rounds = 1;
+  options.iterations_per_round = c.gmf.seam_iterations;
+  options.max_iterations = 0;
+  options.beta_start = options.beta_end = std::max(beta, 1e-6);
+  options.time_budget_s = std::max(1e-3, seconds);
+  options.frozen = fixed.size();
+  options.prune_intensity = 0.0;  // nothing leaves in a seam pass (a faint one stays faint)
+  io::SparseGridOptions sparse = c.config->get<&AppConfig::sparse_grid>();
+  sparse.background_fraction = options.background_fraction;
+  sparse.seed = options.seed;
+  gmf::SampleSet samples;
+  {
+    const io::SparseGrid grid = io::build_sparse_grid(v, rf.frame.aspect(), sparse);
+    samples = gmf::fit_samples(grid, options);
+  }
+  gmf::GaussianMixture local;
+  local.reserve(fixed.size() + free.size());
+  for (const auto& g : fixed) local.push_back(g);
+  for (const auto& g : free) local.push_back(g);
+  shift_means(local, -rf.shift);
+  (void)gmf::fit_mixture(v, samples, rf.frame, local, options);
+  shift_means(local, rf.shift);
+  gmf::GaussianMixture result;
+  for (const gmf::GaussianParams& g : owned[static_cast<std::size_t>(b.id)]) {
+    if (!near_shared_face(c, b, index_of(c, g))) result.push_back(g);
+  }
+  for (std::size_t k = fixed.size(); k < local.size(); ++k) result.push_back(local[k]);
+  owned[static_cast<std::size_t>(b.id)] = std::move(result);
+  s.refitted = free.size();
+  s.held = fixed.size();
+  s.seconds = watch.elapsed();
+  return s;
+}
+
+// Σ (f − V)² over brick b's core voxels (the model's Gaussians that reach its region).
+double core_squared_error(const StreamContext& c, const gmf::StreamBrick& b, const gmf::GaussianMixture& model,
+                          const gmf::RasterizeOptions& raster) {
+  const io::Volume v = read_region(c, b.region);
+  const gmf::RegionFrame rf = gmf::region_frame(c.frame, b.region);
+  gmf::GaussianMixture local;
+  for (const gmf::GaussianParams& g : model) {
+    if (within(index_of(c, g), b.region, c.plan.halo)) local.push_back(g);
+  }
+  shift_means(local, -rf.shift);
+  const std::vector<float> f = gmf::rasterize_mixture(local, rf.frame, raster);
+  const io::VoxelBox core = local_box(b.core, b.region);
+  double sse = 0;
+  for (int z = core.lo[2]; z < core.hi[2]; ++z) {
+    for (int y = core.lo[1]; y < core.hi[1]; ++y) {
+      for (int x = core.lo[0]; x < core.hi[0]; ++x) {
+        const std::size_t i = v.index(x, y, z);
+        const double d = static_cast<double>(f[i]) - static_cast<double>(v.voxels[i]);
+        sse += d * d;
+      }
+    }
+  }
+  return sse;
+}
+
+}  // namespace
+
+FitOutcome fit_streamed(const std::string& volume, const FitConfig& config, const FitPlanChoice& choice,
+                        const std::filesystem::path& out, const std::filesystem::path& log_csv,
+                        const Progress& progress) {
+  io::Stopwatch watch;
+  const io::VolumeOptions& vo = config.get<&AppConfig::volume>();
+  StreamContext c;
+  c.path = volume;
+  c.config = &config;
+  c.gmf = config.get<&AppConfig::gmf>();
+  c.source = io::open_volume_source(volume, io::stack_read_options(vo));
+  c.frame = io::stack_frame(c.source->nx, c.source->ny, c.source->nz, c.source->spacing, vo.aspect, volume);
+  c.gmf.max_scale_world = brick_max_scale(c.frame, c.gmf);
+  c.plan = choice.plan;
+  c.folder = brick_folder(out);
+  c.fingerprint = fingerprint_of(volume, *c.source, config, c.plan);
+  const double total_budget = c.gmf.time_budget_s;
+  progress.say("fit: %s: %d x %d x %d %s (%s as float32), %s; in-memory fit would need %s of %s: bricked: %s",
+               volume.c_str(), c.source->nx, c.source->ny, c.source->nz, std::string(io::to_string(c.source->stored_as)).c_str(),
+               io::gib_text(4.0 * static_cast<double>(c.source->whole().voxels())).c_str(), c.source->format.c_str(),
+               io::gib_text(choice.whole_need).c_str(), choice.memory_source.c_str(), c.plan.describe().c_str());
+  progress.say("fit: each brick keeps the Gaussians centred in its core; scales <= %g voxels (gmf.stream_scale_voxels) "
+               "reach at most sqrt(%g) x that, inside the halo; planned peak %s",
+               c.gmf.stream_scale_voxels, c.gmf.mahalanobis_cutoff, io::gib_text(choice.brick_need).c_str());
+  io::FolderLock lock(c.folder);
+  // Statistics: from plan.json when resuming (the same fingerprint), else one pass.
+  const std::filesystem::path plan_file = c.folder / "plan.json";
+  std::optional<io::SourceStatistics> stats;
+  bool resumed = false;
+  if (std::filesystem::exists(plan_file)) {
+    open_brick_folder(c, nullptr);  // throws for another fit's folder
+    std::ifstream in(plan_file);
+    const nlohmann::json j = nlohmann::json::parse(in, nullptr, false);
+    if (j.is_object() && j.contains("raw_lo")) {
+      c.normalization.method = vo.normalization.method;
+      c.normalization.raw_lo = j.at("raw_lo").get<double>();
+      c.normalization.raw_hi = j.at("raw_hi").get<double>();
+      c.foreground = j.at("foreground").get<std::int64_t>();
+      resumed = true;
+      progress.say("fit: resuming from %s (normalization %s, statistics not read again)", c.folder.c_str(),
+                   c.normalization.describe().c_str());
+    }
+  }
+  if (!resumed) {
+    io::Stopwatch scan;
+    stats = io::scan_statistics(*c.source);
+    c.normalization = io::normalization_from(*stats, vo.normalization, volume);
+    c.foreground = count_foreground(c, *stats, config.get<&AppConfig::sparse_grid>().threshold);
+    open_brick_folder(c, &*stats);
+    progress.say("fit: statistics in one pass: %s, %lld foreground voxels, %s", c.normalization.describe().c_str(),
+                 static_cast<long long>(c.foreground), format_seconds(scan.elapsed()).c_str());
+  }
+  if (c.foreground == 0) {
+    io::fail_input(volume, "no voxel above sparse_grid.threshold " +
+                               io::number_text(config.get<&AppConfig::sparse_grid>().threshold));
+  }
+  // The brick pass.
+  const std::size_t n = c.plan.bricks.size();
+  std::vector<std::optional<BrickResult>> results(n);
+  std::int64_t done_foreground = 0;
+  int resumed_bricks = 0;
+  for (std::size_t b = 0; b < n; ++b) {
+    results[b] = load_brick(c, static_cast<int>(b));
+    if (results[b]) {
+      done_foreground += results[b]->foreground_core;
+      ++resumed_bricks;
+    }
+  }
+  if (resumed_bricks > 0) progress.say("fit: %d of %zu bricks already finished", resumed_bricks, n);
+  const bool seam = c.gmf.seam_iterations > 0 && n > 1;
+  const double brick_budget = total_budget * (seam ? 0.85 : 0.95);
+  std::vector<int> todo;
+  for (std::size_t b = 0; b < n; ++b) {
+    if (!results[b]) todo.push_back(static_cast<int>(b));
+  }
+  SequentialBricks executor;
+  executor.run(todo, [&](int id) {
+    const gmf::StreamBrick& b = c.plan.bricks[static_cast<std::size_t>(id)];
+    // Time: what is left of the brick pass, shared by the foreground still to fit.
+    const double left = std::max(0.0, brick_budget - watch.elapsed());
+    BrickResult r = fit_brick(c, b, left, c.foreground - done_foreground);
+    save_brick(c, id, r);
+    done_foreground += r.foreground_core;
+    const int rounds = r.log.empty() ? 0 : r.log.back().round + 1;
+    progress.say("fit: brick %d/%zu (cell %d,%d,%d): %lld samples, %zu Gaussians kept, %d rounds, beta %g, %s", id + 1,
+                 n, b.cell[0], b.cell[1], b.cell[2], static_cast<long long>(r.samples), r.kept.size(), rounds,
+                 r.final_beta, format_seconds(r.seconds).c_str());
+    results[static_cast<std::size_t>(id)] = std::move(r);
+  });
+  std::vector<gmf::GaussianMixture> owned(n);
+  io::BackgroundCounts background;
+  double beta = 0;
+  bool any_beta = false;
+  for (std::size_t b = 0; b < n; ++b) {
+    owned[b] = std::move(results[b]->kept);
+    background.merge(results[b]->background);
+    if (!owned[b].empty() && results[b]->final_beta > 0) {
+      // the highest β any brick reached: a brick given little time (little foreground)
+      // stops earlier in the schedule, and its few, separate Gaussians change least with β
+      beta = std::max(beta, results[b]->final_beta);
+      any_beta = true;
+    }
+  }
+  const bool softmax = c.gmf.aggregation == gmf::Aggregation::kSoftmax;
+  if (!any_beta) beta = softmax ? c.gmf.beta_start : 0.0;
+  // The seam pass, colour by colour (bricks of one colour share no face).
+  if (seam) {
+    io::Stopwatch seam_watch;
+    SeamStats total;
+    const double seam_budget = std::max(0.0, total_budget * 0.95 - watch.elapsed());
+    for (int colour = 0; colour < 8; ++colour) {
+      for (const gmf::StreamBrick& b : c.plan.bricks) {
+        if (b.colour() != colour) continue;
+        const double left = std::max(0.0, seam_budget - seam_watch.elapsed());
+        const SeamStats s = seam_brick(c, b, owned, softmax ? beta : 0.0, left / static_cast<double>(n));
+        total.refitted += s.refitted;
+        total.held += s.held;
+      }
+    }
+    progress.say("fit: seam pass: %zu Gaussians near shared faces refitted (%d Adam steps each brick) with %zu "
+                 "neighbours held fixed, %s",
+                 total.refitted, c.gmf.seam_iterations, total.held, format_seconds(seam_watch.elapsed()).c_str());
+  }
+  gmf::GaussianMixture mixture;
+  for (const auto& m : owned) {
+    for (const auto& g : m) mixture.push_back(g);
+  }
+  const double fit_seconds = watch.elapsed();
+  // The measuring pass: the 3D PSNR over every voxel, brick by brick.
+  io::Stopwatch measuring;
+  gmf::MixtureModel report = c.gmf.model(0);
+  report.beta = softmax ? beta : 0.0;
+  double sse = 0;
+  for (const gmf::StreamBrick& b : c.plan.bricks) {
+    sse += core_squared_error(c, b, mixture, gmf::RasterizeOptions::of(report));
+  }
+  const double psnr_3d = gmf::psnr_from_mse(sse / static_cast<double>(c.source->whole().voxels()));
+  // The checkpoint.
+  gmf::CheckpointMeta meta;
+  meta.volume_shape_zyx = std::array<int, 3>{c.source->nz, c.source->ny, c.source->nx};
+  meta.spacing_um = c.source->spacing.um;
+  meta.aspect = std::array<double, 3>{c.frame.aspect().x(), c.frame.aspect().y(), c.frame.aspect().z()};
+  meta.normalization = c.normalization.describe();
+  meta.extra.emplace_back("source", io::printable(volume, 200));
+  meta.extra.emplace_back("bricks", c.plan.describe());
+  meta.aggregation = c.gmf.aggregation;
+  meta.beta = softmax ? beta : 0.0;
+  if (config.get<&AppConfig::background>().estimate && background.total > 0) {
+    const io::BackgroundModel model =
+        io::background_from_counts(background, config.get<&AppConfig::background>(), volume);
+    if (model.none()) {
+      progress.say("fit: background: exactly 0 outside the neuron (%lld voxels): no floor to draw",
+                   static_cast<long long>(model.voxels));
+    } else {
+      record_background(c.frame, config, model, meta, progress);
+    }
+  }
+  gmf::save_checkpoint(out, mixture, meta);
+  if (!log_csv.empty()) {
+    std::ostringstream s;
+    s << fit_log_csv_header() << "\n";
+    for (std::size_t b = 0; b < n; ++b) append_fit_log_csv(s, results[b]->log, "");
+    const std::string csv = s.str();
+    io::write_file_atomic(log_csv, csv.data(), csv.size());
+  }
+  std::error_code ec;
+  std::filesystem::remove_all(c.folder, ec);  // the checkpoint holds everything now
+  const FitOutcome outcome{mixture.size(), psnr_3d, watch.elapsed(),
+                           std::string("bricks: ") + std::to_string(n) + (seam ? " + seam pass" : "")};
+  progress.say("fit: wrote %s: K %zu from %zu bricks, 3D PSNR %.2f dB (measured in %s), %s (fit %s)", out.c_str(),
+               mixture.size(), n, psnr_3d, format_seconds(measuring.elapsed()).c_str(),
+               format_seconds(outcome.seconds).c_str(), format_seconds(fit_seconds).c_str());
+  return outcome;
+}
+
+}  // namespace hisnegs::apps

@@ -1,0 +1,80 @@
+// SPDX-License-Identifier: Apache-2.0
+// The streamed brick fit: a stack larger than memory (or one the user asks to cut)
+// read by regions through io::VolumeSource and fitted brick by brick
+// (gmf/brick_plan.hpp), each brick a pure function of its region, its share of the
+// budget K, its seed and the iteration schedule; then a seam pass refits the
+// Gaussians near the faces between bricks with their neighbours held fixed, colour
+// by colour; then one pass measures the 3D PSNR. Finished bricks are written to
+// OUT.bricks/ as they finish, so a killed fit resumes from them; the folder is
+// removed once the checkpoint is written. docs/user-guide.md "Stacks larger than
+// memory" tells users; docs/architecture.md where the pieces are.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <filesystem>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "apps/pipeline/fit_stage.hpp"
+#include "gmf/brick_plan.hpp"
+
+namespace hisnegs::apps {
+
+// The fit's peak memory as a function of what it holds at once: a base (the
+// program, its libraries and thread pools), bytes per voxel of the volume or brick
+// region in memory (float32 voxels, the foreground mask, the sparse grid, the samples,
+// the block index) and bytes per Gaussian of the whole model. Measured with
+// /usr/bin/time -v on this repository's stacks (docs/benchmarks.md "Stacks larger
+// than memory"); a model, not a promise: the limit is planned with it.
+struct FitMemoryModel {
+  double base_bytes = 112.0 * 1048576.0;
+  double bytes_per_voxel = 16.0;
+  double bytes_per_gaussian = 160.0;
+  [[nodiscard]] double need(std::size_t voxels, std::size_t gaussians) const {
+    return base_bytes + bytes_per_voxel * static_cast<double>(voxels) +
+           bytes_per_gaussian * static_cast<double>(gaussians);
+  }
+};
+
+// How a fit of a stack of `shape` (x, y, z) runs under gmf.max_memory.
+struct FitPlanChoice {
+  double max_memory = 0;       // bytes
+  std::string memory_source;   // "gmf.max_memory" or "auto: half of 23.4 GiB of RAM"
+  double whole_need = 0;       // the in-memory fit's need (FitMemoryModel)
+  bool bricked = false;        // false: today's in-memory fit
+  gmf::BrickPlan plan;         // when bricked
+  double brick_need = 0;       // the largest brick's need
+};
+// Throws io::InputError("gmf.max_memory = X: ...") when not even the smallest brick
+// fits (naming what it needs), or when gmf.max_memory does not parse.
+[[nodiscard]] FitPlanChoice choose_fit_plan(const std::array<int, 3>& shape, const io::WorldFrame& frame,
+                                            const gmf::GmfOptions& gmf, const FitMemoryModel& memory = {});
+
+// Runs the jobs of a set of bricks: the place where bricks are scheduled (one after
+// another here, each using every core; the MPI driver assigns them to ranks). Each
+// job is independent of the others' order.
+class BrickExecutor {
+ public:
+  virtual ~BrickExecutor() = default;
+  virtual void run(const std::vector<int>& bricks, const std::function<void(int)>& job) = 0;
+};
+class SequentialBricks final : public BrickExecutor {
+ public:
+  void run(const std::vector<int>& bricks, const std::function<void(int)>& job) override {
+    for (int b : bricks) job(b);
+  }
+};
+
+// The streamed fit of `volume` to the checkpoint `out` (and the log `log_csv` unless
+// empty), with `choice` from choose_fit_plan (bricked). Same lines, checkpoint
+// metadata and outcome as fit_to_checkpoint.
+FitOutcome fit_streamed(const std::string& volume, const FitConfig& config, const FitPlanChoice& choice,
+                        const std::filesystem::path& out, const std::filesystem::path& log_csv,
+                        const Progress& progress);
+
+// OUT.bricks: where the bricks of a fit to `out` are kept until it is written.
+[[nodiscard]] std::filesystem::path brick_folder(const std::filesystem::path& out);
+
+}  // namespace hisnegs::apps

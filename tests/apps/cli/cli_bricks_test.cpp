@@ -1,0 +1,151 @@
+// SPDX-License-Identifier: Apache-2.0
+// The streamed brick fit through the real binary (apps/pipeline/streamed_fit.hpp):
+// a stack cut into bricks fits to a model as good as the whole fit's; a fit killed
+// (SIGKILL) between bricks resumes from the finished ones to the checkpoint of an
+// uninterrupted run, byte for byte; a brick folder of another config is refused;
+// --max-memory that does not parse or is too small is one line, exit 2, nothing
+// written; a write that fails (the file-size limit standing in for a full disk)
+// stops the fit with the finished bricks intact.
+#include <gtest/gtest.h>
+
+#include <cstdlib>
+#include <filesystem>
+#include <regex>
+#include <string>
+
+#include "gmf/checkpoint.hpp"
+#include "tests/test_support.hpp"
+
+namespace hisnegs {
+namespace {
+namespace fs = std::filesystem;
+using testing::run_hisnegs;
+
+// A fixed schedule (no time budget reached): every brick is a pure function of its
+// region, its share of K and its seed.
+constexpr const char* kFixed =
+    "gmf: {gaussians: 300, rounds: 3, iterations_per_round: 8, time_budget_s: 600, seam_iterations: 10}\n";
+
+class BrickedFit : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    dir_ = new testing::ScratchDir;
+    const fs::path d = dir_->path();
+    testing::write_text(d / "fixed.yaml", kFixed);
+    ASSERT_EQ(run_hisnegs({"-q", "synth", "-o", d / "s.tif", "--shape", "20,72,80"}).exit_code, 0);
+    const auto ref = fit("ref.ply");
+    ASSERT_EQ(ref.exit_code, 0) << ref.err;
+  }
+  static void TearDownTestSuite() {
+    delete dir_;
+    dir_ = nullptr;
+  }
+  static fs::path dir() { return dir_->path(); }
+  // A bricked fit of s.tif (cores of 32 voxels: 3 x 3 x 1 bricks).
+  static testing::CommandResult fit(const std::string& out, std::vector<std::string> extra = {}) {
+    std::vector<std::string> args{"--config", dir() / "fixed.yaml", "fit", dir() / "s.tif", "-o", dir() / out,
+                                  "--brick-voxels", "32"};
+    args.insert(args.end(), extra.begin(), extra.end());
+    return run_hisnegs(args);
+  }
+  static int finished_bricks(const fs::path& folder) {
+    int n = 0;
+    for (const auto& e : fs::directory_iterator(folder)) n += e.path().extension() == ".json" &&
+                                                                e.path().filename() != "plan.json";
+    return n;
+  }
+  static inline testing::ScratchDir* dir_ = nullptr;
+};
+
+double psnr_3d_of(const std::string& out) {
+  std::smatch m;
+  const std::regex re("3D PSNR ([0-9.]+) dB");
+  return std::regex_search(out, m, re) ? std::stod(m[1]) : -1.0;
+}
+
+TEST_F(BrickedFit, FitsAsWellAsTheWholeStackAndCleansUp) {
+  const std::string log = testing::read_bytes(dir() / "ref.ply");
+  EXPECT_NE(log.find("comment hisnegs bricks 3 x 3 x 1 = 9 bricks"), std::string::npos);
+  EXPECT_FALSE(fs::exists(dir() / "ref.ply.bricks")) << "the brick folder outlives the checkpoint";
+  const gmf::Checkpoint c = gmf::load_checkpoint(dir() / "ref.ply");
+  EXPECT_GT(c.mixture.size(), 150u);
+  // The same schedule on the whole stack: the bricked 3D PSNR is close.
+  const auto bricked = fit("again.ply");
+  ASSERT_EQ(bricked.exit_code, 0) << bricked.err;
+  EXPECT_EQ(testing::read_bytes(dir() / "again.ply"), testing::read_bytes(dir() / "ref.ply")) << "not deterministic";
+  const auto whole = run_hisnegs({"--config", dir() / "fixed.yaml", "fit", dir() / "s.tif", "-o", dir() / "whole.ply"});
+  ASSERT_EQ(whole.exit_code, 0) << whole.err;
+  const double b = psnr_3d_of(bricked.out + bricked.err), w = psnr_3d_of(whole.out + whole.err);
+  ASSERT_GT(b, 0);
+  ASSERT_GT(w, 0);
+  EXPECT_GT(b, w - 1.0) << "bricked " << b << " dB, whole " << w << " dB";
+}
+
+TEST_F(BrickedFit, AKilledFitResumesToTheUninterruptedCheckpoint) {
+  ::setenv("HISNEGS_FAULT", "brick-save:4", 1);
+  const auto killed = fit("k.ply");
+  ::unsetenv("HISNEGS_FAULT");
+  ASSERT_EQ(killed.exit_code, 128 + 9) << killed.err;
+  EXPECT_FALSE(fs::exists(dir() / "k.ply"));
+  EXPECT_EQ(finished_bricks(dir() / "k.ply.bricks"), 3);
+  const auto resumed = fit("k.ply");
+  ASSERT_EQ(resumed.exit_code, 0) << resumed.err;
+  EXPECT_NE((resumed.out + resumed.err).find("3 of 9 bricks already finished"), std::string::npos) << resumed.out;
+  EXPECT_EQ(testing::read_bytes(dir() / "k.ply"), testing::read_bytes(dir() / "ref.ply"));
+}
+
+TEST_F(BrickedFit, ABrickFolderOfAnotherConfigIsRefusedAndKept) {
+  ::setenv("HISNEGS_FAULT", "brick-save:3", 1);
+  ASSERT_EQ(fit("f.ply").exit_code, 128 + 9);
+  ::unsetenv("HISNEGS_FAULT");
+  const auto other = fit("f.ply", {"--gaussians", "200"});
+  EXPECT_EQ(other.exit_code, 2) << other.err;
+  EXPECT_EQ(testing::count_lines(other.err), 1) << other.err;
+  EXPECT_NE(other.err.find("holds the bricks of another stack, config or plan"), std::string::npos) << other.err;
+  EXPECT_EQ(finished_bricks(dir() / "f.ply.bricks"), 2) << "the other fit's bricks were touched";
+  EXPECT_FALSE(fs::exists(dir() / "f.ply"));
+}
+
+TEST_F(BrickedFit, MaxMemoryThatDoesNotParseOrIsTooSmallIsOneLine) {
+  const auto lots = run_hisnegs({"fit", dir() / "s.tif", "-o", dir() / "m1.ply", "--max-memory", "lots"});
+  EXPECT_EQ(lots.exit_code, 2);
+  EXPECT_EQ(testing::count_lines(lots.err), 1) << lots.err;
+  EXPECT_NE(lots.err.find("gmf.max_memory = 'lots'"), std::string::npos) << lots.err;
+  const auto tiny = run_hisnegs({"fit", dir() / "s.tif", "-o", dir() / "m2.ply", "--max-memory", "1MiB"});
+  EXPECT_EQ(tiny.exit_code, 2);
+  EXPECT_EQ(testing::count_lines(tiny.err), 1) << tiny.err;
+  EXPECT_NE(tiny.err.find("too small for this fit"), std::string::npos) << tiny.err;
+  EXPECT_NE(tiny.err.find("allow at least"), std::string::npos) << tiny.err;
+  EXPECT_FALSE(fs::exists(dir() / "m1.ply"));
+  EXPECT_FALSE(fs::exists(dir() / "m2.ply"));
+  EXPECT_FALSE(fs::exists(dir() / "m2.ply.bricks"));
+}
+
+// A full disk: the file-size limit (SIGXFSZ ignored, so write() fails with EFBIG)
+// stops the resumed fit at its next brick; the finished bricks stay loadable and a
+// later resume still ends at the uninterrupted checkpoint.
+TEST_F(BrickedFit, AFailedBrickWriteLeavesTheFinishedBricksIntact) {
+  ::setenv("HISNEGS_FAULT", "brick-save:3", 1);
+  ASSERT_EQ(fit("d.ply").exit_code, 128 + 9);
+  ::unsetenv("HISNEGS_FAULT");
+  const std::string command = "ulimit -f 2 && trap '' XFSZ && exec " + testing::shell_quoted(testing::hisnegs_exe()) +
+                              " -q --config " + testing::shell_quoted(dir() / "fixed.yaml") + " fit " +
+                              testing::shell_quoted(dir() / "s.tif") + " -o " + testing::shell_quoted(dir() / "d.ply") +
+                              " --brick-voxels 32";
+  const testing::ShellResult full = testing::run_shell(command);
+  EXPECT_NE(full.status, 0) << full.out;
+  EXPECT_EQ(testing::count_lines(full.out), 1) << full.out;
+  EXPECT_NE(full.out.find("File too large"), std::string::npos) << full.out;
+  EXPECT_FALSE(fs::exists(dir() / "d.ply"));
+  const int finished = finished_bricks(dir() / "d.ply.bricks");
+  EXPECT_GE(finished, 2);
+  for (const auto& e : fs::directory_iterator(dir() / "d.ply.bricks")) {
+    if (e.path().extension() == ".ply") EXPECT_NO_THROW((void)gmf::load_checkpoint(e.path())) << e.path();
+  }
+  const auto resumed = fit("d.ply");
+  ASSERT_EQ(resumed.exit_code, 0) << resumed.err;
+  EXPECT_EQ(testing::read_bytes(dir() / "d.ply"), testing::read_bytes(dir() / "ref.ply"));
+}
+
+}  // namespace
+}  // namespace hisnegs
