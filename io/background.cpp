@@ -165,8 +165,12 @@ BackgroundCounts count_background(const Volume& volume, const BackgroundOptions&
   options.validate();
   const std::size_t n = volume.size();
   std::vector<std::uint8_t> mask(n);
-  for (std::size_t i = 0; i < n; ++i) mask[i] = volume.voxels[i] > options.foreground_level ? 1 : 0;
-  if (options.guard_voxels > 0) {
+  bool any = false;
+  for (std::size_t i = 0; i < n; ++i) {
+    mask[i] = volume.voxels[i] > options.foreground_level ? 1 : 0;
+    any = any || mask[i] != 0;
+  }
+  if (options.guard_voxels > 0 && any) {  // (an empty brick of a large stack has nothing to dilate)
     for (int axis = 0; axis < 3; ++axis) dilate_axis(mask, volume.nx, volume.ny, volume.nz, axis, options.guard_voxels);
   }
   BackgroundCounts counts;

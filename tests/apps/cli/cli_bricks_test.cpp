@@ -147,5 +147,29 @@ TEST_F(BrickedFit, AFailedBrickWriteLeavesTheFinishedBricksIntact) {
   EXPECT_EQ(testing::read_bytes(dir() / "d.ply"), testing::read_bytes(dir() / "ref.ply"));
 }
 
+// A tiled BigTIFF cut short (tile offsets past its end): the statistics pass, which
+// reads every tile by region, stops with one line naming the file; nothing written.
+TEST(BrickedFitInput, ABigTiffWhoseTilesPointPastItsEndIsOneLine) {
+  if (std::system("/usr/bin/python3 -c 'import tifffile, numpy' 2>/dev/null") != 0) {
+    if (std::getenv("CI")) FAIL() << "python3-tifffile is missing; scripts/install-deps.sh installs it";
+    GTEST_SKIP() << "python3 with tifffile is not installed";
+  }
+  testing::ScratchDir dir;
+  ASSERT_EQ(run_hisnegs({"-q", "synth", "-o", dir / "s.tif", "--shape", "16,64,64"}).exit_code, 0);
+  const auto r = testing::run_shell("cd " + testing::shell_quoted(dir.path()) +
+                                    " && /usr/bin/python3 -c 'import tifffile, os\n"
+                                    "a = tifffile.imread(\"s.tif\")\n"
+                                    "tifffile.imwrite(\"t.tif\", a, bigtiff=True, tile=(32, 32))\n"
+                                    "n = os.path.getsize(\"t.tif\")\n"
+                                    "os.truncate(\"t.tif\", n * 2 // 3)'");
+  ASSERT_EQ(r.status, 0) << r.out;
+  const auto fit = run_hisnegs({"fit", dir / "t.tif", "-o", dir / "m.ply", "--brick-voxels", "32"});
+  EXPECT_EQ(fit.exit_code, 2) << fit.err;
+  EXPECT_EQ(testing::count_lines(fit.err), 1) << fit.err;
+  EXPECT_NE(fit.err.find((dir / "t.tif").string()), std::string::npos) << fit.err;
+  EXPECT_FALSE(fs::exists(dir / "m.ply"));
+  EXPECT_FALSE(fs::exists(dir / "m.ply.bricks" / "plan.json"));
+}
+
 }  // namespace
 }  // namespace hisnegs
