@@ -341,7 +341,9 @@ std::unique_ptr<TiffHandle> open_for_read(const fs::path& path) {
   const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
   if (fd < 0) fail_input(path, std::string("cannot open: ") + std::strerror(errno));
   std::string limit_source;
-  auto handle = std::make_unique<TiffHandle>(fd, path, "r", allocation_limit_bytes(&limit_source));
+  // "m": no memory-mapping: a mapped file counts in the resident set as its pages are
+  // touched, which made a bricked fit of a file larger than --max-memory look larger.
+  auto handle = std::make_unique<TiffHandle>(fd, path, "rm", allocation_limit_bytes(&limit_source));
   if (!handle->get()) fail_input(path, "is not a readable TIFF file" + handle->detail());
   return handle;
 }

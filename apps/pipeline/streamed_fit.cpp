@@ -4,6 +4,10 @@
 // brick), the brick pass, the seam pass, the measuring pass and the checkpoint.
 #include "apps/pipeline/streamed_fit.hpp"
 
+#if defined(__GLIBC__)
+#include <malloc.h>
+#endif
+
 #include <algorithm>
 #include <cmath>
 #include <fstream>
@@ -102,6 +106,7 @@ struct StreamContext {
   io::WorldFrame frame;
   gmf::BrickPlan plan;
   std::int64_t foreground = 0;  // voxels above sparse_grid.threshold, whole stack
+  double max_memory = 0;        // bytes (FitPlanChoice)
   std::string fingerprint;
   std::filesystem::path folder;
 };
@@ -152,7 +157,7 @@ std::int64_t count_foreground(const StreamContext& c, const io::SourceStatistics
     return n;
   }
   std::int64_t n = 0;
-  const int pages = std::max<int>(1, static_cast<int>((64u << 20) / (4ull * c.source->nx * c.source->ny)));
+  const int pages = std::max<int>(1, static_cast<int>((16u << 20) / (4ull * c.source->nx * c.source->ny)));
   for (int z = 0; z < c.source->nz; z += pages) {
     const io::VoxelBox slab{{0, 0, z}, {c.source->nx, c.source->ny, std::min(c.source->nz, z + pages)}};
     std::vector<float> values(slab.voxels());
@@ -324,6 +329,25 @@ std::optional<BrickResult> load_brick(const StreamContext& c, int id) {
 
 // ---- the passes -------------------------------------------------------------
 
+// Hands the heap's free pages back after a brick: glibc keeps what a brick freed in
+// its per-thread arenas, and over dozens of bricks that grew the peak by half the
+// planned brick (op: 128 x 1024 x 1024 under 256 MiB).
+void release_free_memory() {
+#if defined(__GLIBC__)
+  (void)malloc_trim(0);
+#endif
+}
+
+// The fit's samples of a region (its sparse grid with the brick's seed, then dropped).
+gmf::SampleSet region_samples(const StreamContext& c, const io::Volume& v, const gmf::RegionFrame& rf,
+                              const gmf::GmfOptions& options) {
+  io::SparseGridOptions sparse = c.config->get<&AppConfig::sparse_grid>();
+  sparse.background_fraction = options.background_fraction;
+  sparse.seed = options.seed;
+  const io::SparseGrid grid = io::build_sparse_grid(v, rf.frame.aspect(), sparse);
+  return gmf::fit_samples(grid, options);
+}
+
 std::uint64_t brick_seed(const gmf::GmfOptions& gmf, int id) {
   return io::splitmix64(gmf.seed ^ (0x9e3779b97f4a7c15ull * static_cast<std::uint64_t>(id + 1)));
 }
@@ -359,14 +383,7 @@ BrickResult fit_brick(const StreamContext& c, const gmf::StreamBrick& b, double 
     const io::BackgroundModel local = io::background_from_counts(r.background, bg, c.path);
     options.clone_floor = local.none() ? 0.0 : local.quantile(0.999);
   }
-  io::SparseGridOptions sparse = config.get<&AppConfig::sparse_grid>();
-  sparse.background_fraction = options.background_fraction;
-  sparse.seed = options.seed;
-  gmf::SampleSet samples;
-  {
-    const io::SparseGrid grid = io::build_sparse_grid(v, rf.frame.aspect(), sparse);
-    samples = gmf::fit_samples(grid, options);
-  }
+  const gmf::SampleSet samples = region_samples(c, v, rf, options);
   r.samples = static_cast<std::int64_t>(samples.size());
   gmf::GaussianMixture mixture = gmf::initialize_mixture(v, rf.frame, threshold, options);
   const gmf::FitResult fit = gmf::fit_mixture(v, samples, rf.frame, mixture, options);
@@ -438,14 +455,7 @@ SeamStats seam_brick(const StreamContext& c, const gmf::StreamBrick& b, std::vec
   options.time_budget_s = std::max(1e-3, seconds);
   options.frozen = fixed.size();
   options.prune_intensity = 0.0;  // nothing leaves in a seam pass (a faint one stays faint)
-  io::SparseGridOptions sparse = c.config->get<&AppConfig::sparse_grid>();
-  sparse.background_fraction = options.background_fraction;
-  sparse.seed = options.seed;
-  gmf::SampleSet samples;
-  {
-    const io::SparseGrid grid = io::build_sparse_grid(v, rf.frame.aspect(), sparse);
-    samples = gmf::fit_samples(grid, options);
-  }
+  const gmf::SampleSet samples = region_samples(c, v, rf, options);
   gmf::GaussianMixture local;
   local.reserve(fixed.size() + free.size());
   for (const auto& g : fixed) local.push_back(g);
@@ -490,33 +500,12 @@ double core_squared_error(const StreamContext& c, const gmf::StreamBrick& b, con
   return sse;
 }
 
-}  // namespace
-
-FitOutcome fit_streamed(const std::string& volume, const FitConfig& config, const FitPlanChoice& choice,
-                        const std::filesystem::path& out, const std::filesystem::path& log_csv,
-                        const Progress& progress) {
-  io::Stopwatch watch;
-  const io::VolumeOptions& vo = config.get<&AppConfig::volume>();
-  StreamContext c;
-  c.path = volume;
-  c.config = &config;
-  c.gmf = config.get<&AppConfig::gmf>();
-  c.source = io::open_volume_source(volume, io::stack_read_options(vo));
-  c.frame = io::stack_frame(c.source->nx, c.source->ny, c.source->nz, c.source->spacing, vo.aspect, volume);
-  c.gmf.max_scale_world = brick_max_scale(c.frame, c.gmf);
-  c.plan = choice.plan;
-  c.folder = brick_folder(out);
-  c.fingerprint = fingerprint_of(volume, *c.source, config, c.plan);
-  const double total_budget = c.gmf.time_budget_s;
-  progress.say("fit: %s: %d x %d x %d %s (%s as float32), %s; in-memory fit would need %s of %s: bricked: %s",
-               volume.c_str(), c.source->nx, c.source->ny, c.source->nz, std::string(io::to_string(c.source->stored_as)).c_str(),
-               io::gib_text(4.0 * static_cast<double>(c.source->whole().voxels())).c_str(), c.source->format.c_str(),
-               io::gib_text(choice.whole_need).c_str(), choice.memory_source.c_str(), c.plan.describe().c_str());
-  progress.say("fit: each brick keeps the Gaussians centred in its core; scales <= %g voxels (gmf.stream_scale_voxels) "
-               "reach at most sqrt(%g) x that, inside the halo; planned peak %s",
-               c.gmf.stream_scale_voxels, c.gmf.mahalanobis_cutoff, io::gib_text(choice.brick_need).c_str());
-  io::FolderLock lock(c.folder);
-  // Statistics: from plan.json when resuming (the same fingerprint), else one pass.
+// The normalization and foreground count: from plan.json when resuming (the same
+// fingerprint), else one streaming pass, recorded in a new plan.json.
+void load_or_scan_statistics(StreamContext& c, const Progress& progress) {
+  const io::VolumeOptions& vo = c.config->get<&AppConfig::volume>();
+  const std::string& volume = c.path;
+  const FitConfig& config = *c.config;
   const std::filesystem::path plan_file = c.folder / "plan.json";
   std::optional<io::SourceStatistics> stats;
   bool resumed = false;
@@ -536,13 +525,49 @@ FitOutcome fit_streamed(const std::string& volume, const FitConfig& config, cons
   }
   if (!resumed) {
     io::Stopwatch scan;
-    stats = io::scan_statistics(*c.source);
+    // slabs of at most a quarter of what the plan leaves beside the program
+    const FitMemoryModel memory;
+    const double spare = std::max(0.0, c.max_memory - memory.base_bytes);
+    const auto slab = static_cast<std::size_t>(std::clamp(spare / 4.0, 4.0 * 1048576.0, 256.0 * 1048576.0));
+    stats = io::scan_statistics(*c.source, slab);
     c.normalization = io::normalization_from(*stats, vo.normalization, volume);
     c.foreground = count_foreground(c, *stats, config.get<&AppConfig::sparse_grid>().threshold);
     open_brick_folder(c, &*stats);
     progress.say("fit: statistics in one pass: %s, %lld foreground voxels, %s", c.normalization.describe().c_str(),
                  static_cast<long long>(c.foreground), format_seconds(scan.elapsed()).c_str());
   }
+}
+
+}  // namespace
+
+namespace {
+
+FitOutcome run_streamed(const std::string& volume, const FitConfig& config, const FitPlanChoice& choice,
+                        const std::filesystem::path& out, const std::filesystem::path& log_csv,
+                        const Progress& progress) {
+  io::Stopwatch watch;
+  const io::VolumeOptions& vo = config.get<&AppConfig::volume>();
+  StreamContext c;
+  c.path = volume;
+  c.config = &config;
+  c.gmf = config.get<&AppConfig::gmf>();
+  c.source = io::open_volume_source(volume, io::stack_read_options(vo));
+  c.frame = io::stack_frame(c.source->nx, c.source->ny, c.source->nz, c.source->spacing, vo.aspect, volume);
+  c.gmf.max_scale_world = brick_max_scale(c.frame, c.gmf);
+  c.plan = choice.plan;
+  c.max_memory = choice.max_memory;
+  c.folder = brick_folder(out);
+  c.fingerprint = fingerprint_of(volume, *c.source, config, c.plan);
+  const double total_budget = c.gmf.time_budget_s;
+  progress.say("fit: %s: %d x %d x %d %s (%s as float32), %s; in-memory fit would need %s of %s: bricked: %s",
+               volume.c_str(), c.source->nx, c.source->ny, c.source->nz, std::string(io::to_string(c.source->stored_as)).c_str(),
+               io::gib_text(4.0 * static_cast<double>(c.source->whole().voxels())).c_str(), c.source->format.c_str(),
+               io::gib_text(choice.whole_need).c_str(), choice.memory_source.c_str(), c.plan.describe().c_str());
+  progress.say("fit: each brick keeps the Gaussians centred in its core; scales <= %g voxels (gmf.stream_scale_voxels) "
+               "reach at most sqrt(%g) x that, inside the halo; planned peak %s",
+               c.gmf.stream_scale_voxels, c.gmf.mahalanobis_cutoff, io::gib_text(choice.brick_need).c_str());
+  io::FolderLock lock(c.folder);
+  load_or_scan_statistics(c, progress);
   if (c.foreground == 0) {
     io::fail_input(volume, "no voxel above sparse_grid.threshold " +
                                io::number_text(config.get<&AppConfig::sparse_grid>().threshold));
@@ -572,6 +597,7 @@ FitOutcome fit_streamed(const std::string& volume, const FitConfig& config, cons
     // Time: what is left of the brick pass, shared by the foreground still to fit.
     const double left = std::max(0.0, brick_budget - watch.elapsed());
     BrickResult r = fit_brick(c, b, left, c.foreground - done_foreground);
+    release_free_memory();
     save_brick(c, id, r);
     done_foreground += r.foreground_core;
     const int rounds = r.log.empty() ? 0 : r.log.back().round + 1;
@@ -606,6 +632,7 @@ FitOutcome fit_streamed(const std::string& volume, const FitConfig& config, cons
         if (b.colour() != colour) continue;
         const double left = std::max(0.0, seam_budget - seam_watch.elapsed());
         const SeamStats s = seam_brick(c, b, owned, softmax ? beta : 0.0, left / static_cast<double>(n));
+        release_free_memory();
         total.refitted += s.refitted;
         total.held += s.held;
       }
@@ -626,6 +653,7 @@ FitOutcome fit_streamed(const std::string& volume, const FitConfig& config, cons
   double sse = 0;
   for (const gmf::StreamBrick& b : c.plan.bricks) {
     sse += core_squared_error(c, b, mixture, gmf::RasterizeOptions::of(report));
+    release_free_memory();
   }
   const double psnr_3d = gmf::psnr_from_mse(sse / static_cast<double>(c.source->whole().voxels()));
   // The checkpoint.
@@ -664,6 +692,28 @@ FitOutcome fit_streamed(const std::string& volume, const FitConfig& config, cons
                mixture.size(), n, psnr_3d, format_seconds(measuring.elapsed()).c_str(),
                format_seconds(outcome.seconds).c_str(), format_seconds(fit_seconds).c_str());
   return outcome;
+}
+
+}  // namespace
+
+FitOutcome fit_streamed(const std::string& volume, const FitConfig& config, const FitPlanChoice& choice,
+                        const std::filesystem::path& out, const std::filesystem::path& log_csv,
+                        const Progress& progress) {
+  const std::filesystem::path folder = brick_folder(out);
+  const bool created = !std::filesystem::exists(folder);
+  try {
+    return run_streamed(volume, config, choice, out, log_csv, progress);
+  } catch (...) {
+    // A fit that fails before any brick finished leaves no folder it made (a killed
+    // one cannot clean up; its folder is resumed or refused next time).
+    std::error_code ec;
+    bool finished = false;
+    for (const auto& e : std::filesystem::directory_iterator(folder, ec)) {
+      finished = finished || (e.path().extension() == ".json" && e.path().filename() != "plan.json");
+    }
+    if (created && !finished) std::filesystem::remove_all(folder, ec);
+    throw;
+  }
 }
 
 }  // namespace hisnegs::apps

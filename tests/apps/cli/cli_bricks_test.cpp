@@ -168,7 +168,7 @@ TEST(BrickedFitInput, ABigTiffWhoseTilesPointPastItsEndIsOneLine) {
   EXPECT_EQ(testing::count_lines(fit.err), 1) << fit.err;
   EXPECT_NE(fit.err.find((dir / "t.tif").string()), std::string::npos) << fit.err;
   EXPECT_FALSE(fs::exists(dir / "m.ply"));
-  EXPECT_FALSE(fs::exists(dir / "m.ply.bricks" / "plan.json"));
+  EXPECT_FALSE(fs::exists(dir / "m.ply.bricks"));
 }
 
 }  // namespace
