@@ -13,6 +13,10 @@
 #include "io/tiff_stack.hpp"
 #include "io/timer.hpp"
 #include "splat/raymarch.hpp"
+#include "splat/streamed_ground_truth.hpp"
+#include "io/memory_limit.hpp"
+#include "io/stack_file.hpp"
+#include "io/volume_source.hpp"
 
 namespace hisnegs::apps {
 namespace {
@@ -63,6 +67,25 @@ void write_image_stack(const std::filesystem::path& dir, const std::string& name
   }
 }
 
+namespace {
+
+void write_set_files(const std::filesystem::path& dir, const std::string& label, const splat::CameraSet& cameras,
+                     const io::LoadedVolume& loaded, const std::string& volume_path, const splat::RaymarchOptions& rm,
+                     const splat::MipStack& stack, double render_s, const Progress& progress) {
+  splat::write_cameras_json(dir / "cameras.json", cameras);
+  write_image_stack(dir, "mips.tif", stack);
+  nlohmann::ordered_json meta = ground_truth_meta(loaded, volume_path, rm, stack, render_s);
+  meta["set"] = label;
+  const std::string text = meta.dump(2) + "\n";
+  io::write_file_atomic(dir / "meta.json", text.data(), text.size());
+  progress.say("gt: %s: %d views of %dx%d (%s mode, %s) in %s, median %.1f ms/view -> %s", label.c_str(), stack.views,
+               stack.width, stack.height, meta["mode"].get<std::string>().c_str(),
+               std::string(splat::to_string(stack.backend)).c_str(), format_seconds(render_s).c_str(),
+               1e3 * median(stack.seconds_per_view), dir.c_str());
+}
+
+}  // namespace
+
 void write_ground_truth_set(const std::filesystem::path& dir, const std::string& label, const splat::CameraSet& cameras,
                             const io::LoadedVolume& loaded, const std::string& volume_path,
                             const RaymarchConfig& config, splat::Backend backend, const Progress& progress) {
@@ -77,22 +100,77 @@ void write_ground_truth_set(const std::filesystem::path& dir, const std::string&
                             format_seconds(per_view * (total - done)).c_str()),
                        done == total);
       });
-  const double render_s = watch.lap();
-  splat::write_cameras_json(dir / "cameras.json", cameras);
-  write_image_stack(dir, "mips.tif", stack);
-  nlohmann::ordered_json meta = ground_truth_meta(loaded, volume_path, rm, stack, render_s);
-  meta["set"] = label;
-  const std::string text = meta.dump(2) + "\n";
-  io::write_file_atomic(dir / "meta.json", text.data(), text.size());
-  progress.say("gt: %s: %d views of %dx%d (%s mode, %s) in %s, median %.1f ms/view -> %s", label.c_str(), stack.views,
-               stack.width, stack.height, meta["mode"].get<std::string>().c_str(),
-               std::string(splat::to_string(stack.backend)).c_str(), format_seconds(render_s).c_str(),
-               1e3 * median(stack.seconds_per_view), dir.c_str());
+  write_set_files(dir, label, cameras, loaded, volume_path, rm, stack, watch.lap(), progress);
+}
+
+namespace {
+
+// The streamed sets: statistics in one pass, then each set brick by brick; `loaded`
+// carries the stack's metadata only (no voxels) for meta.json.
+void write_streamed_sets(const std::filesystem::path& dir, const std::filesystem::path& volume_path,
+                         const std::vector<GroundTruthSet>& sets, const GroundTruthSetsConfig& config,
+                         const Progress& progress, int core_voxels) {
+  const io::VolumeOptions& vo = config.get<&AppConfig::volume>();
+  const splat::RaymarchOptions& rm = config.get<&AppConfig::raymarch>();
+  vo.validate();
+  rm.validate();
+  io::Stopwatch watch;
+  const auto source = io::open_volume_source(volume_path, io::stack_read_options(vo));
+  io::LoadedVolume loaded;
+  loaded.volume.nx = source->nx;
+  loaded.volume.ny = source->ny;
+  loaded.volume.nz = source->nz;
+  loaded.volume.spacing = source->spacing;
+  loaded.volume.stored_as = source->stored_as;
+  loaded.volume.source = volume_path.string();
+  loaded.volume.normalization =
+      io::normalization_from(io::scan_statistics(*source, 64u << 20), vo.normalization, volume_path.string());
+  loaded.frame = io::stack_frame(source->nx, source->ny, source->nz, source->spacing, vo.aspect, volume_path);
+  progress.say("gt: %s (X=%d Y=%d Z=%d) read by bricks of %d voxels: statistics (%s) in %s", volume_path.c_str(),
+               source->nx, source->ny, source->nz, core_voxels, loaded.volume.normalization.describe().c_str(),
+               format_seconds(watch.lap()).c_str());
+  for (const GroundTruthSet& set : sets) {
+    const splat::MipStack stack = splat::render_ground_truth_streamed(
+        *source, loaded.volume.normalization, loaded.frame, set.cameras, rm, core_voxels, [&](int done, int total) {
+          if (progress.meter) progress.meter(strf("gt %s: brick %d/%d", set.label.c_str(), done, total), done == total);
+        });
+    write_set_files(sets.size() > 1 ? dir / set.label : dir, set.label, set.cameras, loaded, volume_path.string(), rm,
+                    stack, watch.lap(), progress);
+  }
+}
+
+}  // namespace
+
+int ground_truth_core(const std::array<int, 3>& shape, const std::string& max_memory, const Progress& progress) {
+  constexpr double kBase = 112.0 * 1048576.0, kPerVoxel = 8.0;
+  const std::optional<double> limit = io::parse_memory_size(max_memory, "--max-memory");
+  const double ram = io::physical_memory_bytes();
+  const double bytes = limit ? *limit : (ram > 0 ? 0.5 * ram : 8.0 * 1073741824.0);
+  const auto need = [&](int core) {
+    double v = 1;
+    for (int a = 0; a < 3; ++a) v *= std::min(shape[a], std::min(core, shape[a]) + 2);
+    return kBase + kPerVoxel * v;
+  };
+  int core = *std::max_element(shape.begin(), shape.end());
+  if (need(core) <= bytes) return 0;
+  while (core > 16 && need(core) > bytes) core = std::max(16, (core * 3 / 4) / 16 * 16);
+  if (need(core) > bytes) {
+    throw io::InputError("--max-memory = " + max_memory + ": too small for gt: a brick of 16 voxels needs " +
+                         io::gib_text(need(core)) + "; allow at least that");
+  }
+  progress.say("gt: the stack needs %s in memory, more than %s: read in bricks of %d voxels",
+               io::gib_text(need(*std::max_element(shape.begin(), shape.end()))).c_str(), io::gib_text(bytes).c_str(),
+               core);
+  return core;
 }
 
 void write_ground_truth_sets(const std::filesystem::path& dir, const std::filesystem::path& volume_path,
                              const std::vector<GroundTruthSet>& sets, const GroundTruthSetsConfig& config,
-                             splat::Backend backend, const Progress& progress) {
+                             splat::Backend backend, const Progress& progress, int core_voxels) {
+  if (core_voxels > 0) {
+    write_streamed_sets(dir, volume_path, sets, config, progress, core_voxels);
+    return;
+  }
   io::Stopwatch watch;
   const io::LoadedVolume loaded = io::load_volume(volume_path, config.get<&AppConfig::volume>());
   progress.say("gt: loaded %s (X=%d Y=%d Z=%d, aspect %.4g %.4g %.4g) in %s", volume_path.c_str(), loaded.volume.nx,

@@ -38,9 +38,18 @@ using GroundTruthSetsConfig = ConfigSlice<&AppConfig::volume, &AppConfig::raymar
 
 // Loads `volume_path` (one "gt: loaded ..." line) and writes each set with
 // write_ground_truth_set into DIR/LABEL, or into DIR itself when there is one set.
+// With `core_voxels` > 0 the stack is not loaded: it is read brick by brick (cores of
+// that edge) and marched by splat::render_ground_truth_streamed (CPU), the same images.
 void write_ground_truth_sets(const std::filesystem::path& dir, const std::filesystem::path& volume_path,
                              const std::vector<GroundTruthSet>& sets, const GroundTruthSetsConfig& config,
-                             splat::Backend backend, const Progress& progress);
+                             splat::Backend backend, const Progress& progress, int core_voxels = 0);
+
+// The brick core for `gt` of a stack of `shape` (x, y, z) under `max_memory` (a
+// gmf.max_memory text: auto = half the RAM): 0 when the whole stack fits (about 112
+// MiB + 8 bytes per voxel), else the largest multiple of 16 whose brick fits. Throws
+// io::InputError when not even a 16-voxel brick fits or the text does not parse.
+[[nodiscard]] int ground_truth_core(const std::array<int, 3>& shape, const std::string& max_memory,
+                                    const Progress& progress);
 
 // The ground-truth set a command reads from a `hisnegs gt` folder DATA: DATA/SET
 // when it holds cameras.json (`gt --orbit both`, a run's gt/), else DATA itself when

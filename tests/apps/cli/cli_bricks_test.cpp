@@ -81,6 +81,19 @@ TEST_F(BrickedFit, FitsAsWellAsTheWholeStackAndCleansUp) {
   EXPECT_GT(b, w - 1.0) << "bricked " << b << " dB, whole " << w << " dB";
 }
 
+// Pure bricks: one thread (the process pinned to one core; TBB sizes its pool by the
+// affinity mask) writes the bytes that every core wrote.
+TEST_F(BrickedFit, OneThreadWritesTheSameCheckpoint) {
+  if (std::system("taskset -c 0 true 2>/dev/null") != 0) GTEST_SKIP() << "taskset is not available";
+  const std::string command = "taskset -c 0 " + testing::shell_quoted(testing::hisnegs_exe()) + " -q --config " +
+                              testing::shell_quoted(dir() / "fixed.yaml") + " fit " +
+                              testing::shell_quoted(dir() / "s.tif") + " -o " +
+                              testing::shell_quoted(dir() / "one.ply") + " --brick-voxels 32";
+  const testing::ShellResult one = testing::run_shell(command);
+  ASSERT_EQ(one.status, 0) << one.out;
+  EXPECT_EQ(testing::read_bytes(dir() / "one.ply"), testing::read_bytes(dir() / "ref.ply"));
+}
+
 TEST_F(BrickedFit, AKilledFitResumesToTheUninterruptedCheckpoint) {
   ::setenv("HISNEGS_FAULT", "brick-save:4", 1);
   const auto killed = fit("k.ply");
@@ -145,6 +158,23 @@ TEST_F(BrickedFit, AFailedBrickWriteLeavesTheFinishedBricksIntact) {
   const auto resumed = fit("d.ply");
   ASSERT_EQ(resumed.exit_code, 0) << resumed.err;
   EXPECT_EQ(testing::read_bytes(dir() / "d.ply"), testing::read_bytes(dir() / "ref.ply"));
+}
+
+// `gt` of a stack read by bricks writes the whole-stack images, byte for byte.
+TEST_F(BrickedFit, GroundTruthByBricksEqualsTheWholeStacks) {
+  const auto whole = run_hisnegs({"-q", "gt", dir() / "s.tif", "-o", dir() / "gt_whole", "--orbit", "eval", "--size",
+                                  "40", "--backend", "cpu"});
+  ASSERT_EQ(whole.exit_code, 0) << whole.err;
+  const auto bricks = run_hisnegs({"gt", dir() / "s.tif", "-o", dir() / "gt_bricks", "--orbit", "eval", "--size", "40",
+                                   "--brick-voxels", "24"});
+  ASSERT_EQ(bricks.exit_code, 0) << bricks.err;
+  EXPECT_NE((bricks.out + bricks.err).find("read by bricks of 24 voxels"), std::string::npos) << bricks.out;
+  EXPECT_EQ(testing::read_bytes(dir() / "gt_bricks" / "mips.tif"), testing::read_bytes(dir() / "gt_whole" / "mips.tif"));
+  const auto tiny = run_hisnegs({"gt", dir() / "s.tif", "-o", dir() / "gt_tiny", "--max-memory", "1KiB"});
+  EXPECT_EQ(tiny.exit_code, 2);
+  EXPECT_EQ(testing::count_lines(tiny.err), 1) << tiny.err;
+  EXPECT_NE(tiny.err.find("too small for gt"), std::string::npos) << tiny.err;
+  EXPECT_FALSE(fs::exists(dir() / "gt_tiny"));
 }
 
 // A tiled BigTIFF cut short (tile offsets past its end): the statistics pass, which
