@@ -49,18 +49,24 @@ RayMarcher::RayMarcher(const io::Volume& volume, const io::WorldFrame& frame, co
       }
     }
   });
+  params_ = march_params(frame, options, global_max);
+}
+
+kernels::MarchParams march_params(const io::WorldFrame& frame, const RaymarchOptions& options, float global_max) {
+  kernels::MarchParams mp{};
   const Eigen::Vector3d scale = frame.voxel_size();
   const Eigen::Vector3d offset = frame.world_from_index(Eigen::Vector3d::Zero());
   for (int a = 0; a < 3; ++a) {
-    params_.index_from_world_scale[a] = 1.0 / scale[a];
-    params_.index_from_world_offset[a] = offset[a];
+    mp.index_from_world_scale[a] = 1.0 / scale[a];
+    mp.index_from_world_offset[a] = offset[a];
   }
-  params_.exact = options.mode == RaymarchMode::kExact;
-  params_.h = exact_step(frame, options);
-  params_.t_first = options.t_near;
-  params_.dt = (options.t_far - options.t_near) / (options.samples - 1);
-  params_.samples = options.samples;
-  params_.global_max = global_max;
+  mp.exact = options.mode == RaymarchMode::kExact;
+  mp.h = exact_step(frame, options);
+  mp.t_first = options.t_near;
+  mp.dt = (options.t_far - options.t_near) / (options.samples - 1);
+  mp.samples = options.samples;
+  mp.global_max = global_max;
+  return mp;
 }
 
 kernels::DenseVolume RayMarcher::dense() const {

@@ -20,6 +20,11 @@ namespace hisnegs::splat {
 // Sampling step h of exact mode: step_voxels × the smallest world voxel size.
 [[nodiscard]] double exact_step(const io::WorldFrame& frame, const RaymarchOptions& options);
 
+// The kernel's parameters for a stack in `frame` whose normalized maximum is
+// `global_max` (a pixel that reaches it stops early).
+[[nodiscard]] kernels::MarchParams march_params(const io::WorldFrame& frame, const RaymarchOptions& options,
+                                                float global_max);
+
 // A normalized volume prepared for marching: its brick maxima and the kernel
 // parameters. Keeps a reference to `volume`, which must outlive it.
 class RayMarcher {

@@ -125,6 +125,31 @@ HISNEGS_HD void pixel_ray(const ViewParams& view, int col, int row, double d[3])
 }
 
 // MIP of one ray: o, d in world space (d unit length). Returns 0 when it misses the box.
+// The samples of a ray whose box segment is [t_in, t_out]: sample i sits at
+// t0 + i dt; only i in [begin, end) lie in the box (the streamed ground truth,
+// splat/streamed_ground_truth.cpp, walks the same sequence).
+struct SampleRange {
+  double t0, dt;
+  int begin, end;
+};
+HISNEGS_HD SampleRange sample_range(const MarchParams& mp, double t_in, double t_out) {
+  SampleRange r;
+  if (mp.exact) {
+    r.t0 = t_in + 0.5 * mp.h;
+    r.dt = mp.h;
+    r.begin = 0;
+    r.end = static_cast<int>(ceil((t_out - r.t0) / r.dt));
+  } else {
+    r.t0 = mp.t_first;
+    r.dt = mp.dt;
+    r.begin = static_cast<int>(ceil((t_in - r.t0) / r.dt));
+    r.end = static_cast<int>(floor((t_out - r.t0) / r.dt)) + 1;
+    r.begin = r.begin < 0 ? 0 : r.begin;
+    r.end = r.end > mp.samples ? mp.samples : r.end;
+  }
+  return r;
+}
+
 HISNEGS_HD float march_ray(const DenseVolume& vol, const BrickMax& bricks, const MarchParams& mp,
                            const double o_world[3], const double d_world[3]) {
   constexpr double kFar = 1.0e300;
@@ -155,22 +180,9 @@ HISNEGS_HD float march_ray(const DenseVolume& vol, const BrickMax& bricks, const
   }
   if (!(t_out > t_in)) return 0.0f;
 
-  // Sample i sits at t0 + i dt; only i in [i_begin, i_end) lie in the box.
-  double t0, dt;
-  int i_begin, i_end;
-  if (mp.exact) {
-    t0 = t_in + 0.5 * mp.h;
-    dt = mp.h;
-    i_begin = 0;
-    i_end = static_cast<int>(ceil((t_out - t0) / dt));
-  } else {
-    t0 = mp.t_first;
-    dt = mp.dt;
-    i_begin = static_cast<int>(ceil((t_in - t0) / dt));
-    i_end = static_cast<int>(floor((t_out - t0) / dt)) + 1;
-    i_begin = i_begin < 0 ? 0 : i_begin;
-    i_end = i_end > mp.samples ? mp.samples : i_end;
-  }
+  const SampleRange sr = sample_range(mp, t_in, t_out);
+  const double t0 = sr.t0, dt = sr.dt;
+  const int i_begin = sr.begin, i_end = sr.end;
   if (i_end <= i_begin) return 0.0f;
 
   // Brick DDA from t_in to t_out. Brick b covers cells [8b, 8b + 8); the first and

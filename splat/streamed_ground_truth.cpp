@@ -52,19 +52,9 @@ float march_window(const Window& w, const int n[3], const kernels::MarchParams& 
     w_out = std::min(w_out, wb);
   }
   if (!(t_out > t_in)) return 0.0f;
-  double t0, dt;
-  int i_begin, i_end;
-  if (mp.exact) {
-    t0 = t_in + 0.5 * mp.h;
-    dt = mp.h;
-    i_begin = 0;
-    i_end = static_cast<int>(std::ceil((t_out - t0) / dt));
-  } else {
-    t0 = mp.t_first;
-    dt = mp.dt;
-    i_begin = std::max(0, static_cast<int>(std::ceil((t_in - t0) / dt)));
-    i_end = std::min(mp.samples, static_cast<int>(std::floor((t_out - t0) / dt)) + 1);
-  }
+  const kernels::SampleRange sr = kernels::sample_range(mp, t_in, t_out);
+  const double t0 = sr.t0, dt = sr.dt;
+  const int i_begin = sr.begin, i_end = sr.end;
   // Candidates: the samples near the core's segment (one step of slack each side);
   // each is kept only if its voxel is in the core.
   const int c_begin = std::max(i_begin, static_cast<int>(std::floor((w_in - t0) / dt)) - 1);
@@ -101,18 +91,7 @@ MipStack render_ground_truth_streamed(const io::VolumeSource& source, const io::
   out.views = static_cast<int>(cameras.views.size());
   out.pixels.assign(static_cast<std::size_t>(out.views) * K.width * K.height, 0.0f);
   out.seconds_per_view.assign(static_cast<std::size_t>(out.views), 0.0);
-  kernels::MarchParams mp{};
-  const Eigen::Vector3d scale = frame.voxel_size();
-  const Eigen::Vector3d offset = frame.world_from_index(Eigen::Vector3d::Zero());
-  for (int a = 0; a < 3; ++a) {
-    mp.index_from_world_scale[a] = 1.0 / scale[a];
-    mp.index_from_world_offset[a] = offset[a];
-  }
-  mp.exact = options.mode == RaymarchMode::kExact;
-  mp.h = exact_step(frame, options);
-  mp.t_first = options.t_near;
-  mp.dt = (options.t_far - options.t_near) / (options.samples - 1);
-  mp.samples = options.samples;
+  const kernels::MarchParams mp = march_params(frame, options, 1.0f);
   std::vector<kernels::ViewParams> views;
   for (const CameraView& v : cameras.views) views.push_back(make_view_params(K, v));
   const int n[3] = {source.nx, source.ny, source.nz};
