@@ -94,8 +94,12 @@ TEST(BrickPlan, AKeptGaussiansSupportStaysInsideItsRegion) {
     for (int a = 0; a < 3; ++a) {
       const double reach = std::sqrt(cutoff * cov(a, a)) / frame.voxel_size()[a];
       // (at the stack's own faces the region ends where the stack does, as a whole fit's)
-      if (b.region.lo[a] > 0) EXPECT_GE(ijk[a] - reach, b.region.lo[a] - 0.5) << "axis " << a;
-      if (b.region.hi[a] < plan.shape[a]) EXPECT_LE(ijk[a] + reach, b.region.hi[a] - 0.5) << "axis " << a;
+      if (b.region.lo[a] > 0) {
+        EXPECT_GE(ijk[a] - reach, b.region.lo[a] - 0.5) << "axis " << a;
+      }
+      if (b.region.hi[a] < plan.shape[a]) {
+        EXPECT_LE(ijk[a] + reach, b.region.hi[a] - 0.5) << "axis " << a;
+      }
     }
   }
 }
@@ -105,7 +109,7 @@ TEST(BrickPlan, ARegionFrameKeepsTheVoxelAndShiftsToTheStack) {
   const io::VoxelBox region{{10, 5, 3}, {40, 30, 17}};
   const RegionFrame r = region_frame(stack, region);
   EXPECT_TRUE(r.frame.voxel_size().isApprox(stack.voxel_size(), 1e-12));
-  for (const Eigen::Vector3d local : {Eigen::Vector3d(0, 0, 0), Eigen::Vector3d(29, 24, 13), Eigen::Vector3d(3.5, 7.25, 1)}) {
+  for (const Eigen::Vector3d& local : {Eigen::Vector3d(0, 0, 0), Eigen::Vector3d(29, 24, 13), Eigen::Vector3d(3.5, 7.25, 1)}) {
     const Eigen::Vector3d global = local + Eigen::Vector3d(region.lo[0], region.lo[1], region.lo[2]);
     EXPECT_TRUE((r.frame.world_from_index(local) + r.shift).isApprox(stack.world_from_index(global), 1e-12));
   }

@@ -153,7 +153,9 @@ TEST_F(BrickedFit, AFailedBrickWriteLeavesTheFinishedBricksIntact) {
   const int finished = finished_bricks(dir() / "d.ply.bricks");
   EXPECT_GE(finished, 2);
   for (const auto& e : fs::directory_iterator(dir() / "d.ply.bricks")) {
-    if (e.path().extension() == ".ply") EXPECT_NO_THROW((void)gmf::load_checkpoint(e.path())) << e.path();
+    if (e.path().extension() == ".ply") {
+      EXPECT_NO_THROW((void)gmf::load_checkpoint(e.path())) << e.path();
+    }
   }
   const auto resumed = fit("d.ply");
   ASSERT_EQ(resumed.exit_code, 0) << resumed.err;
