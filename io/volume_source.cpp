@@ -4,6 +4,7 @@
 #include "io/volume_source.hpp"
 
 #include <algorithm>
+#include <numeric>
 #include <cmath>
 #include <sstream>
 #include <stdexcept>
@@ -223,6 +224,26 @@ Normalization normalization_from(const SourceStatistics& stats, const Normalizat
       }
     }
   }
+  return n;
+}
+
+std::int64_t count_above(const VolumeSource& source, const SourceStatistics& stats, const Normalization& map,
+                         double threshold, std::size_t slab_bytes) {
+  std::int64_t n = 0;
+  if (!stats.histogram.empty() && stats.bin_width == 0) {
+    // 8/16-bit: every stored value normalized once, as apply_normalization does
+    std::vector<float> values(stats.histogram.size());
+    std::iota(values.begin(), values.end(), 0.0f);
+    (void)apply_normalization(values, map);
+    for (std::size_t v = 0; v < values.size(); ++v) n += values[v] > threshold ? stats.histogram[v] : 0;
+    return n;
+  }
+  std::vector<float> normalized;
+  for_each_slab(source, slab_bytes, [&](const VoxelBox&, std::span<const float> block) {
+    normalized.assign(block.begin(), block.end());
+    (void)apply_normalization(normalized, map);
+    n += std::count_if(normalized.begin(), normalized.end(), [&](float v) { return v > threshold; });
+  });
   return n;
 }
 

@@ -80,4 +80,10 @@ struct SourceStatistics {
 [[nodiscard]] Normalization normalization_from(const SourceStatistics& stats, const NormalizationOptions& options,
                                                const std::string& source);
 
+// How many voxels are above `threshold` once normalized by `map`: exact from the
+// histogram of an 8/16-bit stack, else (float32) one more pass of slabs.
+[[nodiscard]] std::int64_t count_above(const VolumeSource& source, const SourceStatistics& stats,
+                                       const Normalization& map, double threshold,
+                                       std::size_t slab_bytes = 256u << 20);
+
 }  // namespace hisnegs::io

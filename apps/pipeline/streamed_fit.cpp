@@ -12,7 +12,6 @@
 #include <cmath>
 #include <fstream>
 #include <nlohmann/json.hpp>
-#include <numeric>
 #include <sstream>
 
 #include "apps/pipeline/app_config.hpp"
@@ -141,29 +140,6 @@ std::int64_t count_above(const io::Volume& v, const io::VoxelBox& box, double th
       const float* row = &v.voxels[v.index(box.lo[0], y, z)];
       n += count_above(std::span<const float>(row, static_cast<std::size_t>(box.hi[0] - box.lo[0])), threshold);
     }
-  }
-  return n;
-}
-
-// Voxels above `threshold` after normalization: from the histogram (8/16-bit: each
-// stored value normalized as apply_normalization does), else one pass of slabs.
-std::int64_t count_foreground(const StreamContext& c, const io::SourceStatistics& stats, double threshold) {
-  if (!stats.histogram.empty()) {
-    std::vector<float> values(stats.histogram.size());
-    std::iota(values.begin(), values.end(), 0.0f);
-    (void)io::apply_normalization(values, c.normalization);
-    std::int64_t n = 0;
-    for (std::size_t v = 0; v < values.size(); ++v) n += values[v] > threshold ? stats.histogram[v] : 0;
-    return n;
-  }
-  std::int64_t n = 0;
-  const int pages = std::max<int>(1, static_cast<int>((16u << 20) / (4ull * c.source->nx * c.source->ny)));
-  for (int z = 0; z < c.source->nz; z += pages) {
-    const io::VoxelBox slab{{0, 0, z}, {c.source->nx, c.source->ny, std::min(c.source->nz, z + pages)}};
-    std::vector<float> values(slab.voxels());
-    c.source->read(slab, values.data());
-    (void)io::apply_normalization(values, c.normalization);
-    n += count_above(values, threshold);
   }
   return n;
 }
@@ -531,7 +507,8 @@ void load_or_scan_statistics(StreamContext& c, const Progress& progress) {
     const auto slab = static_cast<std::size_t>(std::clamp(spare / 4.0, 4.0 * 1048576.0, 256.0 * 1048576.0));
     stats = io::scan_statistics(*c.source, slab);
     c.normalization = io::normalization_from(*stats, vo.normalization, volume);
-    c.foreground = count_foreground(c, *stats, config.get<&AppConfig::sparse_grid>().threshold);
+    c.foreground =
+        io::count_above(*c.source, *stats, c.normalization, config.get<&AppConfig::sparse_grid>().threshold, slab);
     open_brick_folder(c, &*stats);
     progress.say("fit: statistics in one pass: %s, %lld foreground voxels, %s", c.normalization.describe().c_str(),
                  static_cast<long long>(c.foreground), format_seconds(scan.elapsed()).c_str());

@@ -6,6 +6,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cstdlib>
 #include <random>
 #include <thread>
@@ -147,6 +148,28 @@ TEST(VolumeSource, Float32PercentilesAreWithinOneBinOfTheExactOnes) {
       const Normalization n = normalization_from(st, o, "f");
       EXPECT_NEAR(n.raw_lo, whole.normalization.raw_lo, bin) << lo << " slab " << slab;
       EXPECT_NEAR(n.raw_hi, whole.normalization.raw_hi, bin) << "slab " << slab;
+    }
+  }
+}
+
+// The foreground count of a stack read by slabs equals the count over the whole
+// normalized stack: from the histogram (8/16-bit) and from a pass of slabs (float32,
+// whose histogram holds bins, not values).
+TEST(VolumeSource, CountAboveAThresholdMatchesTheNormalizedStack) {
+  for (const SampleType type : {SampleType::kUint8, SampleType::kUint16, SampleType::kFloat32}) {
+    Volume v = stack(type == SampleType::kFloat32 ? SampleType::kUint16 : type, 5);
+    if (type == SampleType::kFloat32) {
+      v.stored_as = SampleType::kFloat32;
+      for (float& x : v.voxels) x = x * 0.731f + 0.25f;
+    }
+    const auto s = memory_source(v);
+    const SourceStatistics st = scan_statistics(*s, 4 * 45 * 31 * 3);
+    Volume whole = v;
+    normalize(whole, {});
+    for (const double threshold : {0.0, 0.05, 0.2, 0.9}) {
+      const auto expected = std::count_if(whole.voxels.begin(), whole.voxels.end(), [&](float x) { return x > threshold; });
+      EXPECT_EQ(count_above(*s, st, whole.normalization, threshold, 4 * 45 * 31 * 2), expected)
+          << to_string(type) << " threshold " << threshold;
     }
   }
 }
