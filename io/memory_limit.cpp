@@ -78,6 +78,15 @@ double physical_memory_bytes() {
   return pages > 0 && page > 0 ? static_cast<double>(pages) * static_cast<double>(page) : 0.0;
 }
 
+MemoryLimit resolve_memory_limit(std::string_view text, std::string_view field) {
+  if (const std::optional<double> bytes = parse_memory_size(text, field)) {
+    return {*bytes, std::string(field) + " " + gib_text(*bytes)};
+  }
+  const double ram = physical_memory_bytes();
+  if (ram > 0) return {0.5 * ram, "auto: half of " + gib_text(ram) + " of RAM"};
+  return {8.0 * kGiBytes, "auto: 8 GiB (RAM unknown)"};
+}
+
 std::string gib_text(double bytes) {
   char text[64];
   std::snprintf(text, sizeof text, "%.2f GiB", bytes / kGiBytes);

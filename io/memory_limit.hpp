@@ -28,6 +28,15 @@ void check_allocation(const std::filesystem::path& path, double bytes, const std
 // The machine's physical memory in bytes (0 if unknown).
 [[nodiscard]] double physical_memory_bytes();
 
+// A memory limit a user gave as `text` (parse_memory_size; `auto` = half the
+// machine's RAM, 8 GiB when that is unknown) and where it came from, for messages:
+// "FIELD 1.00 GiB" or "auto: half of 23.54 GiB of RAM".
+struct MemoryLimit {
+  double bytes = 0;
+  std::string source;
+};
+[[nodiscard]] MemoryLimit resolve_memory_limit(std::string_view text, std::string_view field);
+
 // "1.50 GiB".
 [[nodiscard]] std::string gib_text(double bytes);
 

@@ -13,6 +13,7 @@
 #include "io/tiff_stack.hpp"
 #include "io/timer.hpp"
 #include "splat/raymarch.hpp"
+#include "apps/pipeline/streamed_fit.hpp"
 #include "splat/streamed_ground_truth.hpp"
 #include "io/memory_limit.hpp"
 #include "io/stack_file.hpp"
@@ -143,24 +144,21 @@ void write_streamed_sets(const std::filesystem::path& dir, const std::filesystem
 
 int ground_truth_core(const std::array<int, 3>& shape, const std::string& max_memory, const Progress& progress) {
   constexpr double kBase = 112.0 * 1048576.0, kPerVoxel = 8.0;
-  const std::optional<double> limit = io::parse_memory_size(max_memory, "--max-memory");
-  const double ram = io::physical_memory_bytes();
-  const double bytes = limit ? *limit : (ram > 0 ? 0.5 * ram : 8.0 * 1073741824.0);
+  const double bytes = io::resolve_memory_limit(max_memory, "--max-memory").bytes;
   const auto need = [&](int core) {
     double v = 1;
     for (int a = 0; a < 3; ++a) v *= std::min(shape[a], std::min(core, shape[a]) + 2);
     return kBase + kPerVoxel * v;
   };
-  int core = *std::max_element(shape.begin(), shape.end());
-  if (need(core) <= bytes) return 0;
-  while (core > 16 && need(core) > bytes) core = std::max(16, (core * 3 / 4) / 16 * 16);
+  const int longest = *std::max_element(shape.begin(), shape.end());
+  if (need(longest) <= bytes) return 0;
+  const int core = largest_core(shape, 16, bytes, need);
   if (need(core) > bytes) {
     throw io::InputError("--max-memory = " + max_memory + ": too small for gt: a brick of 16 voxels needs " +
                          io::gib_text(need(core)) + "; allow at least that");
   }
   progress.say("gt: the stack needs %s in memory, more than %s: read in bricks of %d voxels",
-               io::gib_text(need(*std::max_element(shape.begin(), shape.end()))).c_str(), io::gib_text(bytes).c_str(),
-               core);
+               io::gib_text(need(longest)).c_str(), io::gib_text(bytes).c_str(), core);
   return core;
 }
 

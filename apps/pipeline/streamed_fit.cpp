@@ -55,18 +55,19 @@ std::filesystem::path brick_folder(const std::filesystem::path& out) {
   return dir;
 }
 
+int largest_core(const std::array<int, 3>& shape, int smallest, double bytes,
+                 const std::function<double(int)>& need) {
+  int core = *std::max_element(shape.begin(), shape.end());
+  while (core > smallest && need(core) > bytes) core = std::max(smallest, (core * 3 / 4) / 16 * 16);
+  return core;
+}
+
 FitPlanChoice choose_fit_plan(const std::array<int, 3>& shape, const io::WorldFrame& frame,
                               const gmf::GmfOptions& gmf, const FitMemoryModel& memory) {
   FitPlanChoice c;
-  const std::optional<double> limit = io::parse_memory_size(gmf.max_memory, "gmf.max_memory");
-  if (limit) {
-    c.max_memory = *limit;
-    c.memory_source = "gmf.max_memory " + io::gib_text(*limit);
-  } else {
-    const double ram = io::physical_memory_bytes();
-    c.max_memory = ram > 0 ? 0.5 * ram : 8.0 * 1073741824.0;
-    c.memory_source = ram > 0 ? "auto: half of " + io::gib_text(ram) + " of RAM" : "auto: 8 GiB (RAM unknown)";
-  }
+  const io::MemoryLimit limit = io::resolve_memory_limit(gmf.max_memory, "gmf.max_memory");
+  c.max_memory = limit.bytes;
+  c.memory_source = limit.source;
   const std::size_t voxels = static_cast<std::size_t>(shape[0]) * shape[1] * shape[2];
   const auto K = static_cast<std::size_t>(gmf.gaussians);
   c.whole_need = memory.need(voxels, K);
@@ -74,14 +75,10 @@ FitPlanChoice choose_fit_plan(const std::array<int, 3>& shape, const io::WorldFr
   c.bricked = true;
   const std::array<int, 3> halo = gmf::halo_voxels(frame, gmf.mahalanobis_cutoff, brick_max_scale(frame, gmf));
   const int smallest = std::max(16, 2 * *std::max_element(halo.begin(), halo.end()));
-  int core = gmf.stream_brick_voxels;
-  if (core == 0) {
-    // the largest core (a multiple of 16 voxels) whose brick fits beside the model
-    core = *std::max_element(shape.begin(), shape.end());
-    while (core > smallest && memory.need(region_voxels(shape, core, halo), K) > c.max_memory) {
-      core = std::max(smallest, (core * 3 / 4) / 16 * 16);
-    }
-  }
+  const int core = gmf.stream_brick_voxels > 0
+                       ? gmf.stream_brick_voxels
+                       : largest_core(shape, smallest, c.max_memory,
+                                      [&](int edge) { return memory.need(region_voxels(shape, edge, halo), K); });
   c.brick_need = memory.need(region_voxels(shape, core, halo), K);
   if (c.brick_need > c.max_memory) {
     throw io::InputError("gmf.max_memory = " + gmf.max_memory + ": too small for this fit: a brick of core " +

@@ -38,6 +38,13 @@ struct FitMemoryModel {
   }
 };
 
+// The largest brick core for a stack of `shape` (x, y, z) whose `need(core)` is at
+// most `bytes`: the stack's longest side, then shrinking by a quarter to multiples of
+// 16 voxels, never below `smallest` (where it stops when nothing fits: the caller
+// refuses).
+[[nodiscard]] int largest_core(const std::array<int, 3>& shape, int smallest, double bytes,
+                               const std::function<double(int)>& need);
+
 // How a fit of a stack of `shape` (x, y, z) runs under gmf.max_memory.
 struct FitPlanChoice {
   double max_memory = 0;       // bytes
