@@ -99,16 +99,21 @@ FitSetup prepare_fit(const std::string& volume_path, const FitConfig& config, co
   return setup;
 }
 
-gmf::CheckpointMeta checkpoint_meta(const io::LoadedVolume& loaded, const std::string& source) {
+gmf::CheckpointMeta checkpoint_meta(const io::WorldFrame& frame, const io::VoxelSpacing& spacing,
+                                    const io::Normalization& normalization, const std::string& source) {
   gmf::CheckpointMeta meta;
-  const io::Volume& v = loaded.volume;
-  meta.volume_shape_zyx = std::array<int, 3>{v.nz, v.ny, v.nx};
-  meta.spacing_um = v.spacing.um;
-  const Eigen::Vector3d& a = loaded.frame.aspect();
+  const Eigen::Vector3i& n = frame.shape();
+  meta.volume_shape_zyx = std::array<int, 3>{n.z(), n.y(), n.x()};
+  meta.spacing_um = spacing.um;
+  const Eigen::Vector3d& a = frame.aspect();
   meta.aspect = std::array<double, 3>{a.x(), a.y(), a.z()};
-  meta.normalization = v.normalization.describe();
+  meta.normalization = normalization.describe();
   meta.extra.emplace_back("source", io::printable(source, 200));
   return meta;
+}
+
+gmf::CheckpointMeta checkpoint_meta(const io::LoadedVolume& loaded, const std::string& source) {
+  return checkpoint_meta(loaded.frame, loaded.volume.spacing, loaded.volume.normalization, source);
 }
 
 FitOutcome fit_to_checkpoint(const std::string& volume, const FitConfig& config, const std::filesystem::path& out,

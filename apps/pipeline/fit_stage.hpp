@@ -45,6 +45,9 @@ void append_fit_log_csv(std::ostringstream& s, std::span<const gmf::FitIteration
 
 // Checkpoint metadata of a model fitted to `loaded` (shape, spacing, aspect, normalization, source).
 gmf::CheckpointMeta checkpoint_meta(const io::LoadedVolume& loaded, const std::string& source);
+// The same for a stack read by regions: its frame (shape, aspect), spacing and map.
+gmf::CheckpointMeta checkpoint_meta(const io::WorldFrame& frame, const io::VoxelSpacing& spacing,
+                                    const io::Normalization& normalization, const std::string& source);
 
 // The background of `loaded` (config section `background`); none, with one line
 // saying why, when background.estimate is false or the background is 0.

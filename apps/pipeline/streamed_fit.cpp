@@ -187,24 +187,28 @@ std::string fingerprint_of(const std::string& path, const io::VolumeSource& sour
   return hex;
 }
 
-// Creates the folder with its plan.json, or checks that the one there is this fit's.
-void open_brick_folder(const StreamContext& c, const io::SourceStatistics* stats) {
+// The plan.json of this fit's brick folder, if there is one; one of another stack,
+// config or plan (or not a plan) is refused.
+std::optional<nlohmann::json> existing_plan(const StreamContext& c) {
   const std::filesystem::path plan_file = c.folder / "plan.json";
-  if (std::filesystem::exists(plan_file)) {
-    nlohmann::json j;
-    try {
-      std::ifstream in(plan_file);
-      j = nlohmann::json::parse(in);
-    } catch (const std::exception&) {
-      io::fail_input(plan_file, "not a hisnegs brick plan; remove the folder or choose another -o");
-    }
-    if (!j.is_object() || j.value("fingerprint", std::string()) != c.fingerprint) {
-      io::fail_input(c.folder, "holds the bricks of another stack, config or plan (" +
-                                   (j.is_object() ? j.value("stack", std::string("?")) : std::string("?")) +
-                                   "); remove it or choose another -o");
-    }
-    return;
+  if (!std::filesystem::exists(plan_file)) return std::nullopt;
+  nlohmann::json j;
+  try {
+    std::ifstream in(plan_file);
+    j = nlohmann::json::parse(in);
+  } catch (const std::exception&) {
+    io::fail_input(plan_file, "not a hisnegs brick plan; remove the folder or choose another -o");
   }
+  if (!j.is_object() || j.value("fingerprint", std::string()) != c.fingerprint) {
+    io::fail_input(c.folder, "holds the bricks of another stack, config or plan (" +
+                                 (j.is_object() ? j.value("stack", std::string("?")) : std::string("?")) +
+                                 "); remove it or choose another -o");
+  }
+  return j;
+}
+
+// Creates the folder's plan.json: the fingerprint and the statistics a resume reuses.
+void write_plan(const StreamContext& c, const io::SourceStatistics& stats) {
   std::filesystem::create_directories(c.folder);
   nlohmann::json j;
   j["format"] = kBrickFolderFormat;
@@ -215,9 +219,9 @@ void open_brick_folder(const StreamContext& c, const io::SourceStatistics* stats
   j["raw_lo"] = c.normalization.raw_lo;
   j["raw_hi"] = c.normalization.raw_hi;
   j["foreground"] = c.foreground;
-  j["voxels"] = stats ? stats->voxels : 0;
+  j["voxels"] = stats.voxels;
   const std::string text = j.dump(2) + "\n";
-  io::write_file_atomic(plan_file, text.data(), text.size());
+  io::write_file_atomic(c.folder / "plan.json", text.data(), text.size());
 }
 
 // What a finished brick leaves: its Gaussians (brick_N.ply) and this (brick_N.json,
@@ -394,21 +398,19 @@ bool near_shared_face(const StreamContext& c, const gmf::StreamBrick& b, const E
 
 struct SeamStats {
   std::size_t refitted = 0, held = 0;
-  double seconds = 0;
 };
 
 // Refits brick b's Gaussians near its shared faces with every other Gaussian that
 // reaches its region held fixed; `owned[b]` is replaced by the result.
 SeamStats seam_brick(const StreamContext& c, const gmf::StreamBrick& b, std::vector<gmf::GaussianMixture>& owned,
                      double beta, double seconds) {
-  io::Stopwatch watch;
   SeamStats s;
-  gmf::GaussianMixture fixed, free;
-  std::vector<gmf::GaussianParams> stay;  // b's Gaussians away from its faces
+  gmf::GaussianMixture stay, free;  // b's Gaussians away from its shared faces, and near them
   for (const gmf::GaussianParams& g : owned[static_cast<std::size_t>(b.id)]) {
-    (near_shared_face(c, b, index_of(c, g)) ? free : fixed).push_back(g);
+    (near_shared_face(c, b, index_of(c, g)) ? free : stay).push_back(g);
   }
   if (free.empty()) return s;
+  gmf::GaussianMixture fixed = stay;  // held: b's own away from the faces and every neighbour reaching b
   for (const gmf::StreamBrick& other : c.plan.bricks) {
     if (other.id == b.id) continue;
     for (const gmf::GaussianParams& g : owned[static_cast<std::size_t>(other.id)]) {
@@ -436,15 +438,10 @@ SeamStats seam_brick(const StreamContext& c, const gmf::StreamBrick& b, std::vec
   shift_means(local, -rf.shift);
   (void)gmf::fit_mixture(v, samples, rf.frame, local, options);
   shift_means(local, rf.shift);
-  gmf::GaussianMixture result;
-  for (const gmf::GaussianParams& g : owned[static_cast<std::size_t>(b.id)]) {
-    if (!near_shared_face(c, b, index_of(c, g))) result.push_back(g);
-  }
-  for (std::size_t k = fixed.size(); k < local.size(); ++k) result.push_back(local[k]);
-  owned[static_cast<std::size_t>(b.id)] = std::move(result);
+  for (std::size_t k = fixed.size(); k < local.size(); ++k) stay.push_back(local[k]);
+  owned[static_cast<std::size_t>(b.id)] = std::move(stay);
   s.refitted = free.size();
   s.held = fixed.size();
-  s.seconds = watch.elapsed();
   return s;
 }
 
@@ -479,37 +476,28 @@ void load_or_scan_statistics(StreamContext& c, const Progress& progress) {
   const io::VolumeOptions& vo = c.config->get<&AppConfig::volume>();
   const std::string& volume = c.path;
   const FitConfig& config = *c.config;
-  const std::filesystem::path plan_file = c.folder / "plan.json";
-  std::optional<io::SourceStatistics> stats;
-  bool resumed = false;
-  if (std::filesystem::exists(plan_file)) {
-    open_brick_folder(c, nullptr);  // throws for another fit's folder
-    std::ifstream in(plan_file);
-    const nlohmann::json j = nlohmann::json::parse(in, nullptr, false);
-    if (j.is_object() && j.contains("raw_lo")) {
-      c.normalization.method = vo.normalization.method;
-      c.normalization.raw_lo = j.at("raw_lo").get<double>();
-      c.normalization.raw_hi = j.at("raw_hi").get<double>();
-      c.foreground = j.at("foreground").get<std::int64_t>();
-      resumed = true;
-      progress.say("fit: resuming from %s (normalization %s, statistics not read again)", c.folder.c_str(),
-                   c.normalization.describe().c_str());
-    }
+  const std::optional<nlohmann::json> plan = existing_plan(c);
+  if (plan && plan->contains("raw_lo")) {
+    c.normalization.method = vo.normalization.method;
+    c.normalization.raw_lo = plan->at("raw_lo").get<double>();
+    c.normalization.raw_hi = plan->at("raw_hi").get<double>();
+    c.foreground = plan->at("foreground").get<std::int64_t>();
+    progress.say("fit: resuming from %s (normalization %s, statistics not read again)", c.folder.c_str(),
+                 c.normalization.describe().c_str());
+    return;
   }
-  if (!resumed) {
-    io::Stopwatch scan;
-    // slabs of at most a quarter of what the plan leaves beside the program
-    const FitMemoryModel memory;
-    const double spare = std::max(0.0, c.max_memory - memory.base_bytes);
-    const auto slab = static_cast<std::size_t>(std::clamp(spare / 4.0, 4.0 * 1048576.0, 256.0 * 1048576.0));
-    stats = io::scan_statistics(*c.source, slab);
-    c.normalization = io::normalization_from(*stats, vo.normalization, volume);
-    c.foreground =
-        io::count_above(*c.source, *stats, c.normalization, config.get<&AppConfig::sparse_grid>().threshold, slab);
-    open_brick_folder(c, &*stats);
-    progress.say("fit: statistics in one pass: %s, %lld foreground voxels, %s", c.normalization.describe().c_str(),
-                 static_cast<long long>(c.foreground), format_seconds(scan.elapsed()).c_str());
-  }
+  io::Stopwatch scan;
+  // slabs of at most a quarter of what the plan leaves beside the program
+  const FitMemoryModel memory;
+  const double spare = std::max(0.0, c.max_memory - memory.base_bytes);
+  const auto slab = static_cast<std::size_t>(std::clamp(spare / 4.0, 4.0 * 1048576.0, 256.0 * 1048576.0));
+  const io::SourceStatistics stats = io::scan_statistics(*c.source, slab);
+  c.normalization = io::normalization_from(stats, vo.normalization, volume);
+  c.foreground =
+      io::count_above(*c.source, stats, c.normalization, config.get<&AppConfig::sparse_grid>().threshold, slab);
+  if (!plan) write_plan(c, stats);
+  progress.say("fit: statistics in one pass: %s, %lld foreground voxels, %s", c.normalization.describe().c_str(),
+               static_cast<long long>(c.foreground), format_seconds(scan.elapsed()).c_str());
 }
 
 }  // namespace
@@ -631,12 +619,7 @@ FitOutcome run_streamed(const std::string& volume, const FitConfig& config, cons
   }
   const double psnr_3d = gmf::psnr_from_mse(sse / static_cast<double>(c.source->whole().voxels()));
   // The checkpoint.
-  gmf::CheckpointMeta meta;
-  meta.volume_shape_zyx = std::array<int, 3>{c.source->nz, c.source->ny, c.source->nx};
-  meta.spacing_um = c.source->spacing.um;
-  meta.aspect = std::array<double, 3>{c.frame.aspect().x(), c.frame.aspect().y(), c.frame.aspect().z()};
-  meta.normalization = c.normalization.describe();
-  meta.extra.emplace_back("source", io::printable(volume, 200));
+  gmf::CheckpointMeta meta = checkpoint_meta(c.frame, c.source->spacing, c.normalization, volume);
   meta.extra.emplace_back("bricks", c.plan.describe());
   meta.aggregation = c.gmf.aggregation;
   meta.beta = softmax ? beta : 0.0;
