@@ -27,6 +27,7 @@
 #include "io/memory_limit.hpp"
 #include "io/vdb_file.hpp"
 #include "io/vdb_validate.hpp"
+#include "io/volume_source.hpp"
 
 namespace hisnegs::io {
 
@@ -209,32 +210,59 @@ float SparseGrid::value(int x, int y, int z, bool* active) const {
 
 namespace {
 
-// Brick (bx, by, bz) of the dense volume, in 8^3 leaf units.
-struct BrickGrid {
-  int nbx, nby, nbz;
-  explicit BrickGrid(const Volume& v)
-      : nbx((v.nx + kLeafDim - 1) / kLeafDim),
-        nby((v.ny + kLeafDim - 1) / kLeafDim),
-        nbz((v.nz + kLeafDim - 1) / kLeafDim) {}
-  [[nodiscard]] std::size_t count() const { return static_cast<std::size_t>(nbx) * nby * nbz; }
-  [[nodiscard]] Coord origin(std::size_t b) const {
-    const int bx = static_cast<int>(b % nbx), by = static_cast<int>((b / nbx) % nby),
-              bz = static_cast<int>(b / (static_cast<std::size_t>(nbx) * nby));
-    return Coord(bx * kLeafDim, by * kLeafDim, bz * kLeafDim);
+// Voxels of the stack held in memory: `vol` holds [origin, origin + (vol.nx, vol.ny,
+// vol.nz)) of a stack of `shape`; the whole stack when origin is 0 and the shapes agree.
+struct DenseBlock {
+  const Volume& vol;
+  std::array<int, 3> origin{0, 0, 0};
+  [[nodiscard]] float at(int x, int y, int z) const { return vol.at(x - origin[0], y - origin[1], z - origin[2]); }
+  [[nodiscard]] bool holds(const Coord& c) const {
+    return c.x() >= origin[0] && c.y() >= origin[1] && c.z() >= origin[2] && c.x() < origin[0] + vol.nx &&
+           c.y() < origin[1] + vol.ny && c.z() < origin[2] + vol.nz;
   }
 };
 
-// Leaf holding the volume's values over one brick, active where `keep(x, y, z, value)`.
-// Returns nullptr when nothing in the brick is kept (no allocation).
+// The stack's 8^3 bricks (leaf units) and the range [lo, hi) of them one tile covers.
+struct BrickGrid {
+  int nbx, nby, nbz;
+  explicit BrickGrid(const std::array<int, 3>& shape)
+      : nbx((shape[0] + kLeafDim - 1) / kLeafDim),
+        nby((shape[1] + kLeafDim - 1) / kLeafDim),
+        nbz((shape[2] + kLeafDim - 1) / kLeafDim) {}
+  [[nodiscard]] std::size_t index(int bx, int by, int bz) const {
+    return (static_cast<std::size_t>(bz) * nby + by) * nbx + bx;
+  }
+};
+
+// Bricks [lo, hi) (brick units) in x-fastest order, with their index in the whole stack.
+struct BrickRange {
+  std::array<int, 3> lo{0, 0, 0}, hi{0, 0, 0};
+  [[nodiscard]] std::size_t count() const {
+    return static_cast<std::size_t>(hi[0] - lo[0]) * (hi[1] - lo[1]) * (hi[2] - lo[2]);
+  }
+  [[nodiscard]] std::array<int, 3> brick(std::size_t i) const {
+    const std::size_t nx = hi[0] - lo[0], ny = hi[1] - lo[1];
+    return {lo[0] + static_cast<int>(i % nx), lo[1] + static_cast<int>((i / nx) % ny),
+            lo[2] + static_cast<int>(i / (nx * ny))};
+  }
+  static Coord origin(const std::array<int, 3>& b) { return Coord(b[0] * kLeafDim, b[1] * kLeafDim, b[2] * kLeafDim); }
+};
+
+// Leaf holding the block's values over one brick (within the block), active where
+// `keep(x, y, z, value)`. Returns nullptr when nothing in the brick is kept (no allocation).
 template <class Keep>
-LeafT* make_leaf(const Volume& vol, const Coord& origin, Keep&& keep) {
+LeafT* make_leaf(const DenseBlock& block, const Coord& origin, Keep&& keep) {
   LeafT* leaf = nullptr;
-  const int x1 = std::min(origin.x() + kLeafDim, vol.nx), y1 = std::min(origin.y() + kLeafDim, vol.ny),
-            z1 = std::min(origin.z() + kLeafDim, vol.nz);
-  for (int z = origin.z(); z < z1; ++z) {
-    for (int y = origin.y(); y < y1; ++y) {
-      const float* row = &vol.voxels[vol.index(0, y, z)];
-      for (int x = origin.x(); x < x1; ++x) {
+  const Volume& vol = block.vol;
+  const int x0 = std::max(origin.x(), block.origin[0]), y0 = std::max(origin.y(), block.origin[1]),
+            z0 = std::max(origin.z(), block.origin[2]);
+  const int x1 = std::min(origin.x() + kLeafDim, block.origin[0] + vol.nx),
+            y1 = std::min(origin.y() + kLeafDim, block.origin[1] + vol.ny),
+            z1 = std::min(origin.z() + kLeafDim, block.origin[2] + vol.nz);
+  for (int z = z0; z < z1; ++z) {
+    for (int y = y0; y < y1; ++y) {
+      const float* row = &vol.voxels[vol.index(0, y - block.origin[1], z - block.origin[2])] - block.origin[0];
+      for (int x = x0; x < x1; ++x) {
         if (!keep(x, y, z, row[x])) continue;
         if (!leaf) leaf = new LeafT(origin, 0.0f, false);
         leaf->setValueOn(Coord(x, y, z), row[x]);
@@ -252,10 +280,6 @@ void add_leaves(FloatTree& tree, std::vector<LeafT*>& leaves) {
   }
 }
 
-}  // namespace
-
-namespace {
-
 // Both grids, empty, with the stack's transform.
 std::shared_ptr<SparseGrid::Impl> empty_grids(const WorldFrame& frame) {
   auto impl = std::make_shared<SparseGrid::Impl>();
@@ -271,56 +295,61 @@ std::shared_ptr<SparseGrid::Impl> empty_grids(const WorldFrame& frame) {
   return impl;
 }
 
-// Foreground leaves (v > threshold), one brick per task, added in brick order.
-// `leaves` is scratch of one slot per brick.
-void add_foreground(const Volume& vol, const BrickGrid& bricks, float threshold, std::vector<LeafT*>& leaves,
-                    FloatTree& tree) {
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, bricks.count(), 16), [&](const auto& r) {
-    for (std::size_t b = r.begin(); b != r.end(); ++b) {
-      leaves[b] = make_leaf(vol, bricks.origin(b), [&](int, int, int, float v) { return v > threshold; });
+// Foreground leaves (v > threshold) of the bricks `range`, one brick per task, added
+// in brick order.
+void add_foreground(const DenseBlock& block, const BrickRange& range, float threshold, FloatTree& tree) {
+  std::vector<LeafT*> leaves(range.count(), nullptr);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, range.count(), 16), [&](const auto& r) {
+    for (std::size_t i = r.begin(); i != r.end(); ++i) {
+      leaves[i] = make_leaf(block, BrickRange::origin(range.brick(i)), [&](int, int, int, float v) { return v > threshold; });
     }
   });
   add_leaves(tree, leaves);
 }
 
-// Band: OpenVDB's own morphology, then real values for newly active voxels and
-// nothing outside the stack's index range.
-void dilate_band(const Volume& vol, int band_voxels, FloatTree& tree) {
-  openvdb::tools::dilateActiveValues(tree, band_voxels, openvdb::tools::NN_FACE_EDGE_VERTEX,
-                                     openvdb::tools::IGNORE_TILES);
+// Band: OpenVDB's own morphology, then real values for the active voxels inside
+// `core` (voxels [lo, hi) of the stack, within the block) and nothing outside it.
+void dilate_band(const DenseBlock& block, int band_voxels, const std::array<int, 3>& lo, const std::array<int, 3>& hi,
+                 FloatTree& tree) {
+  if (band_voxels > 0) {
+    openvdb::tools::dilateActiveValues(tree, band_voxels, openvdb::tools::NN_FACE_EDGE_VERTEX,
+                                       openvdb::tools::IGNORE_TILES);
+  }
   openvdb::tree::LeafManager<FloatTree> manager(tree);
   manager.foreach ([&](LeafT& leaf, std::size_t) {
     for (auto it = leaf.beginValueOn(); it; ++it) {
       const Coord c = it.getCoord();
-      if (c.x() < 0 || c.y() < 0 || c.z() < 0 || c.x() >= vol.nx || c.y() >= vol.ny || c.z() >= vol.nz) {
-        it.setValue(0.0f);  // outside the stack: dilation went past its edge
+      if (c.x() < lo[0] || c.y() < lo[1] || c.z() < lo[2] || c.x() >= hi[0] || c.y() >= hi[1] || c.z() >= hi[2]) {
+        it.setValue(0.0f);  // outside the core: the stack's edge, or another tile's voxels
         it.setValueOff();
       } else {
-        it.setValue(vol.at(c.x(), c.y(), c.z()));
+        it.setValue(block.at(c.x(), c.y(), c.z()));
       }
     }
   });
   openvdb::tools::pruneInactive(tree);
 }
 
-// Background subsample: Bernoulli(p) per voxel outside `foreground`, drawn by
-// geometric skipping with a per-brick generator so the result does not depend on
-// threading.
-void add_background(const Volume& vol, const BrickGrid& bricks, const SparseGridOptions& options,
-                    const FloatTree& foreground, std::vector<LeafT*>& leaves, FloatTree& tree) {
+// Background subsample of the bricks `range`: Bernoulli(p) per voxel outside
+// `foreground`, drawn by geometric skipping with a generator per brick of the whole
+// stack (its index in `grid`), so the result depends neither on threading nor on tiles.
+void add_background(const DenseBlock& block, const BrickGrid& grid, const BrickRange& range,
+                    const SparseGridOptions& options, const FloatTree& foreground, FloatTree& tree) {
   const double p = options.background_fraction;
   const double log_q = std::log1p(-std::min(p, 1.0 - 1e-12));
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, bricks.count(), 16), [&](const auto& r) {
+  std::vector<LeafT*> leaves(range.count(), nullptr);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, range.count(), 16), [&](const auto& r) {
     openvdb::tree::ValueAccessor<const FloatTree> fg(foreground);
-    for (std::size_t b = r.begin(); b != r.end(); ++b) {
-      std::mt19937_64 rng(options.seed * 0x9E3779B97F4A7C15ull + b);
+    for (std::size_t i = r.begin(); i != r.end(); ++i) {
+      const std::array<int, 3> b = range.brick(i);
+      std::mt19937_64 rng(options.seed * 0x9E3779B97F4A7C15ull + grid.index(b[0], b[1], b[2]));
       std::uniform_real_distribution<double> uni(0.0, 1.0);
       auto next_gap = [&]() -> long {
         if (p >= 1.0) return 0;
         return static_cast<long>(std::floor(std::log(1.0 - uni(rng)) / log_q));
       };
       long skip = next_gap();
-      leaves[b] = make_leaf(vol, bricks.origin(b), [&](int x, int y, int z, float) {
+      leaves[i] = make_leaf(block, BrickRange::origin(b), [&](int x, int y, int z, float) {
         if (fg.isValueOn(Coord(x, y, z))) return false;
         if (skip-- > 0) return false;
         skip = next_gap();
@@ -331,25 +360,102 @@ void add_background(const Volume& vol, const BrickGrid& bricks, const SparseGrid
   add_leaves(tree, leaves);
 }
 
+// One tile: the bricks `core` (brick units) of the stack, from `block`, which holds
+// the core's voxels and `band_voxels` around them (clipped to the stack). Its leaves
+// join `out`'s grids; every leaf lies inside the core, so tiles never share one.
+void build_tile(const DenseBlock& block, const std::array<int, 3>& shape, const BrickRange& core,
+                const SparseGridOptions& options, SparseGrid::Impl& out) {
+  const BrickGrid grid(shape);
+  BrickRange reach;  // the bricks the block touches
+  for (int a = 0; a < 3; ++a) {
+    reach.lo[a] = block.origin[a] / kLeafDim;
+    const int n = a == 0 ? block.vol.nx : a == 1 ? block.vol.ny : block.vol.nz;
+    reach.hi[a] = (block.origin[a] + n + kLeafDim - 1) / kLeafDim;
+  }
+  std::array<int, 3> lo{}, hi{};  // the core's voxels, clipped to the stack
+  for (int a = 0; a < 3; ++a) {
+    lo[a] = core.lo[a] * kLeafDim;
+    hi[a] = std::min(shape[a], core.hi[a] * kLeafDim);
+  }
+  FloatTree foreground(0.0f);
+  add_foreground(block, reach, static_cast<float>(options.threshold), foreground);
+  dilate_band(block, options.band_voxels, lo, hi, foreground);
+  if (options.background_fraction > 0.0) {
+    add_background(block, grid, core, options, foreground, out.background->tree());
+  }
+  std::vector<LeafT*> leaves;
+  foreground.stealNodes(leaves);
+  add_leaves(out.volume->tree(), leaves);
+}
+
+void record_meta(SparseGrid::Impl& impl, const std::array<int, 3>& shape, const VoxelSpacing& spacing,
+                 const Eigen::Vector3d& aspect, const Normalization& normalization, const std::string& source,
+                 const SparseGridOptions& options) {
+  auto& meta = impl.meta;
+  meta.shape_xyz = shape;
+  meta.spacing_um = spacing.um;
+  meta.aspect = aspect;
+  meta.normalization = normalization;
+  meta.source = source;
+  meta.options = options;
+}
+
 }  // namespace
 
 SparseGrid build_sparse_grid(const Volume& vol, const Eigen::Vector3d& aspect, const SparseGridOptions& options) {
   options.validate();
   ensure_openvdb_initialized();
+  const std::array<int, 3> shape{vol.nx, vol.ny, vol.nz};
   auto impl = empty_grids(WorldFrame(vol.nx, vol.ny, vol.nz, aspect));
-  const BrickGrid bricks(vol);
-  std::vector<LeafT*> leaves(bricks.count(), nullptr);
-  FloatTree& tree = impl->volume->tree();
-  add_foreground(vol, bricks, static_cast<float>(options.threshold), leaves, tree);
-  if (options.band_voxels > 0) dilate_band(vol, options.band_voxels, tree);
-  if (options.background_fraction > 0.0) add_background(vol, bricks, options, tree, leaves, impl->background->tree());
-  auto& meta = impl->meta;
-  meta.shape_xyz = {vol.nx, vol.ny, vol.nz};
-  meta.spacing_um = vol.spacing.um;
-  meta.aspect = aspect;
-  meta.normalization = vol.normalization;
-  meta.source = vol.source;
-  meta.options = options;
+  const BrickGrid grid(shape);
+  build_tile(DenseBlock{vol}, shape, BrickRange{{0, 0, 0}, {grid.nbx, grid.nby, grid.nbz}}, options, *impl);
+  record_meta(*impl, shape, vol.spacing, aspect, vol.normalization, vol.source, options);
+  return SparseGrid(std::move(impl));
+}
+
+SparseGrid build_sparse_grid(const VolumeSource& source, const Normalization& normalization,
+                             const Eigen::Vector3d& aspect, const SparseGridOptions& options, int tile_voxels,
+                             const std::function<void(int, int)>& on_tile) {
+  options.validate();
+  if (tile_voxels < kLeafDim || tile_voxels % kLeafDim != 0) {
+    throw std::invalid_argument("build_sparse_grid: tile_voxels " + std::to_string(tile_voxels) +
+                                " is not a positive multiple of 8");
+  }
+  ensure_openvdb_initialized();
+  const std::array<int, 3> shape{source.nx, source.ny, source.nz};
+  auto impl = empty_grids(WorldFrame(source.nx, source.ny, source.nz, aspect));
+  const BrickGrid grid(shape);
+  const int step = tile_voxels / kLeafDim;  // bricks per tile edge
+  const std::array<int, 3> bricks{grid.nbx, grid.nby, grid.nbz};
+  std::array<int, 3> tiles{};
+  for (int a = 0; a < 3; ++a) tiles[a] = (bricks[a] + step - 1) / step;
+  const int total = tiles[0] * tiles[1] * tiles[2];
+  int done = 0;
+  for (int tz = 0; tz < tiles[2]; ++tz) {
+    for (int ty = 0; ty < tiles[1]; ++ty) {
+      for (int tx = 0; tx < tiles[0]; ++tx) {
+        const std::array<int, 3> t{tx, ty, tz};
+        BrickRange core;
+        VoxelBox box;  // the core's voxels and the band around them, in the stack
+        for (int a = 0; a < 3; ++a) {
+          core.lo[a] = t[a] * step;
+          core.hi[a] = std::min(bricks[a], core.lo[a] + step);
+          box.lo[a] = std::max(0, core.lo[a] * kLeafDim - options.band_voxels);
+          box.hi[a] = std::min(shape[a], core.hi[a] * kLeafDim + options.band_voxels);
+        }
+        Volume part;
+        part.nx = box.hi[0] - box.lo[0];
+        part.ny = box.hi[1] - box.lo[1];
+        part.nz = box.hi[2] - box.lo[2];
+        part.voxels.resize(part.size());
+        source.read(box, part.voxels.data());
+        (void)apply_normalization(part.voxels, normalization);
+        build_tile(DenseBlock{part, box.lo}, shape, core, options, *impl);
+        if (on_tile) on_tile(++done, total);
+      }
+    }
+  }
+  record_meta(*impl, shape, source.spacing, aspect, normalization, source.source, options);
   return SparseGrid(std::move(impl));
 }
 

@@ -92,6 +92,17 @@ class SparseGrid {
 // Throws InputError if options are invalid.
 SparseGrid build_sparse_grid(const Volume& volume, const Eigen::Vector3d& aspect, const SparseGridOptions& options);
 
+class VolumeSource;  // io/volume_source.hpp
+// The same grids (voxel for voxel, background samples included) from a stack read by
+// regions: tiles of tile_voxels (a positive multiple of 8) on each axis, each read with
+// band_voxels around it and normalized by `normalization`, so memory holds one tile
+// and its band as float32 (plus the grids: foreground, band and samples). Calls
+// on_tile(done, total) after each tile. Throws what the source's read throws, and
+// std::invalid_argument for a tile_voxels that is not a multiple of 8.
+SparseGrid build_sparse_grid(const VolumeSource& source, const Normalization& normalization,
+                             const Eigen::Vector3d& aspect, const SparseGridOptions& options, int tile_voxels,
+                             const std::function<void(int done, int total)>& on_tile = {});
+
 // Writes `volume` (+ `background`) grids with metadata, atomically.
 void write_vdb(const std::filesystem::path& path, const SparseGrid& grid);
 // Reads a .vdb written by write_vdb. Throws InputError naming the file if it is not

@@ -16,6 +16,7 @@
 
 #include "io/detail/vdb_grids.hpp"
 #include "io/error.hpp"
+#include "io/volume_source.hpp"
 #include "tests/test_support.hpp"
 
 namespace hisnegs::io {
@@ -135,6 +136,55 @@ TEST(SparseGrid, BackgroundSubsampleIsSeededDisjointAndOfTheRightSize) {
   auto bg_c = c.impl().background->getConstAccessor();
   for (auto it = a.impl().background->cbeginValueOn(); it; ++it) same += bg_c.isValueOn(it.getCoord());
   EXPECT_LT(same, a.background_voxels() / 2);  // another seed draws other voxels
+}
+
+// Every active voxel of `a` is active in `b` with the same value, and the counts agree.
+void expect_same_part(const openvdb::FloatGrid& a, const openvdb::FloatGrid& b) {
+  ASSERT_EQ(a.activeVoxelCount(), b.activeVoxelCount());
+  auto acc = b.getConstAccessor();
+  for (auto it = a.cbeginValueOn(); it; ++it) {
+    float value = 0;
+    ASSERT_TRUE(acc.probeValue(it.getCoord(), value)) << it.getCoord();
+    ASSERT_EQ(value, *it) << it.getCoord();
+  }
+}
+
+// A stack read by tiles (the band and the background samples crossing tile faces,
+// tiles that do not divide the stack, non-cubic voxels of raw values) gives the
+// whole stack's grids voxel for voxel.
+TEST(SparseGrid, TilesOfASourceGiveTheWholeStacksGrids) {
+  Volume raw = random_sparse(45, 37, 29, 0.004, 9);
+  for (float& x : raw.voxels) x = 100.0f + 900.0f * x;  // raw values: normalized by the map below
+  Volume normalized = raw;
+  normalize(normalized, NormalizationOptions{});
+  const Normalization map = normalized.normalization;
+  const auto source = memory_source(raw);
+  const Eigen::Vector3d aspect(1.0, 37.0 / 45.0, 0.5);
+  for (const int band : {0, 1, 3}) {
+    SparseGridOptions o;
+    o.threshold = 0.4;
+    o.band_voxels = band;
+    o.background_fraction = 0.03;
+    o.seed = 4;
+    normalized.source = source->source;
+    const SparseGrid whole = build_sparse_grid(normalized, aspect, o);
+    for (const int tile : {8, 16, 24}) {
+      int tiles_seen = 0, tiles_total = 0;
+      const SparseGrid tiled = build_sparse_grid(*source, map, aspect, o, tile, [&](int done, int total) {
+        tiles_seen = done;
+        tiles_total = total;
+      });
+      SCOPED_TRACE("band " + std::to_string(band) + ", tile " + std::to_string(tile));
+      EXPECT_GT(whole.active_voxels(), 0);
+      EXPECT_GT(whole.background_voxels(), 0);
+      expect_same_part(*whole.impl().volume, *tiled.impl().volume);
+      expect_same_part(*whole.impl().background, *tiled.impl().background);
+      EXPECT_EQ(tiles_seen, tiles_total);
+      EXPECT_EQ(tiled.meta().shape_xyz, whole.meta().shape_xyz);
+      EXPECT_EQ(tiled.meta().normalization.raw_hi, map.raw_hi);
+    }
+  }
+  EXPECT_THROW((void)build_sparse_grid(*source, map, aspect, SparseGridOptions{}, 12), std::invalid_argument);
 }
 
 TEST(SparseGrid, VdbRoundTripIsBitExact) {
