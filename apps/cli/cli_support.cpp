@@ -45,6 +45,21 @@ void VolumeOverrides::apply(io::VolumeOptions& options) const {
   options.validate();
 }
 
+void StackReadingOverrides::add_to(CLI::App* command, const std::string& what) {
+  command->add_option("--max-memory", max_memory,
+                      "most memory it may use (default gmf.max_memory: auto = half the RAM; or 1GiB, 512MiB): a larger "
+                      "stack is " + what + " in bricks, with the same result");
+  command->add_option("--brick-voxels", brick_voxels, "bricks of this core edge (voxels) even when the stack fits")
+      ->check(CLI::Range(1, 65536));
+}
+
+StackReading StackReadingOverrides::reading(const AppConfig& config) const {
+  StackReading r;
+  r.max_memory = max_memory ? *max_memory : config.gmf.max_memory;
+  if (brick_voxels) r.brick_voxels = *brick_voxels;
+  return r;
+}
+
 void BackgroundOverride::add_to(CLI::App* command) {
   command->add_option("--background", value,
                       "model | none: draw the MIP floor of the background the checkpoint records, or the Gaussians "

@@ -12,6 +12,7 @@
 
 #include "apps/pipeline/app_config.hpp"
 #include "apps/pipeline/progress.hpp"
+#include "apps/pipeline/stack_reading.hpp"
 
 namespace hisnegs::apps {
 
@@ -39,6 +40,16 @@ struct VolumeOverrides {
   void add_to(CLI::App* command);
   // Applies the overrides to `options` and validates them.
   void apply(io::VolumeOptions& options) const;
+};
+
+// --max-memory and --brick-voxels of a command that reads the stack whole or by
+// bricks (gt, vdb, train, run): the memory defaults to the config's gmf.max_memory.
+struct StackReadingOverrides {
+  std::optional<std::string> max_memory;
+  std::optional<int> brick_voxels;
+  // `what` ends the help text: what is read in bricks ("marched", "read").
+  void add_to(CLI::App* command, const std::string& what);
+  [[nodiscard]] StackReading reading(const AppConfig& config) const;
 };
 
 // `--background model|none` of the commands that render a checkpoint: draw the MIP

@@ -17,8 +17,7 @@ struct GtArgs {
   std::optional<double> radius, fov;
   std::vector<double> elevations, azimuths;
   std::optional<int> ring_views;
-  std::optional<int> brick_voxels;
-  std::string max_memory = "auto";
+  StackReadingOverrides reading;
   VolumeOverrides overrides;
 };
 
@@ -44,11 +43,7 @@ void add_gt_command(CLI::App& app, GlobalOptions& global) {
       ->check(CLI::Range(1, 3600));
   cmd->add_option("--radius", args->radius, "orbit radius (world units; default camera.orbit_radius)");
   cmd->add_option("--fov", args->fov, "horizontal field of view in degrees (default camera.fov_deg)");
-  cmd->add_option("--max-memory", args->max_memory,
-                  "most memory gt may use (auto = half the RAM, or 1GiB, 512MiB): a larger stack is read and marched "
-                  "in bricks, the same images");
-  cmd->add_option("--brick-voxels", args->brick_voxels, "read and march in bricks of this core edge even when it fits")
-      ->check(CLI::Range(1, 65536));
+  args->reading.add_to(cmd, "read and marched");
   args->overrides.add_to(cmd);
   cmd->callback([args, &global] {
     AppConfig config = global.config();
@@ -92,14 +87,13 @@ void add_gt_command(CLI::App& app, GlobalOptions& global) {
     }
     config.volume.validate();
     const io::StackHeader header = io::inspect_stack(args->volume, io::stack_read_options(config.volume));
-    const int core = args->brick_voxels ? *args->brick_voxels
-                                        : ground_truth_core({header.nx, header.ny, header.nz}, args->max_memory,
-                                                            global.progress());
+    const StackReading reading = args->reading.reading(config);
+    const int core = ground_truth_core({header.nx, header.ny, header.nz}, reading, global.progress());
     // bricks are marched on the CPU; the whole stack on the back end asked for
     const splat::Backend backend =
         core > 0 ? splat::Backend::kCpu : splat::resolve_backend(splat::parse_backend_request(args->backend));
     write_ground_truth_sets(args->out, args->volume, sets, GroundTruthSetsConfig(config), backend, global.progress(),
-                            core);
+                            core, reading);
   });
 }
 

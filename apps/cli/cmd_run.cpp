@@ -17,6 +17,7 @@ void add_run_command(CLI::App& app, GlobalOptions& global) {
     int orbit_frames = 72;
     double orbit_elevation = 30.0;
     VolumeOverrides overrides;
+    StackReadingOverrides reading;
   };
   auto args = std::make_shared<Args>();
   cmd->add_option("VOLUME", args->volume, "stack: TIFF/BigTIFF, HDF5 (.h5), BigDataViewer (.xml), Imaris (.ims)")->required();
@@ -26,14 +27,18 @@ void add_run_command(CLI::App& app, GlobalOptions& global) {
   cmd->add_option("--orbit-frames", args->orbit_frames, "frames of the 360 degree orbit GIF")->capture_default_str();
   cmd->add_option("--orbit-elevation", args->orbit_elevation, "orbit elevation in degrees")->capture_default_str();
   args->overrides.add_to(cmd);
+  args->reading.add_to(cmd, "read (volume, gt, training) and fitted (gmf.max_memory, gmf.stream_brick_voxels)");
   cmd->callback([args, &global] {
     AppConfig config = global.config();
     args->overrides.apply(config.volume);
+    if (args->reading.max_memory) config.gmf.max_memory = *args->reading.max_memory;
+    if (args->reading.brick_voxels) config.gmf.stream_brick_voxels = *args->reading.brick_voxels;
     io::require_regular_file(args->volume);  // before the back-end notice: a bad path is the one line
     const splat::Backend backend = splat::resolve_backend(splat::parse_backend_request(args->backend));
     choose_train_schedule(config, backend, global.progress());
-    run_pipeline({args->volume, args->out, backend, args->force, args->orbit_frames, args->orbit_elevation}, config,
-                 global.progress());
+    run_pipeline({args->volume, args->out, backend, args->force, args->orbit_frames, args->orbit_elevation,
+                  args->reading.reading(config)},
+                 config, global.progress());
   });
 }
 

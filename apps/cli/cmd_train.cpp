@@ -13,6 +13,7 @@ void add_train_command(CLI::App& app, GlobalOptions& global) {
     std::string init, data, out, volume, backend = "auto";
     bool resume = false;
     std::optional<int> epochs;
+    StackReadingOverrides reading;
   };
   auto args = std::make_shared<Args>();
   cmd->add_option("--init", args->init, "initial model (.ply or .hgs, e.g. from `hisnegs fit`)")->required();
@@ -25,13 +26,14 @@ void add_train_command(CLI::App& app, GlobalOptions& global) {
   cmd->add_option("--backend", args->backend, "auto | cpu | cuda");
   cmd->add_flag("--resume", args->resume, "continue from RUNDIR/checkpoints/latest");
   cmd->add_option("--epochs", args->epochs, "number of epochs (train.epochs)");
+  args->reading.add_to(cmd, "(--volume) read");
   cmd->callback([args, &global] {
     AppConfig config = global.config();
     if (args->epochs) config.train.epochs = *args->epochs;
     const splat::Backend backend = splat::resolve_backend(splat::parse_backend_request(args->backend));
     choose_train_schedule(config, backend, global.progress());
     train_model({args->init, ground_truth_set_dir(args->data, "train"), args->out, backend, args->resume,
-                 args->volume},
+                 args->volume, args->reading.reading(config)},
                 TrainConfig(config), global.progress());
   });
 }

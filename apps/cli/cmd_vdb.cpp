@@ -13,6 +13,7 @@ void add_vdb_command(CLI::App& app, GlobalOptions& global) {
     std::optional<double> threshold, background_fraction;
     std::optional<int> band;
     std::optional<std::uint64_t> seed;
+    StackReadingOverrides reading;
     VolumeOverrides overrides;
   };
   auto args = std::make_shared<Args>();
@@ -23,6 +24,7 @@ void add_vdb_command(CLI::App& app, GlobalOptions& global) {
   cmd->add_option("--background-fraction", args->background_fraction,
                   "share of the other voxels sampled into the `background` grid");
   cmd->add_option("--seed", args->seed, "background sampling seed");
+  args->reading.add_to(cmd, "read");
   args->overrides.add_to(cmd);
   cmd->callback([args, &global] {
     AppConfig config = global.config();
@@ -32,7 +34,7 @@ void add_vdb_command(CLI::App& app, GlobalOptions& global) {
     if (args->band) sparse.band_voxels = *args->band;
     if (args->background_fraction) sparse.background_fraction = *args->background_fraction;
     if (args->seed) sparse.seed = *args->seed;
-    write_sparse_grid(args->volume, VolumeConfig(config), args->out, global.progress());
+    write_sparse_grid(args->volume, VolumeConfig(config), args->out, global.progress(), args->reading.reading(config));
   });
 }
 

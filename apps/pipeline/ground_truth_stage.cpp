@@ -10,14 +10,12 @@
 #include "apps/pipeline/report_tables.hpp"
 #include "io/atomic_file.hpp"
 #include "io/png.hpp"
+#include "io/stack_file.hpp"
 #include "io/tiff_stack.hpp"
 #include "io/timer.hpp"
-#include "splat/raymarch.hpp"
-#include "apps/pipeline/streamed_fit.hpp"
-#include "splat/streamed_ground_truth.hpp"
-#include "io/memory_limit.hpp"
-#include "io/stack_file.hpp"
 #include "io/volume_source.hpp"
+#include "splat/raymarch.hpp"
+#include "splat/streamed_ground_truth.hpp"
 
 namespace hisnegs::apps {
 namespace {
@@ -110,7 +108,7 @@ namespace {
 // carries the stack's metadata only (no voxels) for meta.json.
 void write_streamed_sets(const std::filesystem::path& dir, const std::filesystem::path& volume_path,
                          const std::vector<GroundTruthSet>& sets, const GroundTruthSetsConfig& config,
-                         const Progress& progress, int core_voxels) {
+                         const Progress& progress, int core_voxels, const StackReading& reading) {
   const io::VolumeOptions& vo = config.get<&AppConfig::volume>();
   const splat::RaymarchOptions& rm = config.get<&AppConfig::raymarch>();
   vo.validate();
@@ -124,8 +122,7 @@ void write_streamed_sets(const std::filesystem::path& dir, const std::filesystem
   loaded.volume.spacing = source->spacing;
   loaded.volume.stored_as = source->stored_as;
   loaded.volume.source = volume_path.string();
-  loaded.volume.normalization =
-      io::normalization_from(io::scan_statistics(*source, 64u << 20), vo.normalization, volume_path.string());
+  loaded.volume.normalization = source_normalization(*source, vo, volume_path, reading);
   loaded.frame = io::stack_frame(source->nx, source->ny, source->nz, source->spacing, vo.aspect, volume_path);
   progress.say("gt: %s (X=%d Y=%d Z=%d) read by bricks of %d voxels: statistics (%s) in %s", volume_path.c_str(),
                source->nx, source->ny, source->nz, core_voxels, loaded.volume.normalization.describe().c_str(),
@@ -142,31 +139,16 @@ void write_streamed_sets(const std::filesystem::path& dir, const std::filesystem
 
 }  // namespace
 
-int ground_truth_core(const std::array<int, 3>& shape, const std::string& max_memory, const Progress& progress) {
-  constexpr double kBase = 112.0 * 1048576.0, kPerVoxel = 8.0;
-  const double bytes = io::resolve_memory_limit(max_memory, "--max-memory").bytes;
-  const auto need = [&](int core) {
-    double v = 1;
-    for (int a = 0; a < 3; ++a) v *= std::min(shape[a], std::min(core, shape[a]) + 2);
-    return kBase + kPerVoxel * v;
-  };
-  const int longest = *std::max_element(shape.begin(), shape.end());
-  if (need(longest) <= bytes) return 0;
-  const int core = largest_core(shape, 16, bytes, need);
-  if (need(core) > bytes) {
-    throw io::InputError("--max-memory = " + max_memory + ": too small for gt: a brick of 16 voxels needs " +
-                         io::gib_text(need(core)) + "; allow at least that");
-  }
-  progress.say("gt: the stack needs %s in memory, more than %s: read in bricks of %d voxels",
-               io::gib_text(need(longest)).c_str(), io::gib_text(bytes).c_str(), core);
-  return core;
+int ground_truth_core(const std::array<int, 3>& shape, const StackReading& reading, const Progress& progress) {
+  return reading_core(shape, reading, BrickNeed{}, "gt", progress);
 }
 
 void write_ground_truth_sets(const std::filesystem::path& dir, const std::filesystem::path& volume_path,
                              const std::vector<GroundTruthSet>& sets, const GroundTruthSetsConfig& config,
-                             splat::Backend backend, const Progress& progress, int core_voxels) {
+                             splat::Backend backend, const Progress& progress, int core_voxels,
+                             const StackReading& reading) {
   if (core_voxels > 0) {
-    write_streamed_sets(dir, volume_path, sets, config, progress, core_voxels);
+    write_streamed_sets(dir, volume_path, sets, config, progress, core_voxels, reading);
     return;
   }
   io::Stopwatch watch;
@@ -205,8 +187,14 @@ nlohmann::ordered_json GroundTruthStage::run(const RunRequest& request, const Co
   const splat::CameraOptions& camera = config.get<&AppConfig::camera>();
   const std::vector<GroundTruthSet> sets{{"train", splat::training_orbit(camera)},
                                          {"eval", splat::evaluation_orbit(camera)}};
+  const io::VolumeOptions& vo = config.get<&AppConfig::volume>();
+  vo.validate();
+  const io::StackHeader header = io::inspect_stack(request.volume, io::stack_read_options(vo));
+  const int core = ground_truth_core({header.nx, header.ny, header.nz}, request.reading, progress);
+  // bricks are marched on the CPU (as `gt` does)
   write_ground_truth_sets(request.dir / "gt", request.volume, sets,
-                          config.slice<&AppConfig::volume, &AppConfig::raymarch>(), request.backend, progress);
+                          config.slice<&AppConfig::volume, &AppConfig::raymarch>(),
+                          core > 0 ? splat::Backend::kCpu : request.backend, progress, core, request.reading);
   return nullptr;
 }
 

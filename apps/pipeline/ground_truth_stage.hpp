@@ -10,6 +10,7 @@
 #include "apps/pipeline/config_slice.hpp"
 #include "apps/pipeline/progress.hpp"
 #include "apps/pipeline/run_stage.hpp"
+#include "apps/pipeline/stack_reading.hpp"
 #include "io/load_volume.hpp"
 #include "splat/backend.hpp"
 #include "splat/camera.hpp"
@@ -39,16 +40,19 @@ using GroundTruthSetsConfig = ConfigSlice<&AppConfig::volume, &AppConfig::raymar
 // Loads `volume_path` (one "gt: loaded ..." line) and writes each set with
 // write_ground_truth_set into DIR/LABEL, or into DIR itself when there is one set.
 // With `core_voxels` > 0 the stack is not loaded: it is read brick by brick (cores of
-// that edge) and marched by splat::render_ground_truth_streamed (CPU), the same images.
+// that edge) and marched by splat::render_ground_truth_streamed (CPU), the same images;
+// its statistics come from reading.statistics_cache when that holds them.
 void write_ground_truth_sets(const std::filesystem::path& dir, const std::filesystem::path& volume_path,
                              const std::vector<GroundTruthSet>& sets, const GroundTruthSetsConfig& config,
-                             splat::Backend backend, const Progress& progress, int core_voxels = 0);
+                             splat::Backend backend, const Progress& progress, int core_voxels = 0,
+                             const StackReading& reading = {});
 
-// The brick core for `gt` of a stack of `shape` (x, y, z) under `max_memory` (a
-// gmf.max_memory text: auto = half the RAM): 0 when the whole stack fits (about 112
-// MiB + 8 bytes per voxel), else the largest multiple of 16 whose brick fits. Throws
-// io::InputError when not even a 16-voxel brick fits or the text does not parse.
-[[nodiscard]] int ground_truth_core(const std::array<int, 3>& shape, const std::string& max_memory,
+// The brick core for `gt` of a stack of `shape` (x, y, z) under reading.max_memory
+// (auto = half the RAM): 0 when the whole stack fits (about 112 MiB + 8 bytes per
+// voxel), reading.brick_voxels when set, else the largest multiple of 16 whose brick
+// fits (reading_core). Throws io::InputError when not even a 16-voxel brick fits or
+// the size does not parse.
+[[nodiscard]] int ground_truth_core(const std::array<int, 3>& shape, const StackReading& reading,
                                     const Progress& progress);
 
 // The ground-truth set a command reads from a `hisnegs gt` folder DATA: DATA/SET

@@ -7,9 +7,11 @@
 
 #include "apps/pipeline/format.hpp"
 #include "apps/pipeline/run_report.hpp"
+#include "apps/pipeline/stack_reading.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
 #include "io/folder_lock.hpp"
+#include "io/stack_file.hpp"
 #include "io/timer.hpp"
 
 namespace hisnegs::apps {
@@ -29,6 +31,13 @@ void check_request(const RunRequest& request, const AppConfig& config) {
   // refused now, before four stages of work, not when that stage comes.
   check_stage_folder(request.dir, TrainStage::kFolder, request.volume);
   check_stage_folder(request.dir, EvalStage::kFolder, request.volume);
+  // A memory limit that cannot hold the smallest brick of the stages that read the
+  // stack is refused now too (the fit checks its own plan when it starts).
+  const io::StackHeader header = io::inspect_stack(request.volume, io::stack_read_options(config.volume));
+  const std::array<int, 3> shape{header.nx, header.ny, header.nz};
+  const Progress quiet;
+  (void)ground_truth_core(shape, request.reading, quiet);
+  (void)reading_core(shape, request.reading, sparse_grid_need(config.sparse_grid), "vdb", quiet);
 }
 
 // Creates DIR, reads DIR/run.json, writes DIR/config.yaml and records the volume.
@@ -137,8 +146,10 @@ void run_stages(StageList<Stages...>, StageRunner& runner, const AppConfig& conf
 
 }  // namespace
 
-RunSummary run_pipeline(const RunRequest& request, AppConfig config, const Progress& progress) {
-  check_request(request, config);
+RunSummary run_pipeline(const RunRequest& asked, AppConfig config, const Progress& progress) {
+  check_request(asked, config);
+  RunRequest request = asked;  // the stages of one run share one streaming pass over the stack
+  if (request.reading.statistics_cache.empty()) request.reading.statistics_cache = request.dir / "stack_statistics.json";
   io::Stopwatch total;
   const io::FolderLock lock(request.dir);  // one writer per run folder, for the whole run
   if (const int stale = io::remove_stale_temporaries(request.dir, true); stale > 0) {

@@ -14,6 +14,7 @@
 #include "apps/pipeline/config_slice.hpp"
 #include "apps/pipeline/progress.hpp"
 #include "apps/pipeline/run_state.hpp"
+#include "apps/pipeline/stack_reading.hpp"
 #include "splat/backend.hpp"
 
 namespace hisnegs::apps {
@@ -26,6 +27,9 @@ struct RunRequest {
   bool force = false;     // redo stages finished earlier
   int orbit_frames = 72;  // report Table 10: 72 frames, 5 degree steps
   double orbit_elevation = 30.0;
+  // How the stages that read the stack hold it (whole, or by bricks: the same
+  // results); not an input of any stage. The fit reads gmf.max_memory.
+  StackReading reading{};
 };
 
 // A stage of a run folder. Each stage header defines one, e.g.

@@ -89,7 +89,7 @@ TrainingSession start_training(const TrainRequest& request, const TrainConfig& c
   if (!request.volume.empty()) {
     s.trainer->attach_volume(make_training_volume(request.volume, config.get<&AppConfig::volume>(),
                                                   config.get<&AppConfig::sparse_grid>(), config.get<&AppConfig::gmf>(),
-                                                  init.meta, progress));
+                                                  init.meta, request.reading, progress));
   } else {
     progress.say("train: no volume given: training on the views alone (no 3D term, no empty-space pruning)");
   }
@@ -218,7 +218,8 @@ nlohmann::ordered_json TrainStage::run(const RunRequest& request, const Config& 
                                        const Progress& progress) {
   const fs::path train = request.dir / "train";
   if (!resume) clear_stage_folder(request.dir, kFolder, request.volume);  // a stale or different run: start over
-  train_model({request.dir / "gmf.ply", request.dir / "gt" / "train", train, request.backend, resume, request.volume},
+  train_model({request.dir / "gmf.ply", request.dir / "gt" / "train", train, request.backend, resume, request.volume,
+               request.reading},
               config, progress);
   return nullptr;
 }

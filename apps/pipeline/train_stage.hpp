@@ -8,6 +8,7 @@
 #include "apps/pipeline/config_slice.hpp"
 #include "apps/pipeline/progress.hpp"
 #include "apps/pipeline/run_stage.hpp"
+#include "apps/pipeline/stack_reading.hpp"
 #include "apps/pipeline/stage_folder.hpp"
 #include "gmf/checkpoint.hpp"
 #include "splat/backend.hpp"
@@ -27,6 +28,7 @@ struct TrainRequest {
   // The stack the model was fitted to: enables the 3D term (train.lambda_3d) and
   // empty-space pruning. Empty: training sees the views only.
   std::filesystem::path volume;
+  StackReading reading{};  // how `volume` is read: whole, or tile by tile when it does not fit
 };
 struct TrainOutcome {
   int epochs = 0;

@@ -6,7 +6,6 @@
 
 #include "apps/pipeline/format.hpp"
 #include "gmf/samples.hpp"
-#include "io/load_volume.hpp"
 #include "io/sparse_grid.hpp"
 #include "io/timer.hpp"
 
@@ -17,13 +16,14 @@ std::shared_ptr<const splat::VolumeTerm> make_training_volume(const std::filesys
                                                               const io::SparseGridOptions& sparse_grid,
                                                               const gmf::GmfOptions& gmf,
                                                               const gmf::CheckpointMeta& meta,
+                                                              const StackReading& reading,
                                                               const Progress& progress) {
   io::Stopwatch watch;
-  const io::LoadedVolume loaded = io::load_volume(volume, volume_options);
-  gmf::require_same_world_box(meta, loaded.frame, volume.string());
   io::SparseGridOptions options = sparse_grid;
   options.background_fraction = gmf.background_fraction;  // the fit's samples of empty space
-  auto grid = std::make_shared<io::SparseGrid>(io::build_sparse_grid(loaded.volume, loaded.frame.aspect(), options));
+  auto grid =
+      std::make_shared<io::SparseGrid>(read_sparse_grid(volume, volume_options, options, reading, "train", progress));
+  gmf::require_same_world_box(meta, grid->frame(), volume.string());
   const gmf::SampleSet set = gmf::extract_samples(*grid, gmf.background_weight, 8);
   splat::VolumeSamples samples;
   const auto narrow = [](const std::vector<double>& v) { return std::vector<float>(v.begin(), v.end()); };
@@ -33,7 +33,7 @@ std::shared_ptr<const splat::VolumeTerm> make_training_volume(const std::filesys
   samples.value = narrow(set.value);
   samples.weight = narrow(set.weight);
   samples.block_begin.assign(set.block_begin.begin(), set.block_begin.end());
-  const io::WorldFrame frame = loaded.frame;
+  const io::WorldFrame frame = grid->frame();
   // Empty: the voxel nearest the point is outside the volume or not active
   // (neither foreground nor within the band around it).
   splat::EmptySpaceTest empty = [grid, frame](const double world[3]) {

@@ -10,12 +10,14 @@
 
 #include "apps/pipeline/app_config.hpp"
 #include "apps/pipeline/progress.hpp"
+#include "apps/pipeline/stack_reading.hpp"
 #include "gmf/checkpoint.hpp"
 #include "splat/volume_term.hpp"
 
 namespace hisnegs::apps {
 
-// Loads `volume` with the config's volume options, checks that it spans the world
+// Reads `volume` with the config's volume options (whole, or tile by tile when it does
+// not fit under reading.max_memory: the same samples), checks that it spans the world
 // box the model `meta` was fitted to (io::InputError naming the file otherwise) and
 // builds the term with the model's own 3D aggregation. One line "train: ...".
 std::shared_ptr<const splat::VolumeTerm> make_training_volume(const std::filesystem::path& volume,
@@ -23,6 +25,7 @@ std::shared_ptr<const splat::VolumeTerm> make_training_volume(const std::filesys
                                                               const io::SparseGridOptions& sparse_grid,
                                                               const gmf::GmfOptions& gmf,
                                                               const gmf::CheckpointMeta& meta,
+                                                              const StackReading& reading,
                                                               const Progress& progress);
 
 }  // namespace hisnegs::apps

@@ -6,30 +6,28 @@
 #include "apps/pipeline/report_tables.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
-#include "io/load_volume.hpp"
 #include "io/timer.hpp"
 
 namespace hisnegs::apps {
 
 io::SparseGrid write_sparse_grid(const std::filesystem::path& volume_path, const VolumeConfig& config,
-                                 const std::filesystem::path& out, const Progress& progress) {
-  const io::SparseGridOptions& sparse = config.get<&AppConfig::sparse_grid>();
-  sparse.validate();
+                                 const std::filesystem::path& out, const Progress& progress,
+                                 const StackReading& reading) {
   io::Stopwatch watch;
-  const io::LoadedVolume loaded = io::load_volume(volume_path, config.get<&AppConfig::volume>());
-  const double t_load = watch.lap();
-  io::SparseGrid grid = io::build_sparse_grid(loaded.volume, loaded.frame.aspect(), sparse);
+  io::SparseGrid grid = read_sparse_grid(volume_path, config.get<&AppConfig::volume>(),
+                                         config.get<&AppConfig::sparse_grid>(), reading, "vdb", progress);
   const double t_build = watch.lap();
   io::write_vdb(out, grid);
   const double t_write = watch.lap();
-  const double total = static_cast<double>(loaded.volume.size());
+  const io::SparseGridMeta& m = grid.meta();
+  const double total = static_cast<double>(m.shape_xyz[0]) * m.shape_xyz[1] * m.shape_xyz[2];
   progress.say(
       "vdb: wrote %s: %lld active voxels (%.3f %% of %.2f M), %lld background samples, %lld leaves, %s "
-      "in memory (dense float32: %s); load %s, build %s, write %s",
+      "in memory (dense float32: %s); read and build %s, write %s",
       out.c_str(), static_cast<long long>(grid.active_voxels()), 100.0 * grid.active_voxels() / total, total / 1e6,
       static_cast<long long>(grid.background_voxels()), static_cast<long long>(grid.leaf_count()),
       format_bytes(static_cast<double>(grid.memory_bytes())).c_str(), format_bytes(total * 4.0).c_str(),
-      format_seconds(t_load).c_str(), format_seconds(t_build).c_str(), format_seconds(t_write).c_str());
+      format_seconds(t_build).c_str(), format_seconds(t_write).c_str());
   return grid;
 }
 
@@ -38,7 +36,7 @@ std::string VolumeStage::request_inputs(const RunRequest& request) { return file
 nlohmann::ordered_json VolumeStage::run(const RunRequest& request, const Config& config, bool,
                                         const Progress& progress) {
   const std::filesystem::path& dir = request.dir;
-  const io::SparseGrid grid = write_sparse_grid(request.volume, config, dir / "volume.vdb", progress);
+  const io::SparseGrid grid = write_sparse_grid(request.volume, config, dir / "volume.vdb", progress, request.reading);
   const io::SparseGridMeta& m = grid.meta();
   const nlohmann::ordered_json info{{"source", io::printable(request.volume.string(), 500)},
                                     {"shape_xyz", m.shape_xyz},

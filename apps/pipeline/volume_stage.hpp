@@ -14,10 +14,12 @@ namespace hisnegs::apps {
 
 using VolumeConfig = ConfigSlice<&AppConfig::volume, &AppConfig::sparse_grid>;
 
-// Loads + normalizes `volume_path`, builds the sparse grid and writes it to `out`;
+// Loads + normalizes `volume_path` (or, when it does not fit under reading.max_memory,
+// reads it tile by tile: the same grid), builds the sparse grid and writes it to `out`;
 // one "vdb: wrote ..." line. Throws io::InputError on a bad stack or setting.
 io::SparseGrid write_sparse_grid(const std::filesystem::path& volume_path, const VolumeConfig& config,
-                                 const std::filesystem::path& out, const Progress& progress);
+                                 const std::filesystem::path& out, const Progress& progress,
+                                 const StackReading& reading = {});
 
 // In a run folder: DIR/volume.vdb and DIR/volume.json (source, shape, spacing, aspect,
 // normalization, active voxels, file size). Its input is the volume file itself.

@@ -7,8 +7,12 @@
 
 #include <fstream>
 #include <nlohmann/json.hpp>
+#include <span>
 #include <string>
+#include <tuple>
+#include <vector>
 
+#include "io/sparse_grid.hpp"
 #include "tests/test_support.hpp"
 
 namespace hisnegs {
@@ -164,6 +168,56 @@ TEST_F(CliRun, ResumesAnInterruptedTraining) {
   EXPECT_EQ(reused_stages(r.out), 3) << r.out;  // volume, ground truth, fit; eval and orbit follow the new model
   EXPECT_TRUE(fs::is_regular_file(run_dir / "train" / "final.ply"));
   EXPECT_EQ(testing::csv_data_rows(run_dir / "train" / "log.csv"), 3);
+}
+
+// Every active voxel of one part of a grid: index and value, in the grid's order.
+std::vector<std::tuple<int, int, int, float>> active_voxels(const io::SparseGrid& grid, io::SparseGridPart part) {
+  std::vector<std::tuple<int, int, int, float>> out;
+  grid.visit_active_leaves(part, [&](const std::array<int, 3>&, std::span<const io::ActiveVoxel> voxels) {
+    for (const io::ActiveVoxel& v : voxels) out.emplace_back(v.index[0], v.index[1], v.index[2], v.value);
+  });
+  return out;
+}
+
+// A stack read in bricks (as one larger than --max-memory is): every stage runs, the
+// stages share one streaming pass (stack_statistics.json), and the sparse grid and the
+// ground truth are the whole stack's, byte for byte.
+TEST_F(CliRun, ReadsTheStackInBricksWithTheSameGridAndGroundTruth) {
+  const auto r = run({"--brick-voxels", "16"});
+  ASSERT_EQ(r.exit_code, 0) << r.err << r.out;
+  const fs::path out = dir_ / "run";
+  for (const char* f : {"stack_statistics.json", "volume.vdb", "gt/eval/mips.tif", "gmf.ply", "train/final.ply",
+                        "eval/metrics.json", "report.md"}) {
+    EXPECT_TRUE(fs::is_regular_file(out / f)) << f;
+  }
+  for (const char* line : {"vdb: sparse grid of", "gt: ", "read by bricks of 16 voxels", "train: sparse grid of",
+                           "3 x 3 x 1 = 9 bricks"}) {
+    EXPECT_NE((r.out + r.err).find(line), std::string::npos) << line << "\n" << r.out << r.err;
+  }
+  const Json stats = read_json(out / "stack_statistics.json");
+  EXPECT_LT(stats["raw_lo"].get<double>(), stats["raw_hi"].get<double>());
+  // The whole stack, read at once by the standalone commands.
+  const auto vdb = run_hisnegs({"--config", dir_ / "tiny.yaml", "-q", "vdb", dir_ / "s.tif", "-o", dir_ / "w.vdb"});
+  ASSERT_EQ(vdb.exit_code, 0) << vdb.err;
+  // (a .vdb file holds a UUID of its own: the grids are compared, not the bytes)
+  const io::SparseGrid whole = io::read_vdb(dir_ / "w.vdb"), tiled = io::read_vdb(out / "volume.vdb");
+  EXPECT_GT(whole.active_voxels(), 0);
+  for (const auto part : {io::SparseGridPart::kForeground, io::SparseGridPart::kBackground}) {
+    EXPECT_TRUE(active_voxels(whole, part) == active_voxels(tiled, part)) << "the grids differ";
+  }
+  const auto gt = run_hisnegs(
+      {"--config", dir_ / "tiny.yaml", "-q", "gt", dir_ / "s.tif", "-o", dir_ / "gt", "--orbit", "eval", "--backend", "cpu"});
+  ASSERT_EQ(gt.exit_code, 0) << gt.err;
+  EXPECT_TRUE(testing::read_bytes(dir_ / "gt" / "mips.tif") == testing::read_bytes(out / "gt" / "eval" / "mips.tif"))
+      << "the ground truth differs";
+  // A --max-memory that cannot hold the smallest brick is refused before the run
+  // folder is made.
+  const auto small = run_hisnegs({"--config", dir_ / "tiny.yaml", "run", dir_ / "s.tif", "-o", dir_ / "small",
+                                  "--backend", "cpu", "--max-memory", "1MiB"});
+  EXPECT_EQ(small.exit_code, 2);
+  EXPECT_EQ(testing::count_lines(small.err), 1) << small.err;
+  EXPECT_NE(small.err.find("--max-memory = 1MiB: too small"), std::string::npos) << small.err;
+  EXPECT_FALSE(fs::exists(dir_ / "small"));
 }
 
 TEST_F(CliRun, BadInputGetsOneLineErrors) {
