@@ -543,18 +543,17 @@ struct PageSink {
   std::function<void(int z, const float* page)> done;
 };
 
-// The shared page loop of read_tiff_stack and read_tiff_region: fills `shape`'s
-// header (nz = z_end - z_begin; z_end -1: the last page), calls `allocate` once the
-// file has been checked (before any page is decoded), then decodes the strips or
-// tiles of each page of [z_begin, z_end) that meet `window` into sink.target(z) and
-// hands the page to sink.done.
-void read_pages(const fs::path& path, const TiffReadOptions& options, int z_begin, int z_end, const PageWindow& window,
-                Volume& shape, const std::function<void(Volume&)>& allocate, const PageSink& sink) {
+// The stack's layout, checked before anything is allocated: channels, depth, the
+// first page's data and an uncompressed stack's size against the file's.
+struct CheckedStack {
+  StackLayout s;
+  std::uint64_t file_size = 0;
+};
+CheckedStack check_stack(TIFF* tif, const TiffHandle& handle, const fs::path& path, const TiffReadOptions& options) {
   options.validate();
-  const std::unique_ptr<TiffHandle> handle = open_for_read(path);
-  TIFF* tif = handle->get();
-  const StackLayout s = analyse_stack(tif, *handle, path, options);
-
+  CheckedStack c;
+  c.s = analyse_stack(tif, handle, path, options);
+  const StackLayout& s = c.s;
   if (s.channels() > 1 && !options.channel) {
     fail_input(path, "has " + std::to_string(s.channels()) + " channels; choose one with --channel (0.." +
                          std::to_string(s.channels() - 1) + ")");
@@ -564,6 +563,84 @@ void read_pages(const fs::path& path, const TiffReadOptions& options, int z_begi
     fail_input(path, "has a single Z slice (" + std::to_string(s.pages) + " pages, " + std::to_string(s.channels()) +
                          " channels); expected a 3D stack");
   }
+  std::error_code size_error;
+  c.file_size = fs::file_size(path, size_error);
+  if (size_error) fail_input(path, "cannot read its size: " + size_error.message());
+  check_page_data(tif, path, 0, s, c.file_size);  // before anything is allocated
+  if (s.compression == compression_name(COMPRESSION_NONE)) {
+    const double need =
+        static_cast<double>(s.format.width) * s.format.height * s.format.samples * bytes_of(s.type) * s.nz;
+    if (need > static_cast<double>(c.file_size)) {
+      fail_input(path, "claims " + std::to_string(s.nz) + " uncompressed pages of " + format_text(s.format) + " (" +
+                           gib_text(need) + ") but the file has " + std::to_string(c.file_size) +
+                           " bytes; truncated or damaged");
+    }
+  }
+  return c;
+}
+
+// Moves to page `page` (> 0) by the chain from the current one, and checks that it
+// matches page 0's format.
+void next_page(TIFF* tif, const TiffHandle& handle, const fs::path& path, int page, const StackLayout& s) {
+  if (!TIFFReadDirectory(tif) || handle.messages().errors > 0) {
+    fail_input(path, "cannot read page " + std::to_string(page) + " of " + std::to_string(s.pages) + handle.detail());
+  }
+  const PageFormat f = read_page_format(tif);
+  if (!(f == s.format)) {
+    fail_input(path, "page " + std::to_string(page) + " is " + format_text(f) + " but page 0 is " +
+                         format_text(s.format) + "; all pages must match");
+  }
+}
+
+}  // namespace
+
+// Where each page's directory starts, from one walk of the chain that checked every
+// page's format.
+class TiffPageIndex {
+ public:
+  CheckedStack stack;
+  std::vector<std::uint64_t> offsets;  // of page p's IFD
+
+  // A handle of the file for one read: an idle one (libtiff keeps what it learnt of
+  // the directory chain in it: opening the file anew walked the whole chain on every
+  // read), else a new one. Given back by `give_back` after a read that succeeded.
+  [[nodiscard]] std::unique_ptr<TiffHandle> take(const fs::path& path) const {
+    {
+      const std::lock_guard<std::mutex> lock(mutex_);
+      if (!idle_.empty()) {
+        std::unique_ptr<TiffHandle> h = std::move(idle_.back());
+        idle_.pop_back();
+        return h;
+      }
+    }
+    return open_for_read(path);
+  }
+  void give_back(std::unique_ptr<TiffHandle> handle) const {
+    const std::lock_guard<std::mutex> lock(mutex_);
+    if (idle_.size() < kMaxIdle) idle_.push_back(std::move(handle));
+  }
+
+ private:
+  static constexpr std::size_t kMaxIdle = 64;  // one per thread reading at once
+  mutable std::mutex mutex_;
+  mutable std::vector<std::unique_ptr<TiffHandle>> idle_;
+};
+
+namespace {
+
+// The page loop of read_tiff_stack and read_tiff_region: fills `shape`'s header
+// (nz = z_end - z_begin; z_end -1: the last page), calls `allocate` once the file has
+// been checked (before any page is decoded), then decodes the strips or tiles of
+// each page of [z_begin, z_end) that meet `window` into sink.target(z) and hands the
+// page to sink.done. Without `index` it walks the directory chain from page 0; with
+// it, it goes to each page's directory by its offset.
+void read_pages(const fs::path& path, const TiffReadOptions& options, int z_begin, int z_end, const PageWindow& window,
+                Volume& shape, const std::function<void(Volume&)>& allocate, const PageSink& sink,
+                const TiffPageIndex* index = nullptr) {
+  std::unique_ptr<TiffHandle> handle = index ? index->take(path) : open_for_read(path);
+  TIFF* tif = handle->get();
+  const CheckedStack checked = index ? index->stack : check_stack(tif, *handle, path, options);
+  const StackLayout& s = checked.s;
   if (z_end < 0) z_end = s.nz;
   if (z_begin < 0 || z_end > s.nz || z_begin >= z_end) {
     throw std::invalid_argument("read_tiff_region: pages [" + std::to_string(z_begin) + ", " + std::to_string(z_end) +
@@ -573,20 +650,7 @@ void read_pages(const fs::path& path, const TiffReadOptions& options, int z_begi
   const int channel = options.channel.value_or(0);
   const int page_channel = channel / s.format.samples;
   const int sample = channel % s.format.samples;
-
   const int nx = static_cast<int>(s.format.width), ny = static_cast<int>(s.format.height);
-  std::error_code size_error;
-  const std::uint64_t file_size = fs::file_size(path, size_error);
-  if (size_error) fail_input(path, "cannot read its size: " + size_error.message());
-  check_page_data(tif, path, 0, s, file_size);  // before anything is allocated
-  if (s.compression == compression_name(COMPRESSION_NONE)) {
-    const double need = static_cast<double>(nx) * ny * s.format.samples * bytes_of(s.type) * s.nz;
-    if (need > static_cast<double>(file_size)) {
-      fail_input(path, "claims " + std::to_string(s.nz) + " uncompressed pages of " + format_text(s.format) +
-                           " (" + gib_text(need) + ") but the file has " + std::to_string(file_size) +
-                           " bytes; truncated or damaged");
-    }
-  }
   // z (within the slab) of each page we need (-1: another channel, or outside the slab).
   std::vector<int> z_of_page(static_cast<std::size_t>(s.pages), -1);
   int last_page = 0;
@@ -608,19 +672,19 @@ void read_pages(const fs::path& path, const TiffReadOptions& options, int z_begi
 
   DecodeBuffer buffer;
   const std::size_t page_voxels = static_cast<std::size_t>(nx) * ny;
-  for (int page = 0; page <= last_page; ++page) {
-    if (page > 0 && (!TIFFReadDirectory(tif) || handle->messages().errors > 0)) {
-      fail_input(path,
-                 "cannot read page " + std::to_string(page) + " of " + std::to_string(s.pages) + handle->detail());
-    }
-    const PageFormat f = read_page_format(tif);
-    if (!(f == s.format)) {
-      fail_input(path, "page " + std::to_string(page) + " is " + format_text(f) + " but page 0 is " +
-                           format_text(s.format) + "; all pages must match");
-    }
+  for (int page = index ? z_begin * s.stride_z + page_channel * s.stride_c : 0; page <= last_page; ++page) {
     const int z = z_of_page[static_cast<std::size_t>(page)];
+    if (index) {
+      if (z < 0) continue;
+      if (!TIFFSetSubDirectory(tif, index->offsets[static_cast<std::size_t>(page)]) || handle->messages().errors > 0) {
+        fail_input(path, "cannot read page " + std::to_string(page) + " of " + std::to_string(s.pages) +
+                             handle->detail());
+      }
+    } else if (page > 0) {
+      next_page(tif, *handle, path, page, s);
+    }
     if (z < 0) continue;
-    if (page > 0) check_page_data(tif, path, page, s, file_size);  // page 0: checked before allocating
+    if (page > 0 || index) check_page_data(tif, path, page, s, checked.file_size);  // page 0: checked before allocating
     float* dst = sink.target(z);
     decode_page(tif, *handle, path, page, s, sample, dst, buffer, window);
     if (handle->messages().errors > 0) {
@@ -636,6 +700,7 @@ void read_pages(const fs::path& path, const TiffReadOptions& options, int z_begi
     }
     if (sink.done) sink.done(z, dst);
   }
+  if (index && handle->messages().errors == 0) index->give_back(std::move(handle));  // a failed read's is closed
 }
 
 }  // namespace
@@ -654,8 +719,22 @@ Volume read_tiff_stack(const fs::path& path, const TiffReadOptions& options) {
   return volume;
 }
 
+std::shared_ptr<const TiffPageIndex> index_tiff_pages(const fs::path& path, const TiffReadOptions& options) {
+  const std::unique_ptr<TiffHandle> handle = open_for_read(path);
+  TIFF* tif = handle->get();
+  auto index = std::make_shared<TiffPageIndex>();
+  index->stack = check_stack(tif, *handle, path, options);
+  const StackLayout& s = index->stack.s;
+  index->offsets.reserve(static_cast<std::size_t>(s.pages));
+  for (int page = 0; page < s.pages; ++page) {
+    if (page > 0) next_page(tif, *handle, path, page, s);
+    index->offsets.push_back(TIFFCurrentDirOffset(tif));
+  }
+  return index;
+}
+
 void read_tiff_region(const fs::path& path, const TiffReadOptions& options, const std::array<int, 3>& lo,
-                      const std::array<int, 3>& hi, float* out) {
+                      const std::array<int, 3>& hi, float* out, const TiffPageIndex* index) {
   if (lo[0] < 0 || lo[1] < 0 || lo[0] >= hi[0] || lo[1] >= hi[1]) {
     throw std::invalid_argument("read_tiff_region: the box is empty or outside the stack");
   }
@@ -677,7 +756,8 @@ void read_tiff_region(const fs::path& path, const TiffReadOptions& options, cons
                    const float* row = page + static_cast<std::size_t>(y) * shape.nx + lo[0];
                    dst = std::copy(row, row + w, dst);
                  }
-               }});
+               }},
+      index);
 }
 
 }  // namespace hisnegs::io

@@ -5,6 +5,7 @@
 
 #include <array>
 #include <filesystem>
+#include <memory>
 #include <optional>
 #include <span>
 #include <string>
@@ -43,13 +44,22 @@ struct TiffReadOptions {
 // MemAvailable, or the environment variable HISNEGS_MAX_ALLOC_GB in GiB).
 [[nodiscard]] Volume read_tiff_stack(const std::filesystem::path& path, const TiffReadOptions& options = {});
 
+// Where each page's directory (IFD) starts, with the stack's layout: one walk of the
+// directory chain, checking every page as read_tiff_stack does, made once for many
+// region reads. Throws InputError as read_tiff_stack does.
+class TiffPageIndex;
+[[nodiscard]] std::shared_ptr<const TiffPageIndex> index_tiff_pages(const std::filesystem::path& path,
+                                                                    const TiffReadOptions& options = {});
+
 // The voxels [lo, hi) (x, y, z) of the stack into `out` (x fastest), with every
 // check read_tiff_stack makes, decoding only the pages, strips and tiles the box
-// meets (libtiff still walks the directories before them) into one reused page
-// buffer: memory is one page plus `out`. std::invalid_argument for a box that is
-// empty or outside the stack.
+// meets into one reused page buffer: memory is one page plus `out`. Without `index`
+// libtiff walks the directory chain from page 0 to the box's last page; with the
+// file's index (index_tiff_pages, same options) it goes to the box's pages directly,
+// so the cost of a read does not grow with its depth in the stack.
+// std::invalid_argument for a box that is empty or outside the stack.
 void read_tiff_region(const std::filesystem::path& path, const TiffReadOptions& options, const std::array<int, 3>& lo,
-                      const std::array<int, 3>& hi, float* out);
+                      const std::array<int, 3>& hi, float* out, const TiffPageIndex* index = nullptr);
 
 // How write_tiff_stack stores a stack.
 struct TiffWriteOptions {

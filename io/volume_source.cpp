@@ -4,8 +4,10 @@
 #include "io/volume_source.hpp"
 
 #include <algorithm>
-#include <numeric>
 #include <cmath>
+#include <memory>
+#include <mutex>
+#include <numeric>
 #include <sstream>
 #include <stdexcept>
 
@@ -44,19 +46,23 @@ class MemorySource final : public VolumeSource {
   Volume volume_;
 };
 
-// Each read opens the file on its own handle: concurrent reads share nothing. A read
-// decodes the pages of the box's z range, and of them the strips/tiles it meets.
+// Each read opens the file on its own handle: concurrent reads share only the page
+// index (made by the first read, read-only after). A read goes to the pages of the
+// box's z range by their offsets and decodes the strips/tiles it meets.
 class TiffSource final : public VolumeSource {
  public:
   TiffSource(std::filesystem::path path, TiffReadOptions options) : path_(std::move(path)), options_(std::move(options)) {}
   void read(const VoxelBox& box, float* out) const override {
     check_box(box);
-    read_tiff_region(path_, options_, box.lo, box.hi, out);
+    std::call_once(indexed_, [&] { index_ = index_tiff_pages(path_, options_); });
+    read_tiff_region(path_, options_, box.lo, box.hi, out, index_.get());
   }
 
  private:
   std::filesystem::path path_;
   TiffReadOptions options_;
+  mutable std::once_flag indexed_;
+  mutable std::shared_ptr<const TiffPageIndex> index_;
 };
 
 class Hdf5Source final : public VolumeSource {

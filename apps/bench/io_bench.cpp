@@ -10,7 +10,9 @@
 #include "apps/bench/benchmarks.hpp"
 #include "io/load_volume.hpp"
 #include "io/sparse_grid.hpp"
+#include "io/hdf5_stack.hpp"
 #include "io/stack_file.hpp"
+#include "io/tiff_stack.hpp"
 #include "io/volume_source.hpp"
 
 namespace hisnegs::apps::bench {
@@ -55,6 +57,29 @@ void register_io_benchmarks(const std::filesystem::path& volume) {
                                  })
         ->Unit(benchmark::kMillisecond)
         ->UseRealTime();
+  }
+
+  // TIFF only: a 64-voxel region at the end of the stack, its pages reached by walking
+  // the directory chain from page 0 or through the page index the source keeps.
+  if (!io::is_hdf5_stack(volume)) {
+    for (const bool indexed : {false, true}) {
+      benchmark::RegisterBenchmark(
+          ("io/tiff_region_64_last_pages_" + std::string(indexed ? "indexed" : "walked") + "/" + name).c_str(),
+          [volume, indexed](benchmark::State& state) {
+            const io::StackHeader h = io::inspect_stack(volume);
+            const std::array<int, 3> n{h.nx, h.ny, h.nz}, lo{0, 0, std::max(0, h.nz - 64)};
+            const std::array<int, 3> hi{std::min(64, n[0]), std::min(64, n[1]), n[2]};
+            const auto index = indexed ? io::index_tiff_pages(volume) : nullptr;
+            std::vector<float> out(static_cast<std::size_t>(hi[0]) * hi[1] * (hi[2] - lo[2]));
+            for (auto _ : state) {
+              io::read_tiff_region(volume, {}, lo, hi, out.data(), index.get());
+              benchmark::DoNotOptimize(out.data());
+            }
+            state.counters["pages"] = static_cast<double>(h.nz);
+          })
+          ->Unit(benchmark::kMillisecond)
+          ->UseRealTime();
+    }
   }
 
   benchmark::RegisterBenchmark(("io/load_and_normalize/" + name).c_str(),

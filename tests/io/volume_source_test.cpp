@@ -192,12 +192,20 @@ TEST(VolumeSource, TiledAndStripedTiffRegions) {
       "tifffile.imwrite(\"strips.tif\", a, rowsperstrip=3)'");
   ASSERT_EQ(r.status, 0) << r.out;
   const auto mem = memory_source(v);
-  for (const char* name : {"tiled.tif", "strips.tif"}) {
-    const auto s = open_volume_source(dir / name);
+  for (const char* name : {"s.tif", "tiled.tif", "strips.tif"}) {
+    const auto s = open_volume_source(dir / name);  // reads through the file's page index
+    const auto index = index_tiff_pages(dir / name);
     std::mt19937 rng(8);
     for (int k = 0; k < 20; ++k) {
       const VoxelBox b = random_box(v, rng);
-      ASSERT_EQ(read_box(*s, b), read_box(*mem, b)) << name << " box " << k;
+      const std::vector<float> expected = read_box(*mem, b);
+      ASSERT_EQ(read_box(*s, b), expected) << name << " box " << k;
+      // The chain walked from page 0 and the index's offsets read the same voxels.
+      std::vector<float> walked(b.voxels()), indexed(b.voxels());
+      read_tiff_region(dir / name, {}, b.lo, b.hi, walked.data());
+      read_tiff_region(dir / name, {}, b.lo, b.hi, indexed.data(), index.get());
+      ASSERT_EQ(walked, expected) << name << " box " << k;
+      ASSERT_EQ(indexed, expected) << name << " box " << k;
     }
   }
 }
