@@ -1,8 +1,8 @@
 // SPDX-License-Identifier: Apache-2.0
-// fit_mixture: per round, the round's model (β), its trust region and index, one
-// optimizer (the brick sweep, a global Ceres problem, L-BFGS or Adam) under the time
-// budget, pruning, the round's loss and foreground PSNR, density control; the
-// final all-voxel 3D PSNR after the fit.
+// fit_mixture: the round loop (RoundLoop: per round the model (β), samples, trust
+// region and index, one optimizer (the brick sweep, a global Ceres problem, L-BFGS
+// or Adam) under the time budget, pruning, the round's loss and foreground PSNR,
+// density control; the final all-voxel 3D PSNR after the last round).
 #include "gmf/fit.hpp"
 
 #include <ceres/ceres.h>
@@ -110,44 +110,67 @@ struct RoundOutcome {
   std::string message;
 };
 
+// One round's problem: the parameters in double, the block index padded to the
+// round's trust region, and the box bounds of every parameter.
+struct RoundProblem {
+  std::vector<Params> params;
+  BlockIndex index;
+  std::vector<double> lower, upper;
+  [[nodiscard]] double* x() { return params.empty() ? nullptr : params[0].data(); }
+  [[nodiscard]] int gaussians() const { return static_cast<int>(params.size()); }
+};
+static_assert(sizeof(Params) == kGaussianParamCount * sizeof(double), "Params must be a plain array of doubles");
+
+// What a solver is given for one round besides its problem: the round's samples and
+// models, where its log lines go, and how far it may go.
+struct RoundContext {
+  const SampleSet& samples;
+  const io::WorldFrame& frame;
+  const GmfOptions& options;
+  const MixtureModel& model;   // what the round solves
+  const MixtureModel& report;  // what its log lines measure (GmfOptions::report_model)
+  FitLog& log;
+  int round = 0;
+  int iteration0 = 0;      // iterations of the rounds before
+  int max_iterations = 0;  // this round's
+  double seconds_left = 0;
+};
+
 // One round of a trust-region solver (LM with sparse normal Cholesky or CGNR, Dogleg).
-RoundOutcome solve_least_squares(const SampleSet& samples, const BlockIndex& index, std::vector<Params>& params,
-                                 const std::vector<double>& lower, const std::vector<double>& upper,
-                                 ceres::Manifold& manifold, const GmfOptions& options, const MixtureModel& model,
-                                 int max_iterations, double seconds_left, FitLog& log, int round, int iteration0,
-                                 int K) {
+RoundOutcome solve_least_squares(RoundProblem& r, const RoundContext& c, ceres::Manifold& manifold) {
   ceres::Problem::Options po;
   po.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   ceres::Problem problem(po);
-  for (std::size_t k = 0; k < params.size(); ++k) {
+  for (std::size_t k = 0; k < r.params.size(); ++k) {
     const std::size_t at = kGaussianParamCount * k;
-    detail::add_gaussian_block(problem, params[k].data(), &manifold, &lower[at], &upper[at]);
+    detail::add_gaussian_block(problem, r.params[k].data(), &manifold, &r.lower[at], &r.upper[at]);
   }
-  const double constant = unreached_loss(samples, index);
-  for (std::size_t b = 0; b < samples.blocks(); ++b) {
-    const auto ids = index.of(b);
+  const double constant = unreached_loss(c.samples, r.index);
+  for (std::size_t b = 0; b < c.samples.blocks(); ++b) {
+    const auto ids = r.index.of(b);
     if (ids.empty()) continue;
     std::vector<double*> blocks;
     blocks.reserve(ids.size());
-    for (std::uint32_t k : ids) blocks.push_back(params[k].data());
-    problem.AddResidualBlock(new detail::BlockCost(samples, b, ids.size(), model), nullptr, blocks);
+    for (std::uint32_t k : ids) blocks.push_back(r.params[k].data());
+    problem.AddResidualBlock(new detail::BlockCost(c.samples, b, ids.size(), c.model), nullptr, blocks);
   }
   ceres::Solver::Options so;
-  so.max_num_iterations = max_iterations;
-  so.max_solver_time_in_seconds = seconds_left;
+  so.max_num_iterations = c.max_iterations;
+  so.max_solver_time_in_seconds = c.seconds_left;
   so.num_threads = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
   so.minimizer_progress_to_stdout = false;
   so.logging_type = ceres::SILENT;
-  so.trust_region_strategy_type = options.optimizer == Optimizer::kDogleg ? ceres::DOGLEG : ceres::LEVENBERG_MARQUARDT;
+  so.trust_region_strategy_type =
+      c.options.optimizer == Optimizer::kDogleg ? ceres::DOGLEG : ceres::LEVENBERG_MARQUARDT;
   so.linear_solver_type =
-      options.optimizer == Optimizer::kLevenbergMarquardtCgnr ? ceres::CGNR : ceres::SPARSE_NORMAL_CHOLESKY;
-  LogCallback callback(log, round, iteration0, constant, K, log_beta(model));
+      c.options.optimizer == Optimizer::kLevenbergMarquardtCgnr ? ceres::CGNR : ceres::SPARSE_NORMAL_CHOLESKY;
+  LogCallback callback(c.log, c.round, c.iteration0, constant, r.gaussians(), log_beta(c.model));
   so.callbacks.push_back(&callback);
   ceres::Solver::Summary summary;
   ceres::Solve(so, &problem, &summary);
   if (summary.termination_type == ceres::FAILURE) {
     // e.g. a non-finite residual or Jacobian at the start; Ceres rejects non-finite steps itself
-    throw std::runtime_error("fit failed in round " + std::to_string(round) + ": " + summary.message);
+    throw std::runtime_error("fit failed in round " + std::to_string(c.round) + ": " + summary.message);
   }
   RoundOutcome out;
   out.iterations = summary.iterations.empty() ? 0 : summary.iterations.back().iteration;
@@ -173,20 +196,20 @@ class ObjectiveFunction final : public ceres::FirstOrderFunction {
 // One round of L-BFGS (ceres::GradientProblem). Ceres' line-search solver has no
 // bounds, so the result is clamped to the round's box afterwards (the quaternion
 // needs none: the loss normalizes it and its gradient is tangent).
-RoundOutcome solve_lbfgs(const FitObjective& objective, double* x, const std::vector<double>& lower,
-                         const std::vector<double>& upper, int max_iterations, double seconds_left, FitLog& log,
-                         int round, int iteration0, int K, double beta) {
+RoundOutcome solve_lbfgs(RoundProblem& r, const RoundContext& c) {
+  const FitObjective objective(c.samples, r.index, r.params.size(), c.model);
+  double* x = r.x();
   ceres::GradientProblem problem(new ObjectiveFunction(objective));
   ceres::GradientProblemSolver::Options go;
   go.line_search_direction_type = ceres::LBFGS;
-  go.max_num_iterations = max_iterations;
-  go.max_solver_time_in_seconds = seconds_left;
+  go.max_num_iterations = c.max_iterations;
+  go.max_solver_time_in_seconds = c.seconds_left;
   go.logging_type = ceres::SILENT;
-  LogCallback callback(log, round, iteration0, 0.0, K, beta);
+  LogCallback callback(c.log, c.round, c.iteration0, 0.0, r.gaussians(), log_beta(c.model));
   go.callbacks.push_back(&callback);
   ceres::GradientProblemSolver::Summary summary;
   ceres::Solve(go, problem, x, &summary);
-  for (std::size_t i = 0; i < lower.size(); ++i) x[i] = std::clamp(x[i], lower[i], upper[i]);
+  for (std::size_t i = 0; i < r.lower.size(); ++i) x[i] = std::clamp(x[i], r.lower[i], r.upper[i]);
   RoundOutcome out;
   out.iterations = summary.iterations.empty() ? 0 : summary.iterations.back().iteration;
   out.final_loss = objective.evaluate(x, nullptr);
@@ -199,44 +222,45 @@ RoundOutcome solve_lbfgs(const FitObjective& objective, double* x, const std::ve
 // ε 1e-8, step gmf.adam_learning_rate, times the smallest voxel size for means
 // (world units); each step is projected onto the round's box. The moments carry over
 // from the previous round when K did not change (a restart spikes the loss). A step
-// is not started when it would end past the time left. `report` (null: `objective`)
-// is what the logged loss is measured with, when that is another β.
-RoundOutcome solve_adam(const FitObjective& objective, const FitObjective* report, double* x,
-                        const std::vector<double>& lower, const std::vector<double>& upper, const GmfOptions& options,
-                        Adam<double>& adam, int max_iterations, double seconds_left, double min_voxel, FitLog& log,
-                        int round, int iteration0, int K, double beta) {
+// is not started when it would end past the time left. The logged loss is measured
+// at the report model's β when that differs from the solved one.
+RoundOutcome solve_adam(RoundProblem& r, const RoundContext& c, Adam<double>& adam) {
+  const FitObjective objective(c.samples, r.index, r.params.size(), c.model);
+  std::optional<FitObjective> report;
+  if (c.report.beta != c.model.beta) report.emplace(c.samples, r.index, r.params.size(), c.report);
+  double* x = r.x();
   const std::size_t n = objective.parameters();
   if (adam.gaussians() != n / kGaussianParamCount) adam = Adam<double>(AdamOptions{}, n / kGaussianParamCount);
   std::vector<double> g(n);
-  const double lr = options.adam_learning_rate;
-  const GroupRates rates = {lr * min_voxel, lr, lr, lr};
+  const double lr = c.options.adam_learning_rate;
+  const GroupRates rates = {lr * c.frame.voxel_size().minCoeff(), lr, lr, lr};
   const std::span<double> params(x, n);
   io::Stopwatch round_watch;
   RoundOutcome out;
   double loss = 0, step_seconds = 0;
   int step = 0;
-  for (; step < max_iterations && round_watch.elapsed() + step_seconds < seconds_left; ++step) {
+  for (; step < c.max_iterations && round_watch.elapsed() + step_seconds < c.seconds_left; ++step) {
     const double t0 = round_watch.elapsed();
     loss = objective.evaluate(x, g.data());
     if (!std::isfinite(loss)) {
-      throw std::runtime_error("fit diverged in round " + std::to_string(round) + ", Adam step " +
+      throw std::runtime_error("fit diverged in round " + std::to_string(c.round) + ", Adam step " +
                                std::to_string(step + 1) + ": the loss is not finite");
     }
     if (const std::string bad = describe_non_finite<double>(g, "gradient"); !bad.empty()) {
-      throw std::runtime_error("fit diverged in round " + std::to_string(round) + ", Adam step " +
+      throw std::runtime_error("fit diverged in round " + std::to_string(c.round) + ", Adam step " +
                                std::to_string(step + 1) + ": " + bad + " is not finite");
     }
     FitIteration it;
-    it.round = round;
-    it.iteration = iteration0 + step;
-    it.seconds = log.clock.now();
-    it.loss = report != nullptr ? report->evaluate(x, nullptr) : loss;
-    it.gaussians = K;
-    it.beta = beta;
-    if (log.add(it)) break;  // at stop_loss: x is the point that reached it
+    it.round = c.round;
+    it.iteration = c.iteration0 + step;
+    it.seconds = c.log.clock.now();
+    it.loss = report ? report->evaluate(x, nullptr) : loss;
+    it.gaussians = r.gaussians();
+    it.beta = log_beta(c.report);
+    if (c.log.add(it)) break;  // at stop_loss: x is the point that reached it
     adam.step(params, g, rates);
-    for (std::size_t i = 0; i < n; ++i) x[i] = std::clamp(x[i], lower[i], upper[i]);
-    (void)bound_axis_ratio(std::span<double>(x, n), options.max_axis_ratio);
+    for (std::size_t i = 0; i < n; ++i) x[i] = std::clamp(x[i], r.lower[i], r.upper[i]);
+    (void)bound_axis_ratio(std::span<double>(x, n), c.options.max_axis_ratio);
     step_seconds = round_watch.elapsed() - t0;
   }
   out.iterations = step;
@@ -245,19 +269,35 @@ RoundOutcome solve_adam(const FitObjective& objective, const FitObjective* repor
   return out;
 }
 
-}  // namespace
-
-namespace {
-
-// One round's problem: the parameters in double, the block index padded to the
-// round's trust region, and the box bounds of every parameter.
-struct RoundProblem {
-  std::vector<Params> params;
-  BlockIndex index;
-  std::vector<double> lower, upper;
-  [[nodiscard]] double* x() { return params.empty() ? nullptr : params[0].data(); }
-};
-static_assert(sizeof(Params) == kGaussianParamCount * sizeof(double), "Params must be a plain array of doubles");
+// The brick sweep as one round: the partition of this round's Gaussians and one
+// sweep in which each brick gets gmf.brick_iterations LM iterations.
+RoundOutcome solve_bricks(RoundProblem& r, const RoundContext& c) {
+  io::Stopwatch watch;
+  {  // the round's starting loss, as the other solvers log it (their iteration 0)
+    const FitObjective objective(c.samples, r.index, r.params.size(), c.report);
+    FitIteration it;
+    it.round = c.round;
+    it.iteration = c.iteration0;
+    it.seconds = c.log.clock.now();
+    it.loss = objective.evaluate(r.x(), nullptr);
+    it.gaussians = r.gaussians();
+    it.beta = log_beta(c.report);
+    if (c.log.add(it)) return RoundOutcome{.message = "reached gmf.stop_loss"};
+  }
+  const BrickPartition partition =
+      partition_into_bricks(r.params, r.index, c.frame, c.options.brick_voxels, c.options.brick_gaussians);
+  BrickSweepOptions so;
+  so.model = c.model;
+  so.iterations = c.options.brick_iterations;
+  so.seconds_left = c.seconds_left - watch.elapsed();
+  const BrickSweepStats stats = sweep_bricks(c.samples, r.index, partition, r.params, r.lower, r.upper, so);
+  RoundOutcome out;
+  out.iterations = static_cast<int>(std::min<std::int64_t>(stats.iterations, 1 << 30));
+  out.message = "brick LM: " + std::to_string(partition.gaussians.size()) + " bricks in " +
+                std::to_string(partition.colours.size()) + " colours" +
+                (stats.bricks_skipped > 0 ? ", " + std::to_string(stats.bricks_skipped) + " left for time" : "");
+  return out;
+}
 
 // Per-round trust region on each Gaussian's geometry: its mean stays within one
 // (largest) voxel of the round's start and its scales grow by at most kScaleGrowth,
@@ -299,73 +339,6 @@ RoundProblem prepare_round(const GaussianMixture& mixture, const SampleSet& samp
   return r;
 }
 
-// What the optimizers keep between rounds.
-struct SolverState {
-  Adam<double> adam;  // the moments, kept while K does not change
-};
-
-// The brick sweep as one round: the partition of this round's Gaussians and one
-// sweep in which each brick gets gmf.brick_iterations LM iterations.
-RoundOutcome solve_bricks(RoundProblem& r, const SampleSet& samples, const io::WorldFrame& frame,
-                          const GmfOptions& options, const MixtureModel& model, const MixtureModel& report,
-                          double seconds_left, FitLog& log, int round, int iteration0) {
-  io::Stopwatch watch;
-  {  // the round's starting loss, as the other solvers log it (their iteration 0)
-    const FitObjective objective(samples, r.index, r.params.size(), report);
-    FitIteration it;
-    it.round = round;
-    it.iteration = iteration0;
-    it.seconds = log.clock.now();
-    it.loss = objective.evaluate(r.x(), nullptr);
-    it.gaussians = static_cast<int>(r.params.size());
-    it.beta = log_beta(report);
-    if (log.add(it)) return RoundOutcome{.message = "reached gmf.stop_loss"};
-  }
-  const BrickPartition partition =
-      partition_into_bricks(r.params, r.index, frame, options.brick_voxels, options.brick_gaussians);
-  BrickSweepOptions so;
-  so.model = model;
-  so.iterations = options.brick_iterations;
-  so.seconds_left = seconds_left - watch.elapsed();
-  const BrickSweepStats stats = sweep_bricks(samples, r.index, partition, r.params, r.lower, r.upper, so);
-  RoundOutcome out;
-  out.iterations = static_cast<int>(std::min<std::int64_t>(stats.iterations, 1 << 30));
-  out.message = "brick LM: " + std::to_string(partition.gaussians.size()) + " bricks in " +
-                std::to_string(partition.colours.size()) + " colours" +
-                (stats.bricks_skipped > 0 ? ", " + std::to_string(stats.bricks_skipped) + " left for time" : "");
-  return out;
-}
-
-// The configured optimizer on one round's problem.
-// Adam and the brick LM log the loss under `report` (GmfOptions::report_model); the
-// others solve at it (GmfOptions::validate).
-RoundOutcome solve_round(RoundProblem& r, const SampleSet& samples, const io::WorldFrame& frame,
-                         const GmfOptions& options, const MixtureModel& model, const MixtureModel& report,
-                         SolverState& state, ceres::Manifold& manifold, int max_iterations, double seconds_left,
-                         FitLog& log, int round, int iteration0) {
-  const int K = static_cast<int>(r.params.size());
-  const double min_voxel = frame.voxel_size().minCoeff();
-  switch (options.optimizer) {
-    case Optimizer::kBrickLm:
-      return solve_bricks(r, samples, frame, options, model, report, seconds_left, log, round, iteration0);
-    case Optimizer::kLbfgs: {
-      const FitObjective objective(samples, r.index, r.params.size(), model);
-      return solve_lbfgs(objective, r.x(), r.lower, r.upper, max_iterations, seconds_left, log, round, iteration0, K,
-                         log_beta(model));
-    }
-    case Optimizer::kAdam: {
-      const FitObjective objective(samples, r.index, r.params.size(), model);
-      std::optional<FitObjective> at_report;
-      if (report.beta != model.beta) at_report.emplace(samples, r.index, r.params.size(), report);
-      return solve_adam(objective, at_report ? &*at_report : nullptr, r.x(), r.lower, r.upper, options, state.adam,
-                        max_iterations, seconds_left, min_voxel, log, round, iteration0, K, log_beta(report));
-    }
-    default:
-      return solve_least_squares(samples, r.index, r.params, r.lower, r.upper, manifold, options, model, max_iterations,
-                                 seconds_left, log, round, iteration0, K);
-  }
-}
-
 // Back to float, pruning a < prune_intensity; returns how many were pruned.
 int take_round_result(RoundProblem& r, const GmfOptions& options, GaussianMixture& mixture) {
   // Every optimizer's result within the axis ratio (Adam keeps it at each step).
@@ -396,7 +369,176 @@ SampleFit measure_on_samples(const GaussianMixture& mixture, const SampleSet& sa
   return out;
 }
 
+// The fit's rounds, one step per method: sample (the round's samples), index (its
+// trust region and padded block index), solve (the configured optimizer), log (the
+// round's loss and foreground PSNR), density (pruning was in take; split and clone),
+// and after the last round measure (the all-voxel 3D PSNR). The stack is reached
+// only through StackAccess, so a caller that holds it by regions or on other ranks
+// drives the same maths.
+class RoundLoop {
+ public:
+  RoundLoop(const StackAccess& stack, const SampleSet& centres, const io::WorldFrame& frame, GaussianMixture& mixture,
+            const GmfOptions& options, const std::function<void(const FitIteration&)>& on_progress)
+      : stack_(stack),
+        centres_(centres),
+        frame_(frame),
+        mixture_(mixture),
+        options_(options),
+        log_{result_, clock_, on_progress, options.stop_loss},
+        jitter_(options.jitter()) {}
+
+  FitResult run() {
+    // The round's measurement and density control must fit after its solve: the
+    // solve gets the time left minus what they took last round.
+    double overhead = 0;
+    for (int round = 0; round < options_.rounds; ++round) {
+      const double left = options_.time_budget_s - clock_.now() - overhead;
+      if (left <= 0) {
+        result_.stop_reason = "time budget";
+        break;
+      }
+      model_ = options_.model(round);
+      report_ = options_.report_model(round);
+      const SampleSet& samples = sample(round);
+      RoundProblem problem = index(samples);
+      const RoundOutcome outcome = solve(problem, samples, round, left);
+      const double solved_at = clock_.now();
+      iterations_ += outcome.iterations;
+      result_.stop_reason = outcome.message;
+      FitRound stats;
+      stats.round = round;
+      stats.pruned = take_round_result(problem, options_, mixture_);
+      problem = RoundProblem{};  // its padded index is the largest allocation: gone before the next index is built
+      result_.pruned += stats.pruned;
+      // The round's result's block index: for its measurement and its density control.
+      const BlockIndex current =
+          build_block_index(mixture_, samples, frame_, model_.cutoff, 1.0, jitter_reach(frame_, jitter_));
+      log_round(samples, current, round);
+      const bool last = log_.reached_stop_loss || (options_.max_iterations > 0 && iterations_ >= options_.max_iterations);
+      if (log_.reached_stop_loss) {
+        result_.stop_reason = "reached gmf.stop_loss";
+      } else if (last) {
+        result_.stop_reason = "gmf.max_iterations";
+      }
+      // Density control for the next round (not after the last one, nor when out of time).
+      if (!last && options_.densify && round + 1 < options_.rounds && clock_.now() < options_.time_budget_s) {
+        density(samples, current, stats);
+      }
+      overhead = clock_.now() - solved_at;
+      if (!last) stats.gaussians = static_cast<int>(mixture_.size());
+      result_.rounds.push_back(stats);
+      if (last) break;
+      if (outcome.converged && round > 0 && stats.split == 0 && stats.cloned == 0 &&
+          options_.model(round + 1).beta == model_.beta) {
+        result_.stop_reason = "converged: " + outcome.message;
+        break;
+      }
+    }
+    result_.seconds = clock_.now();
+    result_.final_beta = log_beta(report_);
+    measure();
+    return std::move(result_);
+  }
+
+ private:
+  // sample: the voxel centres, or each moved within its voxel (gmf.jitter), seeded by the round.
+  const SampleSet& sample(int round) {
+    if (jitter_ <= 0) return centres_;
+    moved_ = SampleSet{};  // the last round's are gone before this round's are made
+    moved_ = stack_.jittered(centres_, jitter_, io::splitmix64(options_.seed) + static_cast<std::uint64_t>(round));
+    return moved_;
+  }
+
+  // index: the round's trust region and its padded block index.
+  RoundProblem index(const SampleSet& samples) const { return prepare_round(mixture_, samples, frame_, options_); }
+
+  // solve: the configured optimizer on the round's problem. Adam and the brick LM log
+  // the loss under the report model; the others solve at it (GmfOptions::validate).
+  RoundOutcome solve(RoundProblem& problem, const SampleSet& samples, int round, double seconds_left) {
+    int round_iterations = options_.iterations_per_round;
+    if (options_.max_iterations > 0) round_iterations = std::min(round_iterations, options_.max_iterations - iterations_);
+    const RoundContext c{samples, frame_, options_, model_, report_, log_, round, iterations_, round_iterations,
+                         seconds_left};
+    switch (options_.optimizer) {
+      case Optimizer::kBrickLm:
+        return solve_bricks(problem, c);
+      case Optimizer::kLbfgs:
+        return solve_lbfgs(problem, c);
+      case Optimizer::kAdam:
+        return solve_adam(problem, c, adam_);
+      default:
+        return solve_least_squares(problem, c, manifold_);
+    }
+  }
+
+  // log: the round's loss and foreground PSNR on its samples, one line.
+  void log_round(const SampleSet& samples, const BlockIndex& current, int round) {
+    const SampleFit fit = measure_on_samples(mixture_, samples, current, report_);
+    FitIteration end;
+    end.round = round;
+    end.iteration = iterations_;
+    end.seconds = clock_.now();
+    end.loss = fit.loss;
+    end.psnr_fg = fit.psnr_fg;
+    end.gaussians = static_cast<int>(mixture_.size());
+    end.beta = log_beta(report_);
+    log_.add(end);
+    result_.final_psnr_fg = fit.psnr_fg;
+  }
+
+  // density: split and clone for the next round.
+  void density(const SampleSet& samples, const BlockIndex& current, FitRound& stats) {
+    const DensityChange change = adapt_density(mixture_, samples, current, frame_, options_, model_);
+    stats.split = change.split;
+    stats.cloned = change.cloned;
+  }
+
+  // measure: the all-voxel 3D PSNR and, when the rounds measured moved samples, the
+  // foreground PSNR at the voxel centres; the final log line carries both.
+  void measure() {
+    io::Stopwatch measuring;
+    result_.final_psnr_3d = stack_.psnr_3d(mixture_, RasterizeOptions::of(report_));
+    if (jitter_ > 0 && !result_.log.empty()) {
+      const BlockIndex index = build_block_index(mixture_, centres_, frame_, report_.cutoff);
+      result_.final_psnr_fg = measure_on_samples(mixture_, centres_, index, report_).psnr_fg;
+    }
+    result_.measuring_seconds = measuring.elapsed();
+    FitIteration final_line = result_.log.empty() ? FitIteration{} : result_.log.back();
+    final_line.psnr_3d = result_.final_psnr_3d;
+    if (jitter_ > 0 && final_line.psnr_fg >= 0) final_line.psnr_fg = result_.final_psnr_fg;
+    final_line.gaussians = static_cast<int>(mixture_.size());
+    log_.add(final_line);
+  }
+
+  const StackAccess& stack_;
+  const SampleSet& centres_;
+  const io::WorldFrame& frame_;
+  GaussianMixture& mixture_;
+  const GmfOptions& options_;
+  FitClock clock_;
+  FitResult result_;
+  FitLog log_;
+  const double jitter_;  // 0: every round samples the voxel centres
+  SampleSet moved_;      // this round's samples when jittered
+  detail::GaussianManifold manifold_;
+  Adam<double> adam_;  // the moments, kept while K does not change
+  int iterations_ = 0;
+  MixtureModel model_ = options_.model(0);
+  MixtureModel report_ = options_.report_model(0);  // what the log measures
+};
+
 }  // namespace
+
+StackAccess stack_access(const io::Volume& volume, const io::WorldFrame& frame) {
+  StackAccess s;
+  s.jittered = [&volume, frame](const SampleSet& centres, double jitter, std::uint64_t seed) {
+    return jitter_samples(centres, volume, frame, jitter, seed);
+  };
+  s.psnr_3d = [&volume, frame](const GaussianMixture& mixture, const RasterizeOptions& options) {
+    return mixture_psnr(mixture, frame, options, volume.voxels);
+  };
+  return s;
+}
 
 SampleSet fit_samples(const io::SparseGrid& grid, const GmfOptions& options) {
   options.validate();
@@ -411,99 +553,14 @@ FitResult fit_mixture(const io::Volume& volume, const io::SparseGrid& grid, Gaus
 FitResult fit_mixture(const io::Volume& volume, const SampleSet& centres, const io::WorldFrame& frame,
                       GaussianMixture& mixture, const GmfOptions& options,
                       const std::function<void(const FitIteration&)>& on_progress) {
+  return fit_mixture(stack_access(volume, frame), centres, frame, mixture, options, on_progress);
+}
+
+FitResult fit_mixture(const StackAccess& stack, const SampleSet& centres, const io::WorldFrame& frame,
+                      GaussianMixture& mixture, const GmfOptions& options,
+                      const std::function<void(const FitIteration&)>& on_progress) {
   options.validate();
-  FitClock clock;
-  FitResult result;
-  FitLog log{result, clock, on_progress, options.stop_loss};
-  detail::GaussianManifold manifold;
-  SolverState state;
-  int iterations = 0;
-  MixtureModel model = options.model(0);
-  MixtureModel report = options.report_model(0);  // what the log measures
-  // The round's measurement and density control must fit after its solve: the
-  // solve gets the time left minus what they took last round.
-  double overhead = 0;
-  const double jitter = options.jitter();  // 0: every round samples the voxel centres
-  for (int round = 0; round < options.rounds; ++round) {
-    const double left = options.time_budget_s - clock.now() - overhead;
-    if (left <= 0) {
-      result.stop_reason = "time budget";
-      break;
-    }
-    model = options.model(round);
-    report = options.report_model(round);
-    int round_iterations = options.iterations_per_round;
-    if (options.max_iterations > 0) round_iterations = std::min(round_iterations, options.max_iterations - iterations);
-    // This round's samples: the voxel centres, or each moved within its voxel.
-    const SampleSet moved = jitter > 0
-                                ? jitter_samples(centres, volume, frame, jitter,
-                                                 io::splitmix64(options.seed) + static_cast<std::uint64_t>(round))
-                                : SampleSet{};
-    const SampleSet& samples = jitter > 0 ? moved : centres;
-    RoundProblem problem = prepare_round(mixture, samples, frame, options);
-    const RoundOutcome outcome = solve_round(problem, samples, frame, options, model, report, state, manifold,
-                                             round_iterations, left, log, round, iterations);
-    const double solved_at = clock.now();
-    iterations += outcome.iterations;
-    result.stop_reason = outcome.message;
-    FitRound stats;
-    stats.round = round;
-    stats.pruned = take_round_result(problem, options, mixture);
-    problem = RoundProblem{};  // its padded index is the largest allocation: gone before the next index is built
-    result.pruned += stats.pruned;
-    // The round's result's block index: for its measurement and its density control.
-    const BlockIndex current =
-        build_block_index(mixture, samples, frame, model.cutoff, 1.0, jitter_reach(frame, jitter));
-    const SampleFit fit = measure_on_samples(mixture, samples, current, report);
-    FitIteration end;
-    end.round = round;
-    end.iteration = iterations;
-    end.seconds = clock.now();
-    end.loss = fit.loss;
-    end.psnr_fg = fit.psnr_fg;
-    end.gaussians = static_cast<int>(mixture.size());
-    end.beta = log_beta(report);
-    log.add(end);
-    result.final_psnr_fg = fit.psnr_fg;
-    const bool last = log.reached_stop_loss || (options.max_iterations > 0 && iterations >= options.max_iterations);
-    if (log.reached_stop_loss) {
-      result.stop_reason = "reached gmf.stop_loss";
-    } else if (last) {
-      result.stop_reason = "gmf.max_iterations";
-    }
-    // Density control for the next round (not after the last one, nor when out of time).
-    if (!last && options.densify && round + 1 < options.rounds && clock.now() < options.time_budget_s) {
-      const DensityChange change = adapt_density(mixture, samples, current, frame, options, model);
-      stats.split = change.split;
-      stats.cloned = change.cloned;
-    }
-    overhead = clock.now() - solved_at;
-    if (!last) stats.gaussians = static_cast<int>(mixture.size());
-    result.rounds.push_back(stats);
-    if (last) break;
-    if (outcome.converged && round > 0 && stats.split == 0 && stats.cloned == 0 &&
-        options.model(round + 1).beta == model.beta) {
-      result.stop_reason = "converged: " + outcome.message;
-      break;
-    }
-  }
-  result.seconds = clock.now();
-  result.final_beta = log_beta(report);
-  io::Stopwatch measuring;
-  result.final_psnr_3d = mixture_psnr(mixture, frame, RasterizeOptions::of(report), volume.voxels);
-  if (jitter > 0 && !result.log.empty()) {
-    // The rounds measured their moved samples; the result is measured, like the
-    // 3D PSNR, at the voxel centres.
-    const BlockIndex index = build_block_index(mixture, centres, frame, report.cutoff);
-    result.final_psnr_fg = measure_on_samples(mixture, centres, index, report).psnr_fg;
-  }
-  result.measuring_seconds = measuring.elapsed();
-  FitIteration final_line = result.log.empty() ? FitIteration{} : result.log.back();
-  final_line.psnr_3d = result.final_psnr_3d;
-  if (jitter > 0 && final_line.psnr_fg >= 0) final_line.psnr_fg = result.final_psnr_fg;
-  final_line.gaussians = static_cast<int>(mixture.size());
-  log.add(final_line);
-  return result;
+  return RoundLoop(stack, centres, frame, mixture, options, on_progress).run();
 }
 
 }  // namespace hisnegs::gmf

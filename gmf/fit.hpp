@@ -2,7 +2,9 @@
 // The GMF fit (report §2.1, §5): least squares of the mixture against the
 // volume's sparse samples with Ceres, in rounds; between rounds the block index
 // is rebuilt, faint Gaussians are pruned and density control splits and clones
-// (gmf/density.hpp). Ceres stays inside fit.cpp.
+// (gmf/density.hpp). Ceres is used here (fit.cpp), by the brick sweep
+// (brick_solver.cpp) and the Jacobian probe (jacobian_probe.cpp), through the cost
+// of gmf/detail/block_cost.hpp; the rest of gmf knows nothing of it.
 #pragma once
 
 #include <functional>
@@ -11,6 +13,7 @@
 
 #include "gmf/gaussian_mixture.hpp"
 #include "gmf/gmf_options.hpp"
+#include "gmf/rasterize.hpp"
 #include "gmf/samples.hpp"
 #include "io/sparse_grid.hpp"
 #include "io/volume.hpp"
@@ -65,6 +68,22 @@ struct FitResult {
 FitResult fit_mixture(const io::Volume& volume, const SampleSet& samples, const io::WorldFrame& frame,
                       GaussianMixture& mixture, const GmfOptions& options,
                       const std::function<void(const FitIteration&)>& on_progress = {});
+// What the fit's rounds need of the stack besides its samples: the values at samples
+// moved within their voxels (gmf.jitter > 0) and, after the last round, the 3D PSNR
+// over every voxel. stack_access() reads a dense stack in memory (which must outlive
+// the fit); a caller that holds the stack otherwise (by regions, on other ranks)
+// provides its own and drives the same round loop.
+struct StackAccess {
+  std::function<SampleSet(const SampleSet& centres, double jitter, std::uint64_t seed)> jittered;
+  std::function<double(const GaussianMixture& mixture, const RasterizeOptions& options)> psnr_3d;
+};
+[[nodiscard]] StackAccess stack_access(const io::Volume& volume, const io::WorldFrame& frame);
+
+// fit_mixture with the stack reached through `stack`.
+FitResult fit_mixture(const StackAccess& stack, const SampleSet& samples, const io::WorldFrame& frame,
+                      GaussianMixture& mixture, const GmfOptions& options,
+                      const std::function<void(const FitIteration&)>& on_progress = {});
+
 // The same with fit_samples(grid, options) in grid.frame().
 FitResult fit_mixture(const io::Volume& volume, const io::SparseGrid& grid, GaussianMixture& mixture,
                       const GmfOptions& options, const std::function<void(const FitIteration&)>& on_progress = {});

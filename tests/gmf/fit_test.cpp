@@ -6,6 +6,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <random>
 
 #include "gmf/block_index.hpp"
@@ -243,6 +244,43 @@ TEST(GmfFit, MovedSamplesResultIsMeasuredAtTheVoxelCentres) {
   ASSERT_FALSE(r.log.empty());
   EXPECT_NEAR(r.log.back().psnr_fg, expected, 1e-9);
   EXPECT_GT(r.final_psnr_fg, 20.0);
+}
+
+// The round loop reaches the stack only through StackAccess: a caller's own access
+// (here: the dense one, counted) is asked for one set of moved samples per round and
+// one 3D PSNR at the end, and the fit equals the dense stack's fit.
+TEST(GmfFit, TheRoundLoopReachesTheStackThroughItsAccess) {
+  const Scene scene = make_scene(3);
+  const io::SparseGrid grid = grid_of(scene, 0.01);
+  GmfOptions o;
+  o.rounds = 3;
+  o.iterations_per_round = 8;
+  o.densify = false;
+  o.sample_jitter = 1.0;
+  o.time_budget_s = 600;
+  const SampleSet centres = fit_samples(grid, o);
+  const StackAccess dense = stack_access(scene.volume, scene.frame);
+  int jittered = 0, measured = 0;
+  StackAccess counted;
+  counted.jittered = [&](const SampleSet& c, double jitter, std::uint64_t seed) {
+    ++jittered;
+    return dense.jittered(c, jitter, seed);
+  };
+  counted.psnr_3d = [&](const GaussianMixture& m, const RasterizeOptions& r) {
+    ++measured;
+    return dense.psnr_3d(m, r);
+  };
+  GaussianMixture a = scene.truth, b = scene.truth;
+  const FitResult ra = fit_mixture(counted, centres, scene.frame, a, o);
+  const FitResult rb = fit_mixture(scene.volume, centres, scene.frame, b, o);
+  EXPECT_EQ(jittered, static_cast<int>(ra.rounds.size()));
+  EXPECT_EQ(jittered, 3);
+  EXPECT_EQ(measured, 1);
+  EXPECT_EQ(ra.final_psnr_3d, rb.final_psnr_3d);
+  EXPECT_GT(ra.final_psnr_3d, 20.0);
+  ASSERT_EQ(a.size(), b.size());
+  const auto pa = flat_params(a), pb = flat_params(b);
+  EXPECT_TRUE(std::equal(pa.begin(), pa.end(), pb.begin(), pb.end()));
 }
 
 }  // namespace
