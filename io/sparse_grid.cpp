@@ -415,7 +415,8 @@ SparseGrid build_sparse_grid(const Volume& vol, const Eigen::Vector3d& aspect, c
 
 SparseGrid build_sparse_grid(const VolumeSource& source, const Normalization& normalization,
                              const Eigen::Vector3d& aspect, const SparseGridOptions& options, int tile_voxels,
-                             const std::function<void(int, int)>& on_tile) {
+                             const std::function<void(int, int)>& on_tile,
+                             const SparseGrid::LeafVisitor& take_background) {
   options.validate();
   if (tile_voxels < kLeafDim || tile_voxels % kLeafDim != 0) {
     throw std::invalid_argument("build_sparse_grid: tile_voxels " + std::to_string(tile_voxels) +
@@ -451,6 +452,10 @@ SparseGrid build_sparse_grid(const VolumeSource& source, const Normalization& no
         source.read(box, part.voxels.data());
         (void)apply_normalization(part.voxels, normalization);
         build_tile(DenseBlock{part, box.lo}, shape, core, options, *impl);
+        if (take_background) {
+          SparseGrid(impl).visit_active_leaves(SparseGridPart::kBackground, take_background);
+          impl->background->clear();
+        }
         if (on_tile) on_tile(++done, total);
       }
     }

@@ -97,11 +97,15 @@ class VolumeSource;  // io/volume_source.hpp
 // regions: tiles of tile_voxels (a positive multiple of 8) on each axis, each read with
 // band_voxels around it and normalized by `normalization`, so memory holds one tile
 // and its band as float32 (plus the grids: foreground, band and samples). Calls
-// on_tile(done, total) after each tile. Throws what the source's read throws, and
+// on_tile(done, total) after each tile. With `take_background`, each tile's
+// background leaves are handed to it (leaf origin and active voxels, tile by tile)
+// instead of kept in the grid: scattered samples cost an 8³ leaf each, as much as
+// the stack itself on a large one. Throws what the source's read throws, and
 // std::invalid_argument for a tile_voxels that is not a multiple of 8.
 SparseGrid build_sparse_grid(const VolumeSource& source, const Normalization& normalization,
                              const Eigen::Vector3d& aspect, const SparseGridOptions& options, int tile_voxels,
-                             const std::function<void(int done, int total)>& on_tile = {});
+                             const std::function<void(int done, int total)>& on_tile = {},
+                             const SparseGrid::LeafVisitor& take_background = {});
 
 // Writes `volume` (+ `background`) grids with metadata, atomically.
 void write_vdb(const std::filesystem::path& path, const SparseGrid& grid);

@@ -50,6 +50,7 @@ class VolumeTerm {
   // Whether Gaussian `p` (kGaussianParamCount values) has its centre in empty space.
   [[nodiscard]] bool centre_in_empty_space(const float* p) const;
   [[nodiscard]] std::size_t blocks() const { return samples_.blocks(); }
+  [[nodiscard]] const VolumeSamples& samples() const { return samples_; }
   [[nodiscard]] const gmf::MixtureModel& model() const { return model_; }
 
  private:

@@ -38,9 +38,11 @@ int reading_core(const std::array<int, 3>& shape, const StackReading& reading, c
   return core;
 }
 
-BrickNeed sparse_grid_need(const io::SparseGridOptions& sparse) {
+BrickNeed sparse_grid_need(const io::SparseGridOptions& sparse, double stack_voxels) {
   BrickNeed need;  // a tile is read and normalized in place
-  need.bytes_per_voxel = 4.0;
+  const bool background = sparse.background_fraction > 0;
+  need.bytes_per_voxel = background ? 8.0 : 4.0;
+  need.base_bytes += stack_voxels * sparse.background_fraction * 40.0;
   need.halo = sparse.band_voxels;
   return need;
 }
@@ -98,11 +100,14 @@ io::Normalization source_normalization(const io::VolumeSource& source, const io:
 
 io::SparseGrid read_sparse_grid(const std::filesystem::path& volume, const io::VolumeOptions& options,
                                 const io::SparseGridOptions& sparse, const StackReading& reading,
-                                const std::string& what, const Progress& progress) {
+                                const std::string& what, const Progress& progress,
+                                const io::SparseGrid::LeafVisitor& take_background) {
   options.validate();
   sparse.validate();
   const auto source = io::open_volume_source(volume, io::stack_read_options(options));
-  int tile = reading_core({source->nx, source->ny, source->nz}, reading, sparse_grid_need(sparse), what, progress);
+  const double voxels = static_cast<double>(source->nx) * source->ny * source->nz;
+  int tile = reading_core({source->nx, source->ny, source->nz}, reading, sparse_grid_need(sparse, voxels), what,
+                          progress);
   if (tile == 0) {
     const io::LoadedVolume loaded = io::load_volume(volume, options);
     return io::build_sparse_grid(loaded.volume, loaded.frame.aspect(), sparse);
@@ -115,7 +120,7 @@ io::SparseGrid read_sparse_grid(const std::filesystem::path& volume, const io::V
   const double t_stats = watch.lap();
   io::SparseGrid grid = io::build_sparse_grid(*source, map, frame.aspect(), sparse, tile, [&](int done, int total) {
     if (progress.meter) progress.meter(strf("%s: sparse grid tile %d/%d", what.c_str(), done, total), done == total);
-  });
+  }, take_background);
   progress.say("%s: sparse grid of %s by tiles of %d voxels: statistics (%s) %s, tiles %s", what.c_str(),
                volume.c_str(), tile, map.describe().c_str(), format_seconds(t_stats).c_str(),
                format_seconds(watch.lap()).c_str());

@@ -33,8 +33,11 @@ struct BrickNeed {
   int smallest = 16;  // the smallest core edge worth planning
 };
 
-// What the sparse grid's tiles need: their voxels and the band around them as float32.
-[[nodiscard]] BrickNeed sparse_grid_need(const io::SparseGridOptions& sparse);
+// What the sparse grid of a stack of `stack_voxels` needs by tiles: each tile's
+// voxels and the band around them as float32, as much again for a tile's scattered
+// background leaves when background_fraction > 0, and the background samples of
+// the whole stack handed over as float samples (20 bytes each, twice for growth).
+[[nodiscard]] BrickNeed sparse_grid_need(const io::SparseGridOptions& sparse, double stack_voxels);
 
 // The core edge in voxels of the bricks `what` reads a stack of `shape` (x, y, z) in:
 // 0 when the whole stack fits under reading.max_memory, reading.brick_voxels when it
@@ -51,9 +54,12 @@ struct BrickNeed {
 
 // The sparse grid of `volume` (volume options, sparse options): from the loaded stack
 // when it fits, else built tile by tile from its source (io::build_sparse_grid), the
-// same grid. One line "WHAT: ..." when it reads by tiles.
+// same grid. One line "WHAT: ..." when it reads by tiles. When it reads by tiles
+// and `take_background` is set, the background samples go to it tile by tile instead
+// of into the grid (io::build_sparse_grid); a stack loaded whole keeps them in the grid.
 [[nodiscard]] io::SparseGrid read_sparse_grid(const std::filesystem::path& volume, const io::VolumeOptions& options,
                                               const io::SparseGridOptions& sparse, const StackReading& reading,
-                                              const std::string& what, const Progress& progress);
+                                              const std::string& what, const Progress& progress,
+                                              const io::SparseGrid::LeafVisitor& take_background = {});
 
 }  // namespace hisnegs::apps

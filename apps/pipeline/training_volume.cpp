@@ -2,11 +2,15 @@
 // make_training_volume: the stack's samples and empty-space test for the trainer.
 #include "apps/pipeline/training_volume.hpp"
 
+#include <array>
 #include <cmath>
+#include <span>
 
 #include "apps/pipeline/format.hpp"
 #include "gmf/samples.hpp"
+#include "io/load_volume.hpp"
 #include "io/sparse_grid.hpp"
+#include "io/stack_file.hpp"
 #include "io/timer.hpp"
 
 namespace hisnegs::apps {
@@ -21,18 +25,54 @@ std::shared_ptr<const splat::VolumeTerm> make_training_volume(const std::filesys
   io::Stopwatch watch;
   io::SparseGridOptions options = sparse_grid;
   options.background_fraction = gmf.background_fraction;  // the fit's samples of empty space
-  auto grid =
-      std::make_shared<io::SparseGrid>(read_sparse_grid(volume, volume_options, options, reading, "train", progress));
+  // A stack read by tiles hands its background samples over tile by tile, one block
+  // per 8³ leaf as extract_samples makes them, straight into float samples: kept in
+  // the grid, scattered samples would cost a leaf each (as much as the stack).
+  const io::StackHeader header = io::inspect_stack(volume, io::stack_read_options(volume_options));
+  const io::WorldFrame stack =
+      io::stack_frame(header.nx, header.ny, header.nz, header.spacing, volume_options.aspect, volume);
+  const double fraction = options.background_fraction;
+  const float background_weight =
+      fraction > 0 ? static_cast<float>(std::sqrt(gmf.background_weight / fraction)) : 0.0f;
+  splat::VolumeSamples background;
+  const auto take = [&](const std::array<int, 3>&, std::span<const io::ActiveVoxel> voxels) {
+    if (background_weight <= 0) return;
+    if (background.x.capacity() == 0) {  // the expected count and five standard deviations: no doubling
+      const double n = static_cast<double>(header.nx) * header.ny * header.nz;
+      const auto expected = static_cast<std::size_t>(n * fraction + 5.0 * std::sqrt(n * fraction * (1.0 - fraction)));
+      for (auto* part : {&background.x, &background.y, &background.z, &background.value, &background.weight}) {
+        part->reserve(expected);
+      }
+    }
+    for (const io::ActiveVoxel& v : voxels) {
+      const Eigen::Vector3d p = stack.world_from_index(Eigen::Vector3d(v.index[0], v.index[1], v.index[2]));
+      background.x.push_back(static_cast<float>(p.x()));
+      background.y.push_back(static_cast<float>(p.y()));
+      background.z.push_back(static_cast<float>(p.z()));
+      background.value.push_back(v.value);
+      background.weight.push_back(background_weight);
+    }
+    background.block_begin.push_back(static_cast<std::uint32_t>(background.size()));
+  };
+  auto grid = std::make_shared<io::SparseGrid>(
+      read_sparse_grid(volume, volume_options, options, reading, "train", progress, take));
   gmf::require_same_world_box(meta, grid->frame(), volume.string());
-  const gmf::SampleSet set = gmf::extract_samples(*grid, gmf.background_weight, 8);
-  splat::VolumeSamples samples;
-  const auto narrow = [](const std::vector<double>& v) { return std::vector<float>(v.begin(), v.end()); };
-  samples.x = narrow(set.x);
-  samples.y = narrow(set.y);
-  samples.z = narrow(set.z);
-  samples.value = narrow(set.value);
-  samples.weight = narrow(set.weight);
-  samples.block_begin.assign(set.block_begin.begin(), set.block_begin.end());
+  // The grid's samples after the taken background (the larger array is not copied).
+  splat::VolumeSamples samples = std::move(background);
+  {
+    const gmf::SampleSet set = gmf::extract_samples(*grid, gmf.background_weight, 8);
+    const auto offset = static_cast<std::uint32_t>(samples.size());
+    const auto append = [](std::vector<float>& to, const std::vector<double>& from) {
+      to.reserve(to.size() + from.size());
+      to.insert(to.end(), from.begin(), from.end());
+    };
+    append(samples.x, set.x);
+    append(samples.y, set.y);
+    append(samples.z, set.z);
+    append(samples.value, set.value);
+    append(samples.weight, set.weight);
+    for (std::size_t b = 1; b < set.block_begin.size(); ++b) samples.block_begin.push_back(offset + set.block_begin[b]);
+  }
   const io::WorldFrame frame = grid->frame();
   // Empty: the voxel nearest the point is outside the volume or not active
   // (neither foreground nor within the band around it).

@@ -182,6 +182,21 @@ TEST(SparseGrid, TilesOfASourceGiveTheWholeStacksGrids) {
       EXPECT_EQ(tiles_seen, tiles_total);
       EXPECT_EQ(tiled.meta().shape_xyz, whole.meta().shape_xyz);
       EXPECT_EQ(tiled.meta().normalization.raw_hi, map.raw_hi);
+      // The background handed over tile by tile instead: the same voxels, none kept.
+      std::map<std::array<int, 3>, float> taken;
+      const SparseGrid without = build_sparse_grid(
+          *source, map, aspect, o, tile, {}, [&](const std::array<int, 3>&, std::span<const ActiveVoxel> voxels) {
+            for (const ActiveVoxel& v : voxels) EXPECT_TRUE(taken.emplace(v.index, v.value).second);
+          });
+      EXPECT_EQ(without.background_voxels(), 0);
+      expect_same_part(*whole.impl().volume, *without.impl().volume);
+      ASSERT_EQ(static_cast<std::int64_t>(taken.size()), whole.background_voxels());
+      auto bg = whole.impl().background->getConstAccessor();
+      for (const auto& [index, value] : taken) {
+        float expected = 0;
+        ASSERT_TRUE(bg.probeValue(openvdb::Coord(index[0], index[1], index[2]), expected));
+        ASSERT_EQ(value, expected);
+      }
     }
   }
   EXPECT_THROW((void)build_sparse_grid(*source, map, aspect, SparseGridOptions{}, 12), std::invalid_argument);
