@@ -221,14 +221,20 @@ TEST(GmfOptions, AutomaticJitterFollowsTheAggregation) {
 
 // With moved samples the rounds measure those; the fit's result (and its last log
 // line) gives the foreground PSNR at the voxel centres, like its 3D PSNR.
+// Three rounds of `iterations` on samples moved within their voxels, K fixed.
+GmfOptions three_jittered_rounds(int iterations) {
+  GmfOptions o;
+  o.rounds = 3;
+  o.iterations_per_round = iterations;
+  o.densify = false;
+  o.sample_jitter = 1.0;
+  return o;
+}
+
 TEST(GmfFit, MovedSamplesResultIsMeasuredAtTheVoxelCentres) {
   const Scene scene = make_scene(7);
   const io::SparseGrid grid = grid_of(scene, 0.01);
-  GmfOptions o;
-  o.rounds = 3;
-  o.iterations_per_round = 10;
-  o.densify = false;
-  o.sample_jitter = 1.0;
+  const GmfOptions o = three_jittered_rounds(10);
   GaussianMixture fitted = scene.truth;
   const FitResult r = fit_mixture(scene.volume, grid, fitted, o);
   const SampleSet centres = fit_samples(grid, o);
@@ -252,11 +258,7 @@ TEST(GmfFit, MovedSamplesResultIsMeasuredAtTheVoxelCentres) {
 TEST(GmfFit, TheRoundLoopReachesTheStackThroughItsAccess) {
   const Scene scene = make_scene(3);
   const io::SparseGrid grid = grid_of(scene, 0.01);
-  GmfOptions o;
-  o.rounds = 3;
-  o.iterations_per_round = 8;
-  o.densify = false;
-  o.sample_jitter = 1.0;
+  GmfOptions o = three_jittered_rounds(8);
   o.time_budget_s = 600;
   const SampleSet centres = fit_samples(grid, o);
   const StackAccess dense = stack_access(scene.volume, scene.frame);
