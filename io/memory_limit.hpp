@@ -12,7 +12,9 @@
 namespace hisnegs::io {
 
 // Bytes an input may allocate: HISNEGS_MAX_ALLOC_GB (GiB) if set, else the kernel's
-// MemAvailable, else unlimited. `source`, if given, gets where the limit came from.
+// MemAvailable or, when smaller, the headroom of this process' memory cgroup (its
+// tightest limit, v1 or v2, less what the cgroup uses: a Slurm job's --mem, a
+// container's limit), else unlimited. `source`, if given, gets where the limit came from.
 // Throws InputError if HISNEGS_MAX_ALLOC_GB is not a positive number.
 [[nodiscard]] double allocation_limit_bytes(std::string* source = nullptr);
 
@@ -28,8 +30,24 @@ void check_allocation(const std::filesystem::path& path, double bytes, const std
 // The machine's physical memory in bytes (0 if unknown).
 [[nodiscard]] double physical_memory_bytes();
 
-// A memory limit a user gave as `text` (parse_memory_size; `auto` = half the
-// machine's RAM, 8 GiB when that is unknown) and where it came from, for messages:
+// The tightest memory limit set on a process' cgroup or its ancestors (cgroup v2's
+// memory.max or v1's memory.limit_in_bytes, found through `proc_self_cgroup`
+// under `sys_fs_cgroup`) and the headroom (limit - usage) at the level with the
+// least; nullopt when no level sets a limit. The paths are parameters for tests.
+struct CgroupMemory {
+  double limit = 0, headroom = 0;
+};
+[[nodiscard]] std::optional<CgroupMemory> cgroup_memory(
+    const std::filesystem::path& proc_self_cgroup = "/proc/self/cgroup",
+    const std::filesystem::path& sys_fs_cgroup = "/sys/fs/cgroup");
+
+// The memory this process may use: physical memory, or the memory cgroup's limit
+// when that is smaller (0 if neither is known). `source` gets "RAM" or "memory
+// cgroup limit".
+[[nodiscard]] double usable_memory_bytes(std::string* source = nullptr);
+
+// A memory limit a user gave as `text` (parse_memory_size; `auto` = half of
+// usable_memory_bytes(), 8 GiB when that is unknown) and where it came from, for messages:
 // "FIELD 1.00 GiB" or "auto: half of 23.54 GiB of RAM".
 struct MemoryLimit {
   double bytes = 0;

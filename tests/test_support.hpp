@@ -28,6 +28,20 @@ class ScratchDir {
   std::filesystem::path path_;
 };
 
+// Sets an environment variable for one scope and restores what was there (or its
+// absence) when destroyed, also when an assertion leaves the test early.
+class ScopedEnv {
+ public:
+  ScopedEnv(const char* name, const char* value);
+  ~ScopedEnv();
+  ScopedEnv(const ScopedEnv&) = delete;
+  ScopedEnv& operator=(const ScopedEnv&) = delete;
+
+ private:
+  std::string name_;
+  std::optional<std::string> previous_;
+};
+
 struct CommandResult {
   int exit_code = -1;  // the process exit status; 128+N when killed by signal N
   std::string out;     // stdout

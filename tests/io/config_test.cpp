@@ -7,6 +7,7 @@
 
 #include "io/error.hpp"
 #include "io/memory_limit.hpp"
+#include "tests/test_support.hpp"
 
 namespace hisnegs::io {
 namespace {
@@ -187,6 +188,44 @@ TEST(MemorySize, ParsesBinaryAndDecimalUnitsAndAuto) {
   EXPECT_EQ(*parse_memory_size("512MiB", "f"), 512.0 * 1048576.0);
   EXPECT_EQ(*parse_memory_size("4096", "f"), 4096.0);
   EXPECT_GT(physical_memory_bytes(), 0.0);
+}
+
+// A Slurm job's --mem or a container's limit is a cgroup limit: below the
+// machine's RAM, and what MemAvailable does not show. A fake /proc and /sys tree.
+TEST(MemorySize, TheTightestCgroupLimitCountsWhereverItIsSet) {
+  testing::ScratchDir dir;
+  namespace fs = std::filesystem;
+  const auto put = [&](const std::string& file, const std::string& text) {
+    fs::create_directories((dir / file).parent_path());
+    testing::write_text(dir / file, text);
+  };
+  // v2: the job's own level sets nothing, its parent 4 GiB with 1 GiB used, the
+  // root nothing ("max").
+  put("proc_v2", "0::/slurm/job_7/step_0\n");
+  put("sys/cgroup.controllers", "cpu memory\n");
+  put("sys/memory.max", "max\n");
+  put("sys/slurm/job_7/memory.max", "4294967296\n");
+  put("sys/slurm/job_7/memory.current", "1073741824\n");
+  put("sys/slurm/job_7/step_0/memory.max", "max\n");
+  put("sys/slurm/job_7/step_0/memory.current", "5\n");
+  std::optional<CgroupMemory> m = cgroup_memory(dir / "proc_v2", dir / "sys");
+  ASSERT_TRUE(m.has_value());
+  EXPECT_EQ(m->limit, 4294967296.0);
+  EXPECT_EQ(m->headroom, 3221225472.0);
+  // v1 inside a container: the host's path does not exist under the mount, so
+  // the mount's root holds the limit; "no limit" is 2^63 rounded to a page.
+  put("proc_v1", "4:memory:/host/path\n0::/\n");
+  put("sys1/memory/memory.limit_in_bytes", "2147483648\n");
+  put("sys1/memory/memory.usage_in_bytes", "1073741824\n");
+  m = cgroup_memory(dir / "proc_v1", dir / "sys1");
+  ASSERT_TRUE(m.has_value());
+  EXPECT_EQ(m->headroom, 1073741824.0);
+  put("sys2/memory/memory.limit_in_bytes", "9223372036854771712\n");
+  EXPECT_FALSE(cgroup_memory(dir / "proc_v1", dir / "sys2").has_value());
+  EXPECT_FALSE(cgroup_memory(dir / "missing", dir / "sys").has_value());
+  // This machine: what may be used is never more than the RAM.
+  EXPECT_GT(usable_memory_bytes(), 0.0);
+  EXPECT_LE(usable_memory_bytes(), physical_memory_bytes());
 }
 
 TEST(MemorySize, RefusesWhatIsNotASizeNamingTheField) {

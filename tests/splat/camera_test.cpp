@@ -194,7 +194,7 @@ TEST(Camera, JsonHostileSizesAreRefusedBeforeAllocating) {
         << e.what();
   }
   // 64 views of 16384² floats are 64 GiB; with a 1 GiB limit that is refused.
-  ::setenv("HISNEGS_MAX_ALLOC_GB", "1", 1);
+  const testing::ScopedEnv limit("HISNEGS_MAX_ALLOC_GB", "1");
   testing::write_text(dir / "many.json", cameras(16384, 64));
   try {
     (void)read_cameras_json(dir / "many.json");
@@ -206,7 +206,6 @@ TEST(Camera, JsonHostileSizesAreRefusedBeforeAllocating) {
   }
   testing::write_text(dir / "fits.json", cameras(64, 64));
   EXPECT_EQ(read_cameras_json(dir / "fits.json").views.size(), 64u);
-  ::unsetenv("HISNEGS_MAX_ALLOC_GB");
 }
 
 // Keys and names quoted in messages may hold escaped line breaks ("a\nb"): one line still.

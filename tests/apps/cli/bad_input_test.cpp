@@ -250,10 +250,11 @@ TEST_F(BadInput, HostileValuesAreRefusedUpFront) {
   expect_rejected({"gt", in("ok.tif"), "--orbit", "custom", "--elevations", "10", "--ring-views", "2000000000",
                    "-o", gt},
                   {"--ring-views"});
-  ::setenv("HISNEGS_MAX_ALLOC_GB", "1", 1);
-  expect_rejected({"gt", in("ok.tif"), "--size", "16384", "--orbit", "train", "-o", gt},
-                  {"106 float32 views of 16384x16384", "limit is 1.00 GiB"});
-  ::unsetenv("HISNEGS_MAX_ALLOC_GB");
+  {
+    const testing::ScopedEnv limit("HISNEGS_MAX_ALLOC_GB", "1");
+    expect_rejected({"gt", in("ok.tif"), "--size", "16384", "--orbit", "train", "-o", gt},
+                    {"106 float32 views of 16384x16384", "limit is 1.00 GiB"});
+  }
   // YAML that says two things, or more than one document.
   testing::write_text(in("dup.yaml"), "splat:\n  beta: 10\n  beta: 20\n");
   expect_rejected({"--config", in("dup.yaml"), "vdb", in("ok.tif"), "-o", out()}, {"dup.yaml:3", "duplicate key 'beta'"});
@@ -289,10 +290,9 @@ TEST_F(BadInput, TinyTiffClaimingHugePagesAllocatesNothing) {
   TIFFClose(t);
   ASSERT_LT(fs::file_size(in("huge.tif")), 1000u);
   // With a 0.1 GiB allocation limit: had it allocated first, the limit would be the message.
-  ::setenv("HISNEGS_MAX_ALLOC_GB", "0.1", 1);
+  const testing::ScopedEnv limit("HISNEGS_MAX_ALLOC_GB", "0.1");
   expect_rejected({"info", in("huge.tif")}, {"huge.tif", "page 0", "truncated or damaged"});
   expect_rejected({"vdb", in("huge.tif"), "-o", out()}, {"huge.tif", "truncated"});
-  ::unsetenv("HISNEGS_MAX_ALLOC_GB");
 }
 
 // Issue 19: a valid .vdb whose grid-type string length is patched to ~2 GiB made
