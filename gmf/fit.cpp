@@ -436,6 +436,7 @@ class RoundLoop {
     }
     result_.seconds = clock_.now();
     result_.final_beta = log_beta(report_);
+    moved_ = SampleSet{};  // the last round's moved samples: not needed to measure
     measure();
     return std::move(result_);
   }

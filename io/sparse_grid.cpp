@@ -165,6 +165,21 @@ openvdb::math::Transform::Ptr frame_transform(const WorldFrame& frame) {
 }
 }  // namespace
 
+std::array<int, 9> SparseGrid::leaf_order_key(const std::array<int, 3>& o) {
+  // A FloatTree's root keys its children by origin (x, then y, then z); each
+  // internal node iterates its child table by offset, x-major.
+  using Upper = openvdb::FloatTree::RootNodeType::ChildNodeType;
+  using Lower = Upper::ChildNodeType;
+  const auto level = [&](int a, int total_log2, int child_log2) {
+    return total_log2 < 0 ? (o[a] >> Upper::TOTAL) : (o[a] & ((1 << total_log2) - 1)) >> child_log2;
+  };
+  return {level(0, -1, 0),           level(1, -1, 0),           level(2, -1, 0),
+          level(0, Upper::TOTAL, Lower::TOTAL), level(1, Upper::TOTAL, Lower::TOTAL), level(2, Upper::TOTAL, Lower::TOTAL),
+          level(0, Lower::TOTAL, openvdb::FloatTree::LeafNodeType::TOTAL),
+          level(1, Lower::TOTAL, openvdb::FloatTree::LeafNodeType::TOTAL),
+          level(2, Lower::TOTAL, openvdb::FloatTree::LeafNodeType::TOTAL)};
+}
+
 void SparseGrid::visit_active_leaves(SparseGridPart part, const LeafVisitor& visit) const {
   const openvdb::FloatGrid& grid = part == SparseGridPart::kForeground ? *impl_->volume : *impl_->background;
   std::vector<ActiveVoxel> voxels;
@@ -211,15 +226,11 @@ float SparseGrid::value(int x, int y, int z, bool* active) const {
 namespace {
 
 // Voxels of the stack held in memory: `vol` holds [origin, origin + (vol.nx, vol.ny,
-// vol.nz)) of a stack of `shape`; the whole stack when origin is 0 and the shapes agree.
+// vol.nz)) of the stack; the whole stack when origin is 0 and the shapes agree.
 struct DenseBlock {
   const Volume& vol;
   std::array<int, 3> origin{0, 0, 0};
   [[nodiscard]] float at(int x, int y, int z) const { return vol.at(x - origin[0], y - origin[1], z - origin[2]); }
-  [[nodiscard]] bool holds(const Coord& c) const {
-    return c.x() >= origin[0] && c.y() >= origin[1] && c.z() >= origin[2] && c.x() < origin[0] + vol.nx &&
-           c.y() < origin[1] + vol.ny && c.z() < origin[2] + vol.nz;
-  }
 };
 
 // The stack's 8^3 bricks (leaf units) and the range [lo, hi) of them one tile covers.
@@ -261,11 +272,12 @@ LeafT* make_leaf(const DenseBlock& block, const Coord& origin, Keep&& keep) {
             z1 = std::min(origin.z() + kLeafDim, block.origin[2] + vol.nz);
   for (int z = z0; z < z1; ++z) {
     for (int y = y0; y < y1; ++y) {
-      const float* row = &vol.voxels[vol.index(0, y - block.origin[1], z - block.origin[2])] - block.origin[0];
+      const float* row = &vol.voxels[vol.index(0, y - block.origin[1], z - block.origin[2])];  // x = origin[0]
       for (int x = x0; x < x1; ++x) {
-        if (!keep(x, y, z, row[x])) continue;
+        const float v = row[x - block.origin[0]];
+        if (!keep(x, y, z, v)) continue;
         if (!leaf) leaf = new LeafT(origin, 0.0f, false);
-        leaf->setValueOn(Coord(x, y, z), row[x]);
+        leaf->setValueOn(Coord(x, y, z), v);
       }
     }
   }

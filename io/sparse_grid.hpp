@@ -81,6 +81,11 @@ class SparseGrid {
   using LeafVisitor = std::function<void(const std::array<int, 3>& leaf_origin, std::span<const ActiveVoxel> voxels)>;
   void visit_active_leaves(SparseGridPart part, const LeafVisitor& visit) const;
 
+  // Where the 8³ leaf at `leaf_origin` comes in visit_active_leaves' order (the
+  // tree's: root tiles, then each internal level's children): leaves sorted by
+  // this key are in the order the grid visits them.
+  [[nodiscard]] static std::array<int, 9> leaf_order_key(const std::array<int, 3>& leaf_origin);
+
   // io's own code and tests only (io/detail/vdb_grids.hpp).
   [[nodiscard]] const Impl& impl() const { return *impl_; }
 

@@ -610,12 +610,14 @@ class TiffPageIndex {
       if (!idle_.empty()) {
         std::unique_ptr<TiffHandle> h = std::move(idle_.back());
         idle_.pop_back();
+        h->activate();  // this thread's sink for the read (TiffHandle)
         return h;
       }
     }
     return open_for_read(path);
   }
   void give_back(std::unique_ptr<TiffHandle> handle) const {
+    handle->deactivate();  // on the thread that read with it
     const std::lock_guard<std::mutex> lock(mutex_);
     if (idle_.size() < kMaxIdle) idle_.push_back(std::move(handle));
   }

@@ -46,22 +46,30 @@ class MemorySource final : public VolumeSource {
   Volume volume_;
 };
 
-// Each read opens the file on its own handle: concurrent reads share only the page
-// index (made by the first read, read-only after). A read goes to the pages of the
-// box's z range by their offsets and decodes the strips/tiles it meets.
+// Concurrent reads share the page index (made by the first read, read-only after)
+// and its pool of open handles, one handle per read at a time. A read goes to the
+// pages of the box's z range by their offsets and decodes the strips/tiles it meets.
 class TiffSource final : public VolumeSource {
  public:
   TiffSource(std::filesystem::path path, TiffReadOptions options) : path_(std::move(path)), options_(std::move(options)) {}
   void read(const VoxelBox& box, float* out) const override {
     check_box(box);
-    std::call_once(indexed_, [&] { index_ = index_tiff_pages(path_, options_); });
-    read_tiff_region(path_, options_, box.lo, box.hi, out, index_.get());
+    read_tiff_region(path_, options_, box.lo, box.hi, out, index().get());
   }
 
  private:
+  // The index, made by the first read that needs it; a read that fails to make it
+  // leaves none, and the next read tries again. (A mutex, not std::call_once: an
+  // exception out of call_once can hang later callers in libstdc++, GCC PR 66146.)
+  std::shared_ptr<const TiffPageIndex> index() const {
+    const std::lock_guard<std::mutex> lock(index_mutex_);
+    if (!index_) index_ = index_tiff_pages(path_, options_);
+    return index_;
+  }
+
   std::filesystem::path path_;
   TiffReadOptions options_;
-  mutable std::once_flag indexed_;
+  mutable std::mutex index_mutex_;
   mutable std::shared_ptr<const TiffPageIndex> index_;
 };
 

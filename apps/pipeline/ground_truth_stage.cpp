@@ -122,7 +122,7 @@ void write_streamed_sets(const std::filesystem::path& dir, const std::filesystem
   loaded.volume.spacing = source->spacing;
   loaded.volume.stored_as = source->stored_as;
   loaded.volume.source = volume_path.string();
-  loaded.volume.normalization = source_normalization(*source, vo, volume_path, reading);
+  loaded.volume.normalization = source_normalization(*source, vo, volume_path, reading, progress);
   loaded.frame = io::stack_frame(source->nx, source->ny, source->nz, source->spacing, vo.aspect, volume_path);
   progress.say("gt: %s (X=%d Y=%d Z=%d) read by bricks of %d voxels: statistics (%s) in %s", volume_path.c_str(),
                source->nx, source->ny, source->nz, core_voxels, loaded.volume.normalization.describe().c_str(),

@@ -65,7 +65,8 @@ std::string statistics_key(const std::filesystem::path& volume, const io::Volume
 }  // namespace
 
 io::Normalization source_normalization(const io::VolumeSource& source, const io::VolumeOptions& options,
-                                       const std::filesystem::path& volume, const StackReading& reading) {
+                                       const std::filesystem::path& volume, const StackReading& reading,
+                                       const Progress& progress) {
   const std::filesystem::path& cache = reading.statistics_cache;
   const std::string key = cache.empty() ? "" : statistics_key(volume, options);
   std::error_code ec;
@@ -93,7 +94,11 @@ io::Normalization source_normalization(const io::VolumeSource& source, const io:
                            {"clipped_voxels", n.clipped_voxels},
                            {"normalization", n.describe()}};
     const std::string text = j.dump(2) + "\n";
-    io::write_file_atomic(cache, text.data(), text.size());
+    try {  // a cache that cannot be written costs the next stage a pass, not this one its result
+      io::write_file_atomic(cache, text.data(), text.size());
+    } catch (const std::exception& e) {
+      progress.say("%s: the statistics were not cached (%s); the next stage repeats the pass", volume.c_str(), e.what());
+    }
   }
   return n;
 }
@@ -114,7 +119,7 @@ io::SparseGrid read_sparse_grid(const std::filesystem::path& volume, const io::V
   }
   tile = std::max(8, tile / 8 * 8);  // whole leaves
   io::Stopwatch watch;
-  const io::Normalization map = source_normalization(*source, options, volume, reading);
+  const io::Normalization map = source_normalization(*source, options, volume, reading, progress);
   const io::WorldFrame frame =
       io::stack_frame(source->nx, source->ny, source->nz, source->spacing, options.aspect, volume);
   const double t_stats = watch.lap();

@@ -49,8 +49,10 @@ struct BrickNeed {
 // The normalization load_volume would give `source` (the file `volume`, read with
 // `options`): from reading.statistics_cache when it holds the pass of this very file
 // (size, time, inode) and these options, else one streaming pass, then cached there.
+// A cache that cannot be written is said through `progress`, not thrown.
 [[nodiscard]] io::Normalization source_normalization(const io::VolumeSource& source, const io::VolumeOptions& options,
-                                                     const std::filesystem::path& volume, const StackReading& reading);
+                                                     const std::filesystem::path& volume, const StackReading& reading,
+                                                     const Progress& progress = Progress{});
 
 // The sparse grid of `volume` (volume options, sparse options): from the loaded stack
 // when it fits, else built tile by tile from its source (io::build_sparse_grid), the

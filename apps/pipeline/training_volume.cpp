@@ -2,6 +2,7 @@
 // make_training_volume: the stack's samples and empty-space test for the trainer.
 #include "apps/pipeline/training_volume.hpp"
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <span>
@@ -34,9 +35,15 @@ std::shared_ptr<const splat::VolumeTerm> make_training_volume(const std::filesys
   const double fraction = options.background_fraction;
   const float background_weight =
       fraction > 0 ? static_cast<float>(std::sqrt(gmf.background_weight / fraction)) : 0.0f;
+  // Each taken leaf's samples as one block, with the leaf's origin for the order.
+  struct TakenLeaf {
+    std::array<int, 3> origin;
+    std::size_t begin, end;
+  };
+  std::vector<TakenLeaf> leaves;
   splat::VolumeSamples background;
-  const auto take = [&](const std::array<int, 3>&, std::span<const io::ActiveVoxel> voxels) {
-    if (background_weight <= 0) return;
+  const auto take = [&](const std::array<int, 3>& origin, std::span<const io::ActiveVoxel> voxels) {
+    if (background_weight <= 0 || voxels.empty()) return;
     if (background.x.capacity() == 0) {  // the expected count and five standard deviations: no doubling
       const double n = static_cast<double>(header.nx) * header.ny * header.nz;
       const auto expected = static_cast<std::size_t>(n * fraction + 5.0 * std::sqrt(n * fraction * (1.0 - fraction)));
@@ -44,6 +51,7 @@ std::shared_ptr<const splat::VolumeTerm> make_training_volume(const std::filesys
         part->reserve(expected);
       }
     }
+    leaves.push_back({origin, background.size(), background.size() + voxels.size()});
     for (const io::ActiveVoxel& v : voxels) {
       const Eigen::Vector3d p = stack.world_from_index(Eigen::Vector3d(v.index[0], v.index[1], v.index[2]));
       background.x.push_back(static_cast<float>(p.x()));
@@ -52,27 +60,43 @@ std::shared_ptr<const splat::VolumeTerm> make_training_volume(const std::filesys
       background.value.push_back(v.value);
       background.weight.push_back(background_weight);
     }
-    background.block_begin.push_back(static_cast<std::uint32_t>(background.size()));
   };
   auto grid = std::make_shared<io::SparseGrid>(
       read_sparse_grid(volume, volume_options, options, reading, "train", progress, take));
   gmf::require_same_world_box(meta, grid->frame(), volume.string());
-  // The grid's samples after the taken background (the larger array is not copied).
-  splat::VolumeSamples samples = std::move(background);
+  // The order of the whole stack's term (extract_samples): the foreground's blocks,
+  // then the background's in the grid's leaf order, so that the trainer's batches
+  // pick the same blocks whatever the memory limit. Taken leaves come in tile order.
+  splat::VolumeSamples samples;
   {
     const gmf::SampleSet set = gmf::extract_samples(*grid, gmf.background_weight, 8);
-    const auto offset = static_cast<std::uint32_t>(samples.size());
-    const auto append = [](std::vector<float>& to, const std::vector<double>& from) {
-      to.reserve(to.size() + from.size());
-      to.insert(to.end(), from.begin(), from.end());
+    const auto copy = [](std::vector<float>& to, const std::vector<double>& from, std::size_t extra) {
+      to.reserve(from.size() + extra);
+      to.assign(from.begin(), from.end());
     };
-    append(samples.x, set.x);
-    append(samples.y, set.y);
-    append(samples.z, set.z);
-    append(samples.value, set.value);
-    append(samples.weight, set.weight);
-    for (std::size_t b = 1; b < set.block_begin.size(); ++b) samples.block_begin.push_back(offset + set.block_begin[b]);
+    copy(samples.x, set.x, background.size());
+    copy(samples.y, set.y, background.size());
+    copy(samples.z, set.z, background.size());
+    copy(samples.value, set.value, background.size());
+    copy(samples.weight, set.weight, background.size());
+    samples.block_begin.assign(set.block_begin.begin(), set.block_begin.end());
   }
+  std::sort(leaves.begin(), leaves.end(), [](const TakenLeaf& a, const TakenLeaf& b) {
+    return io::SparseGrid::leaf_order_key(a.origin) < io::SparseGrid::leaf_order_key(b.origin);
+  });
+  for (const TakenLeaf& leaf : leaves) {
+    const auto append = [&](std::vector<float>& to, const std::vector<float>& from) {
+      to.insert(to.end(), from.begin() + static_cast<std::ptrdiff_t>(leaf.begin),
+                from.begin() + static_cast<std::ptrdiff_t>(leaf.end));
+    };
+    append(samples.x, background.x);
+    append(samples.y, background.y);
+    append(samples.z, background.z);
+    append(samples.value, background.value);
+    append(samples.weight, background.weight);
+    samples.block_begin.push_back(static_cast<std::uint32_t>(samples.size()));
+  }
+  background = {};
   const io::WorldFrame frame = grid->frame();
   // Empty: the voxel nearest the point is outside the volume or not active
   // (neither foreground nor within the band around it).

@@ -36,6 +36,11 @@ int on_tiff_warning(TIFF*, void* user, const char* module, const char* fmt, va_l
 void install_global_handlers();
 
 // An open TIFF with its diagnostics. Not movable: libtiff holds &messages_.
+// While active (from construction, or from activate()) its messages are this
+// thread's sink for handle-less diagnostics; the destructor or deactivate() puts
+// the previous sink back. A handle kept for later reads (TiffPageIndex's pool) is
+// deactivated before it is put aside and activated by the thread that takes it,
+// so no thread's sink ever points at a handle another thread owns or has freed.
 class TiffHandle {
  public:
   // Takes ownership of `fd`. `mode` is "r", "w" or "w8"; `name` is for messages.
@@ -57,7 +62,18 @@ class TiffHandle {
   }
   ~TiffHandle() {
     close();
-    exchange_active_messages(previous_active_);
+    if (active_) exchange_active_messages(previous_active_);
+  }
+  void deactivate() {
+    if (active_) exchange_active_messages(previous_active_);
+    active_ = false;
+  }
+  // Makes it this thread's sink again, with its messages cleared.
+  void activate() {
+    if (active_) return;
+    messages_ = TiffMessages{};
+    previous_active_ = exchange_active_messages(&messages_);
+    active_ = true;
   }
   TiffHandle(const TiffHandle&) = delete;
   TiffHandle& operator=(const TiffHandle&) = delete;
@@ -80,6 +96,7 @@ class TiffHandle {
   std::string name_;
   TiffMessages messages_;
   TiffMessages* previous_active_ = nullptr;
+  bool active_ = true;
 };
 
 // Bytes per sample of `type`.

@@ -2,6 +2,7 @@
 // io/volume_source: the memory, TIFF and HDF5 sources of one stack read the same
 // voxels for any box, also from several threads at once; the streaming statistics
 // pass gives exactly the normalization normalize() computes on the whole stack.
+#include "io/detail/tiff_handle.hpp"
 #include "io/volume_source.hpp"
 
 #include <gtest/gtest.h>
@@ -84,6 +85,13 @@ TEST(VolumeSource, ConcurrentReadsAgree) {
   write_hdf5_stack(dir / "s.h5", v, {.type = SampleType::kUint8, .chunk_zyx = {2, 16, 16}});
   for (const char* name : {"s.tif", "s.h5"}) {
     const auto s = open_volume_source(dir / name);
+    // A read leaves its thread's diagnostics sink as it found it: a pooled handle
+    // is put aside (TiffHandle::deactivate) before another thread may take it.
+    std::thread first([&] {
+      (void)read_box(*s, {{0, 0, 0}, {v.nx, v.ny, 1}});
+      EXPECT_EQ(detail::exchange_active_messages(nullptr), nullptr) << name << ": a read left its handle as the sink";
+    });
+    first.join();
     std::vector<std::vector<float>> slabs(static_cast<std::size_t>(v.nz));
     std::vector<std::thread> threads;
     for (int t = 0; t < 4; ++t) {

@@ -89,8 +89,8 @@ TEST(StackReading, TheStatisticsCacheHoldsThePassOfThisFileAndTheseOptions) {
 }
 
 // Training's 3D term from a stack read by tiles (the background samples handed over
-// tile by tile) holds the samples of the whole stack's term: the same positions,
-// values and weights, and the same number of blocks.
+// tile by tile) is the whole stack's term: the same samples in the same blocks in
+// the same order, so the trainer's batches do not depend on the memory limit.
 TEST(StackReading, TrainingSamplesOfATiledStackAreTheWholeStacks) {
   testing::ScratchDir dir;
   const auto path = small_stack(dir);
@@ -105,6 +105,10 @@ TEST(StackReading, TrainingSamplesOfATiledStackAreTheWholeStacks) {
   ASSERT_GT(whole->samples().size(), 1000u);
   EXPECT_EQ(whole->blocks(), tiled->blocks());
   EXPECT_TRUE(sorted_samples(whole->samples()) == sorted_samples(tiled->samples())) << "the samples differ";
+  const splat::VolumeSamples &a = whole->samples(), &b = tiled->samples();
+  EXPECT_EQ(a.block_begin, b.block_begin);
+  EXPECT_TRUE(a.x == b.x && a.y == b.y && a.z == b.z && a.value == b.value && a.weight == b.weight)
+      << "the same samples in another order";
   tiled->samples().check();
 }
 
