@@ -552,6 +552,14 @@ bool is_hdf5_stack(const fs::path& path) {
   return false;
 }
 
+std::vector<fs::path> hdf5_stack_files(const fs::path& path) {
+  if (is_bdv_xml(path)) return {path, parse_bdv_xml(path).h5};
+  fs::path beside = path;
+  beside.replace_extension(".xml");
+  if (beside != path && is_bdv_xml(beside)) return {path, beside};
+  return {path};
+}
+
 Hdf5StackInfo inspect_hdf5_stack(const fs::path& path, const Hdf5ReadOptions& options) {
   std::lock_guard<std::mutex> lock(hdf5_mutex());
   silence_hdf5();

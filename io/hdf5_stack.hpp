@@ -57,6 +57,12 @@ struct Hdf5StackInfo {
 // BigDataViewer .xml (a <SpimData> document naming an hdf5 image loader).
 [[nodiscard]] bool is_hdf5_stack(const std::filesystem::path& path);
 
+// The files an HDF5 stack's values and metadata come from: `path`, then for
+// BigDataViewer the .h5 an .xml names, or the .xml beside an .h5 (its voxel size).
+// For caches keyed on the files' identities. Throws InputError for an .xml that
+// names no file.
+[[nodiscard]] std::vector<std::filesystem::path> hdf5_stack_files(const std::filesystem::path& path);
+
 // Reads the metadata only. Throws InputError("PATH: what is wrong"), one line, for
 // a file libhdf5 cannot open (not HDF5, truncated: libhdf5's innermost message is
 // appended), a dataset path that does not exist or is not a dataset, a rank other

@@ -38,10 +38,10 @@ void check_request(const RunRequest& request, const AppConfig& config) {
   const Progress quiet;
   (void)ground_truth_core(shape, request.reading, quiet);
   const double voxels = static_cast<double>(header.nx) * header.ny * header.nz;
-  (void)reading_core(shape, request.reading, sparse_grid_need(config.sparse_grid, voxels), "vdb", quiet);
+  (void)reading_core(shape, request.reading, sparse_grid_need(config.sparse_grid, voxels, false), "vdb", quiet);
   io::SparseGridOptions training = config.sparse_grid;  // training's 3D term samples the background too
   training.background_fraction = config.gmf.background_fraction;
-  (void)reading_core(shape, request.reading, sparse_grid_need(training, voxels), "train", quiet);
+  (void)reading_core(shape, request.reading, sparse_grid_need(training, voxels, true), "train", quiet);
 }
 
 // Creates DIR, reads DIR/run.json, writes DIR/config.yaml and records the volume.

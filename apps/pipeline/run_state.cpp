@@ -11,6 +11,7 @@
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
 #include "io/hash.hpp"
+#include "io/hdf5_stack.hpp"
 
 namespace hisnegs::apps {
 
@@ -60,7 +61,8 @@ std::string hash_hex(const std::string& text) {
   return strf("%016llx", static_cast<unsigned long long>(io::fnv1a64(text)));
 }
 
-std::string file_content_identity(const fs::path& path) {
+namespace {
+std::string stat_identity(const fs::path& path) {
   struct stat st {};
   if (::stat(path.c_str(), &st) != 0) {
     throw fs::filesystem_error("cannot stat", path, std::error_code(errno, std::generic_category()));
@@ -68,6 +70,19 @@ std::string file_content_identity(const fs::path& path) {
   const long long mtime_ns = static_cast<long long>(st.st_mtim.tv_sec) * 1000000000LL + st.st_mtim.tv_nsec;
   return std::to_string(st.st_size) + "|" + std::to_string(mtime_ns) + "|" + std::to_string(st.st_dev) + ":" +
          std::to_string(st.st_ino);
+}
+}  // namespace
+
+std::string file_content_identity(const fs::path& path) {
+  std::string identity = stat_identity(path);
+  if (io::is_hdf5_stack(path)) {  // BigDataViewer: an .xml and the .h5 it names
+    const std::vector<fs::path> files = io::hdf5_stack_files(path);
+    std::error_code ec;
+    for (std::size_t i = 1; i < files.size(); ++i) {
+      identity += "|" + (fs::exists(files[i], ec) ? stat_identity(files[i]) : std::string("missing"));
+    }
+  }
+  return identity;
 }
 
 std::string file_identity(const fs::path& path) {

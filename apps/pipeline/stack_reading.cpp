@@ -38,11 +38,14 @@ int reading_core(const std::array<int, 3>& shape, const StackReading& reading, c
   return core;
 }
 
-BrickNeed sparse_grid_need(const io::SparseGridOptions& sparse, double stack_voxels) {
+BrickNeed sparse_grid_need(const io::SparseGridOptions& sparse, double stack_voxels, bool background_taken) {
   BrickNeed need;  // a tile is read and normalized in place
   const bool background = sparse.background_fraction > 0;
   need.bytes_per_voxel = background ? 8.0 : 4.0;
-  need.base_bytes += stack_voxels * sparse.background_fraction * 40.0;
+  const double samples = stack_voxels * sparse.background_fraction;
+  // An OpenVDB float leaf: 512 values, two masks, its origin and bookkeeping.
+  constexpr double kLeafBytes = 512 * 4 + 2 * 64 + 64;
+  need.base_bytes += background_taken ? samples * 40.0 : std::min(samples, stack_voxels / 512.0) * kLeafBytes;
   need.halo = sparse.band_voxels;
   return need;
 }
@@ -111,8 +114,8 @@ io::SparseGrid read_sparse_grid(const std::filesystem::path& volume, const io::V
   sparse.validate();
   const auto source = io::open_volume_source(volume, io::stack_read_options(options));
   const double voxels = static_cast<double>(source->nx) * source->ny * source->nz;
-  int tile = reading_core({source->nx, source->ny, source->nz}, reading, sparse_grid_need(sparse, voxels), what,
-                          progress);
+  int tile = reading_core({source->nx, source->ny, source->nz}, reading,
+                          sparse_grid_need(sparse, voxels, static_cast<bool>(take_background)), what, progress);
   if (tile == 0) {
     const io::LoadedVolume loaded = io::load_volume(volume, options);
     return io::build_sparse_grid(loaded.volume, loaded.frame.aspect(), sparse);

@@ -2,7 +2,10 @@
 // How a stage that reads the stack holds it: whole when it fits in the memory the
 // user allows, else brick by brick (the ground truth's march, the sparse grid of the
 // volume stage and of training's 3D term). The bricked results equal the whole
-// stack's, so the choice is not part of a stage's fingerprint. The statistics of a
+// stack's, so the choice is not part of a stage's fingerprint, with one exception:
+// a float32 stack with percentile normalization, whose streamed percentiles come
+// from a binned histogram (within one bin width of the exact ones, io::
+// scan_statistics), so its normalization, and all that follows, may differ slightly. The statistics of a
 // stack read by bricks (one streaming pass) can be cached in a run folder, so the
 // stages of one run do not repeat the pass.
 #pragma once
@@ -36,8 +39,13 @@ struct BrickNeed {
 // What the sparse grid of a stack of `stack_voxels` needs by tiles: each tile's
 // voxels and the band around them as float32, as much again for a tile's scattered
 // background leaves when background_fraction > 0, and the background samples of
-// the whole stack handed over as float samples (20 bytes each, twice for growth).
-[[nodiscard]] BrickNeed sparse_grid_need(const io::SparseGridOptions& sparse, double stack_voxels);
+// the whole stack: handed over as float samples (20 bytes each, twice for growth)
+// when `background_taken` (training's 3D term), else kept in the grid, where each
+// scattered sample costs an 8³ leaf of its own (at most one per leaf of the stack).
+// The foreground grid itself is not counted: it is what the stage makes, in
+// proportion to the foreground, which is not known before the pass.
+[[nodiscard]] BrickNeed sparse_grid_need(const io::SparseGridOptions& sparse, double stack_voxels,
+                                         bool background_taken);
 
 // The core edge in voxels of the bricks `what` reads a stack of `shape` (x, y, z) in:
 // 0 when the whole stack fits under reading.max_memory, reading.brick_voxels when it

@@ -61,9 +61,9 @@ std::shared_ptr<const splat::VolumeTerm> make_training_volume(const std::filesys
       background.weight.push_back(background_weight);
     }
   };
+  gmf::require_same_world_box(meta, stack, volume.string());  // before the stack is read
   auto grid = std::make_shared<io::SparseGrid>(
       read_sparse_grid(volume, volume_options, options, reading, "train", progress, take));
-  gmf::require_same_world_box(meta, grid->frame(), volume.string());
   // The order of the whole stack's term (extract_samples): the foreground's blocks,
   // then the background's in the grid's leaf order, so that the trainer's batches
   // pick the same blocks whatever the memory limit. Taken leaves come in tile order.

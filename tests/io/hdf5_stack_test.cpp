@@ -191,6 +191,9 @@ open('bdv.xml', 'w').write('''<?xml version="1.0" encoding="UTF-8"?>
                              "gzip, 2 channels");
   // The .h5 alone: the same data, the spacing from the .xml beside it.
   EXPECT_EQ(read_stack(dir / "bdv.h5", o).spacing.um[2], info.spacing.um[2]);
+  // Both files count for caches, from either (the run's statistics and stage reuse).
+  EXPECT_EQ(hdf5_stack_files(xml), (std::vector<fs::path>{xml, dir / "bdv.h5"}));
+  EXPECT_EQ(hdf5_stack_files(dir / "bdv.h5"), (std::vector<fs::path>{dir / "bdv.h5", xml}));
 }
 
 TEST(Hdf5Stack, ImarisWithPaddedDataAndExtents) {

@@ -58,6 +58,16 @@ TEST(StackReading, BricksOnlyWhenTheStackDoesNotFit) {
   EXPECT_THROW((void)reading_core({1024, 1024, 1024}, r, need, "gt", quiet), io::InputError);
   r.max_memory = "lots";
   EXPECT_THROW((void)reading_core({64, 64, 64}, r, need, "gt", quiet), io::InputError);
+  // Background samples kept in a grid cost a leaf each (up to one per leaf of the
+  // stack); handed over as float samples, 40 bytes each.
+  io::SparseGridOptions sparse;
+  sparse.background_fraction = 0.01;
+  const double voxels = 1e9;
+  const BrickNeed kept = sparse_grid_need(sparse, voxels, false), taken = sparse_grid_need(sparse, voxels, true);
+  EXPECT_NEAR(taken.base_bytes - need.base_bytes, voxels * 0.01 * 40.0, 1.0);
+  EXPECT_GT(kept.base_bytes - need.base_bytes, 1e9 / 512.0 * 2048.0);
+  sparse.background_fraction = 0;
+  EXPECT_EQ(sparse_grid_need(sparse, voxels, false).base_bytes, need.base_bytes);
 }
 
 // The statistics pass is cached for the same file and options, redone for others,
