@@ -17,6 +17,7 @@ packages=(
   xz-utils  # scripts/device-bundle.sh packs the GPU bundle with xz
   python3-tifffile  # tests/io/tiff_stack_test.cpp reads the stacks hisnegs writes with tifffile
   python3-h5py  # tests/io/hdf5_stack_test.cpp reads the HDF5 stacks hisnegs writes with h5py
+  libopenmpi-dev openmpi-bin  # optional at build time: fit and gt on MPI ranks (tests/apps/cli/cli_mpi_test.cpp)
 )
 
 missing=()

@@ -81,7 +81,8 @@ float march_window(const Window& w, const int n[3], const kernels::MarchParams& 
 MipStack render_ground_truth_streamed(const io::VolumeSource& source, const io::Normalization& normalization,
                                       const io::WorldFrame& frame, const CameraSet& cameras,
                                       const RaymarchOptions& options, int core_voxels,
-                                      const std::function<void(int, int)>& progress) {
+                                      const std::function<void(int, int)>& progress,
+                                      const std::function<bool(int brick)>& marches) {
   options.validate();
   if (core_voxels < 1) throw std::invalid_argument("render_ground_truth_streamed: core_voxels must be >= 1");
   const Intrinsics& K = cameras.intrinsics;
@@ -104,6 +105,10 @@ MipStack render_ground_truth_streamed(const io::VolumeSource& source, const io::
     for (int by = 0; by < count[1]; ++by) {
       for (int bx = 0; bx < count[0]; ++bx) {
         const int cell[3] = {bx, by, bz};
+        if (marches && !marches((bz * count[1] + by) * count[0] + bx)) {
+          if (progress) progress(++done, bricks);
+          continue;
+        }
         Window w{};
         io::VoxelBox region;
         for (int a = 0; a < 3; ++a) {

@@ -21,9 +21,13 @@ namespace hisnegs::splat {
 
 // Renders every view of `cameras` from `source`, normalized by `normalization`, in
 // bricks of `core_voxels` (per axis, >= 1). `progress(done, total)` after each brick.
+// With `marches`, only the bricks it accepts (by index, x fastest, then y, z) are
+// read and marched: the images hold their part, and the element-wise max of the
+// parts of bricks split among processes is the whole image (MPI's gt).
 MipStack render_ground_truth_streamed(const io::VolumeSource& source, const io::Normalization& normalization,
                                       const io::WorldFrame& frame, const CameraSet& cameras,
                                       const RaymarchOptions& options, int core_voxels,
-                                      const std::function<void(int, int)>& progress = {});
+                                      const std::function<void(int, int)>& progress = {},
+                                      const std::function<bool(int brick)>& marches = {});
 
 }  // namespace hisnegs::splat

@@ -9,6 +9,7 @@
 #include <sstream>
 
 #include "apps/cli/console_progress.hpp"
+#include "apps/pipeline/distributed.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
 
@@ -172,6 +173,7 @@ int run_cli(int argc, char** argv) {
   add_bench_command(app, global);
   guard_all_outputs(app);
   // CLI11 would only say "a subcommand is required" for a misspelt command: name it.
+  std::string command;
   for (int i = 1; i < argc; ++i) {
     const std::string arg = argv[i];
     if (arg == "--config") {
@@ -186,26 +188,50 @@ int run_cli(int argc, char** argv) {
       std::cerr << "hisnegs: error: unknown command '" << arg << "'; expected one of " << names << "\n";
       return 2;
     }
+    command = arg;
     break;
   }
+  // An MPI launch of several ranks (mpirun, srun): MPI starts here, before any work.
+  const Job* the_job = nullptr;
+  try {
+    the_job = &job();
+  } catch (const io::InputError& e) {
+    std::cerr << "hisnegs: error: " << io::printable(e.what()) << "\n";
+    return 2;
+  }
+  if (the_job->distributed() && command != "fit" && command != "gt" && !command.empty()) {
+    if (the_job->root()) {
+      std::cerr << "hisnegs: error: '" << command << "' does not run on several MPI ranks (" << the_job->size()
+                << " launched); fit and gt do; run it as one process\n";
+    }
+    return 2;
+  }
+  const auto failed = [&](int code) {
+    // A rank that fails ends the others (they may be waiting for it), saying which.
+    if (the_job->distributed()) {
+      std::cerr << "hisnegs: " << rank_prefix(*the_job) << "stopping every rank\n";
+      the_job->abort(code);
+    }
+    return code;
+  };
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
     if (e.get_exit_code() == 0) return app.exit(e);  // --help, --version
     std::cerr << "hisnegs: error: " << io::printable(e.what()) << " (see hisnegs --help)\n";
-    return 2;
+    return 2;  // every rank parses the same arguments and fails the same way
   } catch (const io::InputError& e) {
-    std::cerr << "hisnegs: error: " << io::printable(e.what()) << "\n";
-    return 2;
+    std::cerr << "hisnegs: " << rank_prefix(*the_job) << "error: " << io::printable(e.what()) << "\n";
+    return failed(2);
   } catch (const io::WriteError& e) {
-    std::cerr << "hisnegs: error: " << io::printable(e.what()) << "\n";
-    return 1;
+    std::cerr << "hisnegs: " << rank_prefix(*the_job) << "error: " << io::printable(e.what()) << "\n";
+    return failed(1);
   } catch (const std::bad_alloc&) {
-    std::cerr << "hisnegs: error: out of memory\n";
-    return 1;
+    std::cerr << "hisnegs: " << rank_prefix(*the_job) << "error: out of memory\n";
+    return failed(1);
   } catch (const std::exception& e) {
-    std::cerr << "hisnegs: internal error: " << io::printable(e.what()) << "\n";
-    return 1;
+    std::cerr << "hisnegs: " << rank_prefix(*the_job) << "internal error: " << io::printable(e.what()) << "\n";
+    return failed(1);
   }
   return 0;
 }

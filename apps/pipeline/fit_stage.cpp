@@ -4,6 +4,7 @@
 
 #include <sstream>
 
+#include "apps/pipeline/distributed.hpp"
 #include "apps/pipeline/format.hpp"
 #include "apps/pipeline/streamed_fit.hpp"
 #include "io/stack_file.hpp"
@@ -125,7 +126,7 @@ FitOutcome fit_to_checkpoint(const std::string& volume, const FitConfig& config,
     vo.validate();
     const io::StackHeader header = io::inspect_stack(volume, io::stack_read_options(vo));
     const io::WorldFrame frame = io::stack_frame(header.nx, header.ny, header.nz, header.spacing, vo.aspect, volume);
-    const FitPlanChoice choice = choose_fit_plan({header.nx, header.ny, header.nz}, frame, gmf);
+    const FitPlanChoice choice = choose_fit_plan({header.nx, header.ny, header.nz}, frame, gmf, {}, job().size());
     if (choice.bricked) return fit_streamed(volume, config, choice, out, log_csv, progress);
   }
   io::Stopwatch watch;

@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <nlohmann/json.hpp>
 
+#include "apps/pipeline/distributed.hpp"
 #include "apps/pipeline/format.hpp"
 #include "apps/pipeline/report_tables.hpp"
 #include "io/atomic_file.hpp"
@@ -122,16 +123,35 @@ void write_streamed_sets(const std::filesystem::path& dir, const std::filesystem
   loaded.volume.spacing = source->spacing;
   loaded.volume.stored_as = source->stored_as;
   loaded.volume.source = volume_path.string();
-  loaded.volume.normalization = source_normalization(*source, vo, volume_path, reading, progress);
+  // Rank 0 makes the statistics pass (or reads the run's cache); the others take its map.
+  const Job& ranks = job();
+  if (ranks.root()) loaded.volume.normalization = source_normalization(*source, vo, volume_path, reading, progress);
+  if (ranks.distributed()) {
+    io::Normalization& n = loaded.volume.normalization;
+    double shared[4] = {static_cast<double>(n.method), n.raw_lo, n.raw_hi, static_cast<double>(n.clipped_voxels)};
+    ranks.broadcast(shared);
+    n.method = static_cast<io::NormalizationMethod>(static_cast<int>(shared[0]));
+    n.raw_lo = shared[1];
+    n.raw_hi = shared[2];
+    n.clipped_voxels = static_cast<std::int64_t>(shared[3]);
+  }
   loaded.frame = io::stack_frame(source->nx, source->ny, source->nz, source->spacing, vo.aspect, volume_path);
   progress.say("gt: %s (X=%d Y=%d Z=%d) read by bricks of %d voxels: statistics (%s) in %s", volume_path.c_str(),
                source->nx, source->ny, source->nz, core_voxels, loaded.volume.normalization.describe().c_str(),
                format_seconds(watch.lap()).c_str());
+  // Each rank marches every size-th brick; the images meet in an exact max on rank 0.
+  const auto marches = [&](int brick) { return brick % ranks.size() == ranks.rank(); };
   for (const GroundTruthSet& set : sets) {
-    const splat::MipStack stack = splat::render_ground_truth_streamed(
-        *source, loaded.volume.normalization, loaded.frame, set.cameras, rm, core_voxels, [&](int done, int total) {
+    splat::MipStack stack = splat::render_ground_truth_streamed(
+        *source, loaded.volume.normalization, loaded.frame, set.cameras, rm, core_voxels,
+        [&](int done, int total) {
           if (progress.meter) progress.meter(strf("gt %s: brick %d/%d", set.label.c_str(), done, total), done == total);
-        });
+        },
+        ranks.distributed() ? std::function<bool(int)>(marches) : std::function<bool(int)>{});
+    if (ranks.distributed()) {
+      ranks.max_to_root(stack.pixels);
+      if (!ranks.root()) continue;
+    }
     write_set_files(sets.size() > 1 ? dir / set.label : dir, set.label, set.cameras, loaded, volume_path.string(), rm,
                     stack, watch.lap(), progress);
   }
@@ -140,7 +160,14 @@ void write_streamed_sets(const std::filesystem::path& dir, const std::filesystem
 }  // namespace
 
 int ground_truth_core(const std::array<int, 3>& shape, const StackReading& reading, const Progress& progress) {
-  return reading_core(shape, reading, BrickNeed{}, "gt", progress);
+  const int core = reading_core(shape, reading, BrickNeed{}, "gt", progress);
+  const Job& ranks = job();
+  if (!ranks.distributed()) return core;
+  // Several MPI ranks share the bricks: two or more each, even when the stack fits.
+  const int start = core > 0 ? core : *std::max_element(shape.begin(), shape.end());
+  const int shared = core_for_ranks(shape, ranks.size(), start, std::min(16, start));
+  progress.say("gt: %d MPI ranks share bricks of %d voxels", ranks.size(), shared);
+  return shared;
 }
 
 void write_ground_truth_sets(const std::filesystem::path& dir, const std::filesystem::path& volume_path,

@@ -38,6 +38,19 @@ int reading_core(const std::array<int, 3>& shape, const StackReading& reading, c
   return core;
 }
 
+int core_for_ranks(const std::array<int, 3>& shape, int ranks, int start, int smallest) {
+  const auto count = [&](int edge) {
+    std::size_t n = 1;
+    for (int a = 0; a < 3; ++a) n *= static_cast<std::size_t>((shape[a] + edge - 1) / edge);
+    return n;
+  };
+  int core = start;
+  while (core > smallest && count(core) < 2 * static_cast<std::size_t>(std::max(ranks, 1))) {
+    core = std::max(smallest, (core * 3 / 4) / 16 * 16);
+  }
+  return core;
+}
+
 BrickNeed sparse_grid_need(const io::SparseGridOptions& sparse, double stack_voxels, bool background_taken) {
   BrickNeed need;  // a tile is read and normalized in place
   const bool background = sparse.background_fraction > 0;

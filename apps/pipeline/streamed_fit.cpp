@@ -11,11 +11,15 @@
 #include <algorithm>
 #include <cmath>
 #include <fstream>
+#include <optional>
+#include <stdexcept>
 #include <nlohmann/json.hpp>
 #include <sstream>
 
 #include "apps/pipeline/app_config.hpp"
+#include "apps/pipeline/distributed.hpp"
 #include "apps/pipeline/format.hpp"
+#include "apps/pipeline/stack_reading.hpp"
 #include "gmf/density_ops.hpp"
 #include "gmf/fit.hpp"
 #include "gmf/init.hpp"
@@ -63,7 +67,7 @@ int largest_core(const std::array<int, 3>& shape, int smallest, double bytes,
 }
 
 FitPlanChoice choose_fit_plan(const std::array<int, 3>& shape, const io::WorldFrame& frame,
-                              const gmf::GmfOptions& gmf, const FitMemoryModel& memory) {
+                              const gmf::GmfOptions& gmf, const FitMemoryModel& memory, int ranks) {
   FitPlanChoice c;
   const io::MemoryLimit limit = io::resolve_memory_limit(gmf.max_memory, "gmf.max_memory");
   c.max_memory = limit.bytes;
@@ -71,14 +75,19 @@ FitPlanChoice choose_fit_plan(const std::array<int, 3>& shape, const io::WorldFr
   const std::size_t voxels = static_cast<std::size_t>(shape[0]) * shape[1] * shape[2];
   const auto K = static_cast<std::size_t>(gmf.gaussians);
   c.whole_need = memory.need(voxels, K);
-  if (gmf.stream_brick_voxels == 0 && c.whole_need <= c.max_memory) return c;  // today's fit
+  const bool fits = c.whole_need <= c.max_memory;
+  if (gmf.stream_brick_voxels == 0 && fits && ranks <= 1) return c;  // today's fit
   c.bricked = true;
   const std::array<int, 3> halo = gmf::halo_voxels(frame, gmf.mahalanobis_cutoff, brick_max_scale(frame, gmf));
   const int smallest = std::max(16, 2 * *std::max_element(halo.begin(), halo.end()));
-  const int core = gmf.stream_brick_voxels > 0
-                       ? gmf.stream_brick_voxels
-                       : largest_core(shape, smallest, c.max_memory,
-                                      [&](int edge) { return memory.need(region_voxels(shape, edge, halo), K); });
+  int core = gmf.stream_brick_voxels > 0
+                 ? gmf.stream_brick_voxels
+                 : largest_core(shape, smallest, c.max_memory,
+                                [&](int edge) { return memory.need(region_voxels(shape, edge, halo), K); });
+  if (gmf.stream_brick_voxels == 0 && ranks > 1) {  // no brick size asked for: two or more per rank
+    core = core_for_ranks(shape, ranks, core, smallest);
+    c.for_ranks = true;
+  }
   c.brick_need = memory.need(region_voxels(shape, core, halo), K);
   if (c.brick_need > c.max_memory) {
     throw io::InputError("gmf.max_memory = " + gmf.max_memory + ": too small for this fit: a brick of core " +
@@ -504,6 +513,62 @@ void load_or_scan_statistics(StreamContext& c, const Progress& progress) {
 
 namespace {
 
+// FOLDER/rank-R.holds: the brick rank R of a launch is fitting, so that the rerun
+// after a rank died can say which one it held (MPI ends the job without a word
+// from the dead rank; its launcher names the rank only).
+std::filesystem::path held_path(const StreamContext& c, int rank) {
+  return c.folder / ("rank-" + std::to_string(rank) + ".holds");
+}
+
+void hold_brick(const StreamContext& c, const Job& ranks, const gmf::StreamBrick& b) {
+  const std::string text = std::to_string(b.id) + " " + std::to_string(ranks.size()) + "\n";
+  io::write_file_atomic(held_path(c, ranks.rank()), text.data(), text.size());
+}
+
+// Says, for each rank of a previous launch that left its mark, the unfinished brick
+// it held, and removes the marks.
+void say_what_stopped_ranks_held(const StreamContext& c, const std::vector<std::optional<BrickResult>>& results,
+                                 const Progress& progress) {
+  std::error_code ec;
+  for (const auto& entry : std::filesystem::directory_iterator(c.folder, ec)) {
+    const std::string name = entry.path().filename().string();
+    if (!name.starts_with("rank-") || entry.path().extension() != ".holds") continue;
+    std::istringstream in(io::read_file(entry.path()));
+    long long id = -1, size = 0;
+    in >> id >> size;
+    if (id >= 0 && id < static_cast<long long>(results.size()) && !results[static_cast<std::size_t>(id)]) {
+      const gmf::StreamBrick& b = c.plan.bricks[static_cast<std::size_t>(id)];
+      progress.say("fit: the previous run's %s of %lld stopped while fitting brick %lld/%zu (cell %d,%d,%d); it is "
+                   "fitted again",
+                   name.substr(0, name.size() - 6).replace(4, 1, " ").c_str(), size, id + 1, results.size(),
+                   b.cell[0], b.cell[1], b.cell[2]);
+    }
+    std::filesystem::remove(entry.path(), ec);
+  }
+}
+
+}  // namespace
+
+std::vector<int> share_of_bricks(const gmf::BrickPlan& plan, const std::vector<int>& todo, int rank, int ranks) {
+  if (ranks <= 1) return todo;
+  // Largest first, each to the rank with the least so far (ties: the lower rank):
+  // the same on every rank, whatever order they run in.
+  std::vector<int> order = todo;
+  const auto voxels = [&](int id) { return plan.bricks[static_cast<std::size_t>(id)].core.voxels(); };
+  std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return voxels(a) > voxels(b); });
+  std::vector<std::int64_t> load(static_cast<std::size_t>(ranks), 0);
+  std::vector<int> mine;
+  for (int id : order) {
+    const auto least = static_cast<int>(std::min_element(load.begin(), load.end()) - load.begin());
+    load[static_cast<std::size_t>(least)] += static_cast<std::int64_t>(voxels(id));
+    if (least == rank) mine.push_back(id);
+  }
+  std::sort(mine.begin(), mine.end());
+  return mine;
+}
+
+namespace {
+
 FitOutcome run_streamed(const std::string& volume, const FitConfig& config, const FitPlanChoice& choice,
                         const std::filesystem::path& out, const std::filesystem::path& log_csv,
                         const Progress& progress) {
@@ -525,11 +590,24 @@ FitOutcome run_streamed(const std::string& volume, const FitConfig& config, cons
                volume.c_str(), c.source->nx, c.source->ny, c.source->nz, std::string(io::to_string(c.source->stored_as)).c_str(),
                io::gib_text(4.0 * static_cast<double>(c.source->whole().voxels())).c_str(), c.source->format.c_str(),
                io::gib_text(choice.whole_need).c_str(), choice.memory_source.c_str(), c.plan.describe().c_str());
+  if (choice.for_ranks) {
+    progress.say("fit: %d MPI ranks: bricks of core %d voxels, two or more per rank (the same fit as "
+                 "--brick-voxels %d in one process)",
+                 job().size(), c.plan.core[0], c.plan.core[0]);
+  }
   progress.say("fit: each brick keeps the Gaussians centred in its core; scales <= %g voxels (gmf.stream_scale_voxels) "
                "reach at most sqrt(%g) x that, inside the halo; planned peak %s",
                c.gmf.stream_scale_voxels, c.gmf.mahalanobis_cutoff, io::gib_text(choice.brick_need).c_str());
-  io::FolderLock lock(c.folder);
-  load_or_scan_statistics(c, progress);
+  // Rank 0 (the only one alone) holds the folder and makes the statistics pass; the
+  // other ranks of a launch read its plan.json once it is written.
+  const Job& ranks = job();
+  std::optional<io::FolderLock> lock;
+  if (ranks.root()) {
+    lock.emplace(c.folder);
+    load_or_scan_statistics(c, progress);
+  }
+  ranks.barrier();
+  if (!ranks.root()) load_or_scan_statistics(c, Progress{});
   if (c.foreground == 0) {
     io::fail_input(volume, "no voxel above sparse_grid.threshold " +
                                io::number_text(config.get<&AppConfig::sparse_grid>().threshold));
@@ -547,27 +625,55 @@ FitOutcome run_streamed(const std::string& volume, const FitConfig& config, cons
     }
   }
   if (resumed_bricks > 0) progress.say("fit: %d of %zu bricks already finished", resumed_bricks, n);
+  if (ranks.root()) say_what_stopped_ranks_held(c, results, progress);
   const bool seam = c.gmf.seam_iterations > 0 && n > 1;
   const double brick_budget = total_budget * (seam ? 0.85 : 0.95);
   std::vector<int> todo;
   for (std::size_t b = 0; b < n; ++b) {
     if (!results[b]) todo.push_back(static_cast<int>(b));
   }
+  // This rank's share of the bricks still to fit, and of the foreground they hold
+  // (estimated by core voxels: the time budget is shared by it).
+  const std::vector<int> mine = share_of_bricks(c.plan, todo, ranks.rank(), ranks.size());
+  std::int64_t rest_foreground = c.foreground - done_foreground;
+  if (ranks.distributed()) {
+    double all = 0, own = 0;
+    for (int id : todo) all += static_cast<double>(c.plan.bricks[static_cast<std::size_t>(id)].core.voxels());
+    for (int id : mine) own += static_cast<double>(c.plan.bricks[static_cast<std::size_t>(id)].core.voxels());
+    rest_foreground = all > 0 ? std::llround(static_cast<double>(rest_foreground) * own / all) : 0;
+    progress.say("fit: %d ranks share %zu bricks to fit; rank 0 fits %zu of them", ranks.size(), todo.size(),
+                 mine.size());
+  }
+  std::int64_t done_here = 0;
   SequentialBricks executor;
-  executor.run(todo, [&](int id) {
+  executor.run(mine, [&](int id) {
     const gmf::StreamBrick& b = c.plan.bricks[static_cast<std::size_t>(id)];
+    if (ranks.distributed()) hold_brick(c, ranks, b);
     // Time: what is left of the brick pass, shared by the foreground still to fit.
     const double left = std::max(0.0, brick_budget - watch.elapsed());
-    BrickResult r = fit_brick(c, b, left, c.foreground - done_foreground);
+    BrickResult r = fit_brick(c, b, left, std::max<std::int64_t>(1, rest_foreground - done_here));
     release_free_memory();
     save_brick(c, id, r);
-    done_foreground += r.foreground_core;
+    done_here += r.foreground_core;
     const int rounds = r.log.empty() ? 0 : r.log.back().round + 1;
     progress.say("fit: brick %d/%zu (cell %d,%d,%d): %lld samples, %zu Gaussians kept, %d rounds, beta %g, %s", id + 1,
                  n, b.cell[0], b.cell[1], b.cell[2], static_cast<long long>(r.samples), r.kept.size(), rounds,
                  r.final_beta, format_seconds(r.seconds).c_str());
     results[static_cast<std::size_t>(id)] = std::move(r);
   });
+  if (ranks.distributed()) {
+    // Every brick is in the folder once all ranks are here; rank 0 goes on alone.
+    std::error_code ec;
+    std::filesystem::remove(held_path(c, ranks.rank()), ec);
+    ranks.barrier();
+    if (!ranks.root()) {
+      return FitOutcome{0, 0.0, watch.elapsed(), rank_prefix(ranks) + std::to_string(mine.size()) + " bricks"};
+    }
+    for (std::size_t b = 0; b < n; ++b) {
+      if (!results[b]) results[b] = load_brick(c, static_cast<int>(b));
+      if (!results[b]) throw std::runtime_error("brick " + std::to_string(b) + " is missing after the brick pass");
+    }
+  }
   std::vector<gmf::GaussianMixture> owned(n);
   io::BackgroundCounts background;
   double beta = 0;
@@ -661,6 +767,7 @@ FitOutcome fit_streamed(const std::string& volume, const FitConfig& config, cons
   try {
     return run_streamed(volume, config, choice, out, log_csv, progress);
   } catch (...) {
+    if (!job().root()) throw;  // rank 0 made the folder: only it may remove it
     // A fit that fails before any brick finished leaves no folder it made (a killed
     // one cannot clean up; its folder is resumed or refused next time).
     std::error_code ec;

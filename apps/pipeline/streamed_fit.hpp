@@ -53,11 +53,15 @@ struct FitPlanChoice {
   bool bricked = false;        // false: today's in-memory fit
   gmf::BrickPlan plan;         // when bricked
   double brick_need = 0;       // the largest brick's need
+  bool for_ranks = false;      // bricks chosen to share among MPI ranks (the stack fits)
 };
+// With `ranks` > 1 (an MPI launch) the fit is always bricked: without
+// gmf.stream_brick_voxels, in bricks small enough for two per rank at least.
 // Throws io::InputError("gmf.max_memory = X: ...") when not even the smallest brick
 // fits (naming what it needs), or when gmf.max_memory does not parse.
 [[nodiscard]] FitPlanChoice choose_fit_plan(const std::array<int, 3>& shape, const io::WorldFrame& frame,
-                                            const gmf::GmfOptions& gmf, const FitMemoryModel& memory = {});
+                                            const gmf::GmfOptions& gmf, const FitMemoryModel& memory = {},
+                                            int ranks = 1);
 
 // Runs the jobs of a set of bricks: the place where bricks are scheduled (one after
 // another here, each using every core; the MPI driver assigns them to ranks). Each
@@ -73,6 +77,11 @@ class SequentialBricks final : public BrickExecutor {
     for (int b : bricks) job(b);
   }
 };
+
+// The bricks of `todo` (ids into plan.bricks) that `rank` of `ranks` fits: largest
+// core first to the rank with the fewest core voxels so far; all of them alone.
+[[nodiscard]] std::vector<int> share_of_bricks(const gmf::BrickPlan& plan, const std::vector<int>& todo, int rank,
+                                               int ranks);
 
 // The streamed fit of `volume` to the checkpoint `out` (and the log `log_csv` unless
 // empty), with `choice` from choose_fit_plan (bricked). Same lines, checkpoint

@@ -1,0 +1,138 @@
+// SPDX-License-Identifier: Apache-2.0
+// Job: this process alone, or the ranks of an MPI launch (MPI's C API).
+#include "apps/pipeline/distributed.hpp"
+
+#include <algorithm>
+#include <cstdlib>
+#include <limits>
+#include <memory>
+#include <mutex>
+#include <optional>
+
+#include "io/detail/tiff_metadata.hpp"
+#include "io/error.hpp"
+
+#if HISNEGS_HAVE_MPI
+#include <mpi.h>
+#endif
+
+namespace hisnegs::apps {
+
+namespace {
+
+class SingleProcess final : public Job {
+ public:
+  [[nodiscard]] int rank() const override { return 0; }
+  [[nodiscard]] int size() const override { return 1; }
+  void barrier() const override {}
+  void max_to_root(std::span<float>) const override {}
+  [[nodiscard]] long long broadcast(long long value) const override { return value; }
+  void broadcast(std::span<double>) const override {}
+  [[noreturn]] void abort(int code) const override { std::exit(code); }
+};
+
+#if HISNEGS_HAVE_MPI
+class MpiWorld final : public Job {
+ public:
+  MpiWorld() {
+    int provided = 0;
+    // Only the thread that called job() talks to MPI; TBB's threads never do.
+    if (MPI_Init_thread(nullptr, nullptr, MPI_THREAD_FUNNELED, &provided) != MPI_SUCCESS) {
+      throw io::InputError("MPI could not start (MPI_Init_thread failed)");
+    }
+    MPI_Comm_rank(MPI_COMM_WORLD, &rank_);
+    MPI_Comm_size(MPI_COMM_WORLD, &size_);
+    std::atexit([] {
+      int finalized = 0;
+      MPI_Finalized(&finalized);
+      if (!finalized) MPI_Finalize();
+    });
+  }
+  [[nodiscard]] int rank() const override { return rank_; }
+  [[nodiscard]] int size() const override { return size_; }
+  void barrier() const override { MPI_Barrier(MPI_COMM_WORLD); }
+  void max_to_root(std::span<float> values) const override {
+    // In pieces of at most 2^30 values (MPI counts are int).
+    constexpr std::size_t kPiece = std::size_t{1} << 30;
+    for (std::size_t at = 0; at < values.size(); at += kPiece) {
+      const int n = static_cast<int>(std::min(kPiece, values.size() - at));
+      float* data = values.data() + at;
+      if (rank_ == 0) {
+        MPI_Reduce(MPI_IN_PLACE, data, n, MPI_FLOAT, MPI_MAX, 0, MPI_COMM_WORLD);
+      } else {
+        MPI_Reduce(data, nullptr, n, MPI_FLOAT, MPI_MAX, 0, MPI_COMM_WORLD);
+      }
+    }
+  }
+  [[nodiscard]] long long broadcast(long long value) const override {
+    MPI_Bcast(&value, 1, MPI_LONG_LONG, 0, MPI_COMM_WORLD);
+    return value;
+  }
+  void broadcast(std::span<double> values) const override {
+    MPI_Bcast(values.data(), static_cast<int>(values.size()), MPI_DOUBLE, 0, MPI_COMM_WORLD);
+  }
+  [[noreturn]] void abort(int code) const override {
+    MPI_Abort(MPI_COMM_WORLD, code);
+    std::exit(code);  // not reached
+  }
+
+ private:
+  int rank_ = 0, size_ = 1;
+};
+#endif
+
+// A positive count from the environment variable `name`, or nullopt.
+std::optional<int> env_count(const char* name) {
+  const char* text = std::getenv(name);
+  if (!text || !*text) return std::nullopt;
+  const std::optional<long long> n = io::detail::parse_integer(text);
+  if (!n || *n < 1 || *n > std::numeric_limits<int>::max()) return std::nullopt;
+  return static_cast<int>(*n);
+}
+
+}  // namespace
+
+int launched_ranks() {
+  // Open MPI's mpirun; MPICH/Hydra and Slurm's PMI; a Slurm job step (srun), not
+  // the batch script itself (which has SLURM_NTASKS but no step).
+  if (const auto n = env_count("OMPI_COMM_WORLD_SIZE")) return *n;
+  if (const auto n = env_count("PMI_SIZE")) return *n;
+  if (std::getenv("SLURM_STEP_ID") != nullptr) {
+    if (const auto n = env_count("SLURM_STEP_NUM_TASKS")) return *n;
+  }
+  return 1;
+}
+
+const Job& job() {
+  static std::once_flag once;
+  static std::unique_ptr<Job> the_job;
+  static std::string failure;
+  std::call_once(once, [] {
+    const int ranks = launched_ranks();
+    if (ranks <= 1) {
+      the_job = std::make_unique<SingleProcess>();
+      return;
+    }
+#if HISNEGS_HAVE_MPI
+    try {
+      the_job = std::make_unique<MpiWorld>();
+    } catch (const std::exception& e) {
+      failure = e.what();
+      the_job = std::make_unique<SingleProcess>();
+    }
+#else
+    failure = "launched as " + std::to_string(ranks) +
+              " ranks, but this hisnegs was built without MPI: each rank would do the whole work; rebuild with "
+              "MPI (Debian: libopenmpi-dev) or run one process";
+    the_job = std::make_unique<SingleProcess>();
+#endif
+  });
+  if (!failure.empty()) throw io::InputError(failure);
+  return *the_job;
+}
+
+std::string rank_prefix(const Job& job) {
+  return job.distributed() ? "rank " + std::to_string(job.rank()) + " of " + std::to_string(job.size()) + ": " : "";
+}
+
+}  // namespace hisnegs::apps

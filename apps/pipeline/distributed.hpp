@@ -1,0 +1,53 @@
+// SPDX-License-Identifier: Apache-2.0
+// The processes of one job: this process alone, or the ranks of an MPI launch
+// (`mpirun -np N hisnegs ...`, `srun hisnegs ...`). A launch is detected from the
+// variables the launchers set (Open MPI's OMPI_COMM_WORLD_SIZE, PMIx's and Slurm's
+// PMI_SIZE / SLURM_NTASKS with a PMI rank): with more than one rank, the first
+// call of job() initializes MPI, and MPI is finalized when the process exits.
+// Built without MPI (HISNEGS_HAVE_MPI 0), a launch of several ranks is refused:
+// each would do the whole work.
+//
+// What runs distributed and how (README "On a cluster"): the brick fit's brick
+// pass (each rank fits its share of the bricks into the shared brick folder; rank 0
+// makes the seam pass and writes the checkpoint) and the ground truth by bricks
+// (each rank marches its bricks; the images meet in an element-wise max on rank 0).
+#pragma once
+
+#include <span>
+#include <string>
+
+namespace hisnegs::apps {
+
+class Job {
+ public:
+  virtual ~Job() = default;
+  [[nodiscard]] virtual int rank() const = 0;
+  [[nodiscard]] virtual int size() const = 0;
+  [[nodiscard]] bool root() const { return rank() == 0; }
+  [[nodiscard]] bool distributed() const { return size() > 1; }
+  // Waits for every rank.
+  virtual void barrier() const = 0;
+  // values[i] = the max of values[i] over the ranks, on rank 0 (MPI_Reduce with
+  // MPI_MAX: exact, so the result does not depend on the number of ranks). The
+  // other ranks' values are left as they were.
+  virtual void max_to_root(std::span<float> values) const = 0;
+  // Rank 0's value(s) on every rank.
+  [[nodiscard]] virtual long long broadcast(long long value) const = 0;
+  virtual void broadcast(std::span<double> values) const = 0;
+  // Ends every rank of the job with `code` (MPI_Abort): a rank that fails must not
+  // leave the others waiting for it. Alone: std::exit(code).
+  [[noreturn]] virtual void abort(int code) const = 0;
+};
+
+// The job of this process (initializes MPI on the first call of a launch of
+// several ranks). Throws io::InputError when launched on several ranks by a build
+// without MPI, or when MPI cannot start.
+[[nodiscard]] const Job& job();
+
+// The ranks the launcher says this process is one of (1 when not launched by one).
+[[nodiscard]] int launched_ranks();
+
+// "rank 1 of 4: " when distributed, else "".
+[[nodiscard]] std::string rank_prefix(const Job& job);
+
+}  // namespace hisnegs::apps

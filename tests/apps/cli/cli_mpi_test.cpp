@@ -1,0 +1,113 @@
+// SPDX-License-Identifier: Apache-2.0
+// hisnegs on several MPI ranks (apps/pipeline/distributed.hpp), launched by the
+// build's mpiexec with 2 ranks (oversubscribed: CI has 2 cores): the bricked fit's
+// checkpoint equals one process's byte for byte; the ground truth by bricks equals
+// the single-process march bit for bit; a command that does not run distributed
+// is refused on every rank; a rank killed mid-fit ends the job, and the rerun
+// resumes from the finished bricks to the uninterrupted checkpoint. Skipped in a
+// build without MPI.
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include "tests/test_support.hpp"
+
+namespace hisnegs {
+namespace {
+namespace fs = std::filesystem;
+using testing::shell_quoted;
+
+constexpr const char* kMpiexec = HISNEGS_TEST_MPIEXEC;
+
+// A fixed schedule (the budget is never reached): the checkpoint is a pure
+// function of the bricks (as in cli_bricks_test.cpp).
+constexpr const char* kFixed =
+    "gmf: {gaussians: 300, rounds: 3, iterations_per_round: 8, time_budget_s: 600, seam_iterations: 10}\n";
+
+class Mpi : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    if (std::string(kMpiexec).empty() || !fs::exists(kMpiexec)) return;
+    dir_ = new testing::ScratchDir;
+    testing::write_text(dir() / "fixed.yaml", kFixed);
+    ASSERT_EQ(testing::run_hisnegs({"-q", "synth", "-o", dir() / "s.tif", "--shape", "20,72,80"}).exit_code, 0);
+  }
+  static void TearDownTestSuite() {
+    delete dir_;
+    dir_ = nullptr;
+  }
+  void SetUp() override {
+    if (!dir_) GTEST_SKIP() << "built without MPI (or its mpiexec is gone): the distributed paths are not tested";
+  }
+  static fs::path dir() { return dir_->path(); }
+  // `hisnegs ARGS` on `ranks` ranks; `env` (NAME=VALUE ...) for the last rank only.
+  static testing::ShellResult mpirun(int ranks, const std::vector<std::string>& args, const std::string& env = "") {
+    std::string hisnegs = shell_quoted(testing::hisnegs_exe());
+    for (const std::string& a : args) hisnegs += " " + shell_quoted(a);
+    const std::string launcher = std::string(kMpiexec) + " --oversubscribe --allow-run-as-root ";
+    std::string command = "cd " + shell_quoted(dir()) + " && " + launcher;
+    if (env.empty()) {
+      command += "-np " + std::to_string(ranks) + " " + hisnegs;
+    } else {  // MPMD: the same program, the last rank with its own environment
+      command += "-np " + std::to_string(ranks - 1) + " " + hisnegs + " : -np 1 env " + env + " " + hisnegs;
+    }
+    return testing::run_shell(command + " 2>&1");
+  }
+  static std::vector<std::string> fit_args(const std::string& out) {
+    return {"--config", (dir() / "fixed.yaml").string(), "fit", (dir() / "s.tif").string(), "-o",
+            (dir() / out).string(), "--brick-voxels", "32"};
+  }
+  static inline testing::ScratchDir* dir_ = nullptr;
+};
+
+TEST_F(Mpi, TwoRanksFitTheCheckpointOfOneProcessByteForByte) {
+  const auto one = testing::run_hisnegs(fit_args("one.ply"));
+  ASSERT_EQ(one.exit_code, 0) << one.err;
+  const auto two = mpirun(2, fit_args("two.ply"));
+  ASSERT_EQ(two.status, 0) << two.out;
+  EXPECT_NE(two.out.find("2 ranks share 9 bricks to fit"), std::string::npos) << two.out;
+  EXPECT_NE(two.out.find("rank 1 of 2: fit: brick "), std::string::npos) << "rank 1 fitted nothing:\n" << two.out;
+  EXPECT_EQ(testing::read_bytes(dir() / "two.ply"), testing::read_bytes(dir() / "one.ply"));
+  EXPECT_FALSE(fs::exists(dir() / "two.ply.bricks")) << "the brick folder outlives the checkpoint";
+}
+
+TEST_F(Mpi, TwoRanksMarchTheGroundTruthOfOneProcessBitForBit) {
+  ASSERT_EQ(testing::run_hisnegs({"-q", "gt", dir() / "s.tif", "-o", dir() / "gt1", "--orbit", "eval", "--backend",
+                                  "cpu"}).exit_code,
+            0);
+  const auto two = mpirun(2, {"gt", (dir() / "s.tif").string(), "-o", (dir() / "gt2").string(), "--orbit", "eval"});
+  ASSERT_EQ(two.status, 0) << two.out;
+  EXPECT_NE(two.out.find("2 MPI ranks share bricks of"), std::string::npos) << two.out;
+  ASSERT_TRUE(fs::exists(dir() / "gt2" / "mips.tif")) << two.out;
+  EXPECT_EQ(testing::read_bytes(dir() / "gt2" / "mips.tif"), testing::read_bytes(dir() / "gt1" / "mips.tif"));
+}
+
+TEST_F(Mpi, ACommandThatDoesNotRunDistributedIsRefused) {
+  const auto info = mpirun(2, {"info", (dir() / "s.tif").string()});
+  EXPECT_NE(info.status, 0);
+  EXPECT_NE(info.out.find("hisnegs: error: 'info' does not run on several MPI ranks (2 launched)"), std::string::npos)
+      << info.out;
+}
+
+// Rank 1 is killed (SIGKILL) as it saves its second brick: the job ends, the
+// finished bricks stay, and the rerun names what the dead rank held and resumes to
+// the uninterrupted checkpoint.
+TEST_F(Mpi, AKilledRankEndsTheJobAndTheRerunResumes) {
+  if (!fs::exists(dir() / "one.ply")) {  // each test may run in a process of its own
+    ASSERT_EQ(testing::run_hisnegs(fit_args("one.ply")).exit_code, 0);
+  }
+  const auto killed = mpirun(2, fit_args("k.ply"), "HISNEGS_FAULT=brick-save:2");
+  EXPECT_NE(killed.status, 0) << killed.out;
+  EXPECT_FALSE(fs::exists(dir() / "k.ply"));
+  ASSERT_TRUE(fs::exists(dir() / "k.ply.bricks")) << killed.out;
+  const auto rerun = mpirun(2, fit_args("k.ply"));
+  ASSERT_EQ(rerun.status, 0) << rerun.out;
+  EXPECT_NE(rerun.out.find("bricks already finished"), std::string::npos) << rerun.out;
+  EXPECT_NE(rerun.out.find("rank 1 of 2 stopped while fitting brick "), std::string::npos) << rerun.out;
+  EXPECT_EQ(testing::read_bytes(dir() / "k.ply"), testing::read_bytes(dir() / "one.ply"));
+}
+
+}  // namespace
+}  // namespace hisnegs
