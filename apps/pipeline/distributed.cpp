@@ -28,6 +28,7 @@ class SingleProcess final : public Job {
   void max_to_root(std::span<float>) const override {}
   [[nodiscard]] long long broadcast(long long value) const override { return value; }
   void broadcast(std::span<double>) const override {}
+  void broadcast(std::vector<unsigned char>&, int) const override {}
   [[noreturn]] void abort(int code) const override { std::exit(code); }
 };
 
@@ -70,6 +71,16 @@ class MpiWorld final : public Job {
   }
   void broadcast(std::span<double> values) const override {
     MPI_Bcast(values.data(), static_cast<int>(values.size()), MPI_DOUBLE, 0, MPI_COMM_WORLD);
+  }
+  void broadcast(std::vector<unsigned char>& bytes, int root) const override {
+    unsigned long long size = bytes.size();
+    MPI_Bcast(&size, 1, MPI_UNSIGNED_LONG_LONG, root, MPI_COMM_WORLD);
+    bytes.resize(size);
+    constexpr std::size_t kPiece = std::size_t{1} << 30;  // MPI counts are int
+    for (std::size_t at = 0; at < bytes.size(); at += kPiece) {
+      const int n = static_cast<int>(std::min(kPiece, bytes.size() - at));
+      MPI_Bcast(bytes.data() + at, n, MPI_UNSIGNED_CHAR, root, MPI_COMM_WORLD);
+    }
   }
   [[noreturn]] void abort(int code) const override {
     MPI_Abort(MPI_COMM_WORLD, code);

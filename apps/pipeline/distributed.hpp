@@ -15,6 +15,7 @@
 
 #include <span>
 #include <string>
+#include <vector>
 
 namespace hisnegs::apps {
 
@@ -34,6 +35,8 @@ class Job {
   // Rank 0's value(s) on every rank.
   [[nodiscard]] virtual long long broadcast(long long value) const = 0;
   virtual void broadcast(std::span<double> values) const = 0;
+  // Rank `root`'s bytes (and their count) on every rank.
+  virtual void broadcast(std::vector<unsigned char>& bytes, int root) const = 0;
   // Ends every rank of the job with `code` (MPI_Abort): a rank that fails must not
   // leave the others waiting for it. Alone: std::exit(code).
   [[noreturn]] virtual void abort(int code) const = 0;

@@ -10,6 +10,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <fstream>
 #include <optional>
 #include <stdexcept>
@@ -569,6 +570,34 @@ std::vector<int> share_of_bricks(const gmf::BrickPlan& plan, const std::vector<i
 
 namespace {
 
+// After a colour of the seam pass on several ranks: each brick of `of_colour` goes
+// from the rank that refitted it to every rank, bit for bit. Returns the bytes sent.
+double share_seam_results(const gmf::BrickPlan& plan, const std::vector<int>& of_colour, const Job& ranks,
+                          std::vector<gmf::GaussianMixture>& owned) {
+  double bytes = 0;
+  for (int r = 0; r < ranks.size(); ++r) {
+    for (int id : share_of_bricks(plan, of_colour, r, ranks.size())) {
+      gmf::GaussianMixture& m = owned[static_cast<std::size_t>(id)];
+      std::vector<unsigned char> data;
+      if (ranks.rank() == r) {
+        data.resize(m.size() * sizeof(gmf::GaussianParams));
+        if (!data.empty()) std::memcpy(data.data(), m.data(), data.size());
+      }
+      ranks.broadcast(data, r);
+      if (ranks.rank() != r) {
+        m.resize(data.size() / sizeof(gmf::GaussianParams));
+        if (!data.empty()) std::memcpy(m.data(), data.data(), data.size());
+      }
+      bytes += static_cast<double>(data.size()) * (ranks.size() - 1);
+    }
+  }
+  return bytes;
+}
+
+}  // namespace
+
+namespace {
+
 FitOutcome run_streamed(const std::string& volume, const FitConfig& config, const FitPlanChoice& choice,
                         const std::filesystem::path& out, const std::filesystem::path& log_csv,
                         const Progress& progress) {
@@ -666,9 +695,7 @@ FitOutcome run_streamed(const std::string& volume, const FitConfig& config, cons
     std::error_code ec;
     std::filesystem::remove(held_path(c, ranks.rank()), ec);
     ranks.barrier();
-    if (!ranks.root()) {
-      return FitOutcome{0, 0.0, watch.elapsed(), rank_prefix(ranks) + std::to_string(mine.size()) + " bricks"};
-    }
+    // Every rank holds the whole model for the seam pass (K x 44 bytes).
     for (std::size_t b = 0; b < n; ++b) {
       if (!results[b]) results[b] = load_brick(c, static_cast<int>(b));
       if (!results[b]) throw std::runtime_error("brick " + std::to_string(b) + " is missing after the brick pass");
@@ -690,24 +717,43 @@ FitOutcome run_streamed(const std::string& volume, const FitConfig& config, cons
   }
   const bool softmax = c.gmf.aggregation == gmf::Aggregation::kSoftmax;
   if (!any_beta) beta = softmax ? c.gmf.beta_start : 0.0;
-  // The seam pass, colour by colour (bricks of one colour share no face).
+  // The seam pass, colour by colour (bricks of one colour share no face). On
+  // several ranks each refits its share of a colour's bricks, then every brick's
+  // new Gaussians go from its rank to all (the next colour holds them fixed).
   if (seam) {
     io::Stopwatch seam_watch;
     SeamStats total;
+    double exchanged = 0;
     const double seam_budget = std::max(0.0, total_budget * 0.95 - watch.elapsed());
     for (int colour = 0; colour < 8; ++colour) {
+      std::vector<int> of_colour;
       for (const gmf::StreamBrick& b : c.plan.bricks) {
-        if (b.colour() != colour) continue;
+        if (b.colour() == colour) of_colour.push_back(b.id);
+      }
+      for (int id : share_of_bricks(c.plan, of_colour, ranks.rank(), ranks.size())) {
         const double left = std::max(0.0, seam_budget - seam_watch.elapsed());
-        const SeamStats s = seam_brick(c, b, owned, softmax ? beta : 0.0, left / static_cast<double>(n));
+        const SeamStats s = seam_brick(c, c.plan.bricks[static_cast<std::size_t>(id)], owned, softmax ? beta : 0.0,
+                                       left / static_cast<double>(n));
         release_free_memory();
         total.refitted += s.refitted;
         total.held += s.held;
       }
+      if (ranks.distributed()) exchanged += share_seam_results(c.plan, of_colour, ranks, owned);
     }
-    progress.say("fit: seam pass: %zu Gaussians near shared faces refitted (%d Adam steps each brick) with %zu "
-                 "neighbours held fixed, %s",
-                 total.refitted, c.gmf.seam_iterations, total.held, format_seconds(seam_watch.elapsed()).c_str());
+    if (ranks.distributed()) {
+      progress.say("fit: seam pass on %d ranks: %s exchanged (every refitted brick's Gaussians to every rank), %s",
+                   ranks.size(), io::gib_text(exchanged).c_str(), format_seconds(seam_watch.elapsed()).c_str());
+      if (!ranks.root()) {
+        return FitOutcome{0, 0.0, watch.elapsed(), rank_prefix(ranks) + std::to_string(mine.size()) + " bricks"};
+      }
+    } else {
+      progress.say("fit: seam pass: %zu Gaussians near shared faces refitted (%d Adam steps each brick) with %zu "
+                   "neighbours held fixed, %s",
+                   total.refitted, c.gmf.seam_iterations, total.held, format_seconds(seam_watch.elapsed()).c_str());
+    }
+  }
+  if (!ranks.root()) {  // no seam pass: rank 0 goes on alone
+    return FitOutcome{0, 0.0, watch.elapsed(), rank_prefix(ranks) + std::to_string(mine.size()) + " bricks"};
   }
   gmf::GaussianMixture mixture;
   for (const auto& m : owned) {

@@ -1,7 +1,8 @@
 // SPDX-License-Identifier: Apache-2.0
 // hisnegs on several MPI ranks (apps/pipeline/distributed.hpp), launched by the
 // build's mpiexec with 2 ranks (oversubscribed: CI has 2 cores): the bricked fit's
-// checkpoint equals one process's byte for byte; the ground truth by bricks equals
+// checkpoint (bricks and seam pass shared by the ranks) equals one process's byte
+// for byte; the ground truth by bricks equals
 // the single-process march bit for bit; a command that does not run distributed
 // is refused on every rank; a rank killed mid-fit ends the job, and the rerun
 // resumes from the finished bricks to the uninterrupted checkpoint. Skipped in a
@@ -69,6 +70,7 @@ TEST_F(Mpi, TwoRanksFitTheCheckpointOfOneProcessByteForByte) {
   ASSERT_EQ(two.status, 0) << two.out;
   EXPECT_NE(two.out.find("2 ranks share 9 bricks to fit"), std::string::npos) << two.out;
   EXPECT_NE(two.out.find("rank 1 of 2: fit: brick "), std::string::npos) << "rank 1 fitted nothing:\n" << two.out;
+  EXPECT_NE(two.out.find("seam pass on 2 ranks"), std::string::npos) << two.out;
   EXPECT_EQ(testing::read_bytes(dir() / "two.ply"), testing::read_bytes(dir() / "one.ply"));
   EXPECT_FALSE(fs::exists(dir() / "two.ply.bricks")) << "the brick folder outlives the checkpoint";
 }
