@@ -392,7 +392,7 @@ class RoundLoop {
     // solve gets the time left minus what they took last round.
     double overhead = 0;
     for (int round = 0; round < options_.rounds; ++round) {
-      const double left = options_.time_budget_s - clock_.now() - overhead;
+      const double left = options_.budget_seconds() - clock_.now() - overhead;
       if (left <= 0) {
         result_.stop_reason = "time budget";
         break;
@@ -421,7 +421,7 @@ class RoundLoop {
         result_.stop_reason = "gmf.max_iterations";
       }
       // Density control for the next round (not after the last one, nor when out of time).
-      if (!last && options_.densify && round + 1 < options_.rounds && clock_.now() < options_.time_budget_s) {
+      if (!last && options_.densify && round + 1 < options_.rounds && clock_.now() < options_.budget_seconds()) {
         density(samples, current, stats);
       }
       overhead = clock_.now() - solved_at;

@@ -14,7 +14,7 @@ void GmfOptions::validate() const {
   constexpr const char* s = "gmf";
   io::require_in_range(s, "gaussians", gaussians, 1, 1e7);
   io::require_in_range(s, "max_axis_ratio", max_axis_ratio, 1.5, 1e6);
-  io::require_positive(s, "time_budget_s", time_budget_s);
+  io::require_in_range(s, "time_budget_s", time_budget_s, 0.0, 1e9);  // 0: no limit
   io::require_in_range(s, "rounds", rounds, 1, 1000);
   io::require_in_range(s, "iterations_per_round", iterations_per_round, 1, 100000);
   io::require_in_range(s, "max_iterations", max_iterations, 0, 1e9);

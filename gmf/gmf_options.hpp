@@ -37,8 +37,13 @@ struct GmfOptions {
   // 17: the brick LM beats the global Ceres solvers, but not Adam).
   Optimizer optimizer = Optimizer::kAdam;
   FitInit init = FitInit::kGrid;  // grid | maxima
-  // Wall-clock limit of the whole fit, seconds, > 0: the fit stops before it.
+  // Wall-clock limit of the whole fit, seconds, >= 0: the fit stops before it.
+  // 0: no limit, the schedule alone (rounds x iterations) ends the fit, so the
+  // result does not depend on the machine's speed or load (the bricked fit's
+  // checkpoint is then the same on any number of threads or MPI ranks).
   double time_budget_s = 290.0;
+  // The limit in seconds: time_budget_s, or a limit never reached when it is 0.
+  [[nodiscard]] double budget_seconds() const { return time_budget_s > 0 ? time_budget_s : 1e9; }
   // Rounds (solve, then split/clone/prune), [1, 1000]: more than the budget allows
   // on a 2-core machine (op1: 40), so the budget, not the count, ends a default fit.
   int rounds = 60;

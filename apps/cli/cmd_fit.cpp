@@ -24,7 +24,7 @@ void add_fit_command(CLI::App& app, GlobalOptions& global) {
   cmd->add_option("--aggregation", args->aggregation,
                   "softmax (f -> max, what MIPs show) | sum (report Eq. 1, density export) (gmf.aggregation)");
   cmd->add_option("--gaussians", args->gaussians, "Gaussian budget (gmf.gaussians)");
-  cmd->add_option("--time-budget", args->time_budget, "wall-clock limit in seconds (gmf.time_budget_s)");
+  cmd->add_option("--time-budget", args->time_budget, "wall-clock limit in seconds (gmf.time_budget_s; 0: none, the schedule alone)");
   cmd->add_option("--max-memory", args->max_memory,
                   "most memory the fit may use (gmf.max_memory: auto = half the RAM, or 1GiB, 512MiB); a stack that "
                   "does not fit is fitted in bricks");

@@ -359,8 +359,11 @@ BrickResult fit_brick(const StreamContext& c, const gmf::StreamBrick& b, double 
   }
   gmf::GmfOptions options = c.gmf;
   options.seed = brick_seed(c.gmf, b.id);
-  options.time_budget_s = std::max(1e-3, left * std::min(1.0, static_cast<double>(r.foreground_core) /
-                                                                  static_cast<double>(std::max<std::int64_t>(1, rest))));
+  options.time_budget_s =
+      c.gmf.time_budget_s == 0
+          ? 0.0  // no limit: the schedule alone
+          : std::max(1e-3, left * std::min(1.0, static_cast<double>(r.foreground_core) /
+                                                    static_cast<double>(std::max<std::int64_t>(1, rest))));
   options.gaussians = static_cast<int>(std::clamp<double>(
       std::llround(static_cast<double>(c.gmf.gaussians) * static_cast<double>(foreground_region) /
                    static_cast<double>(c.foreground)),
@@ -437,7 +440,7 @@ SeamStats seam_brick(const StreamContext& c, const gmf::StreamBrick& b, std::vec
   options.iterations_per_round = c.gmf.seam_iterations;
   options.max_iterations = 0;
   options.beta_start = options.beta_end = std::max(beta, 1e-6);
-  options.time_budget_s = std::max(1e-3, seconds);
+  options.time_budget_s = c.gmf.time_budget_s == 0 ? 0.0 : std::max(1e-3, seconds);
   options.frozen = fixed.size();
   options.prune_intensity = 0.0;  // nothing leaves in a seam pass (a faint one stays faint)
   const gmf::SampleSet samples = region_samples(c, v, rf, options);
@@ -550,46 +553,58 @@ void say_what_stopped_ranks_held(const StreamContext& c, const std::vector<std::
 
 }  // namespace
 
-std::vector<int> share_of_bricks(const gmf::BrickPlan& plan, const std::vector<int>& todo, int rank, int ranks) {
-  if (ranks <= 1) return todo;
-  // Largest first, each to the rank with the least so far (ties: the lower rank):
-  // the same on every rank, whatever order they run in.
-  std::vector<int> order = todo;
-  const auto voxels = [&](int id) { return plan.bricks[static_cast<std::size_t>(id)].core.voxels(); };
-  std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return voxels(a) > voxels(b); });
-  std::vector<std::int64_t> load(static_cast<std::size_t>(ranks), 0);
-  std::vector<int> mine;
-  for (int id : order) {
-    const auto least = static_cast<int>(std::min_element(load.begin(), load.end()) - load.begin());
-    load[static_cast<std::size_t>(least)] += static_cast<std::int64_t>(voxels(id));
-    if (least == rank) mine.push_back(id);
+std::vector<int> brick_ranks(const std::vector<int>& ids, int ranks, const std::function<double(int)>& weight) {
+  std::vector<int> rank_of(ids.size(), 0);
+  if (ranks <= 1) return rank_of;
+  // Heaviest first (ties: the lower id), each to the rank with the least so far
+  // (ties: the lower rank): the same on every rank, whatever order they run in.
+  std::vector<std::size_t> order(ids.size());
+  for (std::size_t i = 0; i < order.size(); ++i) order[i] = i;
+  std::vector<double> w(ids.size());
+  for (std::size_t i = 0; i < ids.size(); ++i) w[i] = weight(ids[i]);
+  std::stable_sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return w[a] > w[b]; });
+  std::vector<double> load(static_cast<std::size_t>(ranks), 0.0);
+  for (std::size_t i : order) {
+    const auto least = static_cast<std::size_t>(std::min_element(load.begin(), load.end()) - load.begin());
+    load[least] += w[i];
+    rank_of[i] = static_cast<int>(least);
   }
-  std::sort(mine.begin(), mine.end());
+  return rank_of;
+}
+
+std::vector<int> share_of_bricks(const gmf::BrickPlan& plan, const std::vector<int>& todo, int rank, int ranks) {
+  const std::vector<int> rank_of = brick_ranks(todo, ranks, [&](int id) {
+    return static_cast<double>(plan.bricks[static_cast<std::size_t>(id)].core.voxels());
+  });
+  std::vector<int> mine;
+  for (std::size_t i = 0; i < todo.size(); ++i) {
+    if (rank_of[i] == rank) mine.push_back(todo[i]);
+  }
   return mine;
 }
 
 namespace {
 
 // After a colour of the seam pass on several ranks: each brick of `of_colour` goes
-// from the rank that refitted it to every rank, bit for bit. Returns the bytes sent.
-double share_seam_results(const gmf::BrickPlan& plan, const std::vector<int>& of_colour, const Job& ranks,
+// from the rank that refitted it (rank_of) to every rank, bit for bit. Returns the
+// bytes sent.
+double share_seam_results(const std::vector<int>& of_colour, const std::vector<int>& rank_of, const Job& ranks,
                           std::vector<gmf::GaussianMixture>& owned) {
   double bytes = 0;
-  for (int r = 0; r < ranks.size(); ++r) {
-    for (int id : share_of_bricks(plan, of_colour, r, ranks.size())) {
-      gmf::GaussianMixture& m = owned[static_cast<std::size_t>(id)];
-      std::vector<unsigned char> data;
-      if (ranks.rank() == r) {
-        data.resize(m.size() * sizeof(gmf::GaussianParams));
-        if (!data.empty()) std::memcpy(data.data(), m.data(), data.size());
-      }
-      ranks.broadcast(data, r);
-      if (ranks.rank() != r) {
-        m.resize(data.size() / sizeof(gmf::GaussianParams));
-        if (!data.empty()) std::memcpy(m.data(), data.data(), data.size());
-      }
-      bytes += static_cast<double>(data.size()) * (ranks.size() - 1);
+  for (std::size_t i = 0; i < of_colour.size(); ++i) {
+    const int r = rank_of[i];
+    gmf::GaussianMixture& m = owned[static_cast<std::size_t>(of_colour[i])];
+    std::vector<unsigned char> data;
+    if (ranks.rank() == r) {
+      data.resize(m.size() * sizeof(gmf::GaussianParams));
+      if (!data.empty()) std::memcpy(data.data(), m.data(), data.size());
     }
+    ranks.broadcast(data, r);
+    if (ranks.rank() != r) {
+      m.resize(data.size() / sizeof(gmf::GaussianParams));
+      if (!data.empty()) std::memcpy(m.data(), data.data(), data.size());
+    }
+    bytes += static_cast<double>(data.size()) * (ranks.size() - 1);
   }
   return bytes;
 }
@@ -614,7 +629,7 @@ FitOutcome run_streamed(const std::string& volume, const FitConfig& config, cons
   c.max_memory = choice.max_memory;
   c.folder = brick_folder(out);
   c.fingerprint = fingerprint_of(volume, *c.source, config, c.plan);
-  const double total_budget = c.gmf.time_budget_s;
+  const double total_budget = c.gmf.budget_seconds();
   progress.say("fit: %s: %d x %d x %d %s (%s as float32), %s; in-memory fit would need %s of %s: bricked: %s",
                volume.c_str(), c.source->nx, c.source->ny, c.source->nz, std::string(io::to_string(c.source->stored_as)).c_str(),
                io::gib_text(4.0 * static_cast<double>(c.source->whole().voxels())).c_str(), c.source->format.c_str(),
@@ -730,7 +745,14 @@ FitOutcome run_streamed(const std::string& volume, const FitConfig& config, cons
       for (const gmf::StreamBrick& b : c.plan.bricks) {
         if (b.colour() == colour) of_colour.push_back(b.id);
       }
-      for (int id : share_of_bricks(c.plan, of_colour, ranks.rank(), ranks.size())) {
+      // Shared by the Gaussians each brick holds (its seam work), as every rank
+      // sees them before any of this colour is refitted.
+      const std::vector<int> rank_of = brick_ranks(of_colour, ranks.size(), [&](int id) {
+        return 1.0 + static_cast<double>(owned[static_cast<std::size_t>(id)].size());
+      });
+      for (std::size_t i = 0; i < of_colour.size(); ++i) {
+        if (rank_of[i] != ranks.rank()) continue;
+        const int id = of_colour[i];
         const double left = std::max(0.0, seam_budget - seam_watch.elapsed());
         const SeamStats s = seam_brick(c, c.plan.bricks[static_cast<std::size_t>(id)], owned, softmax ? beta : 0.0,
                                        left / static_cast<double>(n));
@@ -738,11 +760,12 @@ FitOutcome run_streamed(const std::string& volume, const FitConfig& config, cons
         total.refitted += s.refitted;
         total.held += s.held;
       }
-      if (ranks.distributed()) exchanged += share_seam_results(c.plan, of_colour, ranks, owned);
+      if (ranks.distributed()) exchanged += share_seam_results(of_colour, rank_of, ranks, owned);
     }
     if (ranks.distributed()) {
-      progress.say("fit: seam pass on %d ranks: %s exchanged (every refitted brick's Gaussians to every rank), %s",
-                   ranks.size(), io::gib_text(exchanged).c_str(), format_seconds(seam_watch.elapsed()).c_str());
+      progress.say("fit: seam pass on %d ranks: %.2f MiB exchanged (every refitted brick's Gaussians to every "
+                   "rank), %s",
+                   ranks.size(), exchanged / 1048576.0, format_seconds(seam_watch.elapsed()).c_str());
       if (!ranks.root()) {
         return FitOutcome{0, 0.0, watch.elapsed(), rank_prefix(ranks) + std::to_string(mine.size()) + " bricks"};
       }

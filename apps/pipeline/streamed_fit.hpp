@@ -78,8 +78,12 @@ class SequentialBricks final : public BrickExecutor {
   }
 };
 
-// The bricks of `todo` (ids into plan.bricks) that `rank` of `ranks` fits: largest
-// core first to the rank with the fewest core voxels so far; all of them alone.
+// The rank (of `ranks`) that takes each of `ids`: heaviest by `weight` first, each
+// to the rank with the least weight so far; deterministic, all 0 alone.
+[[nodiscard]] std::vector<int> brick_ranks(const std::vector<int>& ids, int ranks,
+                                           const std::function<double(int)>& weight);
+// The bricks of `todo` (ids into plan.bricks) that `rank` of `ranks` fits, shared by
+// core voxels (brick_ranks); all of them alone.
 [[nodiscard]] std::vector<int> share_of_bricks(const gmf::BrickPlan& plan, const std::vector<int>& todo, int rank,
                                                int ranks);
 
