@@ -3,13 +3,13 @@
 #include "apps/pipeline/distributed.hpp"
 
 #include <algorithm>
+#include <charconv>
 #include <cstdlib>
-#include <limits>
+#include <cstring>
 #include <memory>
 #include <mutex>
 #include <optional>
 
-#include "io/detail/tiff_metadata.hpp"
 #include "io/error.hpp"
 
 #if HISNEGS_HAVE_MPI
@@ -96,9 +96,11 @@ class MpiWorld final : public Job {
 std::optional<int> env_count(const char* name) {
   const char* text = std::getenv(name);
   if (!text || !*text) return std::nullopt;
-  const std::optional<long long> n = io::detail::parse_integer(text);
-  if (!n || *n < 1 || *n > std::numeric_limits<int>::max()) return std::nullopt;
-  return static_cast<int>(*n);
+  int n = 0;
+  const char* end = text + std::strlen(text);
+  const auto [at, error] = std::from_chars(text, end, n);
+  if (error != std::errc{} || at != end || n < 1) return std::nullopt;
+  return n;
 }
 
 }  // namespace
