@@ -26,7 +26,6 @@ class SingleProcess final : public Job {
   [[nodiscard]] int size() const override { return 1; }
   void barrier() const override {}
   void max_to_root(std::span<float>) const override {}
-  [[nodiscard]] long long broadcast(long long value) const override { return value; }
   void broadcast(std::span<double>) const override {}
   void broadcast(std::vector<unsigned char>&, int) const override {}
   [[noreturn]] void abort(int code) const override { std::exit(code); }
@@ -53,21 +52,13 @@ class MpiWorld final : public Job {
   [[nodiscard]] int size() const override { return size_; }
   void barrier() const override { MPI_Barrier(MPI_COMM_WORLD); }
   void max_to_root(std::span<float> values) const override {
-    // In pieces of at most 2^30 values (MPI counts are int).
-    constexpr std::size_t kPiece = std::size_t{1} << 30;
-    for (std::size_t at = 0; at < values.size(); at += kPiece) {
-      const int n = static_cast<int>(std::min(kPiece, values.size() - at));
-      float* data = values.data() + at;
+    in_pieces(values.size(), [&](std::size_t at, int n) {
       if (rank_ == 0) {
-        MPI_Reduce(MPI_IN_PLACE, data, n, MPI_FLOAT, MPI_MAX, 0, MPI_COMM_WORLD);
+        MPI_Reduce(MPI_IN_PLACE, values.data() + at, n, MPI_FLOAT, MPI_MAX, 0, MPI_COMM_WORLD);
       } else {
-        MPI_Reduce(data, nullptr, n, MPI_FLOAT, MPI_MAX, 0, MPI_COMM_WORLD);
+        MPI_Reduce(values.data() + at, nullptr, n, MPI_FLOAT, MPI_MAX, 0, MPI_COMM_WORLD);
       }
-    }
-  }
-  [[nodiscard]] long long broadcast(long long value) const override {
-    MPI_Bcast(&value, 1, MPI_LONG_LONG, 0, MPI_COMM_WORLD);
-    return value;
+    });
   }
   void broadcast(std::span<double> values) const override {
     MPI_Bcast(values.data(), static_cast<int>(values.size()), MPI_DOUBLE, 0, MPI_COMM_WORLD);
@@ -76,11 +67,9 @@ class MpiWorld final : public Job {
     unsigned long long size = bytes.size();
     MPI_Bcast(&size, 1, MPI_UNSIGNED_LONG_LONG, root, MPI_COMM_WORLD);
     bytes.resize(size);
-    constexpr std::size_t kPiece = std::size_t{1} << 30;  // MPI counts are int
-    for (std::size_t at = 0; at < bytes.size(); at += kPiece) {
-      const int n = static_cast<int>(std::min(kPiece, bytes.size() - at));
+    in_pieces(bytes.size(), [&](std::size_t at, int n) {
       MPI_Bcast(bytes.data() + at, n, MPI_UNSIGNED_CHAR, root, MPI_COMM_WORLD);
-    }
+    });
   }
   [[noreturn]] void abort(int code) const override {
     MPI_Abort(MPI_COMM_WORLD, code);
@@ -88,6 +77,14 @@ class MpiWorld final : public Job {
   }
 
  private:
+  // call(at, n) for consecutive pieces of [0, count) of at most 2^30 elements:
+  // MPI counts are int.
+  template <class Call>
+  static void in_pieces(std::size_t count, const Call& call) {
+    constexpr std::size_t kPiece = std::size_t{1} << 30;
+    for (std::size_t at = 0; at < count; at += kPiece) call(at, static_cast<int>(std::min(kPiece, count - at)));
+  }
+
   int rank_ = 0, size_ = 1;
 };
 #endif

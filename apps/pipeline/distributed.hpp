@@ -32,8 +32,7 @@ class Job {
   // MPI_MAX: exact, so the result does not depend on the number of ranks). The
   // other ranks' values are left as they were.
   virtual void max_to_root(std::span<float> values) const = 0;
-  // Rank 0's value(s) on every rank.
-  [[nodiscard]] virtual long long broadcast(long long value) const = 0;
+  // Rank 0's values on every rank.
   virtual void broadcast(std::span<double> values) const = 0;
   // Rank `root`'s bytes (and their count) on every rank.
   virtual void broadcast(std::vector<unsigned char>& bytes, int root) const = 0;

@@ -706,7 +706,7 @@ FitOutcome run_streamed(const std::string& volume, const FitConfig& config, cons
     results[static_cast<std::size_t>(id)] = std::move(r);
   });
   if (ranks.distributed()) {
-    // Every brick is in the folder once all ranks are here; rank 0 goes on alone.
+    // Every brick is in the folder once all ranks are here.
     std::error_code ec;
     std::filesystem::remove(held_path(c, ranks.rank()), ec);
     ranks.barrier();
@@ -766,16 +766,13 @@ FitOutcome run_streamed(const std::string& volume, const FitConfig& config, cons
       progress.say("fit: seam pass on %d ranks: %.2f MiB exchanged (every refitted brick's Gaussians to every "
                    "rank), %s",
                    ranks.size(), exchanged / 1048576.0, format_seconds(seam_watch.elapsed()).c_str());
-      if (!ranks.root()) {
-        return FitOutcome{0, 0.0, watch.elapsed(), rank_prefix(ranks) + std::to_string(mine.size()) + " bricks"};
-      }
     } else {
       progress.say("fit: seam pass: %zu Gaussians near shared faces refitted (%d Adam steps each brick) with %zu "
                    "neighbours held fixed, %s",
                    total.refitted, c.gmf.seam_iterations, total.held, format_seconds(seam_watch.elapsed()).c_str());
     }
   }
-  if (!ranks.root()) {  // no seam pass: rank 0 goes on alone
+  if (!ranks.root()) {  // rank 0 goes on alone: measuring, checkpoint
     return FitOutcome{0, 0.0, watch.elapsed(), rank_prefix(ranks) + std::to_string(mine.size()) + " bricks"};
   }
   gmf::GaussianMixture mixture;
