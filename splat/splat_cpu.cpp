@@ -29,6 +29,13 @@ class CpuSplatRenderer final : public SplatRenderer {
   void forward(std::span<const float> params, const Intrinsics& K, const CameraView& view,
                const SplatSettings& settings, std::span<float> image) override;
   void backward(std::span<const float> dL_dimage, std::span<float> dL_dparams, std::span<float> screen_grad) override;
+  void soft_state(std::span<float> m, std::span<float> S) const override {
+    if (!settings_.soft() || m.size() != m_.size() || S.size() != S_.size()) {
+      throw std::logic_error("splat: soft_state needs a soft-MIP forward of the spans' size");
+    }
+    std::copy(m_.begin(), m_.end(), m.begin());
+    std::copy(S_.begin(), S_.end(), S.begin());
+  }
   [[nodiscard]] const SplatFrameStats& stats() const override { return stats_; }
   [[nodiscard]] Backend backend() const override { return Backend::kCpu; }
 

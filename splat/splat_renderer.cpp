@@ -63,6 +63,12 @@ class CudaSplatRenderer final : public SplatRenderer {
     }
     splatter_.backward(dL_dimage.data(), dL_dparams.data(), screen_grad.empty() ? nullptr : screen_grad.data());
   }
+  void soft_state(std::span<float> m, std::span<float> S) const override {
+    if (!soft_ || m.size() != pixels_ || S.size() != pixels_) {
+      throw std::logic_error("splat: soft_state needs a soft-MIP forward of the spans' size");
+    }
+    splatter_.soft_state(m.data(), S.data());
+  }
   [[nodiscard]] const SplatFrameStats& stats() const override { return stats_; }
   [[nodiscard]] Backend backend() const override { return Backend::kCuda; }
 

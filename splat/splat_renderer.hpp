@@ -56,6 +56,13 @@ class SplatRenderer {
   // Gaussian's |dL/dμ2D| (pixels) for density control.
   virtual void backward(std::span<const float> dL_dimage, std::span<float> dL_dparams,
                         std::span<float> screen_grad = {}) = 0;
+  // Soft mode: the last forward's softmax state per pixel (H x W each), its image
+  // (before any floor) being Σ e^{βg − m} g / S over the terms: m = β × the largest
+  // g that reaches the pixel (−∞ where none does) and S = Σ e^{βg − m} (0 there).
+  // The renders of disjoint sets of Gaussians merge into their union's with
+  // merge_soft_pixel (render_views.hpp), which is how several processes render one
+  // model. Throws std::logic_error after a hard forward or none.
+  virtual void soft_state(std::span<float> m, std::span<float> S) const = 0;
   [[nodiscard]] virtual const SplatFrameStats& stats() const = 0;
   [[nodiscard]] virtual Backend backend() const = 0;
 };

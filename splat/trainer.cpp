@@ -5,6 +5,7 @@
 #include "splat/trainer.hpp"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <numbers>
 #include <numeric>
@@ -92,16 +93,28 @@ Trainer::StepSums Trainer::train_step(std::span<const int> view_indices) {
   grad_.assign(params_.size(), 0.0f);
   view_screen_grad_.resize(K);
   StepSums sums;
-  for (int i : view_indices) {
+  // Every member draws every view's crop, so their generators stay in step.
+  std::vector<std::array<int, 2>> crops(view_indices.size(), {0, 0});
+  for (std::size_t j = 0; j < view_indices.size(); ++j) {
+    const int i = view_indices[j];
     if (i < 0 || i >= data_.count()) throw std::out_of_range("Trainer::step: view index " + std::to_string(i));
+    if (options_.crop_size > 0) {
+      crops[j][0] = std::uniform_int_distribution<int>(0, data_.intrinsics.width - options_.crop_size)(rng_);
+      crops[j][1] = std::uniform_int_distribution<int>(0, data_.intrinsics.height - options_.crop_size)(rng_);
+    }
+  }
+  if (group_) step_accum_.assign(2 * K, 0.0);
+  for (std::size_t j = 0; j < view_indices.size(); ++j) {
+    if (!mine(j)) continue;
+    const int i = view_indices[j];
     Intrinsics intr = data_.intrinsics;
     std::span<const float> target = data_.image(i);
     settings.floor = floor_of(i);
     if (options_.crop_size > 0) {
       // A random crop is the same pinhole camera with its principal point shifted.
       const int c = options_.crop_size;
-      const int x0 = std::uniform_int_distribution<int>(0, intr.width - c)(rng_);
-      const int y0 = std::uniform_int_distribution<int>(0, intr.height - c)(rng_);
+      const int x0 = crops[j][0];
+      const int y0 = crops[j][1];
       const auto crop = [&](std::span<const float> image, std::vector<float>& out) {
         out.resize(static_cast<std::size_t>(c) * c);
         for (int r = 0; r < c; ++r) {
@@ -129,12 +142,30 @@ Trainer::StepSums Trainer::train_step(std::span<const int> view_indices) {
     renderer_->backward(dimage_, grad_, view_screen_grad_);
     for (std::size_t k = 0; k < K; ++k) {
       if (view_screen_grad_[k] > 0.0f) {
-        grad_accum_[k] += static_cast<double>(view_screen_grad_[k]) * static_cast<double>(N);
-        ++grad_count_[k];
+        const double g = static_cast<double>(view_screen_grad_[k]) * static_cast<double>(N);
+        if (group_) {
+          step_accum_[k] += g;
+          step_accum_[K + k] += 1.0;
+        } else {
+          grad_accum_[k] += g;
+          ++grad_count_[k];
+        }
       }
     }
     sums.loss += terms.total;
     sums.psnr += gmf::psnr(image_, target);
+  }
+  if (group_) {
+    group_->sum(grad_);
+    group_->sum(step_accum_);
+    std::array<double, 2> step_sums = {sums.loss, sums.psnr};
+    group_->sum(step_sums);
+    sums.loss = step_sums[0];
+    sums.psnr = step_sums[1];
+    for (std::size_t k = 0; k < K; ++k) {
+      grad_accum_[k] += step_accum_[k];
+      grad_count_[k] += static_cast<std::uint32_t>(step_accum_[K + k]);
+    }
   }
   const auto B = static_cast<float>(view_indices.size());
   if (view_indices.size() > 1) {
@@ -191,6 +222,7 @@ Trainer::Evaluation Trainer::evaluate(std::span<const float> params, double beta
   const double reg = options_.lambda_scale *
                      scale_regularizer(params, options_.scale_min, options_.scale_max, 0.0, std::span<float>());
   for (int i = 0; i < data_.count(); ++i) {
+    if (!mine(static_cast<std::size_t>(i))) continue;
     settings.floor = floor_of(i);
     renderer_->forward(params, intr, data_.views[static_cast<std::size_t>(i)], settings, image_);
     e.loss +=
@@ -199,9 +231,31 @@ Trainer::Evaluation Trainer::evaluate(std::span<const float> params, double beta
         reg;
     e.psnr += gmf::psnr(image_, data_.image(i));
   }
+  if (group_) {
+    std::array<double, 2> both = {e.loss, e.psnr};
+    group_->sum(both);
+    e.loss = both[0];
+    e.psnr = both[1];
+  }
   e.loss /= data_.count();
   e.psnr /= data_.count();
   return e;
+}
+
+void Trainer::check_members_agree() const {
+  // Member r's FNV-1a hash h_r of the parameters' bytes (32 bits: exact in a double):
+  // the sum over the members equals n h_r on every member only when all h_r are equal.
+  std::uint32_t h = 2166136261u;
+  const auto* bytes = reinterpret_cast<const unsigned char*>(params_.data());
+  for (std::size_t i = 0; i < params_.size() * sizeof(float); ++i) h = (h ^ bytes[i]) * 16777619u;
+  std::array<double, 2> sums = {static_cast<double>(h), static_cast<double>(params_.size())};
+  group_->sum(sums);
+  const double n = group_->size();
+  if (sums[0] != n * static_cast<double>(h) || sums[1] != n * static_cast<double>(params_.size())) {
+    throw std::runtime_error("training: the " + std::to_string(group_->size()) +
+                             " ranks' models differ after epoch " + std::to_string(epoch_) +
+                             " (a step that is not deterministic on every rank)");
+  }
 }
 
 EpochReport Trainer::run_epoch() {
@@ -239,6 +293,7 @@ EpochReport Trainer::run_epoch() {
     report.pruned = pruned.total;
     report.pruned_empty = pruned.empty;
   }
+  if (group_) check_members_agree();
   report.gaussians = gaussians();
   report.seconds = watch.elapsed();
   return report;

@@ -50,6 +50,19 @@ struct DensifyChange {
   int cloned = 0;  // small Gaussians duplicated
 };
 
+// The processes a Trainer shares its steps with: data parallel over the views of
+// each step (the MPI ranks of apps/pipeline/distributed.hpp). Alone: none.
+class StepGroup {
+ public:
+  virtual ~StepGroup() = default;
+  [[nodiscard]] virtual int rank() const = 0;
+  [[nodiscard]] virtual int size() const = 0;
+  // values[i] = the sum of values[i] over the members, in a fixed order, with the same
+  // bits on every member.
+  virtual void sum(std::span<float> values) const = 0;
+  virtual void sum(std::span<double> values) const = 0;
+};
+
 // Trains the K Gaussians of `params` (11 K floats, gmf::GaussianParam order) on `data`.
 //
 // Adam (β1 0.9, β2 0.999, ε 1e-15: the loss is a per-pixel mean, so its gradients are
@@ -86,6 +99,16 @@ class Trainer {
   // loss compares what the ground truth shows: the Gaussians and the noise's MIP.
   // Empty: none. Throws std::invalid_argument for a count or size that does not fit.
   void set_floors(std::vector<std::vector<float>> floors);
+  // Shares every step with the members of `group`, each running an identical Trainer
+  // (same options, data, parameters and state): member r renders and differentiates
+  // the step's views at positions r, r + n, ... (n members), the gradients, losses and
+  // density statistics are summed over the group (StepGroup::sum), and every member
+  // takes the same Adam step, so the models stay identical (checked after every
+  // epoch: a std::runtime_error names the epoch where they differ). evaluate() shares
+  // its views the same way. The random crops and the 3D term's blocks are drawn by
+  // every member alike; the 3D term is computed by each (not shared). With
+  // views_per_step < n, members past the step's views wait.
+  void share_steps(std::shared_ptr<const StepGroup> group) { group_ = std::move(group); }
   [[nodiscard]] bool has_volume() const { return volume_ != nullptr; }
 
   // Runs epoch epoch()+1 and its density control. Precondition: !finished().
@@ -158,6 +181,12 @@ class Trainer {
     double loss_3d = 0;  // the step's 3D term
   };
   StepSums train_step(std::span<const int> view_indices);
+  // Whether this member renders the view at `position` of a step (always alone).
+  [[nodiscard]] bool mine(std::size_t position) const {
+    return !group_ || static_cast<int>(position % static_cast<std::size_t>(group_->size())) == group_->rank();
+  }
+  // After an epoch in a group: throws when the members' parameters differ.
+  void check_members_agree() const;
   void adam_update(std::span<const float> grad, double lr);
   void resize_state(std::size_t K);
 
@@ -169,6 +198,8 @@ class Trainer {
   double scene_scale_ = 1.0;
   ImageLossWeights weights_;
   std::shared_ptr<const VolumeTerm> volume_;
+  std::shared_ptr<const StepGroup> group_;
+  std::vector<double> step_accum_;  // in a group: this step's density statistics, summed before adding
   std::vector<std::uint32_t> volume_batch_;
 
   gmf::Adam<float> adam_{gmf::AdamOptions{.epsilon = 1e-15}};

@@ -199,10 +199,11 @@ int run_cli(int argc, char** argv) {
     std::cerr << "hisnegs: error: " << io::printable(e.what()) << "\n";
     return 2;
   }
-  if (the_job->distributed() && command != "fit" && command != "gt" && !command.empty()) {
+  if (the_job->distributed() && command != "fit" && command != "gt" && command != "render" && command != "train" &&
+      !command.empty()) {
     if (the_job->root()) {
       std::cerr << "hisnegs: error: '" << command << "' does not run on several MPI ranks (" << the_job->size()
-                << " launched); fit and gt do; run it as one process\n";
+                << " launched); fit, gt, render and train do; run it as one process\n";
     }
     return 2;
   }

@@ -26,12 +26,17 @@ class SingleProcess final : public Job {
   [[nodiscard]] int size() const override { return 1; }
   void barrier() const override {}
   void max_to_root(std::span<float>) const override {}
+  void merge_soft_to_root(std::span<splat::SoftPixel>) const override {}
+  void sum_all(std::span<float>) const override {}
+  void sum_all(std::span<double>) const override {}
   void broadcast(std::span<double>) const override {}
   void broadcast(std::vector<unsigned char>&, int) const override {}
   [[noreturn]] void abort(int code) const override { std::exit(code); }
 };
 
 #if HISNEGS_HAVE_MPI
+static_assert(sizeof(splat::SoftPixel) == 3 * sizeof(float), "SoftPixel travels as 3 MPI_FLOATs");
+
 class MpiWorld final : public Job {
  public:
   MpiWorld() {
@@ -52,14 +57,13 @@ class MpiWorld final : public Job {
   [[nodiscard]] int size() const override { return size_; }
   void barrier() const override { MPI_Barrier(MPI_COMM_WORLD); }
   void max_to_root(std::span<float> values) const override {
-    in_pieces(values.size(), [&](std::size_t at, int n) {
-      if (rank_ == 0) {
-        MPI_Reduce(MPI_IN_PLACE, values.data() + at, n, MPI_FLOAT, MPI_MAX, 0, MPI_COMM_WORLD);
-      } else {
-        MPI_Reduce(values.data() + at, nullptr, n, MPI_FLOAT, MPI_MAX, 0, MPI_COMM_WORLD);
-      }
-    });
+    to_root(values.data(), values.size(), MPI_FLOAT, MPI_MAX);
   }
+  void merge_soft_to_root(std::span<splat::SoftPixel> pixels) const override {
+    to_root(pixels.data(), pixels.size(), soft_pixel_type(), merge_op());
+  }
+  void sum_all(std::span<float> values) const override { sum_all(values.data(), values.size(), MPI_FLOAT); }
+  void sum_all(std::span<double> values) const override { sum_all(values.data(), values.size(), MPI_DOUBLE); }
   void broadcast(std::span<double> values) const override {
     MPI_Bcast(values.data(), static_cast<int>(values.size()), MPI_DOUBLE, 0, MPI_COMM_WORLD);
   }
@@ -77,6 +81,69 @@ class MpiWorld final : public Job {
   }
 
  private:
+  // Reduces count elements of `type` with `op` to rank 0 (in place there).
+  void to_root(void* data, std::size_t count, MPI_Datatype type, MPI_Op op) const {
+    int bytes = 0;
+    MPI_Type_size(type, &bytes);
+    auto* at0 = static_cast<unsigned char*>(data);
+    in_pieces(count, [&](std::size_t at, int n) {
+      void* piece = at0 + at * static_cast<std::size_t>(bytes);
+      if (rank_ == 0) {
+        MPI_Reduce(MPI_IN_PLACE, piece, n, type, op, 0, MPI_COMM_WORLD);
+      } else {
+        MPI_Reduce(piece, nullptr, n, type, op, 0, MPI_COMM_WORLD);
+      }
+    });
+  }
+  void sum_all(void* data, std::size_t count, MPI_Datatype type) const {
+    to_root(data, count, type, type == MPI_FLOAT ? ordered_sum_op<float>() : ordered_sum_op<double>());
+    int bytes = 0;
+    MPI_Type_size(type, &bytes);
+    auto* at0 = static_cast<unsigned char*>(data);
+    in_pieces(count,
+              [&](std::size_t at, int n) { MPI_Bcast(at0 + at * static_cast<std::size_t>(bytes), n, type, 0, MPI_COMM_WORLD); });
+  }
+  // MPI types and operations, made once (they live until MPI_Finalize).
+  static MPI_Datatype soft_pixel_type() {
+    static MPI_Datatype type = [] {
+      MPI_Datatype t;
+      MPI_Type_contiguous(3, MPI_FLOAT, &t);
+      MPI_Type_commit(&t);
+      return t;
+    }();
+    return type;
+  }
+  static MPI_Op merge_op() {
+    static MPI_Op op = [] {
+      MPI_Op o;
+      // inout[i] = in[i] (the lower ranks) merged with inout[i].
+      MPI_Op_create(
+          [](void* in, void* inout, int* len, MPI_Datatype*) {
+            const auto* a = static_cast<const splat::SoftPixel*>(in);
+            auto* b = static_cast<splat::SoftPixel*>(inout);
+            for (int i = 0; i < *len; ++i) b[i] = splat::merge_soft_pixel(a[i], b[i]);
+          },
+          /*commute=*/0, &o);
+      return o;
+    }();
+    return op;
+  }
+  template <class T>
+  static MPI_Op ordered_sum_op() {
+    static MPI_Op op = [] {
+      MPI_Op o;
+      MPI_Op_create(
+          [](void* in, void* inout, int* len, MPI_Datatype*) {
+            const auto* a = static_cast<const T*>(in);
+            auto* b = static_cast<T*>(inout);
+            for (int i = 0; i < *len; ++i) b[i] = a[i] + b[i];
+          },
+          /*commute=*/0, &o);
+      return o;
+    }();
+    return op;
+  }
+
   // call(at, n) for consecutive pieces of [0, count) of at most 2^30 elements:
   // MPI counts are int.
   template <class Call>

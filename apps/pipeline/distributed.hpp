@@ -17,6 +17,8 @@
 #include <string>
 #include <vector>
 
+#include "splat/render_views.hpp"
+
 namespace hisnegs::apps {
 
 class Job {
@@ -32,6 +34,16 @@ class Job {
   // MPI_MAX: exact, so the result does not depend on the number of ranks). The
   // other ranks' values are left as they were.
   virtual void max_to_root(std::span<float> values) const = 0;
+  // pixels[i] = splat::merge_soft_pixel over the ranks' pixels[i], on rank 0 (a
+  // custom MPI operation, applied in rank order: the same result on every run with
+  // the same number of ranks). The other ranks' pixels are left as they were.
+  virtual void merge_soft_to_root(std::span<splat::SoftPixel> pixels) const = 0;
+  // values[i] = the sum of values[i] over the ranks, on every rank, identical bits on
+  // each: reduced in rank order (a non-commutative MPI operation) to rank 0, then
+  // broadcast. Deterministic for a given number of ranks; a float sum in another
+  // order than one process's, so not bit-equal to it.
+  virtual void sum_all(std::span<float> values) const = 0;
+  virtual void sum_all(std::span<double> values) const = 0;
   // Rank 0's values on every rank.
   virtual void broadcast(std::span<double> values) const = 0;
   // Rank `root`'s bytes (and their count) on every rank.

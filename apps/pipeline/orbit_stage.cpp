@@ -15,11 +15,13 @@ namespace hisnegs::apps {
 
 std::vector<double> write_orbit_gif(const std::filesystem::path& gif, splat::SplatRenderer& renderer,
                                     std::span<const float> params, const OrbitConfig& config,
-                                    const OrbitOptions& orbit, const splat::BackgroundFloors& floors) {
+                                    const OrbitOptions& orbit, const splat::BackgroundFloors& floors,
+                                    const splat::ShareCombiner* shares) {
   const splat::CameraSet cameras =
       splat::turntable(config.get<&AppConfig::camera>(), orbit.frames, orbit.elevation_deg);
   const splat::RenderedViews r = splat::render_views(
-      renderer, params, cameras, splat::SplatSettings::from(config.get<&AppConfig::splat>()), {}, floors);
+      renderer, params, cameras, splat::SplatSettings::from(config.get<&AppConfig::splat>()), {}, floors, shares);
+  if (gif.empty()) return r.stack.seconds_per_view;
   std::vector<io::Image8> images;
   for (int i = 0; i < r.stack.views; ++i)
     images.push_back(io::to_gray8(r.stack.view(i), r.stack.width, r.stack.height));

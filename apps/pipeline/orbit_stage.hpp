@@ -11,6 +11,7 @@
 #include "apps/pipeline/progress.hpp"
 #include "apps/pipeline/run_stage.hpp"
 #include "splat/background_floor.hpp"
+#include "splat/render_views.hpp"
 #include "splat/splat_renderer.hpp"
 
 namespace hisnegs::apps {
@@ -25,10 +26,13 @@ struct OrbitOptions {
 
 // Renders the orbit of `params` (camera intrinsics and radius from `camera`, splatting
 // settings from `splat`) over the model's background `floors` and writes it to `gif`;
-// returns each frame's render time (s).
+// returns each frame's render time (s). With `shares` (render_views), `params` is this
+// process's share of the model; an empty `gif` renders without writing (the MPI
+// ranks that do not keep the images).
 std::vector<double> write_orbit_gif(const std::filesystem::path& gif, splat::SplatRenderer& renderer,
                                     std::span<const float> params, const OrbitConfig& config,
-                                    const OrbitOptions& orbit, const splat::BackgroundFloors& floors = {});
+                                    const OrbitOptions& orbit, const splat::BackgroundFloors& floors = {},
+                                    const splat::ShareCombiner* shares = nullptr);
 
 // In a run folder: DIR/orbit.gif of DIR/train/final.ply and DIR/orbit.json (frames,
 // elevation, size, K, back end, seconds per frame).

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <nlohmann/json.hpp>
 
+#include "apps/pipeline/distributed.hpp"
 #include "apps/pipeline/ground_truth_stage.hpp"
 #include "gmf/checkpoint.hpp"
 #include "io/atomic_file.hpp"
@@ -13,6 +14,17 @@
 
 namespace hisnegs::apps {
 namespace {
+
+// The other ranks' shares of the model, through the job (distributed.hpp).
+class JobShares final : public splat::ShareCombiner {
+ public:
+  explicit JobShares(const Job& job) : job_(job) {}
+  void max(std::span<float> image) const override { job_.max_to_root(image); }
+  void merge_soft(std::span<splat::SoftPixel> pixels) const override { job_.merge_soft_to_root(pixels); }
+
+ private:
+  const Job& job_;
+};
 
 // The upper median in ms (render.json's convention).
 double median_ms(std::vector<double> seconds) {
@@ -28,7 +40,23 @@ void render_model(const RenderRequest& request, const RenderConfig& config, cons
   config.get<&AppConfig::camera>().validate();
   if (request.cameras.empty() && !request.orbit) throw io::InputError("render: give --cameras FILE and/or --orbit N");
   const gmf::Checkpoint checkpoint = gmf::load_checkpoint(request.model.string());
-  const auto params = splat::flat_params(checkpoint.mixture);
+  // On several MPI ranks each renders a contiguous share of the Gaussians and the
+  // images meet on rank 0 (hard: the max; soft: the softmax states merged), which
+  // alone writes.
+  const Job& ranks = job();
+  const std::size_t K = checkpoint.mixture.size();
+  const std::size_t first = K * static_cast<std::size_t>(ranks.rank()) / static_cast<std::size_t>(ranks.size());
+  const std::size_t last = K * static_cast<std::size_t>(ranks.rank() + 1) / static_cast<std::size_t>(ranks.size());
+  const gmf::GaussianMixture share(std::vector<gmf::GaussianParams>(
+      checkpoint.mixture.begin() + static_cast<std::ptrdiff_t>(first),
+      checkpoint.mixture.begin() + static_cast<std::ptrdiff_t>(last)));
+  const auto params = splat::flat_params(share);
+  const JobShares job_shares(ranks);
+  const splat::ShareCombiner* shares = ranks.distributed() ? &job_shares : nullptr;
+  if (ranks.distributed()) {
+    progress.say("render: %d MPI ranks, each renders its share of the %zu Gaussians (this rank %zu); rank 0 "
+                 "combines and writes", ranks.size(), K, last - first);
+  }
   const splat::SplatSettings settings = splat::SplatSettings::from(config.get<&AppConfig::splat>());
   const splat::BackgroundFloors floors =
       splat::floors_of(checkpoint.meta, request.model.string(), config.get<&AppConfig::splat>().background);
@@ -45,9 +73,9 @@ void render_model(const RenderRequest& request, const RenderConfig& config, cons
   meta["background"] = floors.none() ? "none" : "the model's floor";
   if (!request.cameras.empty()) {
     const splat::CameraSet cameras = splat::read_cameras_json(request.cameras);
-    const splat::RenderedViews r = splat::render_views(*renderer, params, cameras, settings, {}, floors);
+    const splat::RenderedViews r = splat::render_views(*renderer, params, cameras, settings, {}, floors, shares);
     const splat::MipStack& s = r.stack;
-    write_image_stack(dir, "render.tif", s);
+    if (ranks.root()) write_image_stack(dir, "render.tif", s);
     meta["cameras"] = io::printable(request.cameras.string(), 500);
     meta["views"] = s.views;
     meta["width"] = s.width;
@@ -60,12 +88,15 @@ void render_model(const RenderRequest& request, const RenderConfig& config, cons
   }
   if (request.orbit) {
     const OrbitOptions& o = *request.orbit;
-    const std::vector<double> seconds = write_orbit_gif(dir / "orbit.gif", *renderer, params, config, o, floors);
+    const std::vector<double> seconds = write_orbit_gif(ranks.root() ? dir / "orbit.gif" : std::filesystem::path(),
+                                                        *renderer, params, config, o, floors, shares);
     meta["orbit"] = {
         {"frames", o.frames}, {"elevation_deg", o.elevation_deg}, {"median_ms_per_frame", median_ms(seconds)}};
     progress.say("render: orbit of %d frames at %.3g deg elevation, median %.2f ms/frame -> %s", o.frames,
                  o.elevation_deg, median_ms(seconds), (dir / "orbit.gif").c_str());
   }
+  if (!ranks.root()) return;
+  if (ranks.distributed()) meta["mpi_ranks"] = ranks.size();
   const std::string text = meta.dump(2) + "\n";
   io::write_file_atomic(dir / "render.json", text.data(), text.size());
 }

@@ -7,6 +7,7 @@
 #include <string>
 #include <utility>
 
+#include "apps/pipeline/distributed.hpp"
 #include "apps/pipeline/format.hpp"
 #include "apps/pipeline/ground_truth_stage.hpp"
 #include "apps/pipeline/training_log.hpp"
@@ -38,6 +39,19 @@ gmf::GaussianMixture mixture_of(std::span<const float> params) {
   }
   return mixture;
 }
+
+// The MPI ranks as the trainer's step group (splat::StepGroup, distributed.hpp).
+class JobSteps final : public splat::StepGroup {
+ public:
+  explicit JobSteps(const Job& job) : job_(job) {}
+  [[nodiscard]] int rank() const override { return job_.rank(); }
+  [[nodiscard]] int size() const override { return job_.size(); }
+  void sum(std::span<float> values) const override { job_.sum_all(values); }
+  void sum(std::span<double> values) const override { job_.sum_all(values); }
+
+ private:
+  const Job& job_;
+};
 
 // A training run in progress: the trainer, the checkpoint metadata and the log so far.
 struct TrainingSession {
@@ -86,6 +100,15 @@ TrainingSession start_training(const TrainRequest& request, const TrainConfig& c
                     std::move(data), std::vector<float>(flat.begin(), flat.end()),
                     splat::make_splat_renderer(request.backend), scene_scale);
   s.trainer->set_floors(std::move(view_floors));
+  if (const Job& ranks = job(); ranks.distributed()) {
+    s.trainer->share_steps(std::make_shared<JobSteps>(ranks));
+    const int B = config.get<&AppConfig::train>().views_per_step;
+    progress.say("train: %d MPI ranks share the %d view%s of each step (train.views_per_step)%s; rank 0 writes",
+                 ranks.size(), B, B == 1 ? "" : "s",
+                 B < ranks.size() ? ": fewer views than ranks, so some ranks wait; set views_per_step to a multiple "
+                                    "of the ranks"
+                                  : "");
+  }
   if (!request.volume.empty()) {
     s.trainer->attach_volume(make_training_volume(request.volume, config.get<&AppConfig::volume>(),
                                                   config.get<&AppConfig::sparse_grid>(), config.get<&AppConfig::gmf>(),
@@ -97,7 +120,8 @@ TrainingSession start_training(const TrainRequest& request, const TrainConfig& c
   std::erase_if(s.meta.extra, [](const auto& kv) { return kv.first == "init"; });
   s.meta.extra.emplace_back("init", io::printable(request.init.string(), 200));
   if (request.resume) {
-    io::remove_stale_temporaries(request.run);  // e.g. a log.csv write the crash interrupted
+    // e.g. a log.csv write the crash interrupted (rank 0's to remove: it writes there)
+    if (job().root()) io::remove_stale_temporaries(request.run);
     const int epoch = splat::resume_training(request.run / "checkpoints", *s.trainer);
     s.rows = read_training_log(request.run / "log.csv", epoch);
   }
@@ -113,9 +137,11 @@ void run_epochs(TrainingSession& s, const fs::path& run, int epochs, const Progr
   while (!trainer.finished()) {
     const splat::EpochReport r = trainer.run_epoch();
     s.rows.push_back({r.epoch, seconds_before + watch.elapsed(), r.loss, r.psnr, r.gaussians, r.beta, r.lr});
-    const std::string csv = training_log_csv(s.rows);
-    io::write_file_atomic(run / "log.csv", csv.data(), csv.size());
-    if (trainer.checkpoint_due()) splat::save_training_checkpoint(run / "checkpoints", trainer, s.meta);
+    if (job().root()) {  // the ranks hold the same model: one writes
+      const std::string csv = training_log_csv(s.rows);
+      io::write_file_atomic(run / "log.csv", csv.data(), csv.size());
+      if (trainer.checkpoint_due()) splat::save_training_checkpoint(run / "checkpoints", trainer, s.meta);
+    }
     if (progress.quiet()) continue;
     const double per_epoch = watch.elapsed() / (trainer.epoch() - first_epoch);
     std::string line =
@@ -193,8 +219,15 @@ void choose_train_schedule(AppConfig& config, splat::Backend backend, const Prog
 TrainOutcome train_model(const TrainRequest& request, const TrainConfig& config, const Progress& progress) {
   check_training(request, config);
   TrainingSession s = start_training(request, config, progress);
-  const io::FolderLock lock(request.run);  // one training per folder, before anything is written there
-  check_training(request, config);         // again, now that no other process can start one here
+  // One training per folder, before anything is written there (by rank 0 alone on
+  // several ranks; the others wait until it holds the folder).
+  const Job& ranks = job();
+  std::optional<io::FolderLock> lock;
+  if (ranks.root()) {
+    lock.emplace(request.run);
+    check_training(request, config);  // again, now that no other process can start one here
+  }
+  ranks.barrier();
   const int epochs = config.get<&AppConfig::train>().epochs;
   const std::string label = ground_truth_set_label(request.data);
   progress.say("train: %d views of %dx%d from %s%s, K %d, %d epochs%s, %s back end", s.views, s.width, s.height,
@@ -206,7 +239,7 @@ TrainOutcome train_model(const TrainRequest& request, const TrainConfig& config,
   run_epochs(s, request.run, epochs, progress);
   const splat::TrainOptions& train = config.get<&AppConfig::train>();
   const bool kept_init = train.keep_better_init && training_made_it_worse(s, train, progress);
-  finish_training(s, request.run, kept_init);
+  if (ranks.root()) finish_training(s, request.run, kept_init);
   const double psnr = s.rows.empty() ? 0.0 : s.rows.back().psnr;
   const int K = kept_init ? static_cast<int>(s.init_params.size() / gmf::kGaussianParamCount) : s.trainer->gaussians();
   progress.say("train: wrote %s: K %d%s, last epoch's PSNR %.2f dB, %s", (request.run / "final.ply").c_str(), K,

@@ -316,6 +316,15 @@ void CudaSplatter::backward(const float* dL_dimage, float* dL_dparams, float* sc
   }
 }
 
+void CudaSplatter::soft_state(float* m, float* S) const {
+  const Impl& d = *impl_;
+  if (!d.has_forward || !d.settings.soft()) {
+    throw std::logic_error("CudaSplatter::soft_state: needs a successful soft-MIP forward first");
+  }
+  d.m.download(m, d.pixels);
+  d.S.download(S, d.pixels);
+}
+
 int CudaSplatter::visible() const { return impl_->visible; }
 std::int64_t CudaSplatter::tile_entries() const { return impl_->entries; }
 std::int64_t CudaSplatter::skipped_terms() const { return impl_->skipped; }

@@ -30,6 +30,9 @@ class CudaSplatter {
   // Soft mode: adds dL/dparams (11 x count, host) for host `dL_dimage` (H x W) of the
   // last forward; when `screen_grad` is not null also adds |dL/dμ2D| per Gaussian.
   void backward(const float* dL_dimage, float* dL_dparams, float* screen_grad);
+  // The last forward's per-pixel softmax state (SplatRenderer::soft_state) into host
+  // arrays of H x W floats each.
+  void soft_state(float* m, float* S) const;
 
   [[nodiscard]] int visible() const;
   [[nodiscard]] std::int64_t tile_entries() const;

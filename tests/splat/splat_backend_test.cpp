@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "splat/backend.hpp"
+#include "splat/render_views.hpp"
 #include "splat/splat_reference.hpp"
 #include "splat/splat_renderer.hpp"
 #include "tests/splat/splat_test_scenes.hpp"
@@ -396,6 +397,52 @@ std::string backend_test_name(const ::testing::TestParamInfo<Backend>& info) {
       return "Cuda";
   }
   return "Backend" + std::to_string(static_cast<int>(info.param));
+}
+
+// Two disjoint shares of a scene, rendered apart and combined as the MPI ranks of a
+// distributed render combine them (render_views.hpp): hard by the max, bit for bit;
+// soft by merging the softmax states, equal to the whole render to float rounding.
+TEST_P(SplatBackend, SharesOfAModelCombineIntoTheWholeRender) {
+  const testing::SplatScene scene = make_splat_scene(40, 91, 70, 45);
+  const std::vector<float> all = to_float(scene.params);
+  const std::size_t half = 11 * 17;  // 17 of the 40 Gaussians in the first share
+  const std::vector<float> first(all.begin(), all.begin() + half), second(all.begin() + half, all.end());
+  const std::size_t pixels = static_cast<std::size_t>(scene.K.width) * scene.K.height;
+  for (const MipMode mode : {MipMode::kHard, MipMode::kSoft}) {
+    SplatSettings settings;
+    settings.mode = mode;
+    std::vector<float> whole(pixels), a(pixels), b(pixels), m(pixels), S(pixels);
+    renderer_->forward(all, scene.K, scene.view, settings, whole);
+    std::vector<SoftPixel> merged(pixels);
+    renderer_->forward(first, scene.K, scene.view, settings, a);
+    if (mode == MipMode::kSoft) {
+      renderer_->soft_state(m, S);
+      for (std::size_t i = 0; i < pixels; ++i) merged[i] = {m[i], S[i], a[i]};
+    }
+    renderer_->forward(second, scene.K, scene.view, settings, b);
+    if (mode == MipMode::kHard) {
+      for (std::size_t i = 0; i < pixels; ++i) a[i] = std::max(a[i], b[i]);
+      EXPECT_EQ(a, whole) << "hard MIP: the max of the shares is the whole render";
+      EXPECT_THROW(renderer_->soft_state(m, S), std::logic_error);
+      continue;
+    }
+    renderer_->soft_state(m, S);
+    double worst = 0, peak = 0;
+    int touched_by_both = 0;
+    for (std::size_t i = 0; i < pixels; ++i) {
+      if (merged[i].S > 0 && S[i] > 0) ++touched_by_both;
+      const SoftPixel p = merge_soft_pixel(merged[i], {m[i], S[i], b[i]});
+      worst = std::max(worst, static_cast<double>(std::abs(p.I - whole[i])));
+      peak = std::max(peak, static_cast<double>(whole[i]));
+    }
+    EXPECT_GT(touched_by_both, 100) << "the shares must overlap for the merge to be tested";
+    EXPECT_LT(worst, 1e-5 * peak) << "soft MIP merged from the shares vs rendered whole";
+    // The merge is symmetric and leaves a pixel no share reaches untouched.
+    const SoftPixel x{3.0f, 2.0f, 0.4f}, y{5.0f, 1.5f, 0.7f}, none{};
+    EXPECT_NEAR(merge_soft_pixel(x, y).I, merge_soft_pixel(y, x).I, 1e-7);
+    EXPECT_EQ(merge_soft_pixel(none, x).I, x.I);
+    EXPECT_EQ(merge_soft_pixel(none, none).S, 0.0f);
+  }
 }
 
 INSTANTIATE_TEST_SUITE_P(, SplatBackend, ::testing::Values(Backend::kCpu, Backend::kCuda), backend_test_name);

@@ -8,6 +8,7 @@
 
 #include <gtest/gtest.h>
 
+#include <barrier>
 #include <cmath>
 #include <cstring>
 #include <limits>
@@ -15,6 +16,7 @@
 #include <random>
 #include <span>
 #include <stdexcept>
+#include <thread>
 #include <vector>
 
 #include "io/error.hpp"
@@ -395,6 +397,99 @@ TEST(Trainer, TinySceneTrainsAbove35dB) {
   while (!trainer.finished()) last = trainer.run_epoch();
   const double end = trainer.evaluate().psnr;
   EXPECT_GT(end, 35.0) << "from " << start << " dB; last epoch's mean " << last.psnr << " dB";
+}
+
+// Members of one process's threads summing in member order: what an MPI job's ranks
+// do (apps/pipeline/distributed.hpp), without MPI. Every member must call sum()
+// the same number of times with the same sizes.
+class ThreadGroup {
+ public:
+  explicit ThreadGroup(int size) : size_(size), parts_(static_cast<std::size_t>(size)), sync_(size) {}
+  class Member final : public StepGroup {
+   public:
+    Member(ThreadGroup& group, int rank) : group_(group), rank_(rank) {}
+    [[nodiscard]] int rank() const override { return rank_; }
+    [[nodiscard]] int size() const override { return group_.size_; }
+    void sum(std::span<float> values) const override { group_.sum(rank_, values); }
+    void sum(std::span<double> values) const override { group_.sum(rank_, values); }
+
+   private:
+    ThreadGroup& group_;
+    int rank_;
+  };
+
+ private:
+  template <class T>
+  void sum(int rank, std::span<T> values) {
+    parts_[static_cast<std::size_t>(rank)].assign(values.begin(), values.end());
+    sync_.arrive_and_wait();  // every member's part is in
+    for (std::size_t i = 0; i < values.size(); ++i) {
+      T t = 0;
+      for (const std::vector<double>& part : parts_) t = static_cast<T>(t + static_cast<T>(part[i]));
+      values[i] = t;
+    }
+    sync_.arrive_and_wait();  // every member has read the parts
+  }
+  int size_;
+  std::vector<std::vector<double>> parts_;
+  std::barrier<> sync_;
+};
+
+TEST(Trainer, TwoMembersSharingTheStepsTrainTheModelOfOneWithinRounding) {
+  TrainOptions o = quiet_options(6);
+  o.views_per_step = 3;  // uneven batches (8 = 3 + 3 + 2): member 1 renders 1 view of each
+  o.crop_size = 24;      // crops drawn by every member alike
+  o.densify_from = 2;
+  o.densify_until = 4;
+  o.densify_every = 2;
+  o.densify_grad_threshold = 0.0;
+  o.max_gaussians = 9;  // density control decides from the summed statistics
+  o.prune_every = 3;
+  o.prune_intensity = 0.6;
+  const std::vector<float> init = perturbed(true_params());
+  Trainer alone = make_trainer(o, init);
+  std::vector<EpochReport> alone_reports;
+  while (!alone.finished()) alone_reports.push_back(alone.run_epoch());
+
+  ThreadGroup group(2);
+  std::vector<Trainer> members;
+  for (int r = 0; r < 2; ++r) {
+    members.push_back(make_trainer(o, init));
+    members.back().share_steps(std::make_shared<ThreadGroup::Member>(group, r));
+  }
+  std::vector<std::vector<EpochReport>> reports(2);
+  std::vector<Trainer::Evaluation> evaluations(2);
+  {
+    std::vector<std::jthread> threads;
+    for (int r = 0; r < 2; ++r) {
+      threads.emplace_back([&, r] {
+        Trainer& t = members[static_cast<std::size_t>(r)];
+        while (!t.finished()) reports[static_cast<std::size_t>(r)].push_back(t.run_epoch());
+        evaluations[static_cast<std::size_t>(r)] = t.evaluate();
+      });
+    }
+  }
+  // The members hold the same bits, and the same density decisions as one process.
+  ASSERT_EQ(members[0].params().size(), members[1].params().size());
+  EXPECT_EQ(std::memcmp(members[0].params().data(), members[1].params().data(), members[0].params().size_bytes()), 0);
+  EXPECT_TRUE(members[0].serialize_state() == members[1].serialize_state());
+  ASSERT_EQ(members[0].params().size(), alone.params().size());
+  int changes = 0;
+  for (const EpochReport& r : alone_reports) changes += r.split + r.cloned + r.pruned;
+  EXPECT_GT(changes, 0) << "density control must have run on the summed statistics";
+  for (std::size_t e = 0; e < alone_reports.size(); ++e) {
+    EXPECT_EQ(reports[0][e].gaussians, alone_reports[e].gaussians) << "epoch " << e + 1;
+    EXPECT_NEAR(reports[0][e].loss, alone_reports[e].loss, 1e-5 * alone_reports[e].loss) << "epoch " << e + 1;
+  }
+  // A float sum in another order: the parameters agree to rounding grown over 6 epochs.
+  double worst = 0;
+  for (std::size_t i = 0; i < alone.params().size(); ++i) {
+    worst = std::max(worst, std::abs(static_cast<double>(members[0].params()[i]) - alone.params()[i]));
+  }
+  EXPECT_LT(worst, 1e-4);
+  const Trainer::Evaluation single = alone.evaluate();
+  EXPECT_NEAR(evaluations[0].psnr, single.psnr, 1e-3);
+  EXPECT_EQ(evaluations[0].psnr, evaluations[1].psnr);
 }
 
 }  // namespace
