@@ -219,8 +219,9 @@ int run_cli(int argc, char** argv) {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
     if (e.get_exit_code() == 0) return app.exit(e);  // --help, --version
-    std::cerr << "hisnegs: error: " << io::printable(e.what()) << " (see hisnegs --help)\n";
-    return 2;  // every rank parses the same arguments and fails the same way
+    std::cerr << "hisnegs: " << rank_prefix(*the_job) << "error: " << io::printable(e.what())
+              << " (see hisnegs --help)\n";
+    return failed(2);  // ranks launched with other arguments (MPMD) must not wait for this one
   } catch (const io::InputError& e) {
     std::cerr << "hisnegs: " << rank_prefix(*the_job) << "error: " << io::printable(e.what()) << "\n";
     return failed(2);

@@ -6,6 +6,7 @@
 #include <charconv>
 #include <cstdlib>
 #include <cstring>
+#include <exception>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -206,6 +207,27 @@ const Job& job() {
   });
   if (!failure.empty()) throw io::InputError(failure);
   return *the_job;
+}
+
+void open_on_every_rank(const Job& job, const std::function<void()>& open) {
+  if (!job.distributed()) {
+    open();
+    return;
+  }
+  std::exception_ptr failure;
+  try {
+    open();
+  } catch (...) {
+    failure = std::current_exception();
+  }
+  double failed[1] = {failure ? 1.0 : 0.0};
+  job.sum_all(failed);
+  if (failure) std::rethrow_exception(failure);
+  if (failed[0] > 0) {
+    // Ended by the failing rank's MPI_Abort; a barrier it never reaches holds us.
+    job.barrier();
+    job.abort(2);  // not reached unless the failing rank exits without aborting
+  }
 }
 
 std::string rank_prefix(const Job& job) {

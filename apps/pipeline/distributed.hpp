@@ -13,6 +13,7 @@
 // (each rank marches its bricks; the images meet in an element-wise max on rank 0).
 #pragma once
 
+#include <functional>
 #include <span>
 #include <string>
 #include <vector>
@@ -60,6 +61,12 @@ class Job {
 
 // The ranks the launcher says this process is one of (1 when not launched by one).
 [[nodiscard]] int launched_ranks();
+
+// Runs `open` (opening the inputs: the volume, a checkpoint, a ground truth) on every
+// rank of `job` and then agrees on it: a rank where it throws rethrows (its one-line
+// error ends the job), the others wait for that end, so no rank starts work the job
+// will not finish. Alone: open().
+void open_on_every_rank(const Job& job, const std::function<void()>& open);
 
 // "rank 1 of 4: " when distributed, else "".
 [[nodiscard]] std::string rank_prefix(const Job& job);

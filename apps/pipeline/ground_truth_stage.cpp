@@ -115,7 +115,9 @@ void write_streamed_sets(const std::filesystem::path& dir, const std::filesystem
   vo.validate();
   rm.validate();
   io::Stopwatch watch;
-  const auto source = io::open_volume_source(volume_path, io::stack_read_options(vo));
+  const Job& ranks = job();
+  std::unique_ptr<io::VolumeSource> source;
+  open_on_every_rank(ranks, [&] { source = io::open_volume_source(volume_path, io::stack_read_options(vo)); });
   io::LoadedVolume loaded;
   loaded.volume.nx = source->nx;
   loaded.volume.ny = source->ny;
@@ -124,7 +126,6 @@ void write_streamed_sets(const std::filesystem::path& dir, const std::filesystem
   loaded.volume.stored_as = source->stored_as;
   loaded.volume.source = volume_path.string();
   // Rank 0 makes the statistics pass (or reads the run's cache); the others take its map.
-  const Job& ranks = job();
   if (ranks.root()) loaded.volume.normalization = source_normalization(*source, vo, volume_path, reading, progress);
   if (ranks.distributed()) {
     io::Normalization& n = loaded.volume.normalization;

@@ -39,7 +39,8 @@ void render_model(const RenderRequest& request, const RenderConfig& config, cons
   config.get<&AppConfig::splat>().validate();
   config.get<&AppConfig::camera>().validate();
   if (request.cameras.empty() && !request.orbit) throw io::InputError("render: give --cameras FILE and/or --orbit N");
-  const gmf::Checkpoint checkpoint = gmf::load_checkpoint(request.model.string());
+  gmf::Checkpoint checkpoint;
+  open_on_every_rank(job(), [&] { checkpoint = gmf::load_checkpoint(request.model.string()); });
   // On several MPI ranks each renders a contiguous share of the Gaussians and the
   // images meet on rank 0 (hard: the max; soft: the softmax states merged), which
   // alone writes.

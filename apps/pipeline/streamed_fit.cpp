@@ -622,7 +622,10 @@ FitOutcome run_streamed(const std::string& volume, const FitConfig& config, cons
   c.path = volume;
   c.config = &config;
   c.gmf = config.get<&AppConfig::gmf>();
-  c.source = io::open_volume_source(volume, io::stack_read_options(vo));
+  // Every rank opens the stack itself (a shared filesystem); one that cannot ends the
+  // job before any work.
+  const Job& ranks = job();
+  open_on_every_rank(ranks, [&] { c.source = io::open_volume_source(volume, io::stack_read_options(vo)); });
   c.frame = io::stack_frame(c.source->nx, c.source->ny, c.source->nz, c.source->spacing, vo.aspect, volume);
   c.gmf.max_scale_world = brick_max_scale(c.frame, c.gmf);
   c.plan = choice.plan;
@@ -644,7 +647,6 @@ FitOutcome run_streamed(const std::string& volume, const FitConfig& config, cons
                c.gmf.stream_scale_voxels, c.gmf.mahalanobis_cutoff, io::gib_text(choice.brick_need).c_str());
   // Rank 0 (the only one alone) holds the folder and makes the statistics pass; the
   // other ranks of a launch read its plan.json once it is written.
-  const Job& ranks = job();
   std::optional<io::FolderLock> lock;
   if (ranks.root()) {
     lock.emplace(c.folder);

@@ -218,7 +218,8 @@ void choose_train_schedule(AppConfig& config, splat::Backend backend, const Prog
 
 TrainOutcome train_model(const TrainRequest& request, const TrainConfig& config, const Progress& progress) {
   check_training(request, config);
-  TrainingSession s = start_training(request, config, progress);
+  TrainingSession s;
+  open_on_every_rank(job(), [&] { s = start_training(request, config, progress); });
   // One training per folder, before anything is written there (by rank 0 alone on
   // several ranks; the others wait until it holds the folder).
   const Job& ranks = job();

@@ -48,16 +48,24 @@ class Mpi : public ::testing::Test {
     if (!dir_) GTEST_SKIP() << "built without MPI (or its mpiexec is gone): the distributed paths are not tested";
   }
   static fs::path dir() { return dir_->path(); }
-  // `hisnegs ARGS` on `ranks` ranks; `env` (NAME=VALUE ...) for the last rank only.
-  static testing::ShellResult mpirun(int ranks, const std::vector<std::string>& args, const std::string& env = "") {
-    std::string hisnegs = shell_quoted(testing::hisnegs_exe());
-    for (const std::string& a : args) hisnegs += " " + shell_quoted(a);
-    const std::string launcher = std::string(kMpiexec) + " --oversubscribe --allow-run-as-root ";
+  // `hisnegs ARGS` on `ranks` ranks; `env` (NAME=VALUE ...) for the last rank only,
+  // and `last_args` instead of `args` there when not empty.
+  static testing::ShellResult mpirun(int ranks, const std::vector<std::string>& args, const std::string& env = "",
+                                     const std::vector<std::string>& last_args = {}) {
+    const auto command_of = [](const std::vector<std::string>& a) {
+      std::string c = shell_quoted(testing::hisnegs_exe());
+      for (const std::string& s : a) c += " " + shell_quoted(s);
+      return c;
+    };
+    const std::string hisnegs = command_of(args);
+    // Bounded: a job whose ranks wait for each other forever fails the test instead of CI.
+    const std::string launcher = "timeout 300 " + std::string(kMpiexec) + " --oversubscribe --allow-run-as-root ";
     std::string command = "cd " + shell_quoted(dir()) + " && " + launcher;
-    if (env.empty()) {
+    if (env.empty() && last_args.empty()) {
       command += "-np " + std::to_string(ranks) + " " + hisnegs;
-    } else {  // MPMD: the same program, the last rank with its own environment
-      command += "-np " + std::to_string(ranks - 1) + " " + hisnegs + " : -np 1 env " + env + " " + hisnegs;
+    } else {  // MPMD: the same program, the last rank with its own environment or arguments
+      command += "-np " + std::to_string(ranks - 1) + " " + hisnegs + " : -np 1 " + (env.empty() ? "" : "env " + env + " ") +
+                 command_of(last_args.empty() ? args : last_args);
     }
     return testing::run_shell(command + " 2>&1");
   }
@@ -188,6 +196,19 @@ TEST_F(Mpi, TwoRanksTrainTheModelOfOneProcessWithinRounding) {
   ASSERT_EQ(resumed.status, 0) << resumed.out;
   const std::string log3 = testing::read_bytes(dir() / "t2" / "log.csv");
   EXPECT_EQ(std::count(log3.begin(), log3.end(), '\n'), std::count(log1.begin(), log1.end(), '\n') + 2) << log3;
+}
+
+// A rank that cannot open the volume (here: its path names no file) ends the job
+// with its one line before any work: no brick folder, no checkpoint.
+TEST_F(Mpi, ARankThatCannotOpenTheVolumeFailsTheJobBeforeAnyWork) {
+  std::vector<std::string> bad = fit_args("nv.ply");
+  bad[3] = (dir() / "missing.tif").string();
+  const auto run = mpirun(2, fit_args("nv.ply"), "", bad);
+  EXPECT_NE(run.status, 0) << run.out;
+  EXPECT_NE(run.out.find("hisnegs: rank 1 of 2: error: "), std::string::npos) << run.out;
+  EXPECT_NE(run.out.find("missing.tif"), std::string::npos) << run.out;
+  EXPECT_FALSE(fs::exists(dir() / "nv.ply"));
+  EXPECT_FALSE(fs::exists(dir() / "nv.ply.bricks")) << "rank 0 started work:\n" << run.out;
 }
 
 }  // namespace
