@@ -7,10 +7,12 @@
 // Built without MPI (HISNEGS_HAVE_MPI 0), a launch of several ranks is refused:
 // each would do the whole work.
 //
-// What runs distributed and how (README "On a cluster"): the brick fit's brick
-// pass (each rank fits its share of the bricks into the shared brick folder; rank 0
-// makes the seam pass and writes the checkpoint) and the ground truth by bricks
-// (each rank marches its bricks; the images meet in an element-wise max on rank 0).
+// What runs distributed and how (README "On a cluster"): the brick fit (each rank
+// fits its share of the bricks into the shared brick folder, the seam pass colour
+// by colour; rank 0 writes the checkpoint), the ground truth by bricks (each rank
+// marches its bricks; the images meet in an element-wise max on rank 0), the
+// render (shares of the Gaussians; max or merged softmax states) and training
+// (data parallel over each step's views; gradients summed in rank order).
 #pragma once
 
 #include <functional>
