@@ -517,6 +517,21 @@ void load_or_scan_statistics(StreamContext& c, const Progress& progress) {
 
 namespace {
 
+// The foreground voxels of each brick's core (indexed by brick id; 0 for those not in
+// `todo`): rank r reads the cores of every size-th brick of `todo`, the counts are
+// summed over the ranks.
+std::vector<double> core_foreground(const StreamContext& c, const std::vector<int>& todo, const Job& ranks) {
+  std::vector<double> counts(c.plan.bricks.size(), 0.0);
+  const double threshold = c.config->get<&AppConfig::sparse_grid>().threshold;
+  for (std::size_t i = static_cast<std::size_t>(ranks.rank()); i < todo.size();
+       i += static_cast<std::size_t>(ranks.size())) {
+    const auto id = static_cast<std::size_t>(todo[i]);
+    counts[id] = static_cast<double>(count_above(read_region(c, c.plan.bricks[id].core).voxels, threshold));
+  }
+  ranks.sum_all(counts);
+  return counts;
+}
+
 // FOLDER/rank-R.holds: the brick rank R of a launch is fitting, so that the rerun
 // after a rank died can say which one it held (MPI ends the job without a word
 // from the dead rank; its launcher names the rank only).
@@ -572,10 +587,11 @@ std::vector<int> brick_ranks(const std::vector<int>& ids, int ranks, const std::
   return rank_of;
 }
 
-std::vector<int> share_of_bricks(const gmf::BrickPlan& plan, const std::vector<int>& todo, int rank, int ranks) {
-  const std::vector<int> rank_of = brick_ranks(todo, ranks, [&](int id) {
-    return static_cast<double>(plan.bricks[static_cast<std::size_t>(id)].core.voxels());
-  });
+double brick_work(double core_foreground, double core_voxels) { return core_foreground + core_voxels / 4000.0; }
+
+std::vector<int> share_of_bricks(const std::vector<int>& todo, const std::function<double(int)>& weight, int rank,
+                                 int ranks) {
+  const std::vector<int> rank_of = brick_ranks(todo, ranks, weight);
   std::vector<int> mine;
   for (std::size_t i = 0; i < todo.size(); ++i) {
     if (rank_of[i] == rank) mine.push_back(todo[i]);
@@ -678,17 +694,28 @@ FitOutcome run_streamed(const std::string& volume, const FitConfig& config, cons
   for (std::size_t b = 0; b < n; ++b) {
     if (!results[b]) todo.push_back(static_cast<int>(b));
   }
-  // This rank's share of the bricks still to fit, and of the foreground they hold
-  // (estimated by core voxels: the time budget is shared by it).
-  const std::vector<int> mine = share_of_bricks(c.plan, todo, ranks.rank(), ranks.size());
+  // This rank's share of the bricks still to fit, balanced by their work (the
+  // foreground of their cores, counted by the ranks together), and the foreground
+  // it holds (the time budget is shared by it).
+  std::vector<int> mine = todo;
   std::int64_t rest_foreground = c.foreground - done_foreground;
   if (ranks.distributed()) {
-    double all = 0, own = 0;
-    for (int id : todo) all += static_cast<double>(c.plan.bricks[static_cast<std::size_t>(id)].core.voxels());
-    for (int id : mine) own += static_cast<double>(c.plan.bricks[static_cast<std::size_t>(id)].core.voxels());
-    rest_foreground = all > 0 ? std::llround(static_cast<double>(rest_foreground) * own / all) : 0;
-    progress.say("fit: %d ranks share %zu bricks to fit; rank 0 fits %zu of them", ranks.size(), todo.size(),
-                 mine.size());
+    io::Stopwatch counting;
+    const std::vector<double> foreground = core_foreground(c, todo, ranks);
+    const auto weight = [&](int id) {
+      return brick_work(foreground[static_cast<std::size_t>(id)],
+                        static_cast<double>(c.plan.bricks[static_cast<std::size_t>(id)].core.voxels()));
+    };
+    mine = share_of_bricks(todo, weight, ranks.rank(), ranks.size());
+    double own = 0, all = 0;
+    for (int id : mine) own += weight(id);
+    for (int id : todo) all += weight(id);
+    rest_foreground = 0;
+    for (int id : mine) rest_foreground += std::llround(foreground[static_cast<std::size_t>(id)]);
+    progress.say("fit: %d ranks share %zu bricks to fit, balanced by the foreground of their cores (counted in %s); "
+                 "rank 0 fits %zu of them, %.0f%% of the work",
+                 ranks.size(), todo.size(), format_seconds(counting.elapsed()).c_str(), mine.size(),
+                 all > 0 ? 100.0 * own / all : 0.0);
   }
   std::int64_t done_here = 0;
   SequentialBricks executor;

@@ -82,10 +82,14 @@ class SequentialBricks final : public BrickExecutor {
 // to the rank with the least weight so far; deterministic, all 0 alone.
 [[nodiscard]] std::vector<int> brick_ranks(const std::vector<int>& ids, int ranks,
                                            const std::function<double(int)>& weight);
-// The bricks of `todo` (ids into plan.bricks) that `rank` of `ranks` fits, shared by
-// core voxels (brick_ranks); all of them alone.
-[[nodiscard]] std::vector<int> share_of_bricks(const gmf::BrickPlan& plan, const std::vector<int>& todo, int rank,
-                                               int ranks);
+// The bricks of `todo` (ids into a plan's bricks) that `rank` of `ranks` fits, shared
+// by `weight` (brick_ranks); all of them alone.
+[[nodiscard]] std::vector<int> share_of_bricks(const std::vector<int>& todo, const std::function<double(int)>& weight,
+                                               int rank, int ranks);
+// What fitting a brick costs, in foreground voxels: those of its core plus its core's
+// reading (a voxel read and sampled costs about 1/4000 of a foreground voxel fitted:
+// 0.37 µs against ~1.4 ms on one core, docs/benchmarks.md "Several MPI ranks").
+[[nodiscard]] double brick_work(double core_foreground, double core_voxels);
 
 // The streamed fit of `volume` to the checkpoint `out` (and the log `log_csv` unless
 // empty), with `choice` from choose_fit_plan (bricked). Same lines, checkpoint

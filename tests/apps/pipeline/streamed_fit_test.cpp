@@ -28,5 +28,18 @@ TEST(BrickRanks, HeaviestFirstToTheLeastLoadedRank) {
   EXPECT_EQ(brick_ranks({7}, 4, [](int) { return 5.0; }), (std::vector<int>{0}));
 }
 
+// Shares follow the work: a brick whose core holds most of the foreground is a rank's
+// whole share, however small it is; empty bricks count by the voxels read.
+TEST(BrickRanks, SharesFollowTheForegroundOfTheCores) {
+  const std::vector<double> foreground{50000, 100, 0, 200};  // by brick id
+  const double core_voxels = 64.0 * 64 * 64;
+  const auto weight = [&](int id) { return brick_work(foreground[static_cast<std::size_t>(id)], core_voxels); };
+  EXPECT_EQ(share_of_bricks({0, 1, 2, 3}, weight, 0, 2), (std::vector<int>{0}));
+  EXPECT_EQ(share_of_bricks({0, 1, 2, 3}, weight, 1, 2), (std::vector<int>{1, 2, 3}));
+  EXPECT_EQ(share_of_bricks({0, 1, 2, 3}, weight, 0, 1), (std::vector<int>{0, 1, 2, 3}));
+  EXPECT_DOUBLE_EQ(brick_work(0, 4000), 1.0);  // reading 4000 voxels ~ fitting one foreground voxel
+  EXPECT_GT(brick_work(0, core_voxels), 0.0);  // an empty brick still costs its reading
+}
+
 }  // namespace
 }  // namespace hisnegs::apps
