@@ -3,11 +3,10 @@
 # Targets sm_90 (H100/H200) natively plus compute_75 PTX that the driver JITs on
 # any newer GPU, so one binary runs wherever a GPU is present.
 include(CheckLanguage)
+include(HisnegsOption)
+hisnegs_tristate(HISNEGS_CUDA "Build the CUDA back end: AUTO (when nvcc is found), ON or OFF")
+set(_hisnegs_cuda ${_HISNEGS_CUDA_MODE})
 set(HISNEGS_HAVE_CUDA OFF)
-string(TOUPPER "${HISNEGS_CUDA}" _hisnegs_cuda)
-if(NOT _hisnegs_cuda MATCHES "^(AUTO|ON|OFF)$")
-  message(FATAL_ERROR "HISNEGS_CUDA must be AUTO, ON or OFF, got '${HISNEGS_CUDA}'")
-endif()
 if(NOT _hisnegs_cuda STREQUAL "OFF")
   check_language(CUDA)
   if(CMAKE_CUDA_COMPILER)

@@ -4,13 +4,10 @@
 # launch (apps/pipeline/distributed.hpp). Debian: libopenmpi-dev and openmpi-bin.
 # Only MPI's C API is used, through FindMPI's CXX component without the C++
 # bindings (MPI_CXX_SKIP_MPICXX: they left the standard); the project has no C.
-set(HISNEGS_MPI AUTO CACHE STRING "Build with MPI: AUTO (when found), ON or OFF")
-set_property(CACHE HISNEGS_MPI PROPERTY STRINGS AUTO ON OFF)
+include(HisnegsOption)
+hisnegs_tristate(HISNEGS_MPI "Build with MPI: AUTO (when found), ON or OFF")
+set(_hisnegs_mpi ${_HISNEGS_MPI_MODE})
 set(HISNEGS_HAVE_MPI OFF)
-string(TOUPPER "${HISNEGS_MPI}" _hisnegs_mpi)
-if(NOT _hisnegs_mpi MATCHES "^(AUTO|ON|OFF)$")
-  message(FATAL_ERROR "HISNEGS_MPI must be AUTO, ON or OFF, got '${HISNEGS_MPI}'")
-endif()
 if(NOT _hisnegs_mpi STREQUAL "OFF")
   set(MPI_CXX_SKIP_MPICXX ON)
   if(_hisnegs_mpi STREQUAL "ON")

@@ -66,11 +66,36 @@ WorldFrame stack_frame(int nx, int ny, int nz, const VoxelSpacing& spacing, Aspe
 
 LoadedVolume load_volume(const std::filesystem::path& path, const VolumeOptions& options) {
   options.validate();
+  return prepare_volume(read_stack(path, stack_read_options(options)), options, path);
+}
+
+LoadedVolume prepare_volume(Volume raw, const VolumeOptions& options, const std::filesystem::path& origin) {
+  options.validate();
   LoadedVolume out;
-  out.volume = read_stack(path, stack_read_options(options));
+  out.volume = std::move(raw);
+  if (out.volume.size() == 0 || out.volume.voxels.size() != out.volume.size()) {
+    fail_input(origin, "a stack of " + std::to_string(out.volume.nx) + " x " + std::to_string(out.volume.ny) + " x " +
+                           std::to_string(out.volume.nz) + " voxels holding " +
+                           std::to_string(out.volume.voxels.size()) + " values");
+  }
+  if (const auto bad = std::find_if(out.volume.voxels.begin(), out.volume.voxels.end(),
+                                    [](float v) { return !std::isfinite(v); });
+      bad != out.volume.voxels.end()) {
+    const auto i = static_cast<std::size_t>(bad - out.volume.voxels.begin());
+    const std::size_t plane = static_cast<std::size_t>(out.volume.nx) * out.volume.ny;
+    fail_input(origin, "voxel (x " + std::to_string(i % out.volume.nx) + ", y " +
+                           std::to_string(i % plane / out.volume.nx) + ", z " + std::to_string(i / plane) +
+                           ") is not finite");
+  }
+  if (!options.spacing_um.empty()) {
+    for (int a = 0; a < 3; ++a) {
+      out.volume.spacing.um[static_cast<std::size_t>(a)] = options.spacing_um[static_cast<std::size_t>(a)];
+      out.volume.spacing.source[static_cast<std::size_t>(a)] = SpacingSource::kUser;
+    }
+  }
   normalize(out.volume, options.normalization);
   const Volume& v = out.volume;
-  out.frame = stack_frame(v.nx, v.ny, v.nz, v.spacing, options.aspect, path);
+  out.frame = stack_frame(v.nx, v.ny, v.nz, v.spacing, options.aspect, origin);
   return out;
 }
 

@@ -18,6 +18,8 @@ packages=(
   python3-tifffile  # tests/io/tiff_stack_test.cpp reads the stacks hisnegs writes with tifffile
   python3-h5py  # tests/io/hdf5_stack_test.cpp reads the HDF5 stacks hisnegs writes with h5py
   libopenmpi-dev openmpi-bin  # optional at build time: fit and gt on MPI ranks (tests/apps/cli/cli_mpi_test.cpp)
+  python3-dev python3-numpy pybind11-dev  # optional at build time: the Python module (apps/python)
+  python3-pytest python3-scipy  # tests/python: pytest, and scipy.optimize driving hisnegs.Objective
 )
 
 missing=()

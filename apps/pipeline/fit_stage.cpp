@@ -77,11 +77,17 @@ void append_fit_log_csv(std::ostringstream& s, std::span<const gmf::FitIteration
 
 FitSetup prepare_fit(const std::string& volume_path, const FitConfig& config, const char* label,
                      const Progress& progress) {
+  return prepare_fit(io::load_volume(volume_path, config.get<&AppConfig::volume>()), volume_path, config, label,
+                     progress);
+}
+
+FitSetup prepare_fit(io::LoadedVolume loaded, const std::string& name, const FitConfig& config, const char* label,
+                     const Progress& progress) {
   const gmf::GmfOptions& gmf = config.get<&AppConfig::gmf>();
   const io::SparseGridOptions& sparse_grid = config.get<&AppConfig::sparse_grid>();
   io::Stopwatch watch;
   FitSetup setup;
-  setup.loaded = io::load_volume(volume_path, config.get<&AppConfig::volume>());
+  setup.loaded = std::move(loaded);
   io::SparseGridOptions sparse = sparse_grid;
   sparse.background_fraction = gmf.background_fraction;  // the fit's own need (see GmfOptions)
   {
@@ -93,7 +99,7 @@ FitSetup prepare_fit(const std::string& volume_path, const FitConfig& config, co
   setup.mixture =
       gmf::initialize_mixture(setup.loaded.volume, setup.loaded.frame, sparse_grid.threshold, gmf, &init_report);
   progress.say("%s: %s: %lld samples (%lld active voxels), %zu Gaussians %s %.4g (budget %d), %s", label,
-               volume_path.c_str(), static_cast<long long>(setup.samples.size()),
+               name.c_str(), static_cast<long long>(setup.samples.size()),
                static_cast<long long>(setup.active_voxels), setup.mixture.size(),
                gmf.init == gmf::FitInit::kGrid ? "on a grid of step" : "at local maxima, spacing",
                init_report.cell_world, gmf.gaussians, format_seconds(watch.elapsed()).c_str());
@@ -130,7 +136,29 @@ FitOutcome fit_to_checkpoint(const std::string& volume, const FitConfig& config,
     if (choice.bricked) return fit_streamed(volume, config, choice, out, log_csv, progress);
   }
   io::Stopwatch watch;
-  FitSetup setup = prepare_fit(volume, config, "fit", progress);
+  const FittedModel fitted =
+      fit_loaded(io::load_volume(volume, config.get<&AppConfig::volume>()), volume, config, progress);
+  const gmf::GaussianMixture& mixture = fitted.checkpoint.mixture;
+  const gmf::FitResult& result = fitted.result;
+  gmf::save_checkpoint(out, mixture, fitted.checkpoint.meta);
+  if (!log_csv.empty()) {
+    std::ostringstream s;
+    s << fit_log_csv_header() << "\n";
+    append_fit_log_csv(s, result.log, "");
+    const std::string csv = s.str();
+    io::write_file_atomic(log_csv, csv.data(), csv.size());
+  }
+  const FitOutcome outcome{mixture.size(), result.final_psnr_3d, watch.elapsed(), result.stop_reason};
+  progress.say("fit: wrote %s: K %zu (%d pruned), 3D PSNR %.2f dB, %s (%s)", out.c_str(), mixture.size(), result.pruned,
+               result.final_psnr_3d, format_seconds(outcome.seconds).c_str(), result.stop_reason.c_str());
+  return outcome;
+}
+
+FittedModel fit_loaded(io::LoadedVolume loaded, const std::string& source, const FitConfig& config,
+                       const Progress& progress) {
+  const gmf::GmfOptions& gmf = config.get<&AppConfig::gmf>();
+  gmf.validate();
+  FitSetup setup = prepare_fit(std::move(loaded), source, config, "fit", progress);
   const bool sum = gmf.aggregation == gmf::Aggregation::kSum;
   const std::string jitter_source =
       gmf.sample_jitter ? "" : std::string(sum ? "auto for the sum: " : "auto for the softmax: ");
@@ -144,28 +172,17 @@ FitOutcome fit_to_checkpoint(const std::string& volume, const FitConfig& config,
   gmf::GmfOptions fit_options = gmf;
   fit_options.clone_floor = background.none() ? 0.0 : background.quantile(0.999);
   gmf::GaussianMixture& mixture = setup.mixture;
-  const gmf::FitResult result = gmf::fit_mixture(setup.loaded.volume, setup.samples, setup.loaded.frame, mixture, fit_options,
+  gmf::FitResult result = gmf::fit_mixture(setup.loaded.volume, setup.samples, setup.loaded.frame, mixture, fit_options,
                                                  [&](const gmf::FitIteration& it) { report_iteration(it, progress); });
   for (const gmf::FitRound& r : result.rounds) {
     progress.say("fit: round %d density control: %d pruned, %d split, %d cloned -> K %d", r.round, r.pruned, r.split,
                  r.cloned, r.gaussians);
   }
-  gmf::CheckpointMeta meta = checkpoint_meta(setup.loaded, volume);
+  gmf::CheckpointMeta meta = checkpoint_meta(setup.loaded, source);
   meta.aggregation = gmf.aggregation;
   meta.beta = result.final_beta;
   if (!background.none()) record_background(setup.loaded.frame, config, background, meta, progress);
-  gmf::save_checkpoint(out, mixture, meta);
-  if (!log_csv.empty()) {
-    std::ostringstream s;
-    s << fit_log_csv_header() << "\n";
-    append_fit_log_csv(s, result.log, "");
-    const std::string csv = s.str();
-    io::write_file_atomic(log_csv, csv.data(), csv.size());
-  }
-  const FitOutcome outcome{mixture.size(), result.final_psnr_3d, watch.elapsed(), result.stop_reason};
-  progress.say("fit: wrote %s: K %zu (%d pruned), 3D PSNR %.2f dB, %s (%s)", out.c_str(), mixture.size(), result.pruned,
-               result.final_psnr_3d, format_seconds(outcome.seconds).c_str(), result.stop_reason.c_str());
-  return outcome;
+  return {{std::move(mixture), std::move(meta)}, result};
 }
 
 nlohmann::ordered_json FitStage::run(const RunRequest& request, const Config& config, bool, const Progress& progress) {

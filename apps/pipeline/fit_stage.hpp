@@ -35,6 +35,9 @@ struct FitSetup {
 // Loads `volume_path` and prepares the fit; one line "LABEL: ...".
 FitSetup prepare_fit(const std::string& volume_path, const FitConfig& config, const char* label,
                      const Progress& progress);
+// The same for a volume already loaded (`name` says what it is in the line).
+FitSetup prepare_fit(io::LoadedVolume loaded, const std::string& name, const FitConfig& config, const char* label,
+                     const Progress& progress);
 
 // The fit log as CSV rows: fit_log_csv_header() names the columns
 // (iteration,seconds,loss,psnr_fg,psnr_3d,gaussians,round,beta; a PSNR is empty
@@ -68,6 +71,16 @@ struct FitOutcome {
 };
 FitOutcome fit_to_checkpoint(const std::string& volume, const FitConfig& config, const std::filesystem::path& out,
                              const std::filesystem::path& log_csv, const Progress& progress);
+
+// The in-memory fit of fit_to_checkpoint without the files: the model with its
+// checkpoint metadata (source `source`) and the fit's result (its log). What `fit`
+// runs for a stack that fits in memory and what the Python module's hisnegs.fit runs.
+struct FittedModel {
+  gmf::Checkpoint checkpoint;
+  gmf::FitResult result;
+};
+FittedModel fit_loaded(io::LoadedVolume loaded, const std::string& source, const FitConfig& config,
+                       const Progress& progress);
 
 // In a run folder: DIR/gmf.ply and DIR/fit_log.csv; reports {gaussians, psnr_3d,
 // stop} as run.json's "fit".

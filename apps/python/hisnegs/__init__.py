@@ -1,0 +1,161 @@
+# SPDX-License-Identifier: Apache-2.0
+"""hisnegs for Python: fit a microscopy stack with anisotropic 3D Gaussians and
+render Maximum Intensity Projections of them, with numpy arrays in and out.
+
+The same library as the ``hisnegs`` command: options are the config file's keys
+(``configs/default.yaml``), with the same defaults, validation and error
+messages (raised as ``ValueError``). Arrays are (z, y, x) for volumes and
+(views, height, width) for images, float32. Long calls release the GIL; with a
+``progress`` callable they send it each line the command would print, and
+Ctrl-C raises ``KeyboardInterrupt`` at the next line.
+
+>>> import hisnegs
+>>> volume = hisnegs.load_volume("op1_neuron.tif")
+>>> model = hisnegs.fit(volume, gaussians=20000, time_budget_s=60)
+>>> cameras = hisnegs.Cameras.orbit("eval")
+>>> images = model.render(cameras, mode="hard")          # (30, 256, 256)
+>>> truth = hisnegs.ground_truth(volume, cameras)
+>>> hisnegs.metrics(images, truth)["psnr"]
+"""
+
+import json as _json
+
+from . import _hisnegs
+from ._hisnegs import Cameras, Model, Volume, metrics
+
+__all__ = ["Volume", "Model", "Cameras", "Objective", "load_volume", "fit", "ground_truth", "metrics"]
+
+
+def _config(section, options):
+    """The YAML (JSON) text of one config section's options."""
+    return _json.dumps({section: options}) if options else ""
+
+
+def _sections(**sections):
+    return _json.dumps({k: v for k, v in sections.items() if v}) if any(sections.values()) else ""
+
+
+def load_volume(path, **volume_options):
+    """Reads a stack (TIFF/BigTIFF, HDF5, BigDataViewer .xml, Imaris .ims), normalizes
+    it to [0, 1] and places it in the world box, as every command does.
+
+    ``volume_options`` are the config's ``volume`` section (``normalization``,
+    ``percentile_lo``, ``spacing_um``, ``aspect``, ``channel``, ``dataset``,
+    ``timepoint``, ...). Returns a :class:`Volume`."""
+    return _hisnegs._load_volume(str(path), _config("volume", volume_options))
+
+
+def _volume_from_array(array, spacing_um=None, **volume_options):
+    """A :class:`Volume` from a (z, y, x) array of raw values (any real dtype; copied
+    as float32), normalized as a stack file would be. ``spacing_um`` is the voxel
+    size (x, y, z) in µm (default 1 µm)."""
+    if spacing_um is not None:
+        volume_options["spacing_um"] = [float(s) for s in spacing_um]
+    return _hisnegs._volume_from_array(array, _config("volume", volume_options))
+
+
+Volume.from_array = staticmethod(_volume_from_array)
+Volume.__doc__ = """A stack in memory, normalized to [0, 1] (``load_volume``, ``Volume.from_array``).
+
+``array``: a (z, y, x) float32 view of its voxels (no copy; it keeps the volume
+alive); ``shape`` (z, y, x); ``spacing_um`` (x, y, z); ``aspect``: the world
+box's half extents (x, y, z) of CONVENTIONS.md; ``normalization``: the map that
+was applied; ``source``: the file or "numpy array"."""
+
+
+def fit(volume, progress=None, **gmf_options):
+    """Fits a Gaussian mixture to ``volume`` (stage 1), as ``hisnegs fit`` does for a
+    stack in memory: the config's ``gmf`` section as keyword options (``gaussians``,
+    ``time_budget_s``, ``optimizer``, ``aggregation``, ``seed``, ...). Returns a
+    :class:`Model` with its checkpoint metadata (frame, normalization, background).
+    ``progress``: a callable taking each line."""
+    return _hisnegs._fit(volume, _config("gmf", gmf_options), progress)
+
+
+def _orbit(kind="eval", **camera_options):
+    """The report's orbits: ``"train"`` (106 views) or ``"eval"`` (30 views), with
+    the config's ``camera`` section as options (``width``, ``height``, ``fov_deg``,
+    ``orbit_radius``, ...)."""
+    return _hisnegs._orbit_cameras(kind, _config("camera", camera_options))
+
+
+def _custom(elevations_deg, azimuths_deg, **camera_options):
+    """Every elevation × azimuth (degrees), elevation-major, on the orbit sphere."""
+    return _hisnegs._custom_cameras([float(e) for e in elevations_deg], [float(a) for a in azimuths_deg],
+                                    _config("camera", camera_options))
+
+
+Cameras.orbit = staticmethod(_orbit)
+Cameras.custom = staticmethod(_custom)
+Cameras.__doc__ = """Pinhole views of CONVENTIONS.md: ``Cameras.load(path)`` (a cameras.json),
+``Cameras.orbit(kind)``, ``Cameras.custom(elevations, azimuths)``; ``save(path)``,
+``len()``, ``width``, ``height``, ``names``."""
+
+
+def _render(self, cameras, mode="soft", beta=50.0, backend="auto", background=True, **splat_options):
+    """Renders the model's MIP in every view of ``cameras``: ``mode`` "soft" (the
+    softmax of Eq. 8 at ``beta``) or "hard" (the max), over the background floor the
+    model records unless ``background=False``. Returns (views, height, width)
+    float32, equal bit for bit to ``hisnegs render`` of the same model, cameras and
+    options on the same back end."""
+    options = dict(splat_options, mode=mode, beta=float(beta), background=bool(background))
+    return self._render(cameras, _config("splat", options), backend)
+
+
+def _rasterize(self, shape=None):
+    """The model's value at every voxel centre: of the volume it was fitted to, or of
+    a (z, y, x) ``shape`` spanning the same world box. Returns float32 (z, y, x)."""
+    return self._rasterize(None if shape is None else [int(s) for s in shape])
+
+
+Model.render = _render
+Model.rasterize = _rasterize
+Model.__doc__ = """A fitted or trained mixture with its checkpoint metadata.
+
+``Model.load(path)`` reads a .ply checkpoint; ``save(path)`` writes one.
+``params``: a (K, 11) float32 view of the parameters in the checkpoint's order:
+x, y, z (world), log σ0, log σ1, log σ2, quaternion w, x, y, z (unnormalized),
+intensity logit; writing it changes the model. ``aggregation`` and ``beta``: how
+the model's terms combine in 3D."""
+
+
+def ground_truth(volume, cameras, backend="auto", **raymarch_options):
+    """The ray-marched MIPs of ``volume`` in every view of ``cameras`` (what ``hisnegs
+    gt`` writes as mips.tif), with the config's ``raymarch`` section as options.
+    Returns (views, height, width) float32."""
+    return _hisnegs._ground_truth(volume, cameras, _config("raymarch", raymarch_options), backend)
+
+
+class Objective:
+    """The stage-1 least-squares problem of the fit on ``volume``: its samples and
+    weights (the sparse grid with ``gmf.background_fraction``, at the voxel centres),
+    ½ Σ w² (f(x) − V)² with f the mixture under ``aggregation`` ("softmax" at
+    ``beta``, or "sum"), for a flat float64 ``x`` of 11 K values in the order of
+    ``Model.params`` (K = the model's Gaussians). ``value(x)``, ``gradient(x)`` and
+    ``value_and_gradient(x)`` (for scipy.optimize(jac=True)). Each call with a new x
+    rebuilds the index of which Gaussians reach which samples, so x may move freely.
+    ``gmf_options`` and ``sparse_grid_options`` are the config's sections."""
+
+    def __init__(self, volume, model, aggregation="softmax", beta=50.0, gmf_options=None, sparse_grid_options=None):
+        text = _sections(gmf=gmf_options or {}, sparse_grid=sparse_grid_options or {})
+        self._core = _hisnegs._Objective(volume, model, text, aggregation, float(beta))
+        self.x0 = model.params.astype("float64").ravel()
+
+    @property
+    def size(self):
+        """The length of x: 11 K."""
+        return self._core.size
+
+    @property
+    def samples(self):
+        """The number of samples (residuals)."""
+        return self._core.samples
+
+    def value(self, x):
+        return self._core.value(x)
+
+    def gradient(self, x):
+        return self._core.gradient(x)
+
+    def value_and_gradient(self, x):
+        return self._core.value_and_gradient(x)

@@ -1,0 +1,399 @@
+// SPDX-License-Identifier: Apache-2.0
+// hisnegs._hisnegs: the pipeline library for Python (pybind11). The public names
+// and their docstrings are hisnegs/__init__.py's, which turns keyword options into
+// the config text that load_app_config_text validates as the CLI's --config does.
+// Arrays are numpy views of the objects' own storage where the layout allows (a
+// volume's voxels, a model's parameters); long calls release the GIL and call
+// back into Python only for progress lines, where Ctrl-C is noticed.
+#include <pybind11/functional.h>
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+#include <pybind11/stl/filesystem.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "apps/pipeline/app_config.hpp"
+#include "apps/pipeline/fit_stage.hpp"
+#include "apps/pipeline/progress.hpp"
+#include "gmf/block_index.hpp"
+#include "gmf/checkpoint.hpp"
+#include "gmf/fit.hpp"
+#include "gmf/objective.hpp"
+#include "gmf/rasterize.hpp"
+#include "io/error.hpp"
+#include "io/load_volume.hpp"
+#include "splat/background_floor.hpp"
+#include "splat/backend.hpp"
+#include "splat/camera.hpp"
+#include "splat/ground_truth.hpp"
+#include "splat/metrics.hpp"
+#include "splat/render_views.hpp"
+
+namespace py = pybind11;
+
+namespace hisnegs::python {
+namespace {
+
+using apps::AppConfig;
+using FloatArray = py::array_t<float, py::array::c_style | py::array::forcecast>;
+using DoubleArray = py::array_t<double, py::array::c_style | py::array::forcecast>;
+
+// The options of a call: the built-in defaults overlaid with `config_text` (YAML of
+// the sections given as keyword arguments), validated; errors name `origin`.
+AppConfig config_of(const std::string& config_text, const std::string& origin) {
+  return apps::load_app_config_text(config_text, origin);
+}
+
+// Progress lines to a Python callable (or nowhere), each one a chance for Ctrl-C:
+// a pending KeyboardInterrupt is raised from the line that notices it.
+apps::Progress python_progress(const std::optional<py::function>& callback) {
+  apps::Progress p;
+  p.line = [callback](std::string_view line) {
+    py::gil_scoped_acquire gil;
+    if (callback) (*callback)(std::string(line));
+    if (PyErr_CheckSignals() != 0) throw py::error_already_set();
+  };
+  return p;
+}
+
+// ---- volumes -------------------------------------------------------------------
+
+struct Volume {
+  io::LoadedVolume loaded;
+  std::string source;
+};
+
+py::array voxels_view(const std::shared_ptr<Volume>& v) {
+  const io::Volume& vol = v->loaded.volume;
+  const auto s = static_cast<py::ssize_t>(sizeof(float));
+  return py::array_t<float>({vol.nz, vol.ny, vol.nx}, {s * vol.nx * vol.ny, s * vol.nx, s},
+                            v->loaded.volume.voxels.data(), py::cast(v));
+}
+
+std::shared_ptr<Volume> load_volume(const std::filesystem::path& path, const std::string& config_text) {
+  const AppConfig config = config_of(config_text, "hisnegs.load_volume() options");
+  auto v = std::make_shared<Volume>();
+  {
+    py::gil_scoped_release release;
+    v->loaded = io::load_volume(path, config.volume);
+  }
+  v->source = path.string();
+  return v;
+}
+
+std::shared_ptr<Volume> volume_from_array(const py::array& array, const std::string& config_text) {
+  const AppConfig config = config_of(config_text, "hisnegs.Volume.from_array() options");
+  if (array.ndim() != 3) {
+    throw io::InputError("hisnegs.Volume.from_array: an array of " + std::to_string(array.ndim()) +
+                         " dimensions; expected 3 (z, y, x)");
+  }
+  const FloatArray values = FloatArray::ensure(array);
+  if (!values) throw io::InputError("hisnegs.Volume.from_array: the array does not convert to float32");
+  io::Volume raw;
+  raw.nz = static_cast<int>(values.shape(0));
+  raw.ny = static_cast<int>(values.shape(1));
+  raw.nx = static_cast<int>(values.shape(2));
+  raw.voxels.assign(values.data(), values.data() + values.size());
+  raw.source = "numpy array";
+  auto v = std::make_shared<Volume>();
+  {
+    py::gil_scoped_release release;
+    v->loaded = io::prepare_volume(std::move(raw), config.volume, "numpy array");
+  }
+  v->source = "numpy array";
+  return v;
+}
+
+// ---- cameras -------------------------------------------------------------------
+
+splat::CameraSet orbit_cameras(const std::string& kind, const std::string& config_text) {
+  const AppConfig config = config_of(config_text, "hisnegs.Cameras.orbit() options");
+  if (kind == "train") return splat::training_orbit(config.camera);
+  if (kind == "eval") return splat::evaluation_orbit(config.camera);
+  throw io::InputError("hisnegs.Cameras.orbit: kind '" + kind + "'; expected train | eval");
+}
+
+splat::CameraSet custom_cameras(const std::vector<double>& elevations, const std::vector<double>& azimuths,
+                                const std::string& config_text) {
+  const AppConfig config = config_of(config_text, "hisnegs.Cameras.custom() options");
+  if (elevations.empty() || azimuths.empty()) {
+    throw io::InputError("hisnegs.Cameras.custom: give at least one elevation and one azimuth");
+  }
+  return splat::custom_orbit(config.camera, elevations, azimuths);
+}
+
+// ---- models --------------------------------------------------------------------
+
+struct Model {
+  gmf::Checkpoint checkpoint;
+};
+
+py::array params_view(const std::shared_ptr<Model>& m) {
+  gmf::GaussianMixture& g = m->checkpoint.mixture;
+  const auto s = static_cast<py::ssize_t>(sizeof(float));
+  return py::array_t<float>({static_cast<py::ssize_t>(g.size()), static_cast<py::ssize_t>(gmf::kGaussianParamCount)},
+                            {s * static_cast<py::ssize_t>(gmf::kGaussianParamCount), s},
+                            reinterpret_cast<float*>(g.data()), py::cast(m));
+}
+
+py::array stack_array(splat::MipStack&& stack) {
+  auto* pixels = new std::vector<float>(std::move(stack.pixels));
+  py::capsule owner(pixels, [](void* p) { delete static_cast<std::vector<float>*>(p); });
+  return py::array_t<float>({stack.views, stack.height, stack.width}, pixels->data(), owner);
+}
+
+py::array render_model(const Model& m, const splat::CameraSet& cameras, const std::string& config_text,
+                       const std::string& backend) {
+  const AppConfig config = config_of(config_text, "hisnegs.Model.render() options");
+  const splat::Backend b = splat::resolve_backend(splat::parse_backend_request(backend, "backend"));
+  splat::MipStack stack;
+  {
+    py::gil_scoped_release release;
+    const auto params = splat::flat_params(m.checkpoint.mixture);
+    const splat::SplatSettings settings = splat::SplatSettings::from(config.splat);
+    const splat::BackgroundFloors floors = splat::floors_of(m.checkpoint.meta, "the model", config.splat.background);
+    auto renderer = splat::make_splat_renderer(b);
+    stack = splat::render_views(*renderer, params, cameras, settings, {}, floors).stack;
+  }
+  return stack_array(std::move(stack));
+}
+
+py::array rasterize_model(const Model& m, const std::optional<std::vector<int>>& shape_zyx) {
+  const gmf::CheckpointMeta& meta = m.checkpoint.meta;
+  std::optional<io::WorldFrame> frame = gmf::model_frame(meta);
+  if (shape_zyx) {
+    if (shape_zyx->size() != 3 || *std::min_element(shape_zyx->begin(), shape_zyx->end()) < 1) {
+      throw io::InputError("hisnegs.Model.rasterize: shape must be 3 positive sizes (z, y, x)");
+    }
+    const Eigen::Vector3d aspect = meta.aspect ? Eigen::Vector3d((*meta.aspect)[0], (*meta.aspect)[1], (*meta.aspect)[2])
+                                               : Eigen::Vector3d(1, 1, 1);
+    frame.emplace((*shape_zyx)[2], (*shape_zyx)[1], (*shape_zyx)[0], aspect);
+  }
+  if (!frame) {
+    throw io::InputError("hisnegs.Model.rasterize: the model records no volume shape; give shape=(z, y, x)");
+  }
+  const gmf::RasterizeOptions options = gmf::RasterizeOptions::of(gmf::model_of(meta));
+  auto* voxels = new std::vector<float>();
+  py::capsule owner(voxels, [](void* p) { delete static_cast<std::vector<float>*>(p); });
+  {
+    py::gil_scoped_release release;
+    *voxels = gmf::rasterize_mixture(m.checkpoint.mixture, *frame, options);
+  }
+  const Eigen::Vector3i& n = frame->shape();
+  return py::array_t<float>({n.z(), n.y(), n.x()}, voxels->data(), owner);
+}
+
+std::shared_ptr<Model> fit(const Volume& volume, const std::string& config_text,
+                           const std::optional<py::function>& progress) {
+  const AppConfig config = config_of(config_text, "hisnegs.fit() options");
+  auto m = std::make_shared<Model>();
+  const apps::Progress sink = python_progress(progress);
+  {
+    py::gil_scoped_release release;
+    m->checkpoint = apps::fit_loaded(volume.loaded, volume.source, apps::FitConfig(config), sink).checkpoint;
+  }
+  return m;
+}
+
+// ---- ground truth and metrics ----------------------------------------------------
+
+py::array ground_truth(const Volume& volume, const splat::CameraSet& cameras, const std::string& config_text,
+                       const std::string& backend) {
+  const AppConfig config = config_of(config_text, "hisnegs.ground_truth() options");
+  const splat::Backend b = splat::resolve_backend(splat::parse_backend_request(backend, "backend"));
+  splat::MipStack stack;
+  {
+    py::gil_scoped_release release;
+    stack = splat::render_ground_truth(volume.loaded.volume, volume.loaded.frame, cameras, config.raymarch, b);
+  }
+  return stack_array(std::move(stack));
+}
+
+py::dict metrics(const FloatArray& render, const FloatArray& target) {
+  if (render.ndim() != target.ndim() || !std::equal(render.shape(), render.shape() + render.ndim(), target.shape())) {
+    throw io::InputError("hisnegs.metrics: the arrays' shapes differ");
+  }
+  if (render.ndim() != 2 && render.ndim() != 3) {
+    throw io::InputError("hisnegs.metrics: images (H, W) or stacks of them (V, H, W) expected");
+  }
+  const int views = render.ndim() == 3 ? static_cast<int>(render.shape(0)) : 1;
+  const int h = static_cast<int>(render.shape(render.ndim() - 2)), w = static_cast<int>(render.shape(render.ndim() - 1));
+  const std::size_t n = static_cast<std::size_t>(w) * h;
+  std::vector<double> psnr(static_cast<std::size_t>(views)), ssim(psnr.size()), mae(psnr.size());
+  {
+    py::gil_scoped_release release;
+    for (int i = 0; i < views; ++i) {
+      const splat::ViewMetrics m = splat::image_metrics({render.data() + n * i, n}, {target.data() + n * i, n}, w, h);
+      psnr[static_cast<std::size_t>(i)] = m.psnr;
+      ssim[static_cast<std::size_t>(i)] = m.ssim;
+      mae[static_cast<std::size_t>(i)] = m.mae;
+    }
+  }
+  py::dict out;
+  const auto mean = [](const std::vector<double>& v) {
+    double s = 0;
+    for (double x : v) s += x;
+    return s / static_cast<double>(v.size());
+  };
+  out["psnr"] = mean(psnr);
+  out["ssim"] = mean(ssim);
+  out["mae"] = mean(mae);
+  out["psnr_per_view"] = py::array_t<double>(static_cast<py::ssize_t>(psnr.size()), psnr.data());
+  out["ssim_per_view"] = py::array_t<double>(static_cast<py::ssize_t>(ssim.size()), ssim.data());
+  out["mae_per_view"] = py::array_t<double>(static_cast<py::ssize_t>(mae.size()), mae.data());
+  return out;
+}
+
+// ---- the stage-1 objective --------------------------------------------------------
+
+// The fit's least-squares problem on a volume: its samples and weights (the sparse
+// grid with gmf.background_fraction, at the voxel centres), the model's mixture as
+// the size of x, and the mixture model (aggregation, β, cutoff). The block index is
+// rebuilt for each new x, so x may move anywhere.
+class Objective {
+ public:
+  Objective(const Volume& volume, const Model& model, const std::string& config_text, const std::string& aggregation,
+            double beta) {
+    const AppConfig config = config_of(config_text, "hisnegs.Objective() options");
+    gmf::GmfOptions gmf = config.gmf;
+    if (aggregation != "softmax" && aggregation != "sum") {
+      throw io::InputError("hisnegs.Objective: aggregation '" + aggregation + "'; expected softmax | sum");
+    }
+    if (!(beta > 0) || !std::isfinite(beta)) throw io::InputError("hisnegs.Objective: beta must be > 0");
+    model_.aggregation = aggregation == "sum" ? gmf::Aggregation::kSum : gmf::Aggregation::kSoftmax;
+    model_.beta = beta;
+    model_.cutoff = gmf.mahalanobis_cutoff;
+    gaussians_ = model.checkpoint.mixture.size();
+    if (gaussians_ == 0) throw io::InputError("hisnegs.Objective: the model has no Gaussians");
+    frame_ = volume.loaded.frame;
+    py::gil_scoped_release release;
+    io::SparseGridOptions sparse = config.sparse_grid;
+    sparse.background_fraction = gmf.background_fraction;
+    const io::SparseGrid grid = io::build_sparse_grid(volume.loaded.volume, frame_.aspect(), sparse);
+    samples_ = gmf::fit_samples(grid, gmf);
+  }
+  [[nodiscard]] std::size_t size() const { return gmf::kGaussianParamCount * gaussians_; }
+  [[nodiscard]] std::size_t samples() const { return samples_.size(); }
+
+  double value(const DoubleArray& x) { return evaluate(x, nullptr); }
+  py::array_t<double> gradient(const DoubleArray& x) {
+    py::array_t<double> g(static_cast<py::ssize_t>(size()));
+    evaluate(x, g.mutable_data());
+    return g;
+  }
+  py::tuple value_and_gradient(const DoubleArray& x) {
+    py::array_t<double> g(static_cast<py::ssize_t>(size()));
+    const double v = evaluate(x, g.mutable_data());
+    return py::make_tuple(v, g);
+  }
+
+ private:
+  double evaluate(const DoubleArray& x, double* gradient) {
+    if (x.ndim() != 1 || static_cast<std::size_t>(x.size()) != size()) {
+      throw io::InputError("hisnegs.Objective: x must be a flat array of 11 K = " + std::to_string(size()) +
+                           " values (got " + std::to_string(x.size()) + ")");
+    }
+    const double* p = x.data();
+    py::gil_scoped_release release;
+    gmf::GaussianMixture mixture{std::vector<gmf::GaussianParams>(gaussians_)};
+    for (std::size_t k = 0; k < gaussians_; ++k) {
+      std::array<float, gmf::kGaussianParamCount> row;
+      for (std::size_t j = 0; j < row.size(); ++j) row[j] = static_cast<float>(p[gmf::kGaussianParamCount * k + j]);
+      mixture[k] = gmf::from_array(row);
+    }
+    const gmf::BlockIndex index = gmf::build_block_index(mixture, samples_, frame_, model_.cutoff);
+    const gmf::FitObjective objective(samples_, index, gaussians_, model_);
+    return objective.evaluate(p, gradient);
+  }
+
+  gmf::MixtureModel model_;
+  std::size_t gaussians_ = 0;
+  io::WorldFrame frame_;
+  gmf::SampleSet samples_;
+};
+
+}  // namespace
+}  // namespace hisnegs::python
+
+PYBIND11_MODULE(_hisnegs, m) {
+  using namespace hisnegs;
+  using namespace hisnegs::python;
+  m.doc() = "hisnegs' C++ core; use the hisnegs package (its __init__ documents every name)";
+
+  py::register_exception<io::InputError>(m, "InputError", PyExc_ValueError);
+  py::register_exception<io::WriteError>(m, "WriteError", PyExc_OSError);
+
+  py::class_<Volume, std::shared_ptr<Volume>>(m, "Volume")
+      .def_property_readonly("array", &voxels_view)
+      .def_property_readonly("shape",
+                             [](const Volume& v) {
+                               const io::Volume& vol = v.loaded.volume;
+                               return py::make_tuple(vol.nz, vol.ny, vol.nx);
+                             })
+      .def_property_readonly("spacing_um",
+                             [](const Volume& v) {
+                               const auto& s = v.loaded.volume.spacing.um;
+                               return py::make_tuple(s[0], s[1], s[2]);
+                             })
+      .def_property_readonly("aspect",
+                             [](const Volume& v) {
+                               const Eigen::Vector3d& a = v.loaded.frame.aspect();
+                               return py::make_tuple(a.x(), a.y(), a.z());
+                             })
+      .def_property_readonly("normalization",
+                             [](const Volume& v) { return v.loaded.volume.normalization.describe(); })
+      .def_property_readonly("source", [](const Volume& v) { return v.source; });
+  m.def("_load_volume", &load_volume);
+  m.def("_volume_from_array", &volume_from_array);
+
+  py::class_<splat::CameraSet>(m, "Cameras")
+      .def_static("load", [](const std::filesystem::path& p) { return splat::read_cameras_json(p); })
+      .def("save", [](const splat::CameraSet& c, const std::filesystem::path& p) { splat::write_cameras_json(p, c); })
+      .def("__len__", [](const splat::CameraSet& c) { return c.views.size(); })
+      .def_property_readonly("width", [](const splat::CameraSet& c) { return c.intrinsics.width; })
+      .def_property_readonly("height", [](const splat::CameraSet& c) { return c.intrinsics.height; })
+      .def_property_readonly("names", [](const splat::CameraSet& c) {
+        std::vector<std::string> names;
+        for (const splat::CameraView& v : c.views) names.push_back(v.name);
+        return names;
+      });
+  m.def("_orbit_cameras", &orbit_cameras);
+  m.def("_custom_cameras", &custom_cameras);
+
+  py::class_<Model, std::shared_ptr<Model>>(m, "Model")
+      .def_static("load",
+                  [](const std::filesystem::path& p) {
+                    auto model = std::make_shared<Model>();
+                    model->checkpoint = gmf::load_checkpoint(p);
+                    return model;
+                  })
+      .def("save", [](const Model& model,
+                      const std::filesystem::path& p) { gmf::save_checkpoint(p, model.checkpoint.mixture, model.checkpoint.meta); })
+      .def("__len__", [](const Model& model) { return model.checkpoint.mixture.size(); })
+      .def_property_readonly("params", &params_view)
+      .def_property_readonly("aggregation",
+                             [](const Model& model) {
+                               return model.checkpoint.meta.aggregation == gmf::Aggregation::kSum ? "sum" : "softmax";
+                             })
+      .def_property_readonly("beta", [](const Model& model) { return model.checkpoint.meta.beta; })
+      .def("_render", &render_model)
+      .def("_rasterize", &rasterize_model);
+  m.def("_fit", &fit);
+  m.def("_ground_truth", &ground_truth);
+  m.def("metrics", &metrics);
+
+  py::class_<Objective>(m, "_Objective")
+      .def(py::init<const Volume&, const Model&, const std::string&, const std::string&, double>())
+      .def_property_readonly("size", &Objective::size)
+      .def_property_readonly("samples", &Objective::samples)
+      .def("value", &Objective::value)
+      .def("gradient", &Objective::gradient)
+      .def("value_and_gradient", &Objective::value_and_gradient);
+}

@@ -1,0 +1,192 @@
+# SPDX-License-Identifier: Apache-2.0
+"""The Python module against the command line it shares its library with: array
+shapes and dtypes, views against copies, errors as exceptions with the CLI's
+messages, renders and ground truth bit for bit `hisnegs render` / `hisnegs gt`'s,
+the Objective's gradient against finite differences, Ctrl-C. Run by ctest
+(Python.pytest) with PYTHONPATH at the build tree's package and HISNEGS_EXE at the
+`hisnegs` program."""
+
+import os
+import signal
+import subprocess
+
+import numpy as np
+import pytest
+import tifffile
+
+import hisnegs
+
+HISNEGS = os.environ.get("HISNEGS_EXE", "hisnegs")
+
+# A small, quick fit: no time limit, a fixed schedule (the result is a pure function
+# of the stack and these options).
+FIT = dict(gaussians=120, rounds=2, iterations_per_round=6, time_budget_s=0)
+
+
+def run_cli(*args, cwd):
+    done = subprocess.run([HISNEGS, *map(str, args)], cwd=cwd, capture_output=True, text=True)
+    return done
+
+
+@pytest.fixture(scope="module")
+def work(tmp_path_factory):
+    """A synthetic neuron stack (hisnegs synth), a model fitted to it by the CLI, and
+    48 x 48 evaluation cameras."""
+    d = tmp_path_factory.mktemp("hisnegs")
+    assert run_cli("-q", "synth", "-o", d / "s.tif", "--shape", "16,48,56", cwd=d).returncode == 0
+    (d / "fit.yaml").write_text(
+        "gmf: {gaussians: 120, rounds: 2, iterations_per_round: 6, time_budget_s: 0}\n"
+        "camera: {width: 48, height: 48}\n")
+    done = run_cli("-q", "--config", d / "fit.yaml", "fit", d / "s.tif", "-o", d / "m.ply", cwd=d)
+    assert done.returncode == 0, done.stderr
+    hisnegs.Cameras.orbit("eval", width=48, height=48).save(d / "cameras.json")
+    return d
+
+
+def test_load_volume_is_a_normalized_float32_view(work):
+    v = hisnegs.load_volume(work / "s.tif")
+    a = v.array
+    assert a.shape == v.shape == (16, 48, 56)
+    assert a.dtype == np.float32
+    assert a.min() == 0.0 and a.max() == 1.0
+    assert np.shares_memory(a, v.array), "array must be a view of the volume, not a copy"
+    assert len(v.spacing_um) == 3 and len(v.aspect) == 3
+    assert max(v.aspect) == pytest.approx(1.0)
+    assert "minmax" in v.normalization
+
+
+def test_volume_from_array_normalizes_like_a_file(work):
+    raw = tifffile.imread(work / "s.tif")
+    v = hisnegs.Volume.from_array(raw, spacing_um=(0.5, 0.5, 2.0))
+    assert v.spacing_um == (0.5, 0.5, 2.0)
+    assert np.array_equal(v.array, hisnegs.load_volume(work / "s.tif").array)
+    with pytest.raises(ValueError, match="3"):
+        hisnegs.Volume.from_array(np.zeros((4, 4)))
+    bad = raw.astype(np.float32)
+    bad[3, 2, 1] = np.nan
+    with pytest.raises(ValueError, match=r"voxel \(x 1, y 2, z 3\) is not finite"):
+        hisnegs.Volume.from_array(bad)
+
+
+def test_errors_are_value_errors_with_the_cli_messages(work):
+    with pytest.raises(ValueError, match="no_such.tif"):
+        hisnegs.load_volume(work / "no_such.tif")
+    with pytest.raises(ValueError) as python_error:
+        hisnegs.load_volume(work / "s.tif", normalization="bogus")
+    (work / "bad.yaml").write_text("volume: {normalization: bogus}\n")
+    cli = run_cli("--config", work / "bad.yaml", "info", work / "s.tif", cwd=work)
+    assert cli.returncode != 0
+    # The same rule, worded the same way, whichever way the option came in.
+    rule = str(python_error.value).split("volume.normalization", 1)[1]
+    assert "volume.normalization" + rule in cli.stderr, (str(python_error.value), cli.stderr)
+    with pytest.raises(ValueError, match="gmf.gaussians"):
+        hisnegs.fit(hisnegs.load_volume(work / "s.tif"), gaussians=-3)
+
+
+def test_fit_matches_the_cli_and_params_are_a_view(work):
+    lines = []
+    model = hisnegs.fit(hisnegs.load_volume(work / "s.tif"), progress=lines.append, **FIT)
+    assert any(line.startswith("fit: final model: 3D PSNR") for line in lines), lines
+    cli = hisnegs.Model.load(work / "m.ply")
+    assert len(model) == len(cli) > 0
+    p = model.params
+    assert p.shape == (len(model), 11) and p.dtype == np.float32
+    assert np.array_equal(p, cli.params), "the same fit as `hisnegs fit` with the same options"
+    p[0, 0] += 0.25
+    assert model.params[0, 0] == p[0, 0], "params must be a writable view of the model"
+    assert model.aggregation in ("sum", "softmax")
+
+
+def test_model_save_and_load_round_trip(work, tmp_path):
+    model = hisnegs.Model.load(work / "m.ply")
+    model.save(tmp_path / "copy.ply")
+    again = hisnegs.Model.load(tmp_path / "copy.ply")
+    assert np.array_equal(again.params, model.params)
+    (tmp_path / "broken.ply").write_text("not a ply\n")
+    with pytest.raises(ValueError, match="broken.ply"):
+        hisnegs.Model.load(tmp_path / "broken.ply")
+
+
+def test_cameras(work, tmp_path):
+    eval_views = hisnegs.Cameras.orbit("eval", width=48, height=48)
+    assert len(eval_views) == 30 and (eval_views.width, eval_views.height) == (48, 48)
+    assert len(hisnegs.Cameras.orbit("train")) == 106
+    eval_views.save(tmp_path / "c.json")
+    assert hisnegs.Cameras.load(tmp_path / "c.json").names == eval_views.names
+    assert len(hisnegs.Cameras.custom([0, 30], [0, 90, 180])) == 6
+    with pytest.raises(ValueError, match="kind"):
+        hisnegs.Cameras.orbit("sideways")
+    with pytest.raises(ValueError, match="camera.width"):
+        hisnegs.Cameras.orbit("eval", width=-1)
+
+
+@pytest.mark.parametrize("mode", ["hard", "soft"])
+def test_render_equals_the_cli_bit_for_bit(work, mode):
+    model = hisnegs.Model.load(work / "m.ply")
+    cameras = hisnegs.Cameras.load(work / "cameras.json")
+    images = model.render(cameras, mode=mode, beta=50, backend="cpu")
+    assert images.shape == (30, 48, 48) and images.dtype == np.float32
+    done = run_cli("-q", "render", "--model", work / "m.ply", "--cameras", work / "cameras.json", "--mode", mode,
+                   "--beta", "50", "--backend", "cpu", "-o", work / ("r" + mode), cwd=work)
+    assert done.returncode == 0, done.stderr
+    assert np.array_equal(images, tifffile.imread(work / ("r" + mode) / "render.tif"))
+
+
+def test_ground_truth_equals_the_cli_bit_for_bit(work):
+    volume = hisnegs.load_volume(work / "s.tif")
+    cameras = hisnegs.Cameras.load(work / "cameras.json")
+    mips = hisnegs.ground_truth(volume, cameras, backend="cpu")
+    assert mips.shape == (30, 48, 48)
+    done = run_cli("-q", "gt", work / "s.tif", "-o", work / "gt", "--cameras", work / "cameras.json", "--backend",
+                   "cpu", cwd=work)
+    assert done.returncode == 0, done.stderr
+    assert np.array_equal(mips, tifffile.imread(work / "gt" / "mips.tif"))
+
+
+def test_metrics_and_rasterize(work):
+    model = hisnegs.Model.load(work / "m.ply")
+    cameras = hisnegs.Cameras.load(work / "cameras.json")
+    images = model.render(cameras, mode="hard", backend="cpu")
+    same = hisnegs.metrics(images, images)
+    assert same["psnr"] == np.inf and same["ssim"] == pytest.approx(1.0)
+    assert same["psnr_per_view"].shape == (30,)
+    truth = hisnegs.ground_truth(hisnegs.load_volume(work / "s.tif"), cameras, backend="cpu")
+    assert 10 < hisnegs.metrics(images, truth)["psnr"] < 80
+    with pytest.raises(ValueError, match="shapes differ"):
+        hisnegs.metrics(images, images[:2])
+    voxels = model.rasterize()
+    assert voxels.shape == (16, 48, 56) and voxels.dtype == np.float32
+    assert model.rasterize((8, 24, 28)).shape == (8, 24, 28)
+
+
+def test_objective_gradient_matches_finite_differences(work):
+    volume = hisnegs.load_volume(work / "s.tif")
+    model = hisnegs.Model.load(work / "m.ply")
+    objective = hisnegs.Objective(volume, model, aggregation="softmax", beta=20)
+    x = objective.x0.copy()
+    assert objective.size == x.size == 11 * len(model)
+    assert objective.samples > 0
+    value, gradient = objective.value_and_gradient(x)
+    assert value == objective.value(x) > 0
+    assert np.array_equal(gradient, objective.gradient(x))
+    # Central differences on the coordinates with the largest gradients, each kind.
+    picks = [int(np.argmax(np.abs(gradient[j::11]))) * 11 + j for j in range(11)]
+    for i in picks:
+        h = 1e-6 * max(1.0, abs(x[i]))  # small: a term ends at the cutoff δ, so f has steps there
+        up, down = x.copy(), x.copy()
+        up[i] += h
+        down[i] -= h
+        numeric = (objective.value(up) - objective.value(down)) / (2 * h)
+        assert numeric == pytest.approx(gradient[i], rel=2e-3, abs=1e-6 * abs(value)), i
+    with pytest.raises(ValueError, match="flat array of 11 K"):
+        objective.value(x[:-1])
+
+
+def test_ctrl_c_interrupts_a_fit_with_keyboard_interrupt(work):
+    volume = hisnegs.load_volume(work / "s.tif")
+
+    def interrupt(line):
+        os.kill(os.getpid(), signal.SIGINT)
+
+    with pytest.raises(KeyboardInterrupt):
+        hisnegs.fit(volume, progress=interrupt, **FIT)
