@@ -2,9 +2,13 @@
 // BlockCost::Evaluate: per sample, the free Gaussians' terms and gradients, their
 // aggregation with the fixed terms, the residual and its analytic Jacobian.
 #include <algorithm>
+#include <stdexcept>
+#include <string>
 #include <vector>
 
 #include "gmf/detail/block_cost.hpp"
+#include "gmf/block_index.hpp"
+#include "gmf/objective.hpp"
 #include "gmf/gaussian_math.hpp"
 
 namespace hisnegs::gmf::detail {
@@ -69,3 +73,49 @@ bool BlockCost::Evaluate(double const* const* parameters, double* residuals, dou
 }
 
 }  // namespace hisnegs::gmf::detail
+
+namespace hisnegs::gmf {
+
+SampleResiduals sample_residuals(const SampleSet& samples, const BlockIndex& index, const MixtureModel& model,
+                                 const double* params, bool with_jacobian) {
+  SampleResiduals out;
+  const std::size_t n = samples.size();
+  out.residuals.assign(n, 0.0);
+  out.row_begin.assign(n + 1, 0);
+  std::vector<const double*> blocks;
+  std::vector<double> jac;
+  std::vector<double*> jac_rows;
+  for (std::size_t b = 0; b < samples.blocks(); ++b) {
+    const std::span<const std::uint32_t> ids = index.of(b);
+    const std::uint32_t s0 = samples.block_begin[b], s1 = samples.block_begin[b + 1];
+    const std::size_t count = s1 - s0;
+    if (ids.empty()) {  // nothing reaches the block: f = 0
+      for (std::uint32_t s = s0; s < s1; ++s) out.residuals[s] = -samples.weight[s] * samples.value[s];
+      for (std::uint32_t s = s0; s < s1; ++s) out.row_begin[s + 1] = out.row_begin[s];
+      continue;
+    }
+    const detail::BlockCost cost(samples, b, ids.size(), model);
+    blocks.resize(ids.size());
+    for (std::size_t i = 0; i < ids.size(); ++i) blocks[i] = params + kGaussianParamCount * ids[i];
+    jac.resize(with_jacobian ? ids.size() * count * kGaussianParamCount : 0);
+    jac_rows.resize(ids.size());
+    for (std::size_t i = 0; i < ids.size(); ++i) jac_rows[i] = jac.data() + i * count * kGaussianParamCount;
+    if (!cost.Evaluate(blocks.data(), out.residuals.data() + s0, with_jacobian ? jac_rows.data() : nullptr)) {
+      throw std::runtime_error("sample_residuals: block " + std::to_string(b) + " could not be evaluated");
+    }
+    for (std::uint32_t s = s0; s < s1; ++s) {
+      const std::size_t j = s - s0;
+      out.row_begin[s + 1] = out.row_begin[s] + (with_jacobian ? static_cast<std::int64_t>(ids.size() * kGaussianParamCount) : 0);
+      if (!with_jacobian) continue;
+      for (std::size_t i = 0; i < ids.size(); ++i) {
+        for (std::size_t c = 0; c < kGaussianParamCount; ++c) {
+          out.columns.push_back(static_cast<std::int64_t>(kGaussianParamCount * ids[i] + c));
+          out.values.push_back(jac_rows[i][j * kGaussianParamCount + c]);
+        }
+      }
+    }
+  }
+  return out;
+}
+
+}  // namespace hisnegs::gmf

@@ -5,7 +5,9 @@
 // from the same BlockCost blocks as the least-squares problem. Ceres stays in the .cpp.
 #pragma once
 
+#include <cstdint>
 #include <memory>
+#include <vector>
 
 #include "gmf/aggregation.hpp"
 #include "gmf/block_index.hpp"
@@ -37,5 +39,20 @@ class FitObjective {
   double constant_ = 0;
   double unreached_foreground_se_ = 0;  // Σ V² of the foreground samples no Gaussian reaches
 };
+
+// The residuals of every sample, r_j = w_j (f(x_j) − V_j) in sample order, and
+// (when `with_jacobian`) their Jacobian with respect to all parameters in CSR form:
+// row j holds the kGaussianParamCount columns of each Gaussian `index` lists for
+// sample j's block, ascending (explicit zeros where one does not reach the sample),
+// from BlockCost's analytic derivatives. ½ Σ r² is FitObjective::evaluate's loss
+// and Jᵀ r its gradient. Memory: samples × listed Gaussians × 11 doubles.
+struct SampleResiduals {
+  std::vector<double> residuals;
+  std::vector<std::int64_t> row_begin;  // samples + 1
+  std::vector<std::int64_t> columns;
+  std::vector<double> values;
+};
+[[nodiscard]] SampleResiduals sample_residuals(const SampleSet& samples, const BlockIndex& index,
+                                               const MixtureModel& model, const double* params, bool with_jacobian);
 
 }  // namespace hisnegs::gmf

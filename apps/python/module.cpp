@@ -288,6 +288,17 @@ class Objective {
     evaluate(x, g.mutable_data());
     return g;
   }
+  py::array_t<double> residuals(const DoubleArray& x) {
+    const gmf::SampleResiduals r = sample_residuals(x, false);
+    return py::array_t<double>(static_cast<py::ssize_t>(r.residuals.size()), r.residuals.data());
+  }
+  // (values, column indices, row starts) of the Jacobian's CSR form.
+  py::tuple jacobian(const DoubleArray& x) {
+    const gmf::SampleResiduals r = sample_residuals(x, true);
+    return py::make_tuple(py::array_t<double>(static_cast<py::ssize_t>(r.values.size()), r.values.data()),
+                          py::array_t<std::int64_t>(static_cast<py::ssize_t>(r.columns.size()), r.columns.data()),
+                          py::array_t<std::int64_t>(static_cast<py::ssize_t>(r.row_begin.size()), r.row_begin.data()));
+  }
   py::tuple value_and_gradient(const DoubleArray& x) {
     py::array_t<double> g(static_cast<py::ssize_t>(size()));
     const double v = evaluate(x, g.mutable_data());
@@ -295,22 +306,35 @@ class Objective {
   }
 
  private:
-  double evaluate(const DoubleArray& x, double* gradient) {
+  void check(const DoubleArray& x) const {
     if (x.ndim() != 1 || static_cast<std::size_t>(x.size()) != size()) {
       throw io::InputError("hisnegs.Objective: x must be a flat array of 11 K = " + std::to_string(size()) +
                            " values (got " + std::to_string(x.size()) + ")");
     }
-    const double* p = x.data();
-    py::gil_scoped_release release;
+  }
+  // Which Gaussians may reach which sample blocks at x (rebuilt for every x).
+  [[nodiscard]] gmf::BlockIndex index_at(const double* p) const {
     gmf::GaussianMixture mixture{std::vector<gmf::GaussianParams>(gaussians_)};
     for (std::size_t k = 0; k < gaussians_; ++k) {
       std::array<float, gmf::kGaussianParamCount> row;
       for (std::size_t j = 0; j < row.size(); ++j) row[j] = static_cast<float>(p[gmf::kGaussianParamCount * k + j]);
       mixture[k] = gmf::from_array(row);
     }
-    const gmf::BlockIndex index = gmf::build_block_index(mixture, samples_, frame_, model_.cutoff);
+    return gmf::build_block_index(mixture, samples_, frame_, model_.cutoff);
+  }
+  double evaluate(const DoubleArray& x, double* gradient) {
+    check(x);
+    const double* p = x.data();
+    py::gil_scoped_release release;
+    const gmf::BlockIndex index = index_at(p);
     const gmf::FitObjective objective(samples_, index, gaussians_, model_);
     return objective.evaluate(p, gradient);
+  }
+  gmf::SampleResiduals sample_residuals(const DoubleArray& x, bool with_jacobian) {
+    check(x);
+    const double* p = x.data();
+    py::gil_scoped_release release;
+    return gmf::sample_residuals(samples_, index_at(p), model_, p, with_jacobian);
   }
 
   gmf::MixtureModel model_;
@@ -395,5 +419,7 @@ PYBIND11_MODULE(_hisnegs, m) {
       .def_property_readonly("samples", &Objective::samples)
       .def("value", &Objective::value)
       .def("gradient", &Objective::gradient)
-      .def("value_and_gradient", &Objective::value_and_gradient);
+      .def("value_and_gradient", &Objective::value_and_gradient)
+      .def("residuals", &Objective::residuals)
+      .def("jacobian", &Objective::jacobian);
 }

@@ -9,7 +9,9 @@
 
 #include <algorithm>
 #include <cmath>
+#include <functional>
 #include <random>
+#include <utility>
 #include <vector>
 
 #include "gmf/block_index.hpp"
@@ -60,6 +62,67 @@ TEST(GmfObjective, GradientMatchesItsValue) {
     const double h0 = (i % 11) <= kMeanZ ? 0.1 * scene.frame.voxel_size().x() : 0.01;
     const double fd = testing::ridders_derivative(f, x[i], h0);
     EXPECT_NEAR(grad[i], fd, 1e-6 * std::max({std::abs(grad[i]), std::abs(fd), 1e-3 * largest})) << "parameter " << i;
+  }
+}
+
+// sample_residuals: ½ Σ r² is the objective's value and Jᵀ r its gradient, for both
+// aggregations; a Jacobian column is the Ridders derivative of the residuals.
+TEST(GmfObjective, SampleResidualsAndTheirJacobianAreTheSameProblem) {
+  const Scene scene = make_scene(13);
+  const io::SparseGrid grid = grid_of(scene, 0.05);
+  const SampleSet samples = extract_samples(grid, 1.0, 2);
+  GaussianMixture m = scene.truth;
+  for (auto& g : m) g.mean[1] += static_cast<float>(0.2 * scene.frame.voxel_size().y());
+  for (const MixtureModel model : {MixtureModel{.cutoff = 1e9},
+                                   MixtureModel{.aggregation = Aggregation::kSoftmax, .beta = 20, .cutoff = 1e9}}) {
+    const BlockIndex index = build_block_index(m, samples, scene.frame, model.cutoff);
+    const FitObjective objective(samples, index, m.size(), model);
+    const std::vector<double> x = flat_of(m);
+    std::vector<double> grad(x.size());
+    const double value = objective.evaluate(x.data(), grad.data());
+    const SampleResiduals r = sample_residuals(samples, index, model, x.data(), true);
+    ASSERT_EQ(r.residuals.size(), samples.size());
+    ASSERT_EQ(r.row_begin.size(), samples.size() + 1);
+    ASSERT_EQ(static_cast<std::size_t>(r.row_begin.back()), r.values.size());
+    double half = 0;
+    for (double v : r.residuals) half += 0.5 * v * v;
+    EXPECT_NEAR(half, value, 1e-10 * value);
+    std::vector<double> jtr(x.size(), 0.0);
+    for (std::size_t j = 0; j < samples.size(); ++j) {
+      for (auto e = r.row_begin[j]; e < r.row_begin[j + 1]; ++e) {
+        jtr[static_cast<std::size_t>(r.columns[static_cast<std::size_t>(e)])] +=
+            r.values[static_cast<std::size_t>(e)] * r.residuals[j];
+      }
+    }
+    double largest = 0;
+    for (double g : grad) largest = std::max(largest, std::abs(g));
+    for (std::size_t i = 0; i < x.size(); ++i) EXPECT_NEAR(jtr[i], grad[i], 1e-9 * largest) << "parameter " << i;
+    // Column 11·5 + 1 (a mean's y) against Ridders differences, in the 4 samples
+    // where it is largest.
+    const std::size_t column = 11 * 5 + 1;
+    std::vector<std::pair<double, std::size_t>> entries;  // (|∂r_j/∂x|, j)
+    std::vector<double> of_sample(samples.size(), 0.0);
+    for (std::size_t j = 0; j < samples.size(); ++j) {
+      for (auto e = r.row_begin[j]; e < r.row_begin[j + 1]; ++e) {
+        if (static_cast<std::size_t>(r.columns[static_cast<std::size_t>(e)]) == column) {
+          of_sample[j] = r.values[static_cast<std::size_t>(e)];
+        }
+      }
+      entries.emplace_back(std::abs(of_sample[j]), j);
+    }
+    std::partial_sort(entries.begin(), entries.begin() + 4, entries.end(), std::greater<>());
+    ASSERT_GT(entries[0].first, 0.0);
+    for (int pick = 0; pick < 4; ++pick) {
+      const std::size_t j = entries[static_cast<std::size_t>(pick)].second;
+      const double analytic = of_sample[j];
+      const auto f = [&](double v) {
+        std::vector<double> y = x;
+        y[column] = v;
+        return sample_residuals(samples, index, model, y.data(), false).residuals[j];
+      };
+      const double fd = testing::ridders_derivative(f, x[column], 0.1 * scene.frame.voxel_size().y());
+      EXPECT_NEAR(analytic, fd, 1e-6 * std::max(1.0, std::abs(fd))) << "sample " << j;
+    }
   }
 }
 

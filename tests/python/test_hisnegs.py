@@ -180,6 +180,21 @@ def test_objective_gradient_matches_finite_differences(work):
         assert numeric == pytest.approx(gradient[i], rel=2e-3, abs=1e-6 * abs(value)), i
     with pytest.raises(ValueError, match="flat array of 11 K"):
         objective.value(x[:-1])
+    # The least-squares view of the same problem: ½ Σ r² is the value, Jᵀ r the gradient.
+    r = objective.residuals(x)
+    assert r.shape == (objective.samples,)
+    assert 0.5 * np.dot(r, r) == pytest.approx(value, rel=1e-10)
+    J = objective.jacobian(x)
+    assert J.shape == (objective.samples, objective.size)
+    assert np.allclose(J.T @ r, gradient, rtol=1e-8, atol=1e-10 * np.abs(gradient).max())
+    for i in picks[:3]:  # a column of J against central differences of r
+        h = 1e-6 * max(1.0, abs(x[i]))
+        up, down = x.copy(), x.copy()
+        up[i] += h
+        down[i] -= h
+        numeric = (objective.residuals(up) - objective.residuals(down)) / (2 * h)
+        column = J[:, i].toarray().ravel()
+        assert np.allclose(numeric, column, rtol=1e-3, atol=1e-4 * np.abs(column).max()), i
 
 
 def test_ctrl_c_interrupts_a_fit_with_keyboard_interrupt(work):

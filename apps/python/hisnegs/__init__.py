@@ -132,7 +132,8 @@ class Objective:
     ½ Σ w² (f(x) − V)² with f the mixture under ``aggregation`` ("softmax" at
     ``beta``, or "sum"), for a flat float64 ``x`` of 11 K values in the order of
     ``Model.params`` (K = the model's Gaussians). ``value(x)``, ``gradient(x)`` and
-    ``value_and_gradient(x)`` (for scipy.optimize(jac=True)). Each call with a new x
+    ``value_and_gradient(x)`` (for scipy.optimize(jac=True)), ``residuals(x)`` and
+    ``jacobian(x)`` (scipy.sparse CSR; for least-squares solvers). Each call with a new x
     rebuilds the index of which Gaussians reach which samples, so x may move freely.
     ``gmf_options`` and ``sparse_grid_options`` are the config's sections."""
 
@@ -159,3 +160,16 @@ class Objective:
 
     def value_and_gradient(self, x):
         return self._core.value_and_gradient(x)
+
+    def residuals(self, x):
+        """r_j = w_j (f(x_j) − V_j) of every sample: ½ Σ r² is value(x)."""
+        return self._core.residuals(x)
+
+    def jacobian(self, x):
+        """∂r/∂x as a scipy.sparse CSR matrix (samples × 11 K): row j holds the 11
+        columns of each Gaussian that may reach sample j (explicit zeros where one
+        does not); Jᵀ r is gradient(x)."""
+        import scipy.sparse
+
+        values, columns, rows = self._core.jacobian(x)
+        return scipy.sparse.csr_matrix((values, columns, rows), shape=(self.samples, self.size))
