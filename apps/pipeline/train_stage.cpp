@@ -81,25 +81,10 @@ TrainingSession start_training(const TrainRequest& request, const TrainConfig& c
   const gmf::Checkpoint init = gmf::load_checkpoint(request.init.string());
   const auto flat = splat::flat_params(init.mixture);
   s.init_params.assign(flat.begin(), flat.end());
-  // hisnegs worlds are [-a, a] with max a = 1; a model from elsewhere without aspect: 1.
-  const double scene_scale =
-      init.meta.aspect ? *std::max_element(init.meta.aspect->begin(), init.meta.aspect->end()) : 1.0;
   s.views = data.count();
   s.width = data.intrinsics.width;
   s.height = data.intrinsics.height;
-  // The model's background floor under every training view, as the ground truth has it.
-  const splat::BackgroundFloors floors =
-      splat::floors_of(init.meta, request.init.string(), config.get<&AppConfig::splat>().background);
-  std::vector<std::vector<float>> view_floors;
-  if (!floors.none()) {
-    for (const splat::CameraView& view : data.views) view_floors.push_back(floors(data.intrinsics, view));
-    progress.say("train: the views are rendered over the MIP floor of the background the model records "
-                 "(splat.background: false trains the Gaussians alone)");
-  }
-  s.trainer.emplace(config.get<&AppConfig::train>(), splat::SplatSettings::from(config.get<&AppConfig::splat>()),
-                    std::move(data), std::vector<float>(flat.begin(), flat.end()),
-                    splat::make_splat_renderer(request.backend), scene_scale);
-  s.trainer->set_floors(std::move(view_floors));
+  s.trainer.emplace(make_trainer(init, request.init.string(), std::move(data), config, request.backend, progress));
   if (const Job& ranks = job(); ranks.distributed()) {
     s.trainer->share_steps(std::make_shared<JobSteps>(ranks));
     const int B = config.get<&AppConfig::train>().views_per_step;
@@ -127,6 +112,32 @@ TrainingSession start_training(const TrainRequest& request, const TrainConfig& c
   }
   return s;
 }
+
+}  // namespace
+
+splat::Trainer make_trainer(const gmf::Checkpoint& init, const std::string& init_name, splat::TrainingData data,
+                            const TrainConfig& config, splat::Backend backend, const Progress& progress) {
+  const auto flat = splat::flat_params(init.mixture);
+  // hisnegs worlds are [-a, a] with max a = 1; a model from elsewhere without aspect: 1.
+  const double scene_scale =
+      init.meta.aspect ? *std::max_element(init.meta.aspect->begin(), init.meta.aspect->end()) : 1.0;
+  // The model's background floor under every training view, as the ground truth has it.
+  const splat::BackgroundFloors floors =
+      splat::floors_of(init.meta, init_name, config.get<&AppConfig::splat>().background);
+  std::vector<std::vector<float>> view_floors;
+  if (!floors.none()) {
+    for (const splat::CameraView& view : data.views) view_floors.push_back(floors(data.intrinsics, view));
+    progress.say("train: the views are rendered over the MIP floor of the background the model records "
+                 "(splat.background: false trains the Gaussians alone)");
+  }
+  splat::Trainer trainer(config.get<&AppConfig::train>(), splat::SplatSettings::from(config.get<&AppConfig::splat>()),
+                         std::move(data), std::vector<float>(flat.begin(), flat.end()),
+                         splat::make_splat_renderer(backend), scene_scale);
+  trainer.set_floors(std::move(view_floors));
+  return trainer;
+}
+
+namespace {
 
 // Epochs until the schedule ends; after each: log.csv, a checkpoint when due, a line.
 void run_epochs(TrainingSession& s, const fs::path& run, int epochs, const Progress& progress) {

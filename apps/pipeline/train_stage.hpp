@@ -12,6 +12,8 @@
 #include "apps/pipeline/stage_folder.hpp"
 #include "gmf/checkpoint.hpp"
 #include "splat/backend.hpp"
+#include "splat/trainer.hpp"
+#include "splat/training_data.hpp"
 
 namespace hisnegs::apps {
 
@@ -30,6 +32,13 @@ struct TrainRequest {
   std::filesystem::path volume;
   StackReading reading{};  // how `volume` is read: whole, or tile by tile when it does not fit
 };
+// The trainer of `init` on `data` as `train` sets it up (the scene scale from the
+// model's aspect, the background floor it records under every view unless
+// splat.background is false), with one line when a floor is drawn. What the
+// training stage and the Python module's hisnegs.train start from.
+splat::Trainer make_trainer(const gmf::Checkpoint& init, const std::string& init_name, splat::TrainingData data,
+                            const TrainConfig& config, splat::Backend backend, const Progress& progress);
+
 struct TrainOutcome {
   int epochs = 0;
   int gaussians = 0;

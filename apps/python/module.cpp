@@ -22,6 +22,7 @@
 #include "apps/pipeline/app_config.hpp"
 #include "apps/pipeline/fit_stage.hpp"
 #include "apps/pipeline/progress.hpp"
+#include "apps/pipeline/train_stage.hpp"
 #include "gmf/block_index.hpp"
 #include "gmf/checkpoint.hpp"
 #include "gmf/fit.hpp"
@@ -200,6 +201,53 @@ std::shared_ptr<Model> fit(const Volume& volume, const std::string& config_text,
     m->checkpoint = apps::fit_loaded(volume.loaded, volume.source, apps::FitConfig(config), sink).checkpoint;
   }
   return m;
+}
+
+// Stage 2 on views in memory: `images` (V, H, W) of `cameras`' views, with the
+// train section's schedule (on the CPU back end the CPU schedule when none is
+// configured, as `train` does) and train.keep_better_init.
+std::shared_ptr<Model> train(const Model& init, const FloatArray& images, const splat::CameraSet& cameras,
+                             const std::string& config_text, const std::string& backend,
+                             const std::optional<py::function>& progress) {
+  AppConfig config = config_of(config_text, "hisnegs.train() options");
+  const splat::Backend b = splat::resolve_backend(splat::parse_backend_request(backend, "backend"));
+  const splat::Intrinsics& K = cameras.intrinsics;
+  if (images.ndim() != 3 || images.shape(0) != static_cast<py::ssize_t>(cameras.views.size()) ||
+      images.shape(1) != K.height || images.shape(2) != K.width) {
+    throw io::InputError("hisnegs.train: the images must be (views, height, width) = (" +
+                         std::to_string(cameras.views.size()) + ", " + std::to_string(K.height) + ", " +
+                         std::to_string(K.width) + ") for these cameras");
+  }
+  const apps::Progress sink = python_progress(progress);
+  auto out = std::make_shared<Model>();
+  {
+    py::gil_scoped_release release;
+    apps::choose_train_schedule(config, b, sink);
+    splat::TrainingData data{K, cameras.views, std::vector<float>(images.data(), images.data() + images.size())};
+    splat::Trainer trainer = apps::make_trainer(init.checkpoint, "the model", std::move(data),
+                                                apps::TrainConfig(config), b, sink);
+    while (!trainer.finished()) {
+      const splat::EpochReport r = trainer.run_epoch();
+      sink.say("train: epoch %d/%d: loss %.6g, PSNR %.2f dB, K %d, beta %.4g", r.epoch, config.train.epochs, r.loss,
+               r.psnr, r.gaussians, r.beta);
+    }
+    const auto initial = splat::flat_params(init.checkpoint.mixture);
+    const double before = trainer.evaluate(initial, config.train.beta_end).psnr;
+    const double after = trainer.evaluate(trainer.params(), config.train.beta_end).psnr;
+    const bool keep = config.train.keep_better_init && after < before;
+    sink.say("train: the %zu views at beta %g: initial model %.2f dB, trained %.2f dB%s", cameras.views.size(),
+             config.train.beta_end, before, after, keep ? ": kept the initial model (train.keep_better_init)" : "");
+    out->checkpoint.meta = init.checkpoint.meta;
+    if (keep) {
+      out->checkpoint.mixture = init.checkpoint.mixture;
+    } else {
+      const std::span<const float> p = trainer.params();
+      out->checkpoint.mixture.resize(p.size() / gmf::kGaussianParamCount);
+      std::memcpy(out->checkpoint.mixture.data(), p.data(), p.size_bytes());
+      out->checkpoint.meta.extra.emplace_back("train_epoch", std::to_string(trainer.epoch()));
+    }
+  }
+  return out;
 }
 
 // ---- ground truth and metrics ----------------------------------------------------
@@ -410,6 +458,7 @@ PYBIND11_MODULE(_hisnegs, m) {
       .def("_render", &render_model)
       .def("_rasterize", &rasterize_model);
   m.def("_fit", &fit);
+  m.def("_train", &train);
   m.def("_ground_truth", &ground_truth);
   m.def("metrics", &metrics);
 

@@ -197,6 +197,28 @@ def test_objective_gradient_matches_finite_differences(work):
         assert np.allclose(numeric, column, rtol=1e-3, atol=1e-4 * np.abs(column).max()), i
 
 
+def test_train_equals_the_cli(work):
+    cameras = hisnegs.Cameras.load(work / "cameras.json")
+    volume = hisnegs.load_volume(work / "s.tif")
+    truth = hisnegs.ground_truth(volume, cameras, backend="cpu")
+    lines = []
+    model = hisnegs.Model.load(work / "m.ply")
+    trained = hisnegs.train(model, truth, cameras, progress=lines.append, backend="cpu", epochs=3, views_per_step=2,
+                            keep_better_init=False)
+    assert any(line.startswith("train: epoch 3/3") for line in lines), lines
+    assert len(trained) == len(model) and not np.array_equal(trained.params, model.params)
+    (work / "train.yaml").write_text("train: {epochs: 3, views_per_step: 2, keep_better_init: false}\n")
+    done = run_cli("-q", "--config", work / "train.yaml", "gt", work / "s.tif", "-o", work / "gtt", "--cameras",
+                   work / "cameras.json", "--backend", "cpu", cwd=work)
+    assert done.returncode == 0, done.stderr
+    done = run_cli("-q", "--config", work / "train.yaml", "train", "--init", work / "m.ply", "--data", work / "gtt",
+                   "-o", work / "t", "--backend", "cpu", cwd=work)
+    assert done.returncode == 0, done.stderr
+    assert np.array_equal(trained.params, hisnegs.Model.load(work / "t" / "final.ply").params)
+    with pytest.raises(ValueError, match="images must be"):
+        hisnegs.train(model, truth[:3], cameras, backend="cpu", epochs=1)
+
+
 def test_ctrl_c_interrupts_a_fit_with_keyboard_interrupt(work):
     volume = hisnegs.load_volume(work / "s.tif")
 

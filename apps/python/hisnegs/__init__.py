@@ -23,7 +23,7 @@ import json as _json
 from . import _hisnegs
 from ._hisnegs import Cameras, Model, Volume, metrics
 
-__all__ = ["Volume", "Model", "Cameras", "Objective", "load_volume", "fit", "ground_truth", "metrics"]
+__all__ = ["Volume", "Model", "Cameras", "Objective", "load_volume", "fit", "train", "ground_truth", "metrics"]
 
 
 def _config(section, options):
@@ -72,6 +72,16 @@ def fit(volume, progress=None, **gmf_options):
     return _hisnegs._fit(volume, _config("gmf", gmf_options), progress)
 
 
+def train(model, images, cameras, progress=None, backend="auto", splat_options=None, **train_options):
+    """Stage 2: trains ``model`` on ``images`` (views, height, width), the MIPs of
+    ``cameras``' views (e.g. ``ground_truth(volume, cameras)``), as ``hisnegs train``
+    does: the config's ``train`` section as keyword options (``epochs``,
+    ``views_per_step``, ``lr_initial``, ...; on the CPU back end with none given, the
+    CPU schedule), ``train.keep_better_init`` included. Returns a new :class:`Model`."""
+    text = _sections(train=train_options, splat=splat_options or {})
+    return _hisnegs._train(model, images, cameras, text, backend, progress)
+
+
 def _orbit(kind="eval", **camera_options):
     """The report's orbits: ``"train"`` (106 views) or ``"eval"`` (30 views), with
     the config's ``camera`` section as options (``width``, ``height``, ``fov_deg``,
@@ -112,7 +122,7 @@ Model.render = _render
 Model.rasterize = _rasterize
 Model.__doc__ = """A fitted or trained mixture with its checkpoint metadata.
 
-``Model.load(path)`` reads a .ply checkpoint; ``save(path)`` writes one.
+``Model.load(path)`` reads a .ply or compact .hgs checkpoint; ``save(path)`` writes a .ply.
 ``params``: a (K, 11) float32 view of the parameters in the checkpoint's order:
 x, y, z (world), log σ0, log σ1, log σ2, quaternion w, x, y, z (unnormalized),
 intensity logit; writing it changes the model. ``aggregation`` and ``beta``: how

@@ -115,6 +115,17 @@ def load_volume(path: _Path, **volume_options: Any) -> Volume:
 def fit(volume: Volume, progress: _Progress = None, **gmf_options: Any) -> Model:
     """Stage 1: fits a Gaussian mixture (the config's gmf options)."""
 
+def train(
+    model: Model,
+    images: npt.ArrayLike,
+    cameras: Cameras,
+    progress: _Progress = None,
+    backend: str = "auto",
+    splat_options: Optional[dict[str, Any]] = None,
+    **train_options: Any,
+) -> Model:
+    """Stage 2: soft-MIP training on (views, height, width) images of the cameras."""
+
 def ground_truth(
     volume: Volume, cameras: Cameras, backend: str = "auto", **raymarch_options: Any
 ) -> npt.NDArray[np.float32]:
