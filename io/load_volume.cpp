@@ -3,7 +3,6 @@
 #include "io/load_volume.hpp"
 
 #include <algorithm>
-#include <cmath>
 #include <sstream>
 
 #include "io/error.hpp"
@@ -77,15 +76,6 @@ LoadedVolume prepare_volume(Volume raw, const VolumeOptions& options, const std:
     fail_input(origin, "a stack of " + std::to_string(out.volume.nx) + " x " + std::to_string(out.volume.ny) + " x " +
                            std::to_string(out.volume.nz) + " voxels holding " +
                            std::to_string(out.volume.voxels.size()) + " values");
-  }
-  if (const auto bad = std::find_if(out.volume.voxels.begin(), out.volume.voxels.end(),
-                                    [](float v) { return !std::isfinite(v); });
-      bad != out.volume.voxels.end()) {
-    const auto i = static_cast<std::size_t>(bad - out.volume.voxels.begin());
-    const std::size_t plane = static_cast<std::size_t>(out.volume.nx) * out.volume.ny;
-    fail_input(origin, "voxel (x " + std::to_string(i % out.volume.nx) + ", y " +
-                           std::to_string(i % plane / out.volume.nx) + ", z " + std::to_string(i / plane) +
-                           ") is not finite");
   }
   if (!options.spacing_um.empty()) {
     for (int a = 0; a < 3; ++a) {

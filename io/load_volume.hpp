@@ -67,7 +67,8 @@ inline constexpr double kMaxSpacingRatio = 1e4;
 LoadedVolume load_volume(const std::filesystem::path& path, const VolumeOptions& options);
 
 // The same for a stack already in memory (raw values, e.g. a numpy array): normalized
-// and framed as load_volume does; `origin` names it in errors. Its spacing is
+// (which refuses NaN/Inf naming the voxel and raw.source) and framed as load_volume
+// does; `origin` names it in the other errors. Its spacing is
 // options.spacing_um when given, else raw.spacing.
 LoadedVolume prepare_volume(Volume raw, const VolumeOptions& options, const std::filesystem::path& origin);
 

@@ -14,6 +14,7 @@
 #include "gmf/density_ops.hpp"
 #include "gmf/psnr.hpp"
 #include "io/fault_injection.hpp"
+#include "io/hash.hpp"
 #include "io/timer.hpp"
 
 namespace hisnegs::splat {
@@ -243,15 +244,16 @@ Trainer::Evaluation Trainer::evaluate(std::span<const float> params, double beta
 }
 
 void Trainer::check_members_agree() const {
-  // Member r's FNV-1a hash h_r of the parameters' bytes (32 bits: exact in a double):
-  // the sum over the members equals n h_r on every member only when all h_r are equal.
-  std::uint32_t h = 2166136261u;
-  const auto* bytes = reinterpret_cast<const unsigned char*>(params_.data());
-  for (std::size_t i = 0; i < params_.size() * sizeof(float); ++i) h = (h ^ bytes[i]) * 16777619u;
-  std::array<double, 2> sums = {static_cast<double>(h), static_cast<double>(params_.size())};
+  // Member r's hash h_r of the parameters (the state record's, io::fnv1a64), summed in
+  // two 32-bit halves (exact in a double): each sum equals n × the member's own half on
+  // every member only when all members' halves are equal.
+  const std::uint64_t h = io::fnv1a64(params_.data(), params_.size() * sizeof(float));
+  const std::array<double, 3> own = {static_cast<double>(h & 0xffffffffu), static_cast<double>(h >> 32),
+                                     static_cast<double>(params_.size())};
+  std::array<double, 3> sums = own;
   group_->sum(sums);
   const double n = group_->size();
-  if (sums[0] != n * static_cast<double>(h) || sums[1] != n * static_cast<double>(params_.size())) {
+  if (sums[0] != n * own[0] || sums[1] != n * own[1] || sums[2] != n * own[2]) {
     throw std::runtime_error("training: the " + std::to_string(group_->size()) +
                              " ranks' models differ after epoch " + std::to_string(epoch_) +
                              " (a step that is not deterministic on every rank)");

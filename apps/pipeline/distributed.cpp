@@ -63,8 +63,12 @@ class MpiWorld final : public Job {
   void merge_soft_to_root(std::span<splat::SoftPixel> pixels) const override {
     to_root(pixels.data(), pixels.size(), soft_pixel_type(), merge_op());
   }
-  void sum_all(std::span<float> values) const override { sum_all(values.data(), values.size(), MPI_FLOAT); }
-  void sum_all(std::span<double> values) const override { sum_all(values.data(), values.size(), MPI_DOUBLE); }
+  void sum_all(std::span<float> values) const override {
+    sum_all(values.data(), values.size(), MPI_FLOAT, ordered_sum_op<float>());
+  }
+  void sum_all(std::span<double> values) const override {
+    sum_all(values.data(), values.size(), MPI_DOUBLE, ordered_sum_op<double>());
+  }
   void broadcast(std::span<double> values) const override {
     MPI_Bcast(values.data(), static_cast<int>(values.size()), MPI_DOUBLE, 0, MPI_COMM_WORLD);
   }
@@ -96,8 +100,9 @@ class MpiWorld final : public Job {
       }
     });
   }
-  void sum_all(void* data, std::size_t count, MPI_Datatype type) const {
-    to_root(data, count, type, type == MPI_FLOAT ? ordered_sum_op<float>() : ordered_sum_op<double>());
+  // Reduced in rank order by `sum` to rank 0, then broadcast: the same bits everywhere.
+  void sum_all(void* data, std::size_t count, MPI_Datatype type, MPI_Op sum) const {
+    to_root(data, count, type, sum);
     int bytes = 0;
     MPI_Type_size(type, &bytes);
     auto* at0 = static_cast<unsigned char*>(data);

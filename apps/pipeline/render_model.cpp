@@ -48,10 +48,8 @@ void render_model(const RenderRequest& request, const RenderConfig& config, cons
   const std::size_t K = checkpoint.mixture.size();
   const std::size_t first = K * static_cast<std::size_t>(ranks.rank()) / static_cast<std::size_t>(ranks.size());
   const std::size_t last = K * static_cast<std::size_t>(ranks.rank() + 1) / static_cast<std::size_t>(ranks.size());
-  const gmf::GaussianMixture share(std::vector<gmf::GaussianParams>(
-      checkpoint.mixture.begin() + static_cast<std::ptrdiff_t>(first),
-      checkpoint.mixture.begin() + static_cast<std::ptrdiff_t>(last)));
-  const auto params = splat::flat_params(share);
+  const auto params = splat::flat_params(checkpoint.mixture)
+                          .subspan(gmf::kGaussianParamCount * first, gmf::kGaussianParamCount * (last - first));
   const JobShares job_shares(ranks);
   const splat::ShareCombiner* shares = ranks.distributed() ? &job_shares : nullptr;
   if (ranks.distributed()) {

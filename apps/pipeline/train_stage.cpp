@@ -29,17 +29,6 @@ namespace fs = std::filesystem;
 // The final.ply header entry that says the initial model was kept.
 const std::pair<std::string, std::string> kKeptInit{"train_kept", "init"};
 
-gmf::GaussianMixture mixture_of(std::span<const float> params) {
-  gmf::GaussianMixture mixture;
-  for (std::size_t k = 0; k * gmf::kGaussianParamCount < params.size(); ++k) {
-    std::array<float, gmf::kGaussianParamCount> values;
-    std::copy_n(params.begin() + static_cast<std::ptrdiff_t>(k * gmf::kGaussianParamCount), values.size(),
-                values.begin());
-    mixture.push_back(gmf::from_array(values));
-  }
-  return mixture;
-}
-
 // The MPI ranks as the trainer's step group (splat::StepGroup, distributed.hpp).
 class JobSteps final : public splat::StepGroup {
  public:
@@ -190,7 +179,7 @@ void finish_training(const TrainingSession& s, const fs::path& run, bool initial
                 [](const auto& kv) { return kv.first == "train_epoch" || kv.first == kKeptInit.first; });
   final_meta.extra.emplace_back("train_epoch", std::to_string(s.trainer->epoch()));
   if (initial) final_meta.extra.push_back(kKeptInit);
-  gmf::save_checkpoint(run / "final.ply", mixture_of(initial ? s.init_params : s.trainer->params()), final_meta);
+  gmf::save_checkpoint(run / "final.ply", gmf::mixture_from_flat(initial ? s.init_params : s.trainer->params()), final_meta);
   io::write_png(run / "training_curve.png", training_curve(s.rows));
 }
 

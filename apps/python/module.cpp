@@ -13,7 +13,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstring>
 #include <memory>
 #include <optional>
 #include <string>
@@ -67,8 +66,7 @@ apps::Progress python_progress(const std::optional<py::function>& callback) {
 // ---- volumes -------------------------------------------------------------------
 
 struct Volume {
-  io::LoadedVolume loaded;
-  std::string source;
+  io::LoadedVolume loaded;  // its volume.source names the file, or "numpy array"
 };
 
 py::array voxels_view(const std::shared_ptr<Volume>& v) {
@@ -85,7 +83,7 @@ std::shared_ptr<Volume> load_volume(const std::filesystem::path& path, const std
     py::gil_scoped_release release;
     v->loaded = io::load_volume(path, config.volume);
   }
-  v->source = path.string();
+  v->loaded.volume.source = path.string();  // as given, as `fit` records it (a BDV .xml, not its .h5)
   return v;
 }
 
@@ -108,7 +106,6 @@ std::shared_ptr<Volume> volume_from_array(const py::array& array, const std::str
     py::gil_scoped_release release;
     v->loaded = io::prepare_volume(std::move(raw), config.volume, "numpy array");
   }
-  v->source = "numpy array";
   return v;
 }
 
@@ -144,16 +141,26 @@ py::array params_view(const std::shared_ptr<Model>& m) {
                             reinterpret_cast<float*>(g.data()), py::cast(m));
 }
 
+// A C-ordered array of `shape` that owns `values` (moved, not copied).
+py::array owning_array(std::vector<float>&& values, std::vector<py::ssize_t> shape) {
+  auto* owned = new std::vector<float>(std::move(values));
+  py::capsule owner(owned, [](void* p) { delete static_cast<std::vector<float>*>(p); });
+  return py::array_t<float>(std::move(shape), owned->data(), owner);
+}
+
 py::array stack_array(splat::MipStack&& stack) {
-  auto* pixels = new std::vector<float>(std::move(stack.pixels));
-  py::capsule owner(pixels, [](void* p) { delete static_cast<std::vector<float>*>(p); });
-  return py::array_t<float>({stack.views, stack.height, stack.width}, pixels->data(), owner);
+  return owning_array(std::move(stack.pixels), {stack.views, stack.height, stack.width});
+}
+
+// The back end a `backend` argument ("auto" | "cpu" | "cuda") asks for, as --backend.
+splat::Backend backend_of(const std::string& backend) {
+  return splat::resolve_backend(splat::parse_backend_request(backend, "backend"));
 }
 
 py::array render_model(const Model& m, const splat::CameraSet& cameras, const std::string& config_text,
                        const std::string& backend) {
   const AppConfig config = config_of(config_text, "hisnegs.Model.render() options");
-  const splat::Backend b = splat::resolve_backend(splat::parse_backend_request(backend, "backend"));
+  const splat::Backend b = backend_of(backend);
   splat::MipStack stack;
   {
     py::gil_scoped_release release;
@@ -181,14 +188,13 @@ py::array rasterize_model(const Model& m, const std::optional<std::vector<int>>&
     throw io::InputError("hisnegs.Model.rasterize: the model records no volume shape; give shape=(z, y, x)");
   }
   const gmf::RasterizeOptions options = gmf::RasterizeOptions::of(gmf::model_of(meta));
-  auto* voxels = new std::vector<float>();
-  py::capsule owner(voxels, [](void* p) { delete static_cast<std::vector<float>*>(p); });
+  std::vector<float> voxels;
   {
     py::gil_scoped_release release;
-    *voxels = gmf::rasterize_mixture(m.checkpoint.mixture, *frame, options);
+    voxels = gmf::rasterize_mixture(m.checkpoint.mixture, *frame, options);
   }
   const Eigen::Vector3i& n = frame->shape();
-  return py::array_t<float>({n.z(), n.y(), n.x()}, voxels->data(), owner);
+  return owning_array(std::move(voxels), {n.z(), n.y(), n.x()});
 }
 
 std::shared_ptr<Model> fit(const Volume& volume, const std::string& config_text,
@@ -198,7 +204,8 @@ std::shared_ptr<Model> fit(const Volume& volume, const std::string& config_text,
   const apps::Progress sink = python_progress(progress);
   {
     py::gil_scoped_release release;
-    m->checkpoint = apps::fit_loaded(volume.loaded, volume.source, apps::FitConfig(config), sink).checkpoint;
+    m->checkpoint =
+        apps::fit_loaded(volume.loaded, volume.loaded.volume.source, apps::FitConfig(config), sink).checkpoint;
   }
   return m;
 }
@@ -210,7 +217,7 @@ std::shared_ptr<Model> train(const Model& init, const FloatArray& images, const 
                              const std::string& config_text, const std::string& backend,
                              const std::optional<py::function>& progress) {
   AppConfig config = config_of(config_text, "hisnegs.train() options");
-  const splat::Backend b = splat::resolve_backend(splat::parse_backend_request(backend, "backend"));
+  const splat::Backend b = backend_of(backend);
   const splat::Intrinsics& K = cameras.intrinsics;
   if (images.ndim() != 3 || images.shape(0) != static_cast<py::ssize_t>(cameras.views.size()) ||
       images.shape(1) != K.height || images.shape(2) != K.width) {
@@ -241,9 +248,7 @@ std::shared_ptr<Model> train(const Model& init, const FloatArray& images, const 
     if (keep) {
       out->checkpoint.mixture = init.checkpoint.mixture;
     } else {
-      const std::span<const float> p = trainer.params();
-      out->checkpoint.mixture.resize(p.size() / gmf::kGaussianParamCount);
-      std::memcpy(out->checkpoint.mixture.data(), p.data(), p.size_bytes());
+      out->checkpoint.mixture = gmf::mixture_from_flat(trainer.params());
       out->checkpoint.meta.extra.emplace_back("train_epoch", std::to_string(trainer.epoch()));
     }
   }
@@ -255,7 +260,7 @@ std::shared_ptr<Model> train(const Model& init, const FloatArray& images, const 
 py::array ground_truth(const Volume& volume, const splat::CameraSet& cameras, const std::string& config_text,
                        const std::string& backend) {
   const AppConfig config = config_of(config_text, "hisnegs.ground_truth() options");
-  const splat::Backend b = splat::resolve_backend(splat::parse_backend_request(backend, "backend"));
+  const splat::Backend b = backend_of(backend);
   splat::MipStack stack;
   {
     py::gil_scoped_release release;
@@ -362,13 +367,8 @@ class Objective {
   }
   // Which Gaussians may reach which sample blocks at x (rebuilt for every x).
   [[nodiscard]] gmf::BlockIndex index_at(const double* p) const {
-    gmf::GaussianMixture mixture{std::vector<gmf::GaussianParams>(gaussians_)};
-    for (std::size_t k = 0; k < gaussians_; ++k) {
-      std::array<float, gmf::kGaussianParamCount> row;
-      for (std::size_t j = 0; j < row.size(); ++j) row[j] = static_cast<float>(p[gmf::kGaussianParamCount * k + j]);
-      mixture[k] = gmf::from_array(row);
-    }
-    return gmf::build_block_index(mixture, samples_, frame_, model_.cutoff);
+    const std::vector<float> rounded(p, p + size());
+    return gmf::build_block_index(gmf::mixture_from_flat(rounded), samples_, frame_, model_.cutoff);
   }
   double evaluate(const DoubleArray& x, double* gradient) {
     check(x);
@@ -421,7 +421,7 @@ PYBIND11_MODULE(_hisnegs, m) {
                              })
       .def_property_readonly("normalization",
                              [](const Volume& v) { return v.loaded.volume.normalization.describe(); })
-      .def_property_readonly("source", [](const Volume& v) { return v.source; });
+      .def_property_readonly("source", [](const Volume& v) { return v.loaded.volume.source; });
   m.def("_load_volume", &load_volume);
   m.def("_volume_from_array", &volume_from_array);
 

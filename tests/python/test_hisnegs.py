@@ -64,7 +64,7 @@ def test_volume_from_array_normalizes_like_a_file(work):
         hisnegs.Volume.from_array(np.zeros((4, 4)))
     bad = raw.astype(np.float32)
     bad[3, 2, 1] = np.nan
-    with pytest.raises(ValueError, match=r"voxel \(x 1, y 2, z 3\) is not finite"):
+    with pytest.raises(ValueError, match=r"numpy array: voxel \(x=1, y=2, z=3\) is nan; expected finite values"):
         hisnegs.Volume.from_array(bad)
 
 

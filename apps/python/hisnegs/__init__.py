@@ -26,13 +26,10 @@ from ._hisnegs import Cameras, Model, Volume, metrics
 __all__ = ["Volume", "Model", "Cameras", "Objective", "load_volume", "fit", "train", "ground_truth", "metrics"]
 
 
-def _config(section, options):
-    """The YAML (JSON) text of one config section's options."""
-    return _json.dumps({section: options}) if options else ""
-
-
 def _sections(**sections):
-    return _json.dumps({k: v for k, v in sections.items() if v}) if any(sections.values()) else ""
+    """The config text (JSON, which YAML reads) of the sections given options; "" for none."""
+    given = {name: options for name, options in sections.items() if options}
+    return _json.dumps(given) if given else ""
 
 
 def load_volume(path, **volume_options):
@@ -42,7 +39,7 @@ def load_volume(path, **volume_options):
     ``volume_options`` are the config's ``volume`` section (``normalization``,
     ``percentile_lo``, ``spacing_um``, ``aspect``, ``channel``, ``dataset``,
     ``timepoint``, ...). Returns a :class:`Volume`."""
-    return _hisnegs._load_volume(str(path), _config("volume", volume_options))
+    return _hisnegs._load_volume(str(path), _sections(volume=volume_options))
 
 
 def _volume_from_array(array, spacing_um=None, **volume_options):
@@ -51,7 +48,7 @@ def _volume_from_array(array, spacing_um=None, **volume_options):
     size (x, y, z) in µm (default 1 µm)."""
     if spacing_um is not None:
         volume_options["spacing_um"] = [float(s) for s in spacing_um]
-    return _hisnegs._volume_from_array(array, _config("volume", volume_options))
+    return _hisnegs._volume_from_array(array, _sections(volume=volume_options))
 
 
 Volume.from_array = staticmethod(_volume_from_array)
@@ -69,7 +66,7 @@ def fit(volume, progress=None, **gmf_options):
     ``time_budget_s``, ``optimizer``, ``aggregation``, ``seed``, ...). Returns a
     :class:`Model` with its checkpoint metadata (frame, normalization, background).
     ``progress``: a callable taking each line."""
-    return _hisnegs._fit(volume, _config("gmf", gmf_options), progress)
+    return _hisnegs._fit(volume, _sections(gmf=gmf_options), progress)
 
 
 def train(model, images, cameras, progress=None, backend="auto", splat_options=None, **train_options):
@@ -86,13 +83,13 @@ def _orbit(kind="eval", **camera_options):
     """The report's orbits: ``"train"`` (106 views) or ``"eval"`` (30 views), with
     the config's ``camera`` section as options (``width``, ``height``, ``fov_deg``,
     ``orbit_radius``, ...)."""
-    return _hisnegs._orbit_cameras(kind, _config("camera", camera_options))
+    return _hisnegs._orbit_cameras(kind, _sections(camera=camera_options))
 
 
 def _custom(elevations_deg, azimuths_deg, **camera_options):
     """Every elevation × azimuth (degrees), elevation-major, on the orbit sphere."""
     return _hisnegs._custom_cameras([float(e) for e in elevations_deg], [float(a) for a in azimuths_deg],
-                                    _config("camera", camera_options))
+                                    _sections(camera=camera_options))
 
 
 Cameras.orbit = staticmethod(_orbit)
@@ -109,7 +106,7 @@ def _render(self, cameras, mode="soft", beta=50.0, backend="auto", background=Tr
     float32, equal bit for bit to ``hisnegs render`` of the same model, cameras and
     options on the same back end."""
     options = dict(splat_options, mode=mode, beta=float(beta), background=bool(background))
-    return self._render(cameras, _config("splat", options), backend)
+    return self._render(cameras, _sections(splat=options), backend)
 
 
 def _rasterize(self, shape=None):
@@ -133,7 +130,7 @@ def ground_truth(volume, cameras, backend="auto", **raymarch_options):
     """The ray-marched MIPs of ``volume`` in every view of ``cameras`` (what ``hisnegs
     gt`` writes as mips.tif), with the config's ``raymarch`` section as options.
     Returns (views, height, width) float32."""
-    return _hisnegs._ground_truth(volume, cameras, _config("raymarch", raymarch_options), backend)
+    return _hisnegs._ground_truth(volume, cameras, _sections(raymarch=raymarch_options), backend)
 
 
 class Objective:
