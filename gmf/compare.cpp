@@ -4,10 +4,12 @@
 #include "gmf/compare.hpp"
 
 #include <algorithm>
+#include <memory>
 #include <new>
 #include <stdexcept>
 #include <string_view>
 #include <type_traits>
+#include <utility>
 
 #include "io/config.hpp"
 #include "io/error.hpp"
@@ -31,13 +33,33 @@ std::string optimizer_name(Optimizer optimizer) {
 }
 
 void CompareOptions::validate() const {
-  if (optimizers.empty()) throw io::InputError("compare-optimizers: no optimizers to compare");
+  if (optimizers.empty() && custom.empty()) throw io::InputError("compare-optimizers: no optimizers to compare");
   io::require_positive("compare", "time_budget_s", time_budget_s);
   io::require_in_range("compare", "adam_steps", adam_steps, 1, 1e9);
   for (const Optimizer o : continuation) {
     if (o != Optimizer::kAdam && o != Optimizer::kBrickLm) {
       io::fail_option("compare", "continuation", optimizer_name(o),
                       "only adam and brick-lm can follow the β schedule (they log at the final β)");
+    }
+  }
+  for (std::size_t i = 0; i < custom.size(); ++i) {
+    const std::string& name = custom[i].name;
+    const bool builtin = [&] {
+      GmfOptions probe;
+      try {
+        io::set_enum_field(probe, "optimizer", name, "compare.optimizers");
+        return true;
+      } catch (const io::InputError&) {
+        return false;
+      }
+    }();
+    if (name.empty() || builtin || !custom[i].solve) {
+      io::fail_option("compare", "optimizers", name,
+                      name.empty() || !custom[i].solve ? "a custom optimizer needs a name and a solver"
+                                                       : "a custom optimizer cannot take a built-in's name");
+    }
+    for (std::size_t j = 0; j < i; ++j) {
+      if (custom[j].name == name) io::fail_option("compare", "optimizers", name, "named twice");
     }
   }
 }
@@ -51,10 +73,18 @@ Comparison compare_optimizers(const io::Volume& volume, const SampleSet& samples
   std::stable_partition(order.begin(), order.end(), [](Optimizer o) { return o == Optimizer::kAdam; });
   order.erase(std::unique(order.begin(), order.end()), order.end());
 
+  // Built-in optimizers, then the custom ones (Optimizer::kCustom with their solver).
+  std::vector<std::pair<Optimizer, std::shared_ptr<const NamedSolver>>> runs;
+  for (const Optimizer optimizer : order) runs.emplace_back(optimizer, nullptr);
+  for (const NamedSolver& solver : options.custom) {
+    runs.emplace_back(Optimizer::kCustom, std::make_shared<const NamedSolver>(solver));
+  }
+
   Comparison comparison;
-  for (const Optimizer optimizer : order) {
+  for (const auto& [optimizer, solver] : runs) {
     GmfOptions o = base;
     o.optimizer = optimizer;
+    o.custom = solver;
     o.densify = false;      // same K for everyone: the comparison is of optimizers, not of density control
     o.sample_jitter = 0.0;  // the same samples in every round and run: one objective, comparable losses
     o.time_budget_s = options.time_budget_s;
@@ -75,7 +105,7 @@ Comparison compare_optimizers(const io::Volume& volume, const SampleSet& samples
                       : 0.0;
     OptimizerRun run;
     run.optimizer = optimizer;
-    run.name = optimizer_name(optimizer);
+    run.name = solver ? solver->name : optimizer_name(optimizer);
     run.continuation = continuation;
     GaussianMixture mixture = initial;
     auto record = [&](const FitIteration& it) {
@@ -86,6 +116,8 @@ Comparison compare_optimizers(const io::Volume& volume, const SampleSet& samples
       const FitResult result = fit_mixture(volume, samples, frame, mixture, o, record);
       run.result = result;
     } catch (const io::InputError&) {
+      throw;
+    } catch (const io::Interrupted&) {
       throw;
     } catch (const std::bad_alloc&) {
       run.failure = "out of memory";

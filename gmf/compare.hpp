@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "gmf/fit.hpp"
+#include "gmf/round_solver.hpp"
 
 namespace hisnegs::gmf {
 
@@ -30,13 +31,16 @@ struct CompareOptions {
   // reaches a loss of 142 in 98 s, without 508), while Adam ends higher with it
   // (docs/benchmarks.md).
   std::vector<Optimizer> continuation = {Optimizer::kBrickLm};
+  // Registered (gmf/optimizers.def) or user-given optimizers (Python callables), run
+  // after the built-in ones in this order, each at gmf.beta_end from the start.
+  std::vector<NamedSolver> custom;
 
   void validate() const;  // throws InputError("compare.FIELD = VALUE: rule")
 };
 
 struct OptimizerRun {
   Optimizer optimizer{};
-  std::string name;  // as in the config: lm, lm-cgnr, dogleg, lbfgs, adam
+  std::string name;  // as in the config: lm, lm-cgnr, dogleg, lbfgs, adam; a custom solver's own name
   FitResult result;
   double seconds_to_target = -1;  // first logged time with loss <= target; < 0 when never reached
   double final_loss = 0;
@@ -60,7 +64,7 @@ std::string optimizer_name(Optimizer optimizer);
 // is copied for every run. `on_progress(run, line)` is called for every log line,
 // `after_run(comparison so far)` after each optimizer (to save partial results). A
 // run that fails (out of memory, a solver error) is recorded as failed and the
-// others still run; bad input (io::InputError) is rethrown.
+// others still run; bad input (io::InputError) and io::Interrupted are rethrown.
 Comparison compare_optimizers(const io::Volume& volume, const SampleSet& samples, const io::WorldFrame& frame,
                               const GaussianMixture& initial, const GmfOptions& base, const CompareOptions& options,
                               const std::function<void(const OptimizerRun&, const FitIteration&)>& on_progress = {},

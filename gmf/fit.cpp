@@ -28,6 +28,7 @@
 #include "gmf/objective.hpp"
 #include "gmf/psnr.hpp"
 #include "gmf/rasterize.hpp"
+#include "gmf/round_solver.hpp"
 #include "gmf/samples.hpp"
 #include "io/error.hpp"
 #include "io/hash.hpp"
@@ -269,6 +270,50 @@ RoundOutcome solve_adam(RoundProblem& r, const RoundContext& c, Adam<double>& ad
   return out;
 }
 
+// One round of a registered or user-given optimizer (GmfOptions::custom,
+// gmf/round_solver.hpp) at the round's model. Each log() call is one log line; it
+// says stop once the round's time is spent or the loss reached gmf.stop_loss. The
+// result is clamped into the round's box, as L-BFGS's is.
+RoundOutcome solve_custom(RoundProblem& r, const RoundContext& c) {
+  const NamedSolver& solver = *c.options.custom;
+  const FitObjective objective(c.samples, r.index, r.params.size(), c.model);
+  const std::size_t n = objective.parameters();
+  io::Stopwatch round_watch;
+  int lines = 0;
+  const RoundSolverProblem problem{
+      .x = std::span<double>(r.x(), n),
+      .lower = r.lower,
+      .upper = r.upper,
+      .objective = objective,
+      .max_iterations = c.max_iterations,
+      .seconds_left = c.seconds_left,
+      .log =
+          [&](double loss) {
+            FitIteration it;
+            it.round = c.round;
+            it.iteration = c.iteration0 + lines++;
+            it.seconds = c.log.clock.now();
+            it.loss = loss;
+            it.gaussians = r.gaussians();
+            it.beta = log_beta(c.model);
+            const bool reached = c.log.add(it);
+            return reached || round_watch.elapsed() >= c.seconds_left;
+          },
+      .options = c.options,
+      .frame = c.frame};
+  const RoundSolverOutcome outcome = solver.solve(problem);
+  double* x = r.x();
+  for (std::size_t i = 0; i < n; ++i) x[i] = std::clamp(x[i], r.lower[i], r.upper[i]);
+  if (const std::string bad = describe_non_finite<double>(std::span<const double>(x, n), "parameter"); !bad.empty()) {
+    throw std::runtime_error(solver.name + " in round " + std::to_string(c.round) + ": " + bad + " is not finite");
+  }
+  RoundOutcome out;
+  out.iterations = outcome.iterations;
+  out.converged = outcome.converged;
+  out.message = outcome.message.empty() ? solver.name : outcome.message;
+  return out;
+}
+
 // The brick sweep as one round: the partition of this round's Gaussians and one
 // sweep in which each brick gets gmf.brick_iterations LM iterations.
 RoundOutcome solve_bricks(RoundProblem& r, const RoundContext& c) {
@@ -467,6 +512,8 @@ class RoundLoop {
         return solve_lbfgs(problem, c);
       case Optimizer::kAdam:
         return solve_adam(problem, c, adam_);
+      case Optimizer::kCustom:
+        return solve_custom(problem, c);
       default:
         return solve_least_squares(problem, c, manifold_);
     }

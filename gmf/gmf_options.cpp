@@ -53,6 +53,10 @@ void GmfOptions::validate() const {
   if (frozen > 0 && (optimizer != Optimizer::kAdam || densify)) {
     io::fail_option(s, "optimizer", "frozen Gaussians", "only Adam without density control holds Gaussians fixed");
   }
+  if ((optimizer == Optimizer::kCustom) != (custom != nullptr)) {
+    io::fail_option(s, "optimizer", custom ? "a custom solver" : "custom",
+                    "a custom optimizer needs its solver (gmf/round_solver.hpp), and only it");
+  }
   if (sample_jitter) io::require_in_range(s, "sample_jitter", *sample_jitter, 0.0, 1.0);
   if (residual_block_voxels != 1 && residual_block_voxels != 2 && residual_block_voxels != 4 &&
       residual_block_voxels != 8) {

@@ -5,6 +5,7 @@
 #pragma once
 
 #include <cstdint>
+#include <memory>
 #include <optional>
 #include <string>
 
@@ -13,7 +14,11 @@
 
 namespace hisnegs::gmf {
 
-enum class Optimizer { kBrickLm, kLevenbergMarquardt, kLevenbergMarquardtCgnr, kDogleg, kLbfgs, kAdam };
+// kCustom: GmfOptions::custom, a registered or user-given solver (gmf/round_solver.hpp);
+// not a config value.
+enum class Optimizer { kBrickLm, kLevenbergMarquardt, kLevenbergMarquardtCgnr, kDogleg, kLbfgs, kAdam, kCustom };
+
+struct NamedSolver;  // gmf/round_solver.hpp
 
 // Where the fit's Gaussians start: one per occupied cell of a regular grid over the
 // foreground, or one per local maximum of the (lightly smoothed) volume.
@@ -122,6 +127,9 @@ struct GmfOptions {
   // that runs with and without β continuation are measured on one objective. Only
   // Adam and brick-lm log at another β than they solve; 0 = each round's own β.
   double report_beta = 0.0;
+  // Not a config key (set by compare-optimizers and the Python module): the solver
+  // of Optimizer::kCustom, which solves every round at the round's own β.
+  std::shared_ptr<const NamedSolver> custom;
 
   // sample_jitter, or its automatic value for this aggregation.
   [[nodiscard]] double jitter() const;

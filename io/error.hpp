@@ -25,6 +25,14 @@ class WriteError : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
+// A long call stopped from outside it (Ctrl-C, or an exception in a caller's
+// callback, e.g. a Python optimizer): code that records a failure and goes on (the
+// optimizer comparison) passes it through; whoever started the call handles it.
+class Interrupted : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
 // "PATH: message" with the path as the user typed it.
 [[nodiscard]] inline std::string describe(const std::filesystem::path& path, const std::string& message) {
   return path.string() + ": " + message;

@@ -142,14 +142,14 @@ io::Image8 loss_plot(const gmf::Comparison& c) {
 
 }  // namespace
 
-gmf::Comparison write_optimizer_comparison(const std::filesystem::path& dir, const std::string& volume,
-                                           const FitConfig& config, const gmf::CompareOptions& compare,
-                                           const Progress& progress) {
-  std::filesystem::create_directories(dir);
+gmf::Comparison compare_prepared(const FitSetup& setup, const std::string& volume, const FitConfig& config,
+                                 const gmf::CompareOptions& compare, const std::filesystem::path& dir,
+                                 const Progress& progress) {
   io::Stopwatch watch;
-  const FitSetup setup = prepare_fit(volume, config, "compare", progress);
+  if (!dir.empty()) std::filesystem::create_directories(dir);
   const auto samples = static_cast<std::int64_t>(setup.samples.size());
   auto save = [&](const gmf::Comparison& c) {
+    if (dir.empty()) return;
     write_text_file(dir / "results.csv", results_csv(c));
     write_text_file(dir / "curves.csv", curves_csv(c));
     write_text_file(dir / "summary.md", summary_md(c, volume, compare, config.get<&AppConfig::gmf>(),
@@ -170,9 +170,18 @@ gmf::Comparison write_optimizer_comparison(const std::filesystem::path& dir, con
                  run.final_loss, run.result.final_psnr_3d,
                  run.seconds_to_target >= 0 ? format_seconds(run.seconds_to_target).c_str() : "never");
   }
-  progress.say("compare: wrote %s/{summary.md,results.csv,curves.csv,loss_vs_time.png} (%s)", dir.c_str(),
-               format_seconds(watch.elapsed()).c_str());
+  if (!dir.empty()) {
+    progress.say("compare: wrote %s/{summary.md,results.csv,curves.csv,loss_vs_time.png} (%s)", dir.c_str(),
+                 format_seconds(watch.elapsed()).c_str());
+  }
   return c;
+}
+
+gmf::Comparison write_optimizer_comparison(const std::filesystem::path& dir, const std::string& volume,
+                                           const FitConfig& config, const gmf::CompareOptions& compare,
+                                           const Progress& progress) {
+  const FitSetup setup = prepare_fit(volume, config, "compare", progress);
+  return compare_prepared(setup, volume, config, compare, dir, progress);
 }
 
 }  // namespace hisnegs::apps

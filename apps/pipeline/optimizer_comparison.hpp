@@ -21,4 +21,11 @@ gmf::Comparison write_optimizer_comparison(const std::filesystem::path& dir, con
                                            const FitConfig& config, const gmf::CompareOptions& compare,
                                            const Progress& progress);
 
+// The same on a prepared fit (prepare_fit(); `volume` names it in summary.md), with
+// the registered or user-given optimizers of compare.custom too; the files only
+// when `dir` is not empty. What the Python module's compare_optimizers runs.
+gmf::Comparison compare_prepared(const FitSetup& setup, const std::string& volume, const FitConfig& config,
+                                 const gmf::CompareOptions& compare, const std::filesystem::path& dir,
+                                 const Progress& progress);
+
 }  // namespace hisnegs::apps

@@ -163,6 +163,72 @@ TEST(GmfCompare, ContinuationRunsAreMeasuredOnTheFinalObjective) {
   }
 }
 
+// A custom solver (gmf/round_solver.hpp) sees the round's problem: 11·K parameters
+// inside their box, the objective whose value it logs, its limits; the registered
+// `spg` runs beside Adam from the same first loss and lowers it.
+TEST(GmfCompare, CustomAndRegisteredSolversRunOnTheSameProblem) {
+  const CompareScene scene = make_compare_scene();
+  const io::SparseGrid& grid = scene.grid;
+  GmfOptions base;  // the softmax at β 64 for every run
+  base.prune_intensity = 0.0;
+  base.beta_start = 64.0;
+  CompareOptions o;
+  o.optimizers = {Optimizer::kAdam};
+  o.adam_steps = 30;
+  o.time_budget_s = 5;
+  const NamedSolver* spg = find_registered_optimizer("spg");
+  ASSERT_NE(spg, nullptr);
+  o.custom.push_back(*spg);
+  int calls = 0;
+  NamedSolver probe{"probe", "one evaluation, checks the problem", [&](const RoundSolverProblem& p) {
+                      ++calls;
+                      EXPECT_EQ(p.x.size(), 11u * scene.start.size());
+                      EXPECT_EQ(p.lower.size(), p.x.size());
+                      for (std::size_t i = 0; i < p.x.size(); ++i) {
+                        EXPECT_LE(p.lower[i], p.x[i]);
+                        EXPECT_GE(p.upper[i], p.x[i]);
+                      }
+                      EXPECT_EQ(p.max_iterations, 25);
+                      EXPECT_GT(p.seconds_left, 0.0);
+                      EXPECT_LE(p.seconds_left, 5.0);
+                      std::vector<double> g(p.x.size());
+                      const double loss = p.objective.evaluate(p.x.data(), g.data());
+                      (void)p.log(loss);
+                      for (std::size_t i = 0; i < p.x.size(); ++i) {
+                        if (std::isfinite(p.upper[i])) p.x[i] = p.upper[i] + 1.0;  // outside the box: clamped
+                      }
+                      return RoundSolverOutcome{.iterations = 1, .converged = true, .message = "probe: done"};
+                    }};
+  o.custom.push_back(probe);
+  const Comparison c = compare_optimizers(scene.volume, fit_samples(grid, base), grid.frame(), scene.start, base, o);
+  ASSERT_EQ(c.runs.size(), 3u);
+  EXPECT_EQ(c.runs[1].name, "spg");
+  EXPECT_EQ(c.runs[1].optimizer, Optimizer::kCustom);
+  EXPECT_EQ(c.runs[2].name, "probe");
+  const double first = c.runs[0].result.log.front().loss;
+  for (const OptimizerRun& run : c.runs) {
+    EXPECT_TRUE(run.failure.empty()) << run.name << ": " << run.failure;
+    ASSERT_FALSE(run.result.log.empty()) << run.name;
+    EXPECT_NEAR(run.result.log.front().loss, first, 1e-9 * first) << run.name;
+    for (const FitIteration& it : run.result.log) EXPECT_EQ(it.beta, 64.0) << run.name;
+  }
+  EXPECT_LT(c.runs[1].final_loss, 0.5 * first);  // spg descends
+  EXPECT_EQ(calls, 2);  // converged: the loop ends after round 1 (round 0 never ends a fit)
+}
+
+TEST(GmfCompare, CustomSolversNeedANameOfTheirOwn) {
+  CompareOptions o;
+  o.custom.push_back(NamedSolver{"adam", "", [](const RoundSolverProblem&) { return RoundSolverOutcome{}; }});
+  EXPECT_THROW(o.validate(), io::InputError);  // a built-in's name
+  o.custom[0].name = "mine";
+  EXPECT_NO_THROW(o.validate());
+  o.custom.push_back(o.custom[0]);
+  EXPECT_THROW(o.validate(), io::InputError);  // twice
+  GmfOptions g;
+  g.optimizer = Optimizer::kCustom;
+  EXPECT_THROW(g.validate(), io::InputError);  // no solver
+}
+
 TEST(GmfCompare, OptimizerNamesMatchTheConfig) {
   EXPECT_EQ(optimizer_name(Optimizer::kLevenbergMarquardt), "lm");
   EXPECT_EQ(optimizer_name(Optimizer::kDogleg), "dogleg");

@@ -227,3 +227,56 @@ def test_ctrl_c_interrupts_a_fit_with_keyboard_interrupt(work):
 
     with pytest.raises(KeyboardInterrupt):
         hisnegs.fit(volume, progress=interrupt, **FIT)
+
+
+def test_compare_optimizers_runs_a_user_optimizer_beside_the_built_ins(work, tmp_path):
+    """scipy's L-BFGS-B through RoundProblem, beside Adam and the registered spg: the
+    same first loss, the loss falls, the table's rows, curves and files."""
+    import scipy.optimize
+
+    volume = hisnegs.load_volume(work / "s.tif")
+    seen = {}
+
+    def lbfgsb(problem):
+        seen["size"], seen["max_iterations"] = problem.size, problem.max_iterations
+        assert problem.x.dtype == np.float64 and problem.x.shape == (problem.size,)
+        assert np.all(problem.lower <= problem.x) and np.all(problem.x <= problem.upper)
+        return scipy.optimize.minimize(problem.value_and_gradient, problem.x, jac=True, method="L-BFGS-B",
+                                       bounds=problem.bounds, callback=problem.iterate,
+                                       options={"maxiter": problem.max_iterations}).x
+
+    table = hisnegs.compare_optimizers(volume, {"scipy-lbfgsb": lbfgsb}, budget_s=2, builtins=["adam", "spg"],
+                                       adam_steps=30, gaussians=120, output=tmp_path / "cmp")
+    names = [run["name"] for run in table["runs"]]
+    assert names == ["adam", "spg", "scipy-lbfgsb"]
+    assert seen["size"] % 11 == 0 and seen["max_iterations"] == 25
+    first = table["runs"][0]["curve"]["loss"][0]
+    for run in table["runs"]:
+        assert run["failure"] == "", run
+        curve = run["curve"]
+        assert len(curve["loss"]) == len(curve["seconds"]) == len(curve["iteration"]) > 1
+        assert curve["loss"][0] == pytest.approx(first, rel=1e-9), run["name"]  # one start for all
+        assert run["final_loss"] < 0.5 * first, run["name"]
+        assert run["seconds"] <= 2.5, run["name"]  # the budget, honoured through StopRound
+    assert table["target_loss"] == table["runs"][0]["final_loss"]
+    assert {"summary.md", "results.csv", "curves.csv", "loss_vs_time.png"} <= set(os.listdir(tmp_path / "cmp"))
+    assert "scipy-lbfgsb" in (tmp_path / "cmp" / "results.csv").read_text()
+
+
+def test_compare_optimizers_raises_the_optimizers_own_errors(work):
+    volume = hisnegs.load_volume(work / "s.tif")
+
+    def broken(problem):
+        raise ZeroDivisionError("inside the user's optimizer")
+
+    with pytest.raises(ZeroDivisionError, match="inside the user's optimizer"):
+        hisnegs.compare_optimizers(volume, {"broken": broken}, budget_s=1, builtins=[], gaussians=120)
+    with pytest.raises(ValueError, match="not callable"):
+        hisnegs.compare_optimizers(volume, {"x": 3}, budget_s=1, builtins=[], gaussians=120)
+    with pytest.raises(ValueError, match="built-in"):
+        hisnegs.compare_optimizers(volume, {"adam": broken}, budget_s=1, builtins=[], gaussians=120)
+    kept = []
+    with pytest.raises(ValueError, match="after its round ended"):
+        hisnegs.compare_optimizers(volume, {"keeps": lambda p: kept.append(p)}, budget_s=0.2, builtins=[],
+                                   gaussians=120)
+        kept[0].value(kept[0].x)

@@ -21,9 +21,10 @@ Ctrl-C raises ``KeyboardInterrupt`` at the next line.
 import json as _json
 
 from . import _hisnegs
-from ._hisnegs import Cameras, Model, Volume, metrics
+from ._hisnegs import Cameras, Model, RoundProblem, StopRound, Volume, metrics
 
-__all__ = ["Volume", "Model", "Cameras", "Objective", "load_volume", "fit", "train", "ground_truth", "metrics"]
+__all__ = ["Volume", "Model", "Cameras", "Objective", "RoundProblem", "StopRound", "load_volume", "fit", "train",
+           "ground_truth", "metrics", "compare_optimizers"]
 
 
 def _sections(**sections):
@@ -180,3 +181,61 @@ class Objective:
 
         values, columns, rows = self._core.jacobian(x)
         return scipy.sparse.csr_matrix((values, columns, rows), shape=(self.samples, self.size))
+
+
+RoundProblem.__doc__ = """One round of the stage-1 fit as a ``compare_optimizers`` optimizer sees it
+(valid only during its call; the C++ interface is gmf/round_solver.hpp).
+
+``x``: the round's start, a flat float64 array of 11 K values in the order of
+``Model.params`` (a copy); ``lower``, ``upper``: the round's box (its trust
+region; ±inf where free) and ``bounds`` the same as scipy's (lo, hi) pairs;
+``value(x)``, ``gradient(x)``, ``value_and_gradient(x)``: the loss
+½ Σ w² (f − V)² on the round's samples at the fit's β, and its gradient (the
+function every built-in optimizer minimizes); ``max_iterations`` and
+``seconds_left``: the round's limits.
+
+Call ``iterate(x)`` once per iteration with the new iterate: it logs the loss at x
+(free when x was the last point evaluated) with the wall clock, and raises
+``StopRound`` when the round must end (its time is spent or the loss reached the
+target); let it propagate. The round's result is the optimizer's return value (a
+flat array), or with ``None`` or a ``StopRound`` the last iterate; it is clamped
+into the box. The round's start is logged before the call, as every built-in
+optimizer logs its iteration 0."""
+
+
+def compare_optimizers(volume, optimizers, budget_s=60.0, builtins=("adam", "brick-lm", "lm-cgnr", "lbfgs"),
+                       adam_steps=2000, stop_at_target=False, continuation=("brick-lm",), output=None,
+                       progress=None, sparse_grid_options=None, **gmf_options):
+    """Runs ``hisnegs compare-optimizers`` on ``volume`` with your optimizers beside the
+    built-in ones: every run from the same initialization, samples, loss and budget
+    (``budget_s`` seconds of wall time each), density control off; Adam first, its
+    loss after ``adam_steps`` is the target.
+
+    ``optimizers``: ``{"name": callable}``; each callable is called once per round
+    with a :class:`RoundProblem` and returns the round's result (or None).
+    ``builtins``: the built-in (adam, brick-lm, lm-cgnr, lbfgs, lm, dogleg) and
+    registered (e.g. spg) optimizers to run too; ``continuation``: those of them that
+    follow the β schedule (the others, and every callable, solve at ``beta_end``).
+    ``gmf_options``: the config's ``gmf`` section (``gaussians``, ``beta_end``, ...).
+    With ``output`` (a folder) the command's files are written there too:
+    summary.md, results.csv, curves.csv, loss_vs_time.png.
+
+    Returns ``{"target_loss", "adam_steps_done", "runs": [...]}``, a run being the
+    table's row (``name``, ``seconds_to_target``, ``final_loss``, ``final_psnr_3d``,
+    ``iterations``, ``seconds``, ``gaussians``, ``stop_reason``, ``continuation``,
+    ``failure``) and its ``curve`` (``seconds``, ``loss``, ``iteration`` arrays).
+
+    >>> import scipy.optimize
+    >>> def lbfgsb(problem):
+    ...     return scipy.optimize.minimize(problem.value_and_gradient, problem.x, jac=True,
+    ...         method="L-BFGS-B", bounds=problem.bounds, callback=problem.iterate,
+    ...         options={"maxiter": problem.max_iterations}).x
+    >>> table = hisnegs.compare_optimizers(volume, {"scipy-lbfgsb": lbfgsb}, budget_s=60)
+    """
+    for name, optimizer in dict(optimizers).items():
+        if not callable(optimizer):
+            raise ValueError(f"hisnegs.compare_optimizers: optimizers[{name!r}] is not callable")
+    text = _sections(gmf=gmf_options, sparse_grid=sparse_grid_options or {})
+    return _hisnegs._compare_optimizers(volume, [str(b) for b in builtins], dict(optimizers), text, float(budget_s),
+                                        int(adam_steps), bool(stop_at_target), [str(c) for c in continuation],
+                                        "" if output is None else str(output), progress)

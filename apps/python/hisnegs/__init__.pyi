@@ -109,6 +109,52 @@ class Objective:
     def jacobian(self, x: npt.ArrayLike) -> Any:
         """scipy.sparse.csr_matrix, samples × 11 K."""
 
+class StopRound(Exception):
+    """Raised by RoundProblem.iterate when the round must end; let it propagate."""
+
+class RoundProblem:
+    """One round of the stage-1 fit as a compare_optimizers optimizer sees it."""
+
+    @property
+    def size(self) -> int:
+        """11 K."""
+    @property
+    def x(self) -> npt.NDArray[np.float64]:
+        """The round's start (a copy)."""
+    @property
+    def lower(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def upper(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def bounds(self) -> list[Tuple[Optional[float], Optional[float]]]:
+        """scipy.optimize's bounds of the round's box."""
+    @property
+    def max_iterations(self) -> int: ...
+    @property
+    def seconds_left(self) -> float: ...
+    @property
+    def iterations(self) -> int: ...
+    def value(self, x: npt.ArrayLike) -> float: ...
+    def gradient(self, x: npt.ArrayLike) -> npt.NDArray[np.float64]: ...
+    def value_and_gradient(self, x: npt.ArrayLike) -> Tuple[float, npt.NDArray[np.float64]]: ...
+    def iterate(self, x: npt.ArrayLike) -> None:
+        """One iteration ends at x: logs its loss; raises StopRound when the round must end."""
+
+def compare_optimizers(
+    volume: Volume,
+    optimizers: dict[str, Callable[[RoundProblem], Optional[npt.ArrayLike]]],
+    budget_s: float = 60.0,
+    builtins: Sequence[str] = ("adam", "brick-lm", "lm-cgnr", "lbfgs"),
+    adam_steps: int = 2000,
+    stop_at_target: bool = False,
+    continuation: Sequence[str] = ("brick-lm",),
+    output: Optional[_Path] = None,
+    progress: _Progress = None,
+    sparse_grid_options: Optional[dict[str, Any]] = None,
+    **gmf_options: Any,
+) -> dict[str, Any]:
+    """compare-optimizers with Python optimizers: the table's rows and their curves."""
+
 def load_volume(path: _Path, **volume_options: Any) -> Volume:
     """Reads TIFF/BigTIFF, HDF5, BigDataViewer or Imaris; normalized to [0, 1]."""
 
