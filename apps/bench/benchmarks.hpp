@@ -7,6 +7,10 @@
 #include <filesystem>
 #include <vector>
 
+#include "gmf/gmf_options.hpp"
+#include "io/load_volume.hpp"
+#include "io/sparse_grid.hpp"
+
 namespace hisnegs::apps::bench {
 
 // Loading, normalizing and sparsifying `volume` (a TIFF stack).
@@ -23,5 +27,11 @@ void register_render_benchmarks(const std::vector<int>& sizes, const std::vector
 
 // One GMF residual block with its Jacobian: analytic vs numeric vs automatic.
 void register_gmf_benchmarks();
+
+// The stage-1 objective's value and gradient at `model` on `volume`'s fit samples,
+// the block index rebuilt per call, as hisnegs.Objective.gradient does.
+void register_objective_benchmark(const std::filesystem::path& volume, const std::filesystem::path& model,
+                                  const io::VolumeOptions& volume_options, const io::SparseGridOptions& sparse_grid,
+                                  const gmf::GmfOptions& gmf);
 
 }  // namespace hisnegs::apps::bench

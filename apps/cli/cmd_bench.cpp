@@ -38,7 +38,9 @@ void add_bench_options(CLI::App* cmd, BenchArgs& a) {
                   "render, report: soft-MIP beta values (default render 1,10,50,100,500; report 1,5,...,500)")
       ->delimiter(',');
   cmd->add_option("-o,--output", a.out, "report: output folder (report.md, table7/9/10/11/12.csv)");
-  cmd->add_option("--model", a.model, "report: checkpoint to measure (default: synthetic K = 50000)");
+  cmd->add_option("--model", a.model,
+                  "report: checkpoint to measure (default: synthetic K = 50000); gmf with --volume: the objective's "
+                  "value and gradient at this model");
   cmd->add_option("--backend", a.backend, "report: auto | cpu | cuda");
   cmd->add_option("--orbit-frames", a.report.orbit_frames, "report: Table 10 orbit frames")->capture_default_str();
   cmd->add_option("--views", a.report.quality_views, "report: evaluation views for Table 11 images")
@@ -124,6 +126,10 @@ void add_bench_command(CLI::App& app, GlobalOptions& global) {
     std::filesystem::path temp;
     if (args->suite == "gmf") {
       bench::register_gmf_benchmarks();
+      if (!volume.empty() && !args->model.empty()) {  // the whole objective at a model, as hisnegs.Objective
+        const AppConfig& config = global.config();
+        bench::register_objective_benchmark(volume, args->model, config.volume, config.sparse_grid, config.gmf);
+      }
     } else if (volume.empty()) {
       temp = std::filesystem::temp_directory_path() / ("hisnegs-bench-" + std::to_string(::getpid()));
       volume = temp / "synthetic.tif";

@@ -2,26 +2,20 @@
 // `hisnegs export vdb|splat-ply|volume|compact|html --model m.ply -o OUT` and `hisnegs
 // import vdb IN.vdb -o m.ply`: checkpoint conversion for OpenVDB tools, Gaussian-splat
 // viewers, image viewers, small files and browsers. Options and reporting only; the
-// conversions are gmf/export_*.hpp, gmf/compact_checkpoint.hpp and apps/viewer.
+// conversions are apps/pipeline/export_model.hpp (shared with the Python module).
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
 
 #include "apps/cli/cli_support.hpp"
+#include "apps/pipeline/export_model.hpp"
 #include "apps/pipeline/format.hpp"
-#include "apps/viewer/viewer_page.hpp"
 #include "gmf/checkpoint.hpp"
 #include "gmf/compact_checkpoint.hpp"
 #include "gmf/export_formats.hpp"
 #include "gmf/export_vdb.hpp"
-#include "gmf/psnr.hpp"
-#include "io/atomic_file.hpp"
 #include "io/error.hpp"
-#include "io/load_volume.hpp"
-#include "io/memory_limit.hpp"
-#include "io/stack_file.hpp"
-#include "io/tiff_stack.hpp"
 #include "io/timer.hpp"
 #include "splat/camera.hpp"
 
@@ -31,36 +25,6 @@ namespace {
 // Progress lines appear only once an export has run this long (small ones stay quiet).
 constexpr double kProgressAfterSeconds = 2.0;
 
-// The frame of the stack at `path` from its header alone (no pixels are read),
-// with the spacing and aspect rules of the `volume` section, as load_volume would.
-io::WorldFrame header_frame(const std::string& path, const io::VolumeOptions& options) {
-  const io::StackHeader info = io::inspect_stack(path, io::stack_read_options(options));
-  return io::WorldFrame(info.nx, info.ny, info.nz,
-                        io::aspect_scales(info.nx, info.ny, info.nz, info.spacing, options.aspect));
-}
-
-// The model's own stack frame, or a one-line error saying what to give instead.
-io::WorldFrame native_frame(const gmf::Checkpoint& checkpoint, const std::string& model, const char* instead) {
-  const std::optional<io::WorldFrame> frame = gmf::model_frame(checkpoint.meta);
-  if (!frame) {
-    io::fail_input(model,
-                   std::string("records no volume_shape / aspect, so its native voxels are unknown; give ") + instead);
-  }
-  return *frame;
-}
-
-std::string shape_text(const io::WorldFrame& frame) {
-  const Eigen::Vector3i& n = frame.shape();
-  return std::to_string(n.x()) + "x" + std::to_string(n.y()) + "x" + std::to_string(n.z());
-}
-
-// What an export evaluates: "softmax (beta B), support 16" / "sum, support 16" /
-// "sum of every term (untruncated)".
-std::string exported_function(const gmf::MixtureModel& model, bool untruncated_sum) {
-  if (model.aggregation == gmf::Aggregation::kSum && untruncated_sum) return "sum of every term (untruncated)";
-  return gmf::describe(model) + ", support " + io::number_text(model.cutoff);
-}
-
 struct VdbArgs {
   std::string model, out, match_volume;
   std::optional<double> voxel_size;
@@ -69,39 +33,21 @@ struct VdbArgs {
 };
 
 void run_export_vdb(const VdbArgs& args, GlobalOptions& global) {
-  gmf::VdbExportOptions options = args.options;
-  options.support = global.config().gmf.mahalanobis_cutoff;  // the model's support, as its fit had it
-  options.validate();
+  VdbExportRequest request;
+  request.options = args.options;
+  request.options.support = global.config().gmf.mahalanobis_cutoff;  // the model's support, as its fit had it
+  request.options.validate();
+  if (args.voxel_size && !(std::isfinite(*args.voxel_size) && *args.voxel_size > 0.0)) {
+    throw io::InputError("--voxel-size = " + io::number_text(*args.voxel_size) +
+                         ": must be a finite number > 0 (world units)");
+  }
+  request.voxel_size = args.voxel_size;
+  request.match_volume = args.match_volume;
+  request.volume = global.config().volume;
+  args.overrides.apply(request.volume);
+  request.instead = "--voxel-size V or --match-volume VOLUME";
   io::Stopwatch watch;
   const gmf::Checkpoint checkpoint = gmf::load_checkpoint(args.model);
-  gmf::VoxelLattice lattice;
-  std::optional<io::WorldFrame> frame;  // the stack whose voxels the lattice is, if any
-  std::string lattice_text;
-  if (args.voxel_size) {
-    const double v = *args.voxel_size;
-    if (!std::isfinite(v) || !(v > 0.0)) {
-      throw io::InputError("--voxel-size = " + io::number_text(v) + ": must be a finite number > 0 (world units)");
-    }
-    lattice = gmf::VoxelLattice::aligned(v);
-    lattice_text = "voxel size " + io::number_text(v) + " aligned to the world origin";
-    if (const auto& a = checkpoint.meta.aspect) {
-      lattice = lattice.clipped_to_box(Eigen::Vector3d((*a)[0], (*a)[1], (*a)[2]));
-      lattice_text += ", within the model's stack box";
-    }
-  } else {
-    if (!args.match_volume.empty()) {
-      io::VolumeOptions volume = global.config().volume;
-      args.overrides.apply(volume);
-      frame = header_frame(args.match_volume, volume);
-      gmf::require_same_world_box(checkpoint.meta, *frame, args.match_volume);
-      lattice_text = "the voxels of " + args.match_volume;
-    } else {
-      frame = native_frame(checkpoint, args.model, "--voxel-size V or --match-volume VOLUME");
-      lattice_text = "the model's native voxels";
-    }
-    lattice = gmf::VoxelLattice::of(*frame);
-    lattice_text += " (" + shape_text(*frame) + ")";
-  }
   const gmf::ExportProgress progress = [&](std::int64_t done, std::int64_t total) {
     if (global.quiet || watch.elapsed() < kProgressAfterSeconds) return;
     std::printf("export vdb: %3.0f %% of %lld leaves, %s\n",
@@ -109,23 +55,22 @@ void run_export_vdb(const VdbArgs& args, GlobalOptions& global) {
                 format_seconds(watch.elapsed()).c_str());
     std::fflush(stdout);
   };
-  const gmf::VdbExportReport r = gmf::export_vdb(args.out, checkpoint, lattice, options, args.model, progress);
+  const VdbExportDone done = export_model_vdb(checkpoint, args.model, args.out, request, progress);
   if (global.quiet) return;
+  const gmf::VdbExportReport& r = done.report;
   std::string dense;
-  if (frame) {
-    const Eigen::Vector3i& n = frame->shape();
+  if (done.frame) {
+    const Eigen::Vector3i& n = done.frame->shape();
     dense = ", dense float32 of the stack " + format_bytes(4.0 * n.x() * n.y() * n.z());
   }
   std::printf(
       "export vdb: wrote %s: `density` (the model's f: %s) on %s, %lld active voxels (f > %g) in %lld leaves of "
       "%lld reached, K %lld%s; file %s%s; rasterize %s%s, write %s\n",
-      args.out.c_str(),
-      exported_function(gmf::model_of(checkpoint.meta, options.support), options.untruncated_sum).c_str(),
-      lattice_text.c_str(),
-      static_cast<long long>(r.active_voxels), args.options.cutoff, static_cast<long long>(r.leaf_count),
-      static_cast<long long>(r.candidate_leaves), static_cast<long long>(r.gaussians),
-      args.options.points ? " + `gaussians` points" : "", format_bytes(static_cast<double>(r.file_bytes)).c_str(),
-      dense.c_str(), format_seconds(r.rasterize_seconds).c_str(),
+      args.out.c_str(), done.function.c_str(), done.lattice.c_str(), static_cast<long long>(r.active_voxels),
+      args.options.cutoff, static_cast<long long>(r.leaf_count), static_cast<long long>(r.candidate_leaves),
+      static_cast<long long>(r.gaussians), args.options.points ? " + `gaussians` points" : "",
+      format_bytes(static_cast<double>(r.file_bytes)).c_str(), dense.c_str(),
+      format_seconds(r.rasterize_seconds).c_str(),
       args.options.points ? (", points " + format_seconds(r.points_seconds)).c_str() : "",
       format_seconds(r.write_seconds).c_str());
 }
@@ -141,48 +86,31 @@ void run_export_volume(const VolumeArgs& args, GlobalOptions& global) {
   if (!(args.tail > 0.0 && args.tail < 1.0)) {
     throw io::InputError("--tail = " + io::number_text(args.tail) + ": must be in (0, 1)");
   }
+  VolumeExportRequest request;
+  request.match_volume = args.match_volume;
+  request.volume = global.config().volume;
+  args.overrides.apply(request.volume);
+  request.tail = args.tail;
+  request.untruncated_sum = args.untruncated_sum;
+  request.support = global.config().gmf.mahalanobis_cutoff;
+  request.instead = "--match-volume VOLUME";
   io::Stopwatch watch;
   const gmf::Checkpoint checkpoint = gmf::load_checkpoint(args.model);
-  std::optional<io::LoadedVolume> matched;
-  io::WorldFrame frame;
-  io::TiffWriteOptions tiff;
-  if (!args.match_volume.empty()) {
-    io::VolumeOptions volume = global.config().volume;
-    args.overrides.apply(volume);
-    matched = io::load_volume(args.match_volume, volume);
-    frame = matched->frame;
-    gmf::require_same_world_box(checkpoint.meta, frame, args.match_volume);
-    const io::VoxelSpacing& s = matched->volume.spacing;
-    const bool known = std::any_of(s.source.begin(), s.source.end(),
-                                   [](io::SpacingSource src) { return src != io::SpacingSource::kDefault; });
-    if (known) tiff.spacing_um = s.um;
-  } else {
-    frame = native_frame(checkpoint, args.model, "--match-volume VOLUME");
-    if (checkpoint.meta.spacing_um) tiff.spacing_um = *checkpoint.meta.spacing_um;
-    const Eigen::Vector3i& shape = frame.shape();
-    io::check_allocation(args.model, 4.0 * shape.cast<double>().prod(),
-                         "a float32 volume of its volume_shape " + std::to_string(shape.z()) + " x " +
-                             std::to_string(shape.y()) + " x " + std::to_string(shape.x()));
-  }
-  const double t_load = watch.lap();
-  const gmf::MixtureModel model = gmf::model_of(checkpoint.meta, global.config().gmf.mahalanobis_cutoff);
-  const std::vector<float> f = gmf::rasterize_dense(checkpoint.mixture, model, frame, args.tail, args.untruncated_sum);
-  const double t_raster = watch.lap();
-  const Eigen::Vector3i& n = frame.shape();
-  io::write_tiff_stack(args.out, f, n.x(), n.y(), n.z(), tiff);
-  const double t_write = watch.lap();
+  const double t_checkpoint = watch.lap();
+  const VolumeExportDone done = export_model_volume(checkpoint, args.model, args.out, request);
   if (global.quiet) return;
   std::string psnr;
-  if (matched) {
+  if (done.psnr) {
     char buf[256];
-    std::snprintf(buf, sizeof buf, ", 3D PSNR %.2f dB against %s", gmf::psnr(f, matched->volume.voxels),
-                  args.match_volume.c_str());
+    std::snprintf(buf, sizeof buf, ", 3D PSNR %.2f dB against %s", *done.psnr, args.match_volume.c_str());
     psnr = buf;
   }
+  const Eigen::Vector3i& n = done.frame.shape();
   std::printf("export volume: wrote %s: the model's f (%s), %s float32 (%s)%s; load %s, rasterize %s, write %s\n",
-              args.out.c_str(), exported_function(model, args.untruncated_sum).c_str(), shape_text(frame).c_str(),
-              format_bytes(4.0 * static_cast<double>(f.size())).c_str(), psnr.c_str(), format_seconds(t_load).c_str(),
-              format_seconds(t_raster).c_str(), format_seconds(t_write).c_str());
+              args.out.c_str(), done.function.c_str(), shape_text(done.frame).c_str(),
+              format_bytes(4.0 * n.cast<double>().prod()).c_str(), psnr.c_str(),
+              format_seconds(t_checkpoint + done.load_seconds).c_str(),
+              format_seconds(done.rasterize_seconds).c_str(), format_seconds(done.write_seconds).c_str());
 }
 
 struct CompactArgs {
@@ -195,8 +123,7 @@ void run_export_compact(const CompactArgs& args, GlobalOptions& global) {
   io::Stopwatch watch;
   const gmf::Checkpoint checkpoint = gmf::load_checkpoint(args.model);
   const double t_load = watch.lap();
-  const gmf::CompactHeader h =
-      gmf::save_compact_checkpoint(args.out, checkpoint.mixture, checkpoint.meta, args.options);
+  const gmf::CompactHeader h = export_model_compact(checkpoint, args.out, args.options);
   const double t_write = watch.lap();
   if (global.quiet) return;
   const double k = static_cast<double>(h.count);
@@ -229,30 +156,22 @@ void run_export_html(const HtmlArgs& args, GlobalOptions& global) {
   const gmf::Checkpoint checkpoint = gmf::load_checkpoint(args.model);
   const splat::CameraSet cameras =
       args.cameras.empty() ? splat::evaluation_orbit(config.camera) : splat::read_cameras_json(args.cameras);
-  ViewerPageSettings settings;
-  settings.floor = splat::floors_of(checkpoint.meta, args.model, config.splat.background);
-  settings.cutoff = config.splat.mahalanobis_cutoff;
-  settings.low_pass = config.splat.low_pass;
-  settings.um_per_world = um_per_world(checkpoint.meta);
-  settings.model_block = args.float32 ? ViewerModelBlock::kFloat32 : ViewerModelBlock::kCompact;
-  std::size_t block_bytes = 0;
-  const std::string html = viewer_html(checkpoint.mixture, cameras, settings, &block_bytes);
-  io::write_file_atomic(args.out, html.data(), html.size());
+  const HtmlExportDone done = export_model_html(checkpoint, args.model, args.out, cameras, config.splat, args.float32);
   if (global.quiet) return;
   const auto model_bytes = static_cast<double>(std::filesystem::file_size(args.model));
   const double k = std::max(1.0, static_cast<double>(checkpoint.mixture.size()));
+  const auto page = static_cast<double>(done.page_bytes), block = static_cast<double>(done.model_block_bytes);
   // The model block (what the Gaussians cost) and the page (the viewer's code too).
   std::printf(
       "export html: wrote %s: %s, %.1f B/Gaussian (%zu Gaussians; the model %s as %s, %.1f B/Gaussian, %.1f in "
       "base64; %s is %s), %zu views of %dx%d from %s; "
       "hard MIP, cutoff %g, low-pass %g px^2; open it with #view=N&ui=0 for view N; %s\n",
-      args.out.c_str(), format_bytes(static_cast<double>(html.size())).c_str(), static_cast<double>(html.size()) / k,
-      checkpoint.mixture.size(), format_bytes(static_cast<double>(block_bytes)).c_str(),
-      args.float32 ? "float32" : "compact .hgs", static_cast<double>(block_bytes) / k,
-      static_cast<double>((block_bytes + 2) / 3 * 4) / k, args.model.c_str(),
+      args.out.c_str(), format_bytes(page).c_str(), page / k, checkpoint.mixture.size(), format_bytes(block).c_str(),
+      args.float32 ? "float32" : "compact .hgs", block / k,
+      static_cast<double>((done.model_block_bytes + 2) / 3 * 4) / k, args.model.c_str(),
       format_bytes(model_bytes).c_str(), cameras.views.size(), cameras.intrinsics.width, cameras.intrinsics.height,
-      args.cameras.empty() ? "the evaluation orbit" : args.cameras.c_str(), settings.cutoff, settings.low_pass,
-      format_seconds(watch.elapsed()).c_str());
+      args.cameras.empty() ? "the evaluation orbit" : args.cameras.c_str(), done.settings.cutoff,
+      done.settings.low_pass, format_seconds(watch.elapsed()).c_str());
 }
 
 }  // namespace

@@ -22,6 +22,8 @@
 #include <vector>
 
 #include "apps/pipeline/app_config.hpp"
+#include "apps/pipeline/export_model.hpp"
+#include "apps/pipeline/file_info.hpp"
 #include "apps/pipeline/fit_stage.hpp"
 #include "apps/pipeline/optimizer_comparison.hpp"
 #include "apps/pipeline/progress.hpp"
@@ -259,6 +261,117 @@ std::shared_ptr<Model> train(const Model& init, const FloatArray& images, const 
     }
   }
   return out;
+}
+
+// hisnegs.info: `hisnegs info`'s description of a file.
+py::dict file_info(const std::filesystem::path& path, const std::string& config_text) {
+  const AppConfig config = config_of(config_text, "hisnegs.info() options");
+  apps::FileInfo info;
+  {
+    py::gil_scoped_release release;
+    info = apps::describe_file(path, config.volume);
+  }
+  py::list rows;
+  for (const apps::FileInfo::Line& line : info.lines) rows.append(py::make_tuple(line.key, line.text));
+  py::dict r;
+  r["kind"] = info.kind;
+  r["rows"] = rows;
+  r["text"] = info.text();
+  return r;
+}
+
+// ---- exports (apps/pipeline/export_model.hpp, as `hisnegs export`) ---------------------
+
+py::dict export_vdb(const Model& m, const std::filesystem::path& out, std::optional<double> voxel_size,
+                    const std::string& match_volume, double cutoff, double tail, bool points, bool untruncated_sum,
+                    const std::string& config_text) {
+  const AppConfig config = config_of(config_text, "hisnegs.export_vdb() options");
+  apps::VdbExportRequest request;
+  request.voxel_size = voxel_size;
+  request.match_volume = match_volume;
+  request.volume = config.volume;
+  request.options.cutoff = cutoff;
+  request.options.tail = tail;
+  request.options.points = points;
+  request.options.untruncated_sum = untruncated_sum;
+  request.options.support = config.gmf.mahalanobis_cutoff;
+  request.instead = "voxel_size=V or match_volume=PATH";
+  apps::VdbExportDone done;
+  {
+    py::gil_scoped_release release;
+    done = apps::export_model_vdb(m.checkpoint, "the model", out, request);
+  }
+  py::dict r;
+  r["active_voxels"] = done.report.active_voxels;
+  r["leaves"] = done.report.leaf_count;
+  r["gaussians"] = done.report.gaussians;
+  r["file_bytes"] = done.report.file_bytes;
+  r["lattice"] = done.lattice;
+  r["function"] = done.function;
+  return r;
+}
+
+py::dict export_volume(const Model& m, const std::filesystem::path& out, const std::string& match_volume, double tail,
+                       bool untruncated_sum, const std::string& config_text) {
+  const AppConfig config = config_of(config_text, "hisnegs.export_volume() options");
+  apps::VolumeExportRequest request;
+  request.match_volume = match_volume;
+  request.volume = config.volume;
+  request.tail = tail;
+  request.untruncated_sum = untruncated_sum;
+  request.support = config.gmf.mahalanobis_cutoff;
+  request.instead = "match_volume=PATH";
+  apps::VolumeExportDone done;
+  {
+    py::gil_scoped_release release;
+    done = apps::export_model_volume(m.checkpoint, "the model", out, request);
+  }
+  const Eigen::Vector3i& n = done.frame.shape();
+  py::dict r;
+  r["shape"] = py::make_tuple(n.z(), n.y(), n.x());
+  r["psnr"] = done.psnr ? py::cast(*done.psnr) : py::none();
+  r["function"] = done.function;
+  return r;
+}
+
+py::dict export_compact(const Model& m, const std::filesystem::path& out, int position_bits, int scale_bits,
+                        int rotation_bits, int intensity_bits, int level) {
+  gmf::CompactOptions options;
+  options.position_bits = position_bits;
+  options.scale_bits = scale_bits;
+  options.rotation_bits = rotation_bits;
+  options.intensity_bits = intensity_bits;
+  options.zstd_level = level;
+  gmf::CompactHeader h;
+  {
+    py::gil_scoped_release release;
+    h = apps::export_model_compact(m.checkpoint, out, options);
+  }
+  const gmf::CompactBounds b = gmf::compact_bounds(h);
+  py::dict r;
+  r["gaussians"] = h.count;
+  r["file_bytes"] = h.file_bytes;
+  r["bytes_per_gaussian"] = h.count > 0 ? static_cast<double>(h.file_bytes) / static_cast<double>(h.count) : 0.0;
+  r["max_error"] = py::dict(py::arg("position") = *std::max_element(b.position.begin(), b.position.end()),
+                            py::arg("log_scale") = *std::max_element(b.log_scale.begin(), b.log_scale.end()),
+                            py::arg("quaternion") = b.rotation, py::arg("intensity") = b.intensity);
+  return r;
+}
+
+py::dict export_html(const Model& m, const std::filesystem::path& out, const std::optional<splat::CameraSet>& cameras,
+                     bool float32, const std::string& config_text) {
+  const AppConfig config = config_of(config_text, "hisnegs.export_html() options");
+  const splat::CameraSet views = cameras ? *cameras : splat::evaluation_orbit(config.camera);
+  apps::HtmlExportDone done;
+  {
+    py::gil_scoped_release release;
+    done = apps::export_model_html(m.checkpoint, "the model", out, views, config.splat, float32);
+  }
+  py::dict r;
+  r["page_bytes"] = done.page_bytes;
+  r["model_bytes"] = done.model_block_bytes;
+  r["views"] = views.views.size();
+  return r;
 }
 
 // ---- ground truth and metrics ----------------------------------------------------
@@ -723,6 +836,11 @@ PYBIND11_MODULE(_hisnegs, m) {
       .def("_render", &render_model)
       .def("_rasterize", &rasterize_model);
   m.def("_fit", &fit);
+  m.def("_info", &file_info);
+  m.def("_export_vdb", &export_vdb);
+  m.def("_export_volume", &export_volume);
+  m.def("_export_compact", &export_compact);
+  m.def("_export_html", &export_html);
   m.def("_train", &train);
   m.def("_ground_truth", &ground_truth);
   m.def("metrics", &metrics);

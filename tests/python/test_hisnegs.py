@@ -280,3 +280,54 @@ def test_compare_optimizers_raises_the_optimizers_own_errors(work):
         hisnegs.compare_optimizers(volume, {"keeps": lambda p: kept.append(p)}, budget_s=0.2, builtins=[],
                                    gaussians=120)
         kept[0].value(kept[0].x)
+
+
+def test_exports_equal_the_cli(work, tmp_path):
+    """export_compact / export_volume / export_html write what `hisnegs export` writes
+    for the same model; export_vdb's points grid imports back to the same model."""
+    model = hisnegs.Model.load(work / "m.ply")
+    info = hisnegs.export_compact(model, tmp_path / "py.hgs")
+    assert run_cli("-q", "export", "compact", "--model", work / "m.ply", "-o", tmp_path / "cli.hgs",
+                   cwd=tmp_path).returncode == 0
+    assert (tmp_path / "py.hgs").read_bytes() == (tmp_path / "cli.hgs").read_bytes()
+    assert info["gaussians"] == len(model) and info["file_bytes"] == (tmp_path / "py.hgs").stat().st_size
+    assert len(hisnegs.Model.load(tmp_path / "py.hgs")) == len(model)
+
+    info = hisnegs.export_volume(model, tmp_path / "py.tif", match_volume=work / "s.tif")
+    assert run_cli("-q", "export", "volume", "--model", work / "m.ply", "-o", tmp_path / "cli.tif",
+                   "--match-volume", work / "s.tif", cwd=tmp_path).returncode == 0
+    assert np.array_equal(tifffile.imread(tmp_path / "py.tif"), tifffile.imread(tmp_path / "cli.tif"))
+    assert info["shape"] == (16, 48, 56) and info["psnr"] > 10
+
+    cameras = hisnegs.Cameras.load(work / "cameras.json")
+    info = hisnegs.export_html(model, tmp_path / "py.html", cameras=cameras)
+    assert run_cli("-q", "export", "html", "--model", work / "m.ply", "--cameras", work / "cameras.json", "-o",
+                   tmp_path / "cli.html", cwd=tmp_path).returncode == 0
+    assert (tmp_path / "py.html").read_bytes() == (tmp_path / "cli.html").read_bytes()
+    assert info["views"] == len(cameras) and info["page_bytes"] == (tmp_path / "py.html").stat().st_size
+
+    info = hisnegs.export_vdb(model, tmp_path / "py.vdb", points=True)
+    assert info["active_voxels"] > 0 and info["gaussians"] == len(model)
+    assert run_cli("-q", "import", "vdb", tmp_path / "py.vdb", "-o", tmp_path / "back.ply",
+                   cwd=tmp_path).returncode == 0
+    assert np.array_equal(hisnegs.Model.load(tmp_path / "back.ply").params, model.params)
+
+    with pytest.raises(ValueError, match="voxel_size"):
+        hisnegs.export_vdb(model, tmp_path / "bad.vdb", voxel_size=-1.0)
+    with pytest.raises(ValueError, match="position_bits"):
+        hisnegs.export_compact(model, tmp_path / "bad.hgs", position_bits=40)
+    assert not (tmp_path / "bad.vdb").exists() and not (tmp_path / "bad.hgs").exists()
+
+
+def test_info_prints_what_the_cli_prints(work):
+    for name, kind in (("m.ply", "checkpoint"), ("s.tif", "stack")):
+        described = hisnegs.info(work / name)
+        assert described["kind"] == kind
+        keys = [key for key, _ in described["rows"]]
+        assert "file" in keys
+        done = run_cli("info", work / name, cwd=work)
+        assert done.returncode == 0, done.stderr
+        if kind == "checkpoint":  # a stack's rows include its read time
+            assert described["text"] == done.stdout
+    with pytest.raises(ValueError, match="unrecognized file type"):
+        hisnegs.info(work / "fit.yaml")

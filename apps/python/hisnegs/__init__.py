@@ -24,7 +24,8 @@ from . import _hisnegs
 from ._hisnegs import Cameras, Model, RoundProblem, StopRound, Volume, metrics
 
 __all__ = ["Volume", "Model", "Cameras", "Objective", "RoundProblem", "StopRound", "load_volume", "fit", "train",
-           "ground_truth", "metrics", "compare_optimizers"]
+           "ground_truth", "metrics", "compare_optimizers", "export_vdb", "export_volume", "export_compact",
+           "export_html", "info"]
 
 
 def _sections(**sections):
@@ -239,3 +240,57 @@ def compare_optimizers(volume, optimizers, budget_s=60.0, builtins=("adam", "bri
     return _hisnegs._compare_optimizers(volume, [str(b) for b in builtins], dict(optimizers), text, float(budget_s),
                                         int(adam_steps), bool(stop_at_target), [str(c) for c in continuation],
                                         "" if output is None else str(output), progress)
+
+
+def export_vdb(model, path, voxel_size=None, match_volume=None, cutoff=1e-3, tail=1e-8, points=False,
+               untruncated_sum=False, mahalanobis_cutoff=None, **volume_options):
+    """``hisnegs export vdb``: the model's f as a sparse OpenVDB ``density`` grid (voxels
+    with f > ``cutoff`` active), on the model's own stack voxels, those of
+    ``match_volume`` (its header only; ``volume_options`` say how to read it) or cubic
+    voxels of ``voxel_size`` world units; ``points`` adds the ``gaussians``
+    PointDataGrid (``hisnegs import vdb`` reads it back exactly). The support δ is
+    ``mahalanobis_cutoff`` (default the config's ``gmf.mahalanobis_cutoff``, as the fit had
+    it). Returns the report (``active_voxels``, ``leaves``, ``gaussians``,
+    ``file_bytes``, ``lattice``, ``function``)."""
+    gmf = {} if mahalanobis_cutoff is None else {"mahalanobis_cutoff": float(mahalanobis_cutoff)}
+    return _hisnegs._export_vdb(model, str(path), None if voxel_size is None else float(voxel_size),
+                                "" if match_volume is None else str(match_volume), float(cutoff), float(tail),
+                                bool(points), bool(untruncated_sum), _sections(volume=volume_options, gmf=gmf))
+
+
+def export_volume(model, path, match_volume=None, tail=1e-8, untruncated_sum=False, mahalanobis_cutoff=None,
+                  **volume_options):
+    """``hisnegs export volume``: the model's f at every voxel centre of its own stack (or
+    of ``match_volume``, then with the 3D PSNR against it) as a float32 TIFF stack.
+    Returns ``shape`` (z, y, x), ``psnr`` (or None) and ``function``."""
+    gmf = {} if mahalanobis_cutoff is None else {"mahalanobis_cutoff": float(mahalanobis_cutoff)}
+    return _hisnegs._export_volume(model, str(path), "" if match_volume is None else str(match_volume), float(tail),
+                                   bool(untruncated_sum), _sections(volume=volume_options, gmf=gmf))
+
+
+def export_compact(model, path, position_bits=16, scale_bits=8, rotation_bits=10, intensity_bits=8, level=19):
+    """``hisnegs export compact``: the compact checkpoint (.hgs: quantized, zstd) that
+    every command and ``Model.load`` read like the .ply. Returns ``gaussians``,
+    ``file_bytes``, ``bytes_per_gaussian`` and the largest quantization errors
+    (``max_error``)."""
+    return _hisnegs._export_compact(model, str(path), int(position_bits), int(scale_bits), int(rotation_bits),
+                                    int(intensity_bits), int(level))
+
+
+def export_html(model, path, cameras=None, float32=False, background=True, camera_options=None, **splat_options):
+    """``hisnegs export html``: one self-contained HTML file, a WebGL2 hard-MIP viewer
+    with the model and ``cameras`` (default: the evaluation orbit of
+    ``camera_options``) inside; ``#view=N&ui=0`` shows view N. ``float32`` embeds exact
+    parameters instead of the compact encoding. Returns ``page_bytes``,
+    ``model_bytes`` and ``views``."""
+    splat = dict(splat_options, background=bool(background))
+    return _hisnegs._export_html(model, str(path), cameras, bool(float32),
+                                 _sections(splat=splat, camera=camera_options or {}))
+
+
+def info(path, **volume_options):
+    """``hisnegs info``: what a stack (TIFF, HDF5, BigDataViewer, Imaris), an OpenVDB
+    file or a checkpoint (.ply, .hgs) holds. Returns ``kind`` ("stack", "vdb",
+    "checkpoint", "compact checkpoint"), ``rows`` ((key, text) in order; key "" for
+    a line of its own) and ``text`` (what the command prints)."""
+    return _hisnegs._info(str(path), _sections(volume=volume_options))

@@ -179,3 +179,53 @@ def ground_truth(
 
 def metrics(render: npt.ArrayLike, target: npt.ArrayLike) -> dict[str, Any]:
     """PSNR, SSIM, MAE: means and per view."""
+
+def export_vdb(
+    model: Model,
+    path: _Path,
+    voxel_size: Optional[float] = None,
+    match_volume: Optional[_Path] = None,
+    cutoff: float = 1e-3,
+    tail: float = 1e-8,
+    points: bool = False,
+    untruncated_sum: bool = False,
+    mahalanobis_cutoff: Optional[float] = None,
+    **volume_options: Any,
+) -> dict[str, Any]:
+    """`hisnegs export vdb`: a sparse OpenVDB density grid (+ points)."""
+
+def export_volume(
+    model: Model,
+    path: _Path,
+    match_volume: Optional[_Path] = None,
+    tail: float = 1e-8,
+    untruncated_sum: bool = False,
+    mahalanobis_cutoff: Optional[float] = None,
+    **volume_options: Any,
+) -> dict[str, Any]:
+    """`hisnegs export volume`: the model's f as a float32 TIFF stack."""
+
+def export_compact(
+    model: Model,
+    path: _Path,
+    position_bits: int = 16,
+    scale_bits: int = 8,
+    rotation_bits: int = 10,
+    intensity_bits: int = 8,
+    level: int = 19,
+) -> dict[str, Any]:
+    """`hisnegs export compact`: the .hgs compact checkpoint."""
+
+def export_html(
+    model: Model,
+    path: _Path,
+    cameras: Optional[Cameras] = None,
+    float32: bool = False,
+    background: bool = True,
+    camera_options: Optional[dict[str, Any]] = None,
+    **splat_options: Any,
+) -> dict[str, Any]:
+    """`hisnegs export html`: a self-contained WebGL2 viewer page."""
+
+def info(path: _Path, **volume_options: Any) -> dict[str, Any]:
+    """`hisnegs info`: kind, rows (key, text) and the printed text."""
