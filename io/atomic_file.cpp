@@ -8,6 +8,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <cerrno>
 #include <cstdio>
@@ -98,10 +99,35 @@ void unregister_temp(int slot) {
   if (slot >= 0) g_live_temps[slot].store(nullptr);
 }
 
+// set_interrupt_note's line and marker: two slots, the one in use published by
+// index after it is written, so the handler never reads a half-written one.
+struct InterruptNote {
+  char line[1024];
+  char marker[4096];
+};
+InterruptNote g_notes[2];
+std::atomic<int> g_note{-1};
+std::mutex g_note_mutex;
+
+void write_interrupt_note() {
+  const int i = g_note.load();
+  if (i < 0) return;
+  const InterruptNote& note = g_notes[i];
+  (void)!::write(STDERR_FILENO, note.line, std::strlen(note.line));
+  if (note.marker[0] != '\0') {
+    const int fd = ::open(note.marker, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+    if (fd >= 0) {
+      (void)!::write(fd, note.line, std::strlen(note.line));
+      ::close(fd);
+    }
+  }
+}
+
 extern "C" void remove_temporaries_and_exit(int sig) {
   for (auto& slot : g_live_temps) {
     if (const char* p = slot.load()) ::unlink(p);
   }
+  write_interrupt_note();
   const char* name = sig == SIGINT ? "SIGINT" : sig == SIGTERM ? "SIGTERM" : "SIGHUP";
   const char head[] = "hisnegs: interrupted by ";
   const char tail[] = "; unfinished outputs removed\n";
@@ -121,6 +147,25 @@ void install_interrupt_cleanup() {
   sigemptyset(&action.sa_mask);
   for (int sig : {SIGINT, SIGTERM, SIGHUP}) ::sigaction(sig, &action, nullptr);
   ::signal(SIGXFSZ, SIG_IGN);
+}
+
+void set_interrupt_note(std::string_view line, const fs::path& marker) {
+  const std::lock_guard lock(g_note_mutex);
+  if (line.empty()) {
+    g_note.store(-1);
+    return;
+  }
+  const int i = g_note.load() == 0 ? 1 : 0;  // the slot not in use
+  InterruptNote& note = g_notes[i];
+  const std::size_t n = std::min(line.size(), sizeof note.line - 2);
+  std::memcpy(note.line, line.data(), n);
+  note.line[n] = '\n';
+  note.line[n + 1] = '\0';
+  const std::string m = marker.string();
+  const std::size_t k = m.size() < sizeof note.marker ? m.size() : 0;  // a longer path: no marker
+  std::memcpy(note.marker, m.data(), k);
+  note.marker[k] = '\0';
+  g_note.store(i);
 }
 
 void protect_input(const fs::path& path) {

@@ -6,6 +6,7 @@
 
 #include <filesystem>
 #include <string>
+#include <string_view>
 
 namespace hisnegs::io {
 
@@ -66,6 +67,12 @@ void protect_input(const std::filesystem::path& path);
 // and ignores SIGXFSZ, so exceeding a file-size limit is a write error (EFBIG)
 // rather than a core dump. Call once at start-up (the CLI does).
 void install_interrupt_cleanup();
+
+// A line those handlers write to stderr before their own, and into the file
+// `marker` when it is not empty: what this process was doing when it was stopped
+// from outside (an MPI launcher's SIGTERM after another rank died, Ctrl-C). An
+// empty `line` clears it. Lines over 1023 bytes and markers over 4095 are cut.
+void set_interrupt_note(std::string_view line, const std::filesystem::path& marker = {});
 
 // Writes `bytes` to `target` atomically.
 void write_file_atomic(const std::filesystem::path& target, const void* bytes, std::size_t size);

@@ -539,13 +539,33 @@ std::filesystem::path held_path(const StreamContext& c, int rank) {
   return c.folder / ("rank-" + std::to_string(rank) + ".holds");
 }
 
+// FOLDER/rank-R.stopped: written by rank R's interrupt handler (io::set_interrupt_note)
+// when the launcher or the user stopped it; a rank with a .holds mark and none of
+// these died.
+std::filesystem::path stopped_path(const StreamContext& c, int rank) {
+  return c.folder / ("rank-" + std::to_string(rank) + ".stopped");
+}
+
+// What this rank says if it is stopped now: `doing`, and that a rerun resumes.
+void note_for_interrupt(const StreamContext& c, const Job& ranks, const std::string& doing) {
+  io::set_interrupt_note(strf("hisnegs: rank %d of %d: stopped while %s; the finished bricks stay in %s: run the same "
+                              "command again to resume",
+                              ranks.rank(), ranks.size(), doing.c_str(), c.folder.c_str()),
+                         stopped_path(c, ranks.rank()));
+}
+
 void hold_brick(const StreamContext& c, const Job& ranks, const gmf::StreamBrick& b) {
   const std::string text = std::to_string(b.id) + " " + std::to_string(ranks.size()) + "\n";
   io::write_file_atomic(held_path(c, ranks.rank()), text.data(), text.size());
+  note_for_interrupt(c, ranks,
+                     strf("fitting brick %d/%zu (cell %d,%d,%d)", b.id + 1, c.plan.bricks.size(), b.cell[0], b.cell[1],
+                          b.cell[2]));
 }
 
 // Says, for each rank of a previous launch that left its mark, the unfinished brick
-// it held, and removes the marks.
+// it held and whether it died there (no .stopped mark: killed, crashed, out of
+// memory) or was stopped (by the launcher after another rank died, or Ctrl-C), and
+// removes the marks.
 void say_what_stopped_ranks_held(const StreamContext& c, const std::vector<std::optional<BrickResult>>& results,
                                  const Progress& progress) {
   std::error_code ec;
@@ -555,14 +575,18 @@ void say_what_stopped_ranks_held(const StreamContext& c, const std::vector<std::
     std::istringstream in(io::read_file(entry.path()));
     long long id = -1, size = 0;
     in >> id >> size;
+    const std::filesystem::path stopped = std::filesystem::path(entry.path()).replace_extension(".stopped");
+    const bool died = !std::filesystem::exists(stopped, ec);
     if (id >= 0 && id < static_cast<long long>(results.size()) && !results[static_cast<std::size_t>(id)]) {
       const gmf::StreamBrick& b = c.plan.bricks[static_cast<std::size_t>(id)];
-      progress.say("fit: the previous run's %s of %lld stopped while fitting brick %lld/%zu (cell %d,%d,%d); it is "
+      progress.say("fit: the previous run's %s of %lld %s while fitting brick %lld/%zu (cell %d,%d,%d); it is "
                    "fitted again",
-                   name.substr(0, name.size() - 6).replace(4, 1, " ").c_str(), size, id + 1, results.size(),
+                   name.substr(0, name.size() - 6).replace(4, 1, " ").c_str(), size,
+                   died ? "died (killed, crashed or out of memory)" : "was stopped", id + 1, results.size(),
                    b.cell[0], b.cell[1], b.cell[2]);
     }
     std::filesystem::remove(entry.path(), ec);
+    std::filesystem::remove(stopped, ec);
   }
 }
 
@@ -738,7 +762,9 @@ FitOutcome run_streamed(const std::string& volume, const FitConfig& config, cons
     // Every brick is in the folder once all ranks are here.
     std::error_code ec;
     std::filesystem::remove(held_path(c, ranks.rank()), ec);
+    note_for_interrupt(c, ranks, "waiting for the other ranks' bricks (its own are finished)");
     ranks.barrier();
+    io::set_interrupt_note("");
     // Every rank holds the whole model for the seam pass (K x 44 bytes).
     for (std::size_t b = 0; b < n; ++b) {
       if (!results[b]) results[b] = load_brick(c, static_cast<int>(b));

@@ -106,9 +106,10 @@ TEST_F(Mpi, ACommandThatDoesNotRunDistributedIsRefused) {
       << info.out;
 }
 
-// Rank 1 is killed (SIGKILL) as it saves its second brick: the job ends, the
-// finished bricks stay, and the rerun names what the dead rank held and resumes to
-// the uninterrupted checkpoint.
+// Rank 1 is killed (SIGKILL) as it saves its second brick: the job ends (the
+// launcher names rank 1, rank 0 says what it was doing when stopped), the finished
+// bricks stay, and the rerun names the brick the dead rank held and resumes to the
+// uninterrupted checkpoint.
 TEST_F(Mpi, AKilledRankEndsTheJobAndTheRerunResumes) {
   if (!fs::exists(dir() / "one.ply")) {  // each test may run in a process of its own
     ASSERT_EQ(testing::run_hisnegs(fit_args("one.ply")).exit_code, 0);
@@ -117,10 +118,15 @@ TEST_F(Mpi, AKilledRankEndsTheJobAndTheRerunResumes) {
   EXPECT_NE(killed.status, 0) << killed.out;
   EXPECT_FALSE(fs::exists(dir() / "k.ply"));
   ASSERT_TRUE(fs::exists(dir() / "k.ply.bricks")) << killed.out;
+  // The launcher names the dead rank; the rank it stopped says what it was doing.
+  EXPECT_NE(killed.out.find("process rank 1"), std::string::npos) << killed.out;
+  EXPECT_NE(killed.out.find("hisnegs: rank 0 of 2: stopped while "), std::string::npos) << killed.out;
   const auto rerun = mpirun(2, fit_args("k.ply"));
   ASSERT_EQ(rerun.status, 0) << rerun.out;
   EXPECT_NE(rerun.out.find("bricks already finished"), std::string::npos) << rerun.out;
-  EXPECT_NE(rerun.out.find("rank 1 of 2 stopped while fitting brick "), std::string::npos) << rerun.out;
+  EXPECT_NE(rerun.out.find("rank 1 of 2 died (killed, crashed or out of memory) while fitting brick "),
+            std::string::npos)
+      << rerun.out;
   EXPECT_EQ(testing::read_bytes(dir() / "k.ply"), testing::read_bytes(dir() / "one.ply"));
 }
 
