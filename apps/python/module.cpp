@@ -824,8 +824,16 @@ PYBIND11_MODULE(_hisnegs, m) {
                     model->checkpoint = gmf::load_checkpoint(p);
                     return model;
                   })
-      .def("save", [](const Model& model,
-                      const std::filesystem::path& p) { gmf::save_checkpoint(p, model.checkpoint.mixture, model.checkpoint.meta); })
+      .def("save",
+           [](const Model& model, const std::filesystem::path& p) {
+             // .hgs: the compact checkpoint with export compact's defaults; anything else: the .ply
+             py::gil_scoped_release release;
+             if (p.extension() == ".hgs") {
+               (void)apps::export_model_compact(model.checkpoint, p, gmf::CompactOptions{});
+             } else {
+               gmf::save_checkpoint(p, model.checkpoint.mixture, model.checkpoint.meta);
+             }
+           })
       .def("__len__", [](const Model& model) { return model.checkpoint.mixture.size(); })
       .def_property_readonly("params", &params_view)
       .def_property_readonly("aggregation",

@@ -102,6 +102,12 @@ def test_model_save_and_load_round_trip(work, tmp_path):
     model.save(tmp_path / "copy.ply")
     again = hisnegs.Model.load(tmp_path / "copy.ply")
     assert np.array_equal(again.params, model.params)
+    model.save(tmp_path / "copy.hgs")  # the compact format: quantized and in Morton order, so close, not equal
+    compact = hisnegs.Model.load(tmp_path / "copy.hgs")
+    assert compact.params.shape == model.params.shape
+    centres = compact.params[:, None, :3] - model.params[None, :, :3]
+    assert np.sqrt((centres ** 2).sum(axis=2)).min(axis=1).max() < 1e-3  # every centre has its original nearby
+    assert (tmp_path / "copy.hgs").read_bytes()[:4] != b"ply\n"
     (tmp_path / "broken.ply").write_text("not a ply\n")
     with pytest.raises(ValueError, match="broken.ply"):
         hisnegs.Model.load(tmp_path / "broken.ply")

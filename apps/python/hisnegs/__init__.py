@@ -121,7 +121,8 @@ Model.render = _render
 Model.rasterize = _rasterize
 Model.__doc__ = """A fitted or trained mixture with its checkpoint metadata.
 
-``Model.load(path)`` reads a .ply or compact .hgs checkpoint; ``save(path)`` writes a .ply.
+``Model.load(path)`` reads a .ply or compact .hgs checkpoint; ``save(path)`` writes a .ply, or
+with a .hgs name the compact checkpoint (``export_compact``'s defaults; ``export_compact`` sets the bits).
 ``params``: a (K, 11) float32 view of the parameters in the checkpoint's order:
 x, y, z (world), log σ0, log σ1, log σ2, quaternion w, x, y, z (unnormalized),
 intensity logit; writing it changes the model. ``aggregation`` and ``beta``: how

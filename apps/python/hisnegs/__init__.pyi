@@ -60,8 +60,9 @@ class Model:
 
     @staticmethod
     def load(path: _Path) -> "Model":
-        """Reads a .ply checkpoint."""
-    def save(self, path: _Path) -> None: ...
+        """Reads a .ply or compact .hgs checkpoint."""
+    def save(self, path: _Path) -> None:
+        """Writes a .ply, or the compact checkpoint for a .hgs name."""
     def __len__(self) -> int: ...
     @property
     def params(self) -> npt.NDArray[np.float32]:
