@@ -436,8 +436,16 @@ class RoundLoop {
     // The round's measurement and density control must fit after its solve: the
     // solve gets the time left minus what they took last round.
     double overhead = 0;
+    // The final all-voxel measurement (measure()) must fit in the budget too: its
+    // cost, probed on the initial mixture (1.5x: the mixture grows), is kept free.
+    double final_reserve = 0;
+    if (options_.time_budget_s > 0 && !mixture_.empty()) {
+      io::Stopwatch probe;
+      (void)stack_.psnr_3d(mixture_, RasterizeOptions::of(report_));
+      final_reserve = 1.5 * probe.elapsed();
+    }
     for (int round = 0; round < options_.rounds; ++round) {
-      const double left = options_.budget_seconds() - clock_.now() - overhead;
+      const double left = options_.budget_seconds() - clock_.now() - overhead - final_reserve;
       if (left <= 0) {
         result_.stop_reason = "time budget";
         break;

@@ -2,6 +2,7 @@
 // prepare_fit, fit_to_checkpoint, checkpoint_meta and the run folder's fit stage.
 #include "apps/pipeline/fit_stage.hpp"
 
+#include <algorithm>
 #include <sstream>
 
 #include "apps/pipeline/distributed.hpp"
@@ -125,6 +126,7 @@ gmf::CheckpointMeta checkpoint_meta(const io::LoadedVolume& loaded, const std::s
 
 FitOutcome fit_to_checkpoint(const std::string& volume, const FitConfig& config, const std::filesystem::path& out,
                              const std::filesystem::path& log_csv, const Progress& progress) {
+  io::Stopwatch watch;  // the command's clock: gmf.time_budget_s bounds all of it
   const gmf::GmfOptions& gmf = config.get<&AppConfig::gmf>();
   gmf.validate();
   {  // a stack larger than gmf.max_memory (or asked to) is fitted in bricks
@@ -135,9 +137,8 @@ FitOutcome fit_to_checkpoint(const std::string& volume, const FitConfig& config,
     const FitPlanChoice choice = choose_fit_plan({header.nx, header.ny, header.nz}, frame, gmf, {}, job().size());
     if (choice.bricked) return fit_streamed(volume, config, choice, out, log_csv, progress);
   }
-  io::Stopwatch watch;
   const FittedModel fitted =
-      fit_loaded(io::load_volume(volume, config.get<&AppConfig::volume>()), volume, config, progress);
+      fit_loaded(io::load_volume(volume, config.get<&AppConfig::volume>()), volume, config, progress, &watch);
   const gmf::GaussianMixture& mixture = fitted.checkpoint.mixture;
   const gmf::FitResult& result = fitted.result;
   gmf::save_checkpoint(out, mixture, fitted.checkpoint.meta);
@@ -155,7 +156,9 @@ FitOutcome fit_to_checkpoint(const std::string& volume, const FitConfig& config,
 }
 
 FittedModel fit_loaded(io::LoadedVolume loaded, const std::string& source, const FitConfig& config,
-                       const Progress& progress) {
+                       const Progress& progress, const io::Stopwatch* command) {
+  io::Stopwatch own;
+  const io::Stopwatch& since = command != nullptr ? *command : own;
   const gmf::GmfOptions& gmf = config.get<&AppConfig::gmf>();
   gmf.validate();
   FitSetup setup = prepare_fit(std::move(loaded), source, config, "fit", progress);
@@ -171,6 +174,9 @@ FittedModel fit_loaded(io::LoadedVolume loaded, const std::string& source, const
   const io::BackgroundModel background = stack_background(setup.loaded, config, progress);
   gmf::GmfOptions fit_options = gmf;
   fit_options.clone_floor = background.none() ? 0.0 : background.quantile(0.999);
+  // gmf.time_budget_s bounds the command: loading, sampling, init and the background
+  // are spent (the checkpoint's writing afterwards takes milliseconds).
+  if (gmf.time_budget_s > 0) fit_options.time_budget_s = std::max(1e-3, gmf.time_budget_s - since.elapsed());
   gmf::GaussianMixture& mixture = setup.mixture;
   gmf::FitResult result = gmf::fit_mixture(setup.loaded.volume, setup.samples, setup.loaded.frame, mixture, fit_options,
                                                  [&](const gmf::FitIteration& it) { report_iteration(it, progress); });

@@ -16,6 +16,7 @@
 #include "gmf/gaussian_mixture.hpp"
 #include "io/load_volume.hpp"
 #include "io/sparse_grid.hpp"
+#include "io/timer.hpp"
 
 namespace hisnegs::apps {
 
@@ -79,8 +80,10 @@ struct FittedModel {
   gmf::Checkpoint checkpoint;
   gmf::FitResult result;
 };
+// gmf.time_budget_s counts from `command` (the command's clock, started before the
+// volume was loaded) when given, else from the call.
 FittedModel fit_loaded(io::LoadedVolume loaded, const std::string& source, const FitConfig& config,
-                       const Progress& progress);
+                       const Progress& progress, const io::Stopwatch* command = nullptr);
 
 // In a run folder: DIR/gmf.ply and DIR/fit_log.csv; reports {gaussians, psnr_3d,
 // stop} as run.json's "fit".
