@@ -193,8 +193,6 @@
   const K0 = { fx: cams.fx, fy: cams.fy, cx: cams.cx, cy: cams.cy };
   canvas.width = W;
   canvas.height = H;
-  canvas.style.width = W + "px";
-  canvas.style.height = H + "px";
   const gl = canvas.getContext("webgl2", { antialias: false, alpha: false, depth: false, preserveDrawingBuffer: true });
   if (!gl) throw new Error("WebGL2 is not available");
   if (!gl.getExtension("EXT_color_buffer_float")) throw new Error("EXT_color_buffer_float is not available");
@@ -394,7 +392,7 @@ void main() {
     const tex = texture(float32 ? gl.R32F : gl.R16F, w, h);
     return { tex, fb: framebuffer(tex, "float render target"), w, h };
   }
-  const main = mipTarget(W, H);
+  let main = mipTarget(W, H);  // the view's target, re-made when the drawing size changes
   // The volume's MIP from the server (R32F, sampled with texelFetch only: no filtering needed).
   const refTex = texture(gl.R32F, W, H);
 
@@ -535,13 +533,48 @@ void main() {
     el("scalebar-bar").style.width = (um * pxPerUm).toFixed(1) + "px";
     el("scalebar-label").textContent = (um >= 1000 ? um / 1000 + " mm" : um + " µm");
   }
+  // The drawing size. With the UI the view fills the window (the camera's aspect kept)
+  // and is drawn at its device pixels, the intrinsics scaled as a screenshot's, and at
+  // a quarter of the pixels while the user drags or zooms; at the camera's own W x H
+  // with #ui=0 (the screenshot contract), with "camera size" ticked, and while
+  // comparing with the volume's MIP (the server sends W x H).
+  let interacting = false, settleTimer = 0;
+  const nativeSize = () => document.body.classList.contains("noui") || el("native").checked || comparing();
+  function drawingSize() {
+    const noui = document.body.classList.contains("noui");
+    const cssW = noui ? W : Math.max(1, Math.min(window.innerWidth, window.innerHeight * W / H));
+    const cssH = noui ? H : cssW * H / W;
+    canvas.style.width = cssW + "px";
+    canvas.style.height = cssH + "px";
+    if (nativeSize()) return { w: W, h: H };
+    const max = gl.getParameter(gl.MAX_RENDERBUFFER_SIZE);
+    const scale = (window.devicePixelRatio || 1) * (interacting ? 0.5 : 1);
+    return { w: Math.max(1, Math.min(max, Math.round(cssW * scale))), h: Math.max(1, Math.min(max, Math.round(cssH * scale))) };
+  }
+  // Ends the reduced drawing 150 ms after the last wheel step or at the last pointer's lift.
+  function settle(now) {
+    clearTimeout(settleTimer);
+    if (now) { if (interacting) { interacting = false; draw(); } return; }
+    settleTimer = setTimeout(() => settle(true), 150);
+  }
   function draw() {
     const t0 = performance.now();
+    const size = drawingSize();
+    if (size.w !== main.w || size.h !== main.h) {
+      gl.deleteTexture(main.tex);
+      gl.deleteFramebuffer(main.fb);
+      main = mipTarget(size.w, size.h);
+      canvas.width = size.w;
+      canvas.height = size.h;
+    }
+    const K = { fx: K0.fx * size.w / W, fy: K0.fy * size.h / H, cx: K0.cx * size.w / W, cy: K0.cy * size.h / H };
     const showRef = comparing() && refFor === cameraKey(camera);
-    render(main, K0, null, showRef ? parseFloat(el("swipe").value) * W : W + 1);
+    render(main, K, null, showRef ? parseFloat(el("swipe").value) * size.w : size.w + 1);
     gl.finish();
     const ms = performance.now() - t0;
-    el("stats").textContent = meta.count + " Gaussians, " + W + "×" + H + ", " + ms.toFixed(1) + " ms/frame (" +
+    el("stats").textContent = meta.count + " Gaussians, drawn at " + size.w + "×" + size.h +
+                              (size.w === W && size.h === H ? " (the camera's size)" : " (camera " + W + "×" + H + ")") +
+                              (interacting ? ", reduced while moving" : "") + ", " + ms.toFixed(1) + " ms/frame (" +
                               (float32 ? "32" : "16") + "-bit float target)" +
                               (umPerWorld ? "" : "; no spacing in the checkpoint: no scale bar, slab in world units");
     updateScaleBar();
@@ -629,6 +662,8 @@ void main() {
     // #background=0: the Gaussians alone (a model with a recorded background draws its floor).
     if (h.params.has("background")) el("background").checked = h.params.get("background") !== "0";
     showFloor = !!meta.floor && el("background").checked;
+    // #native=1: draw at the camera's own W x H (stretched to the window) rather than the window's pixels.
+    if (h.params.has("native")) el("native").checked = h.params.get("native") === "1";
     // #compare=1&swipe=F: the comparison with the volume's MIP (hisnegs view --volume).
     if (h.params.has("compare")) el("compare").checked = h.params.get("compare") === "1";
     if (h.params.has("swipe")) el("swipe").value = h.params.get("swipe");
@@ -644,10 +679,10 @@ void main() {
   el("background-box").hidden = !meta.floor;
   el("background").addEventListener("input", () => { showFloor = !!meta.floor && el("background").checked; draw(); });
   window.addEventListener("hashchange", applyHash);
-  window.addEventListener("resize", updateScaleBar);
+  window.addEventListener("resize", draw);  // a new window size: a new drawing size (and scale bar)
   select.addEventListener("change", () => { camera = cameraOfView(parseInt(select.value, 10)); draw(); });
   el("reset").addEventListener("click", () => { camera = cameraOfView(parseInt(select.value, 10)); draw(); });
-  ["lo", "hi", "gamma", "cmap", "slab", "slab-offset", "compare", "swipe"].forEach((id) => el(id).addEventListener("input", draw));
+  ["lo", "hi", "gamma", "cmap", "slab", "slab-offset", "compare", "swipe", "native"].forEach((id) => el(id).addEventListener("input", draw));
   el("shot").addEventListener("click", () => { try { saveScreenshot(); } catch (err) { report(err.message); } });
   el("camera-copy").addEventListener("click", copyCamera);
 
@@ -668,7 +703,15 @@ void main() {
     canvas.setPointerCapture(ev.pointerId);
     startGesture(ev);
   });
-  const lift = (ev) => { pointers.delete(ev.pointerId); if (pointers.size > 0) startGesture(ev); else gesture = null; };
+  const lift = (ev) => {
+    pointers.delete(ev.pointerId);
+    if (pointers.size > 0) {
+      startGesture(ev);
+    } else {
+      gesture = null;
+      settle(true);
+    }
+  };
   canvas.addEventListener("pointerup", lift);
   canvas.addEventListener("pointercancel", lift);
   canvas.addEventListener("pointermove", (ev) => {
@@ -693,13 +736,16 @@ void main() {
       const e = Math.max(-1.55, Math.min(1.55, gesture.s.e + (mid[1] - gesture.mid[1]) * k));
       camera = orbitCamera(e, gesture.s.phi - (mid[0] - gesture.mid[0]) * k, gesture.s.r);
     }
+    interacting = true;
     draw();
   });
   canvas.addEventListener("wheel", (ev) => {
     ev.preventDefault();
     const s = spherical();
     camera = orbitCamera(s.e, s.phi, s.r * Math.exp(ev.deltaY * 0.001));
+    interacting = true;
     draw();
+    settle(false);
   }, { passive: false });
 
   // For scripts and tests: the current camera, a screenshot of any size as a data URL.
@@ -720,7 +766,9 @@ void main() {
       gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, pixel);  // waits for the frame, unlike finish()
     }
     console.log("hisnegs-viewer bench: " + ((performance.now() - t0) / benchFrames).toFixed(2) + " ms/frame over " +
-                benchFrames + " frames, " + meta.count + " Gaussians, " + W + "x" + H);
+                benchFrames + " frames, " + meta.count + " Gaussians, " + main.w + "x" + main.h +
+                " (window " + window.innerWidth + "x" + window.innerHeight + ", device pixel ratio " +
+                (window.devicePixelRatio || 1) + ")");
   }
   document.body.dataset.ready = "1";
   // The same signal for tools that read the console rather than the DOM.

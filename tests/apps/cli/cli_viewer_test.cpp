@@ -12,6 +12,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -536,6 +537,37 @@ std::string console_value(const std::string& log, const std::string& tag) {
   if (at == std::string::npos) return "";
   const std::size_t from = at + tag.size() + 2;
   return log.substr(from, log.find('"', from) - from);
+}
+
+// With the UI the page draws at the window's device pixels (the camera's aspect kept,
+// its intrinsics scaled, as a screenshot's), not at the camera's size stretched;
+// #native=1 (the "camera size" option) draws the camera's own W x H.
+TEST_F(CliViewer, TheUiDrawsAtTheWindowsPixelsAndTheCameraSizeOnRequest) {
+  REQUIRE_CHROMIUM();
+  const CameraCase c{96, 64, 45.0, 0.0, 1.0};
+  const fs::path cams = write_cameras("c.json", c);
+  const auto e = run_hisnegs({"export", "html", "--model", model(), "--cameras", cams, "-o", dir_ / "d.html"});
+  ASSERT_EQ(e.exit_code, 0) << e.err;
+  // "hisnegs-viewer bench: T ms/frame over 1 frames, K Gaussians, WxH (window AxB, ...": the drawn size.
+  const auto drawn = [&](const std::string& fragment, const std::string& tag) {
+    std::string log;
+    (void)chromium_view("file://" + (dir_ / "d.html").string() + fragment, c.width, c.height, tag, &log);
+    const std::size_t at = log.find("hisnegs-viewer bench:");
+    EXPECT_NE(at, std::string::npos) << log.substr(0, 2000);
+    std::array<int, 4> v{0, 0, 0, 0};
+    const std::size_t g = log.find("Gaussians, ", at);
+    if (at == std::string::npos || g == std::string::npos) return v;
+    EXPECT_EQ(std::sscanf(log.c_str() + g, "Gaussians, %dx%d (window %dx%d", &v[0], &v[1], &v[2], &v[3]), 4) << log;
+    return v;
+  };
+  const std::array<int, 4> ui = drawn("#view=0&bench=1", "dpr");
+  const double fit = std::min<double>(ui[2], ui[3] * 96.0 / 64.0);  // the window's largest 3:2 box
+  EXPECT_NEAR(ui[0], fit, 1.0);
+  EXPECT_NEAR(ui[1], fit * 64.0 / 96.0, 1.0);
+  EXPECT_GT(ui[0], c.width);  // more pixels than the camera has: drawn, not stretched
+  const std::array<int, 4> native = drawn("#view=0&bench=1&native=1", "native");
+  EXPECT_EQ(native[0], c.width);
+  EXPECT_EQ(native[1], c.height);
 }
 
 // The page's script API: window.hisnegsViewer.screenshot(w, h) draws the current
