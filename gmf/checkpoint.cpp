@@ -1,13 +1,10 @@
 // SPDX-License-Identifier: Apache-2.0
 // Checkpoint <-> PLY table mapping (parameters, `comment hisnegs` metadata) and
-// save / load on top of io::read_ply / io::write_ply; load_checkpoint hands compact
-// files to gmf/compact_checkpoint. No PLY parsing here.
+// save on top of io::write_ply (load_checkpoint, which reads the PLY and the compact
+// format alike, is gmf/load_checkpoint.cpp). No PLY parsing here.
 #include "gmf/checkpoint.hpp"
 
-#include <unistd.h>
-
 #include <cctype>
-#include <cerrno>
 #include <charconv>
 #include <cmath>
 #include <cstring>
@@ -16,7 +13,6 @@
 #include <stdexcept>
 #include <string_view>
 
-#include "gmf/compact_checkpoint.hpp"
 #include "io/error.hpp"
 
 namespace hisnegs::gmf {
@@ -370,27 +366,6 @@ void save_checkpoint(const fs::path& path, const GaussianMixture& mixture, const
     throw std::invalid_argument(io::describe(path, std::string("cannot save checkpoint: ") + e.what()));
   }
   io::write_ply(path, table);
-}
-
-Checkpoint load_checkpoint(const fs::path& path) {
-  // By content, not by name: a compact file keeps working whatever it is called.
-  // A file that is a cut-short compact magic goes to the compact reader too, which
-  // says "truncated" rather than PLY's "not a PLY file".
-  // Only a regular file, opened without blocking (a FIFO would hang the reader).
-  char head[kCompactMagic.size()] = {};
-  std::size_t got = 0;
-  {
-    const int fd = io::open_regular_file(path);
-    ssize_t n = 0;
-    while (got < sizeof head && (n = ::read(fd, head + got, sizeof head - got)) != 0) {
-      if (n < 0 && errno == EINTR) continue;
-      if (n < 0) break;
-      got += static_cast<std::size_t>(n);
-    }
-    ::close(fd);
-  }
-  if (got > 0 && std::memcmp(head, kCompactMagic.data(), got) == 0) return load_compact_checkpoint(path);
-  return checkpoint_from_ply(io::read_ply(path), path);
 }
 
 MixtureModel model_of(const CheckpointMeta& meta, double cutoff) {

@@ -16,6 +16,7 @@
 #include <numeric>
 #include <stdexcept>
 
+#include "gmf/gaussian_math.hpp"
 #include "io/atomic_file.hpp"
 #include "io/binary_io.hpp"
 #include "io/error.hpp"
@@ -112,8 +113,6 @@ std::uint64_t compact3(std::uint64_t v) {
   v = (v ^ (v >> 32)) & 0x1fffff;
   return v;
 }
-
-double sigmoid_d(double x) { return 1.0 / (1.0 + std::exp(-x)); }
 
 // CRC-32 (zlib's: ISO 3309 / ITU-T V.42, the one of gzip and PNG) of `bytes`: it
 // catches every error of up to 3 bits and every burst of up to 32 bits in a file
@@ -306,7 +305,7 @@ std::string encode_compact_checkpoint(const GaussianMixture& mixture, const Chec
       if (j != largest) word = (word << rb) | quantize(q[j], -kHalfSqrt2, kHalfSqrt2, m_rot);
     }
     cols.rotation.put(i, word);
-    cols.intensity.put(i, quantize(sigmoid_d(g.intensity_logit), 0.0, 1.0, m_int));
+    cols.intensity.put(i, quantize(sigmoid<double>(g.intensity_logit), 0.0, 1.0, m_int));
   }
 
   // One frame that records its content size (the reader checks it against K before
@@ -540,7 +539,7 @@ Checkpoint decode_compact_checkpoint(std::string_view bytes, const fs::path& sou
     const std::uint64_t c = cols.intensity.get(i);
     if (c > m_int) fail(where(i) + "intensity code " + std::to_string(c) + " beyond its bits");
     const double a = std::clamp(dequantize(c, 0.0, 1.0, m_int), kIntensityEnd, 1.0 - kIntensityEnd);
-    g.intensity_logit = static_cast<float>(std::log(a / (1.0 - a)));
+    g.intensity_logit = static_cast<float>(logit(a));
   }
   try {
     check_checkpoint_mixture(out.mixture);

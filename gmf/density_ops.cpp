@@ -62,7 +62,7 @@ GaussianParams isotropic_gaussian(const Eigen::Vector3d& mean, const Eigen::Vect
   }
   g.rotation = {1.0f, 0.0f, 0.0f, 0.0f};
   const double a = std::clamp(intensity, 0.02, 0.98);
-  g.intensity_logit = static_cast<float>(std::log(a / (1 - a)));
+  g.intensity_logit = static_cast<float>(logit(a));
   return g;
 }
 

@@ -23,6 +23,12 @@ HISNEGS_HD T sigmoid(T logit) {
   using std::exp;
   return logit >= T(0) ? T(1) / (T(1) + exp(-logit)) : exp(logit) / (T(1) + exp(logit));
 }
+// ℓ = logit(a) = ln(a / (1 − a)), sigmoid's inverse, for a in (0, 1).
+template <class T>
+HISNEGS_HD T logit(T a) {
+  using std::log;
+  return log(a / (T(1) - a));
+}
 // dL/dℓ from a = sigmoid(ℓ) and dL/da.
 template <class T>
 HISNEGS_HD T sigmoid_vjp(T a, T dL_da) {

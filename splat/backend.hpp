@@ -8,6 +8,8 @@
 #include <string>
 #include <string_view>
 
+#include "splat/cuda/device.hpp"  // CudaDeviceInfo
+
 namespace hisnegs::splat {
 
 enum class Backend { kCpu, kCuda };
@@ -16,15 +18,6 @@ enum class BackendRequest { kAuto, kCpu, kCuda };
 // Parses "auto" | "cpu" | "cuda"; throws io::InputError naming `option` otherwise.
 [[nodiscard]] BackendRequest parse_backend_request(std::string_view text, std::string_view option = "--backend");
 
-struct CudaDeviceInfo {
-  bool compiled = false;   // this build has the CUDA back end
-  bool available = false;  // a device can be used now
-  int device_count = 0;
-  std::string name;  // device 0
-  int compute_major = 0, compute_minor = 0;
-  std::size_t memory_bytes = 0;
-  std::string reason;  // why not available (driver message), empty if available
-};
 // Probed once per process (thread-safe), cached afterwards.
 [[nodiscard]] const CudaDeviceInfo& cuda_device_info();
 

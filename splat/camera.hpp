@@ -14,9 +14,7 @@
 
 namespace hisnegs::splat {
 
-// Shared by every view of a camera set.
-// The largest image side hisnegs renders (config camera.width/height, cameras.json).
-inline constexpr int kMaxImageSide = 16384;
+// Shared by every view of a camera set (its largest side: kMaxImageSide, splat_options.hpp).
 
 struct Intrinsics {
   int width = 256, height = 256;   // pixels

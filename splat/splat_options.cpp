@@ -3,7 +3,6 @@
 #include "splat/splat_options.hpp"
 
 #include "io/error.hpp"
-#include "splat/camera.hpp"
 
 namespace hisnegs::splat {
 

@@ -18,6 +18,8 @@ namespace hisnegs::splat {
 inline constexpr double kMaxSoftMipBeta = 1e4;
 // The smallest image edge the losses take (the SSIM window, losses.hpp).
 inline constexpr int kMinImageEdge = 11;
+// The largest image side hisnegs renders (config camera.width/height, cameras.json).
+inline constexpr int kMaxImageSide = 16384;
 
 // Pinhole camera and orbit (CONVENTIONS "Cameras").
 struct CameraOptions {

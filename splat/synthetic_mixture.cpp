@@ -7,6 +7,8 @@
 #include <cmath>
 #include <random>
 
+#include "gmf/gaussian_math.hpp"
+
 namespace hisnegs::splat {
 
 gmf::GaussianMixture make_synthetic_mixture(const SyntheticMixtureOptions& o) {
@@ -45,7 +47,7 @@ gmf::GaussianMixture make_synthetic_mixture(const SyntheticMixtureOptions& o) {
       const double qn = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
       for (int a = 0; a < 4; ++a) g.rotation[a] = static_cast<float>(q[a] / qn);
       const double a = 0.15 + 0.8 * (0.5 + 0.5 * u(rng));
-      g.intensity_logit = static_cast<float>(std::log(a / (1 - a)));
+      g.intensity_logit = static_cast<float>(gmf::logit(a));
       mixture.push_back(g);
     }
   }

@@ -10,6 +10,7 @@
 #include "apps/pipeline/eval_stage.hpp"
 #include "apps/pipeline/fit_stage.hpp"
 #include "apps/pipeline/ground_truth_stage.hpp"
+#include "apps/pipeline/run_summary.hpp"
 #include "apps/pipeline/orbit_stage.hpp"
 #include "apps/pipeline/progress.hpp"
 #include "apps/pipeline/run_stage.hpp"
@@ -25,16 +26,6 @@ struct StageList {
 };
 using PipelineStages = StageList<VolumeStage, GroundTruthStage, FitStage, TrainStage, EvalStage, OrbitStage>;
 
-struct StageTiming {
-  std::string name;
-  double seconds = 0;   // wall time of the stage when it ran (an earlier run's, if reused)
-  bool reused = false;  // finished by an earlier invocation
-};
-
-struct RunSummary {
-  std::vector<StageTiming> stages;
-  double seconds = 0;  // wall time of this invocation
-};
 
 // Runs (or reuses) every stage of PipelineStages in `request.dir` and writes
 // DIR/report.md; DIR/run.json records the stages, DIR/config.yaml holds the

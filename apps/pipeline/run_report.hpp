@@ -6,7 +6,7 @@
 #include <filesystem>
 #include <nlohmann/json.hpp>
 
-#include "apps/pipeline/run_pipeline.hpp"
+#include "apps/pipeline/run_summary.hpp"
 #include "splat/backend.hpp"
 
 namespace hisnegs::apps {

@@ -3,7 +3,23 @@
 // only when the CUDA back end is built). No CUDA headers here.
 #pragma once
 
-#include "splat/backend.hpp"
+#include <cstddef>
+#include <string>
+
+namespace hisnegs::splat {
+
+// What the CUDA runtime says about the machine (splat::cuda_device_info() caches it).
+struct CudaDeviceInfo {
+  bool compiled = false;   // this build has the CUDA back end
+  bool available = false;  // a device can be used now
+  int device_count = 0;
+  std::string name;  // device 0
+  int compute_major = 0, compute_minor = 0;
+  std::size_t memory_bytes = 0;
+  std::string reason;  // why not available (driver message), empty if available
+};
+
+}  // namespace hisnegs::splat
 
 namespace hisnegs::splat::cuda {
 

@@ -1,6 +1,6 @@
 // SPDX-License-Identifier: Apache-2.0
 // CUDA ground-truth MIPs: one thread per pixel over splat/raymarch_kernel.hpp,
-// 16x16 thread blocks (a tile of rays shares bricks in cache).
+// kRayBlock x kRayBlock thread blocks (a tile of rays shares bricks in cache).
 #include <cuda_runtime.h>
 
 #include <stdexcept>
@@ -12,6 +12,10 @@
 
 namespace hisnegs::splat::cuda {
 namespace {
+
+// The side of a thread block of rays: 16 x 16 = 256 threads, a tile of neighbouring
+// rays that read the same bricks.
+constexpr int kRayBlock = 16;
 
 __global__ void march_kernel(kernels::DenseVolume vol, kernels::BrickMax bricks, kernels::MarchParams mp,
                              kernels::ViewParams view, float* out) {
@@ -53,8 +57,8 @@ void CudaRayMarcher::render(const kernels::ViewParams& vp, float* out, std::size
   const std::size_t pixels = static_cast<std::size_t>(vp.width) * vp.height;
   if (count != pixels) throw std::invalid_argument("CudaRayMarcher::render: output has the wrong size");
   impl_->image.resize(pixels);
-  const dim3 block(16, 16);
-  const dim3 grid((vp.width + 15) / 16, (vp.height + 15) / 16);
+  const dim3 block(kRayBlock, kRayBlock);
+  const dim3 grid((vp.width + kRayBlock - 1) / kRayBlock, (vp.height + kRayBlock - 1) / kRayBlock);
   HISNEGS_CUDA_CHECK(cudaEventRecord(impl_->start));
   march_kernel<<<grid, block>>>(impl_->vol, impl_->bricks, impl_->params, vp, impl_->image.data());
   HISNEGS_CUDA_CHECK_LAUNCH();

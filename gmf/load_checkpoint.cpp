@@ -1,0 +1,39 @@
+// SPDX-License-Identifier: Apache-2.0
+// load_checkpoint (declared in gmf/checkpoint.hpp): the one reader of both
+// checkpoint formats, the PLY (gmf/checkpoint.hpp) and the compact .hgs
+// (gmf/compact_checkpoint.hpp), told apart by content. Its own file so that
+// the compact format builds on the PLY one and not the other way round.
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstring>
+
+#include "gmf/checkpoint.hpp"
+#include "gmf/compact_checkpoint.hpp"
+#include "io/error.hpp"
+
+namespace hisnegs::gmf {
+namespace fs = std::filesystem;
+
+Checkpoint load_checkpoint(const fs::path& path) {
+  // By content, not by name: a compact file keeps working whatever it is called.
+  // A file that is a cut-short compact magic goes to the compact reader too, which
+  // says "truncated" rather than PLY's "not a PLY file".
+  // Only a regular file, opened without blocking (a FIFO would hang the reader).
+  char head[kCompactMagic.size()] = {};
+  std::size_t got = 0;
+  {
+    const int fd = io::open_regular_file(path);
+    ssize_t n = 0;
+    while (got < sizeof head && (n = ::read(fd, head + got, sizeof head - got)) != 0) {
+      if (n < 0 && errno == EINTR) continue;
+      if (n < 0) break;
+      got += static_cast<std::size_t>(n);
+    }
+    ::close(fd);
+  }
+  if (got > 0 && std::memcmp(head, kCompactMagic.data(), got) == 0) return load_compact_checkpoint(path);
+  return checkpoint_from_ply(io::read_ply(path), path);
+}
+
+}  // namespace hisnegs::gmf
