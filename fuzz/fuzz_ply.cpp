@@ -7,7 +7,7 @@
 #include <cstring>
 
 #include "fuzz/fuzz_support.hpp"
-#include "gmf/checkpoint.hpp"
+#include "gmf/core/checkpoint.hpp"
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
   using namespace hisnegs;

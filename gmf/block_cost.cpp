@@ -9,7 +9,7 @@
 #include "gmf/detail/block_cost.hpp"
 #include "gmf/block_index.hpp"
 #include "gmf/objective.hpp"
-#include "gmf/gaussian_math.hpp"
+#include "gmf/core/gaussian_math.hpp"
 
 namespace hisnegs::gmf::detail {
 

@@ -9,7 +9,7 @@
 #include <atomic>
 #include <cmath>
 
-#include "gmf/gaussian_math.hpp"
+#include "gmf/core/gaussian_math.hpp"
 
 namespace hisnegs::gmf {
 

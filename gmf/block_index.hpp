@@ -9,7 +9,7 @@
 #include <span>
 #include <vector>
 
-#include "gmf/gaussian_mixture.hpp"
+#include "gmf/core/gaussian_mixture.hpp"
 #include "gmf/samples.hpp"
 #include "io/volume.hpp"
 

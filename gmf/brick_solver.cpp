@@ -17,7 +17,7 @@
 
 #include "gmf/detail/block_cost.hpp"
 #include "gmf/detail/candidates.hpp"
-#include "gmf/gaussian_math.hpp"
+#include "gmf/core/gaussian_math.hpp"
 
 namespace hisnegs::gmf {
 namespace {

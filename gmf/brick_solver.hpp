@@ -14,9 +14,9 @@
 #include <span>
 #include <vector>
 
-#include "gmf/aggregation.hpp"
+#include "gmf/core/aggregation.hpp"
 #include "gmf/block_index.hpp"
-#include "gmf/param_layout.hpp"
+#include "gmf/core/param_layout.hpp"
 #include "gmf/samples.hpp"
 #include "io/volume.hpp"
 

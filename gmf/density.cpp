@@ -7,9 +7,9 @@
 #include <cmath>
 #include <numeric>
 
-#include "gmf/aggregation.hpp"
-#include "gmf/density_ops.hpp"
-#include "gmf/gaussian_math.hpp"
+#include "gmf/core/aggregation.hpp"
+#include "gmf/core/density_ops.hpp"
+#include "gmf/core/gaussian_math.hpp"
 
 namespace hisnegs::gmf {
 

@@ -6,7 +6,7 @@
 #pragma once
 
 #include "gmf/block_index.hpp"
-#include "gmf/gaussian_mixture.hpp"
+#include "gmf/core/gaussian_mixture.hpp"
 #include "gmf/gmf_options.hpp"
 #include "gmf/samples.hpp"
 #include "io/volume.hpp"

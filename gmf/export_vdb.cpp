@@ -27,7 +27,7 @@
 #include <sstream>
 #include <vector>
 
-#include "gmf/rasterize.hpp"
+#include "gmf/core/rasterize.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
 #include "io/memory_limit.hpp"

@@ -1,6 +1,6 @@
 // SPDX-License-Identifier: Apache-2.0
 // Checkpoint -> OpenVDB (`hisnegs export vdb`): the mixture f(x) rasterized into a
-// sparse `density` FloatGrid (gmf/rasterize.hpp's blocks are its leaves), optionally a `gaussians`
+// sparse `density` FloatGrid (gmf/core/rasterize.hpp's blocks are its leaves), optionally a `gaussians`
 // PointDataGrid with every parameter of every Gaussian, and the way back from that
 // points grid to a checkpoint (`hisnegs import vdb`). OpenVDB stays in the .cpp.
 #pragma once
@@ -13,8 +13,8 @@
 #include <optional>
 #include <string>
 
-#include "gmf/checkpoint.hpp"
-#include "gmf/rasterize.hpp"
+#include "gmf/core/checkpoint.hpp"
+#include "gmf/core/rasterize.hpp"
 #include "io/volume.hpp"
 
 namespace hisnegs::gmf {

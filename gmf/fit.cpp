@@ -17,17 +17,17 @@
 #include <string>
 #include <thread>
 
-#include "gmf/adam.hpp"
+#include "gmf/core/adam.hpp"
 #include "gmf/block_index.hpp"
 #include "gmf/brick_solver.hpp"
 #include "gmf/density.hpp"
-#include "gmf/density_ops.hpp"
+#include "gmf/core/density_ops.hpp"
 #include "gmf/detail/block_cost.hpp"
-#include "gmf/gaussian_math.hpp"
+#include "gmf/core/gaussian_math.hpp"
 #include "gmf/init.hpp"
 #include "gmf/objective.hpp"
-#include "gmf/psnr.hpp"
-#include "gmf/rasterize.hpp"
+#include "gmf/core/psnr.hpp"
+#include "gmf/core/rasterize.hpp"
 #include "gmf/round_solver.hpp"
 #include "gmf/samples.hpp"
 #include "io/error.hpp"
@@ -219,7 +219,7 @@ RoundOutcome solve_lbfgs(RoundProblem& r, const RoundContext& c) {
   return out;
 }
 
-// One round of Adam (the report's PyTorch baseline, gmf/adam.hpp): β1 0.9, β2 0.999,
+// One round of Adam (the report's PyTorch baseline, gmf/core/adam.hpp): β1 0.9, β2 0.999,
 // ε 1e-8, step gmf.adam_learning_rate, times the smallest voxel size for means
 // (world units); each step is projected onto the round's box. The moments carry over
 // from the previous round when K did not change (a restart spikes the loss). A step

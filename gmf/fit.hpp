@@ -11,9 +11,9 @@
 #include <string>
 #include <vector>
 
-#include "gmf/gaussian_mixture.hpp"
+#include "gmf/core/gaussian_mixture.hpp"
 #include "gmf/gmf_options.hpp"
-#include "gmf/rasterize.hpp"
+#include "gmf/core/rasterize.hpp"
 #include "gmf/samples.hpp"
 #include "io/sparse_grid.hpp"
 #include "io/volume.hpp"

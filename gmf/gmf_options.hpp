@@ -9,7 +9,7 @@
 #include <optional>
 #include <string>
 
-#include "gmf/aggregation.hpp"
+#include "gmf/core/aggregation.hpp"
 #include "io/config.hpp"
 
 namespace hisnegs::gmf {

@@ -6,7 +6,7 @@
 #include <cmath>
 #include <unordered_map>
 
-#include "gmf/density_ops.hpp"
+#include "gmf/core/density_ops.hpp"
 #include "io/error.hpp"
 
 namespace hisnegs::gmf {

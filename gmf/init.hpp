@@ -3,10 +3,10 @@
 // regular world-space grid over the foreground, the cell size chosen so that the
 // count meets the budget (centres at the cell's intensity-weighted centroid, scales
 // from the grid step, intensities from the local values); or one per local maximum
-// of the volume. Rasterizing a mixture is gmf/rasterize.hpp's.
+// of the volume. Rasterizing a mixture is gmf/core/rasterize.hpp's.
 #pragma once
 
-#include "gmf/gaussian_mixture.hpp"
+#include "gmf/core/gaussian_mixture.hpp"
 #include "gmf/gmf_options.hpp"
 #include "io/volume.hpp"
 

@@ -15,7 +15,7 @@
 #include <vector>
 
 #include "gmf/detail/candidates.hpp"
-#include "gmf/gaussian_math.hpp"
+#include "gmf/core/gaussian_math.hpp"
 
 namespace hisnegs::gmf {
 namespace {

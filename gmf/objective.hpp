@@ -9,7 +9,7 @@
 #include <memory>
 #include <vector>
 
-#include "gmf/aggregation.hpp"
+#include "gmf/core/aggregation.hpp"
 #include "gmf/block_index.hpp"
 #include "gmf/samples.hpp"
 

@@ -29,7 +29,7 @@ namespace hisnegs::gmf {
 // samples, their block index padded to the round's trust region, and the box.
 struct RoundSolverProblem {
   // The round's parameters: 11·K doubles, Gaussian after Gaussian in the checkpoint's
-  // order (gmf/param_layout.hpp). The solver moves them in place; what they hold when
+  // order (gmf/core/param_layout.hpp). The solver moves them in place; what they hold when
   // it returns is the round's result (clamped into [lower, upper] by the loop).
   std::span<double> x;
   // The round's box (its trust region): every parameter stays within it. ±inf where

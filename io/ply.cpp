@@ -1,7 +1,7 @@
 // SPDX-License-Identifier: Apache-2.0
 // PLY 1.0 reading (ascii, binary either endianness) and writing (binary little
 // endian, atomic) of PlyTable, plus PlyElement's non-template members.
-// Knows nothing of what the elements mean (see gmf/checkpoint.cpp).
+// Knows nothing of what the elements mean (see gmf/core/checkpoint.cpp).
 #include "io/ply.hpp"
 
 #include <sys/stat.h>

@@ -1,7 +1,7 @@
 // SPDX-License-Identifier: Apache-2.0
 // Generic PLY tables: elements of scalar properties held as packed rows, read
 // from ascii / binary (either endianness) PLY 1.0 and written as binary little
-// endian. Knows nothing of Gaussians (gmf/checkpoint.hpp maps them onto this).
+// endian. Knows nothing of Gaussians (gmf/core/checkpoint.hpp maps them onto this).
 #pragma once
 
 #include <bit>

@@ -11,7 +11,7 @@
 #include <string>
 #include <vector>
 
-#include "gmf/checkpoint.hpp"
+#include "gmf/core/checkpoint.hpp"
 #include "io/background.hpp"
 #include "io/volume.hpp"
 #include "splat/camera.hpp"

@@ -14,7 +14,7 @@
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
-#include "gmf/gaussian_math.hpp"
+#include "gmf/core/gaussian_math.hpp"
 #include "splat/splat_options.hpp"
 
 namespace hisnegs::splat {

@@ -1,5 +1,5 @@
 // SPDX-License-Identifier: Apache-2.0
-// image_metrics (PSNR through gmf/psnr.hpp, MAE directly, SSIM through
+// image_metrics (PSNR through gmf/core/psnr.hpp, MAE directly, SSIM through
 // losses.hpp's scikit-image-equivalent ssim_loss), summarize, comparison_image.
 #include "splat/metrics.hpp"
 
@@ -9,7 +9,7 @@
 #include <stdexcept>
 #include <string>
 
-#include "gmf/psnr.hpp"
+#include "gmf/core/psnr.hpp"
 #include "splat/losses.hpp"
 
 namespace hisnegs::splat {

@@ -1,5 +1,5 @@
 // SPDX-License-Identifier: Apache-2.0
-// Image metrics of CONVENTIONS "Metrics" (PSNR of gmf/psnr.hpp, MAE, SSIM with the
+// Image metrics of CONVENTIONS "Metrics" (PSNR of gmf/core/psnr.hpp, MAE, SSIM with the
 // 11x11 σ 1.5 Gaussian window, data range 1) per view and their mean ± std over views, and the
 // ground truth | render | |error| comparison image. No rendering here.
 #pragma once

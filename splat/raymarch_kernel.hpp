@@ -14,7 +14,7 @@
 
 #include <cmath>
 
-#include "gmf/hd.hpp"
+#include "gmf/core/hd.hpp"
 
 namespace hisnegs::splat::kernels {
 

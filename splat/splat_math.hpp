@@ -16,10 +16,10 @@
 
 #include <cmath>
 
-#include "gmf/aggregation.hpp"
-#include "gmf/gaussian_math.hpp"
-#include "gmf/hd.hpp"
-#include "gmf/param_layout.hpp"
+#include "gmf/core/aggregation.hpp"
+#include "gmf/core/gaussian_math.hpp"
+#include "gmf/core/hd.hpp"
+#include "gmf/core/param_layout.hpp"
 
 namespace hisnegs::splat {
 

@@ -8,7 +8,7 @@
 #include <memory>
 #include <span>
 
-#include "gmf/gaussian_mixture.hpp"
+#include "gmf/core/gaussian_mixture.hpp"
 #include "splat/backend.hpp"
 #include "splat/camera.hpp"
 #include "splat/splat_math.hpp"
@@ -70,7 +70,7 @@ class SplatRenderer {
 // The TBB back end, or CUDA (throws io::InputError when this build or machine has none).
 std::unique_ptr<SplatRenderer> make_splat_renderer(Backend backend);
 
-// A mixture's parameters as the renderer reads them (gmf/gaussian_mixture.hpp).
+// A mixture's parameters as the renderer reads them (gmf/core/gaussian_mixture.hpp).
 using gmf::flat_params;
 
 }  // namespace hisnegs::splat

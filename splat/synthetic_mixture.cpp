@@ -7,7 +7,7 @@
 #include <cmath>
 #include <random>
 
-#include "gmf/gaussian_math.hpp"
+#include "gmf/core/gaussian_math.hpp"
 
 namespace hisnegs::splat {
 

@@ -6,7 +6,7 @@
 
 #include <cstdint>
 
-#include "gmf/gaussian_mixture.hpp"
+#include "gmf/core/gaussian_mixture.hpp"
 
 namespace hisnegs::splat {
 

@@ -11,8 +11,8 @@
 #include <numeric>
 #include <stdexcept>
 
-#include "gmf/density_ops.hpp"
-#include "gmf/psnr.hpp"
+#include "gmf/core/density_ops.hpp"
+#include "gmf/core/psnr.hpp"
 #include "io/fault_injection.hpp"
 #include "io/hash.hpp"
 #include "io/timer.hpp"

@@ -13,7 +13,7 @@
 #include <string>
 #include <vector>
 
-#include "gmf/adam.hpp"
+#include "gmf/core/adam.hpp"
 #include "splat/camera.hpp"
 #include "splat/losses.hpp"
 #include "splat/splat_options.hpp"

@@ -1,12 +1,12 @@
 // SPDX-License-Identifier: Apache-2.0
 // Trainer::densify and Trainer::prune: which Gaussians to split, clone or drop
-// (by screen-space gradient and intensity); the operations are gmf/density_ops.hpp's.
+// (by screen-space gradient and intensity); the operations are gmf/core/density_ops.hpp's.
 #include <algorithm>
 #include <array>
 #include <cmath>
 #include <span>
 
-#include "gmf/density_ops.hpp"
+#include "gmf/core/density_ops.hpp"
 #include "io/fault_injection.hpp"
 #include "splat/trainer.hpp"
 

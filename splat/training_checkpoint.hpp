@@ -6,7 +6,7 @@
 
 #include <filesystem>
 
-#include "gmf/checkpoint.hpp"
+#include "gmf/core/checkpoint.hpp"
 #include "splat/trainer.hpp"
 
 namespace hisnegs::splat {

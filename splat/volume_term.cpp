@@ -10,8 +10,8 @@
 #include <stdexcept>
 #include <string>
 
-#include "gmf/gaussian_math.hpp"
-#include "gmf/param_layout.hpp"
+#include "gmf/core/gaussian_math.hpp"
+#include "gmf/core/param_layout.hpp"
 
 namespace hisnegs::splat {
 namespace {

@@ -1,7 +1,7 @@
 // SPDX-License-Identifier: Apache-2.0
 // Stage 2's 3D term (issue 17 §3): unlike the report's setting, training here
 // always has the volume, so the loss can include the stage-1 residual of the
-// model's own 3D value f (sum or softmax, gmf/aggregation.hpp) on a fresh batch of
+// model's own 3D value f (sum or softmax, gmf/core/aggregation.hpp) on a fresh batch of
 // volume samples each step, and density control can drop Gaussians whose centre
 // sits in empty space. The samples come from the caller (apps builds them from the
 // fit's sparse grid); this file knows no OpenVDB and no Ceres.
@@ -12,7 +12,7 @@
 #include <span>
 #include <vector>
 
-#include "gmf/aggregation.hpp"
+#include "gmf/core/aggregation.hpp"
 
 namespace hisnegs::splat {
 

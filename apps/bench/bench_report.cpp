@@ -17,8 +17,8 @@
 
 #include "apps/pipeline/format.hpp"
 #include "apps/pipeline/report_tables.hpp"
-#include "gmf/checkpoint.hpp"
-#include "gmf/psnr.hpp"
+#include "gmf/core/checkpoint.hpp"
+#include "gmf/core/psnr.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
 #include "io/load_volume.hpp"

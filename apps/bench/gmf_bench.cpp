@@ -12,7 +12,7 @@
 
 #include "apps/bench/benchmarks.hpp"
 #include "gmf/block_index.hpp"
-#include "gmf/checkpoint.hpp"
+#include "gmf/core/checkpoint.hpp"
 #include "gmf/fit.hpp"
 #include "gmf/jacobian_probe.hpp"
 #include "gmf/objective.hpp"

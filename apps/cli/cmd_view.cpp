@@ -14,7 +14,7 @@
 #include "apps/cli/cli_support.hpp"
 #include "apps/viewer/viewer_session.hpp"
 #include "apps/viewer/viewer_server.hpp"
-#include "gmf/checkpoint.hpp"
+#include "gmf/core/checkpoint.hpp"
 #include "io/error.hpp"
 #include "splat/camera.hpp"
 

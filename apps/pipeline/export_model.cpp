@@ -5,9 +5,9 @@
 #include <algorithm>
 #include <cmath>
 
-#include "gmf/export_formats.hpp"
-#include "gmf/psnr.hpp"
-#include "gmf/rasterize.hpp"
+#include "gmf/core/export_formats.hpp"
+#include "gmf/core/psnr.hpp"
+#include "gmf/core/rasterize.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
 #include "io/memory_limit.hpp"

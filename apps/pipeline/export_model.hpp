@@ -9,8 +9,8 @@
 #include <string>
 
 #include "apps/viewer/viewer_page.hpp"
-#include "gmf/checkpoint.hpp"
-#include "gmf/compact_checkpoint.hpp"
+#include "gmf/core/checkpoint.hpp"
+#include "gmf/core/compact_checkpoint.hpp"
 #include "gmf/export_vdb.hpp"
 #include "io/load_volume.hpp"
 #include "splat/camera.hpp"
@@ -67,7 +67,7 @@ struct VolumeExportDone {
 VolumeExportDone export_model_volume(const gmf::Checkpoint& checkpoint, const std::string& model_name,
                                      const std::filesystem::path& out, const VolumeExportRequest& request);
 
-// export compact: the .hgs of gmf/compact_checkpoint.hpp.
+// export compact: the .hgs of gmf/core/compact_checkpoint.hpp.
 gmf::CompactHeader export_model_compact(const gmf::Checkpoint& checkpoint, const std::filesystem::path& out,
                                         const gmf::CompactOptions& options);
 

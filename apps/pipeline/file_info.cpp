@@ -9,8 +9,8 @@
 #include <string_view>
 
 #include "apps/pipeline/format.hpp"
-#include "gmf/checkpoint.hpp"
-#include "gmf/compact_checkpoint.hpp"
+#include "gmf/core/checkpoint.hpp"
+#include "gmf/core/compact_checkpoint.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
 #include "io/sparse_grid.hpp"

@@ -5,7 +5,7 @@
 #include <nlohmann/json.hpp>
 
 #include "apps/pipeline/format.hpp"
-#include "gmf/checkpoint.hpp"
+#include "gmf/core/checkpoint.hpp"
 #include "io/atomic_file.hpp"
 #include "io/gif.hpp"
 #include "io/png.hpp"

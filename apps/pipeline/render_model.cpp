@@ -7,7 +7,7 @@
 
 #include "apps/pipeline/distributed.hpp"
 #include "apps/pipeline/ground_truth_stage.hpp"
-#include "gmf/checkpoint.hpp"
+#include "gmf/core/checkpoint.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
 #include "splat/render_views.hpp"

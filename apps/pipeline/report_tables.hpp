@@ -9,7 +9,7 @@
 #include <utility>
 #include <vector>
 
-#include "gmf/gaussian_mixture.hpp"
+#include "gmf/core/gaussian_mixture.hpp"
 
 namespace hisnegs::apps {
 

@@ -10,7 +10,7 @@
 #include "apps/pipeline/format.hpp"
 #include "apps/pipeline/report_tables.hpp"
 #include "apps/pipeline/train_stage.hpp"
-#include "gmf/checkpoint.hpp"
+#include "gmf/core/checkpoint.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
 

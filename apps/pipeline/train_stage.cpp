@@ -12,7 +12,7 @@
 #include "apps/pipeline/ground_truth_stage.hpp"
 #include "apps/pipeline/training_log.hpp"
 #include "apps/pipeline/training_volume.hpp"
-#include "gmf/checkpoint.hpp"
+#include "gmf/core/checkpoint.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
 #include "io/folder_lock.hpp"

@@ -10,7 +10,7 @@
 #include "apps/pipeline/run_stage.hpp"
 #include "apps/pipeline/stack_reading.hpp"
 #include "apps/pipeline/stage_folder.hpp"
-#include "gmf/checkpoint.hpp"
+#include "gmf/core/checkpoint.hpp"
 #include "splat/backend.hpp"
 #include "splat/trainer.hpp"
 #include "splat/training_data.hpp"

@@ -11,7 +11,7 @@
 #include "apps/pipeline/app_config.hpp"
 #include "apps/pipeline/progress.hpp"
 #include "apps/pipeline/stack_reading.hpp"
-#include "gmf/checkpoint.hpp"
+#include "gmf/core/checkpoint.hpp"
 #include "splat/volume_term.hpp"
 
 namespace hisnegs::apps {

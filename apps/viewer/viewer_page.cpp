@@ -9,7 +9,7 @@
 #include <stdexcept>
 
 #include "apps/viewer/viewer_assets.hpp"
-#include "gmf/compact_checkpoint.hpp"
+#include "gmf/core/compact_checkpoint.hpp"
 #include "io/volume.hpp"
 
 namespace hisnegs::apps {

@@ -11,8 +11,8 @@
 #include <string_view>
 #include <vector>
 
-#include "gmf/checkpoint.hpp"
-#include "gmf/gaussian_mixture.hpp"
+#include "gmf/core/checkpoint.hpp"
+#include "gmf/core/gaussian_mixture.hpp"
 #include "splat/background_floor.hpp"
 #include "splat/camera.hpp"
 
@@ -22,7 +22,7 @@ namespace hisnegs::apps {
 // (world units²), amplitude a = sigmoid(logit).
 inline constexpr int kViewerFloatsPerGaussian = 10;
 
-// How the page holds the model: the compact .hgs file (gmf/compact_checkpoint.hpp,
+// How the page holds the model: the compact .hgs file (gmf/core/compact_checkpoint.hpp,
 // default bit depths; decoded by the page with the vendored fzstd; within the
 // format's bounds, ~0.005 dB from float32 on op1) or exact float32 parameters
 // (kViewerFloatsPerGaussian per Gaussian, about three times larger).

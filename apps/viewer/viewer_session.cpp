@@ -14,7 +14,7 @@
 #include <sstream>
 #include <stdexcept>
 
-#include "gmf/psnr.hpp"
+#include "gmf/core/psnr.hpp"
 #include "io/error.hpp"
 #include "splat/metrics.hpp"
 #include "splat/raymarch.hpp"

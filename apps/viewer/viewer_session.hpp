@@ -14,7 +14,7 @@
 
 #include "apps/viewer/viewer_page.hpp"
 #include "apps/viewer/viewer_server.hpp"
-#include "gmf/checkpoint.hpp"
+#include "gmf/core/checkpoint.hpp"
 #include "io/load_volume.hpp"
 #include "splat/camera.hpp"
 #include "splat/splat_options.hpp"

@@ -17,8 +17,8 @@
 #include <span>
 #include <vector>
 
-#include "gmf/aggregation.hpp"
-#include "gmf/gaussian_math.hpp"
+#include "gmf/core/aggregation.hpp"
+#include "gmf/core/gaussian_math.hpp"
 #include "gmf/samples.hpp"
 
 namespace hisnegs::gmf::detail {

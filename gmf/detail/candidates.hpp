@@ -11,7 +11,7 @@
 #include <cstdint>
 #include <vector>
 
-#include "gmf/gaussian_math.hpp"
+#include "gmf/core/gaussian_math.hpp"
 #include "gmf/samples.hpp"
 
 namespace hisnegs::gmf::detail {

@@ -3,7 +3,7 @@
 // bias correction over several steps against a scalar reference, the per-Gaussian
 // bookkeeping (reset, keep, resize), the binary record and its refusals, and
 // float against double storage.
-#include "gmf/adam.hpp"
+#include "gmf/core/adam.hpp"
 
 #include <gtest/gtest.h>
 

@@ -1,5 +1,5 @@
 // SPDX-License-Identifier: Apache-2.0
-// gmf/aggregation.hpp: the online softmax against its closed form, order and
+// gmf/core/aggregation.hpp: the online softmax against its closed form, order and
 // grouping independence, f_β → max as β grows (and how fast: the β the fit's
 // continuation ends at), and ∂f_β/∂g_k against a central difference.
 #include <gtest/gtest.h>
@@ -9,7 +9,7 @@
 #include <random>
 #include <vector>
 
-#include "gmf/aggregation.hpp"
+#include "gmf/core/aggregation.hpp"
 
 namespace hisnegs::gmf {
 namespace {

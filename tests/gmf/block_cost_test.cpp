@@ -12,7 +12,7 @@
 #include <string>
 
 #include "gmf/detail/block_cost.hpp"
-#include "gmf/gaussian_math.hpp"
+#include "gmf/core/gaussian_math.hpp"
 #include "gmf/samples.hpp"
 
 namespace hisnegs::gmf {

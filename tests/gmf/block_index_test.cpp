@@ -11,7 +11,7 @@
 #include <random>
 #include <vector>
 
-#include "gmf/gaussian_mixture.hpp"
+#include "gmf/core/gaussian_mixture.hpp"
 #include "gmf/samples.hpp"
 #include "io/sparse_grid.hpp"
 

@@ -11,7 +11,7 @@
 #include <random>
 #include <vector>
 
-#include "gmf/gaussian_math.hpp"
+#include "gmf/core/gaussian_math.hpp"
 
 namespace hisnegs::gmf::detail {
 namespace {

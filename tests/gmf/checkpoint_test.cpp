@@ -1,8 +1,8 @@
 // SPDX-License-Identifier: Apache-2.0
-// Tests of gmf/gaussian_mixture.hpp (container, R(q), Σ, reference evaluator,
-// stats) and gmf/checkpoint.hpp (bit-exact round trips, accepted variants,
+// Tests of gmf/core/gaussian_mixture.hpp (container, R(q), Σ, reference evaluator,
+// stats) and gmf/core/checkpoint.hpp (bit-exact round trips, accepted variants,
 // every rejected checkpoint). Every fixture is generated here.
-#include "gmf/checkpoint.hpp"
+#include "gmf/core/checkpoint.hpp"
 
 #include <gtest/gtest.h>
 
@@ -18,7 +18,7 @@
 #include <string>
 #include <vector>
 
-#include "gmf/gaussian_mixture.hpp"
+#include "gmf/core/gaussian_mixture.hpp"
 #include "io/error.hpp"
 #include "io/ply.hpp"
 #include "tests/test_support.hpp"

@@ -1,9 +1,9 @@
 // SPDX-License-Identifier: Apache-2.0
-// The compact checkpoint (gmf/compact_checkpoint.hpp): round trips within the
+// The compact checkpoint (gmf/core/compact_checkpoint.hpp): round trips within the
 // stated quantization bounds over many random models, exact metadata, every cut
 // and corrupted header refused with one line, load_checkpoint choosing the reader
 // by the file's first bytes.
-#include "gmf/compact_checkpoint.hpp"
+#include "gmf/core/compact_checkpoint.hpp"
 
 #include <gtest/gtest.h>
 #include <zlib.h>
@@ -20,7 +20,7 @@
 #include <string>
 #include <vector>
 
-#include "gmf/checkpoint.hpp"
+#include "gmf/core/checkpoint.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
 #include "tests/test_support.hpp"

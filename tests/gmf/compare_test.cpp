@@ -11,7 +11,7 @@
 #include <vector>
 
 #include "gmf/init.hpp"
-#include "gmf/rasterize.hpp"
+#include "gmf/core/rasterize.hpp"
 #include "io/error.hpp"
 #include "io/sparse_grid.hpp"
 

@@ -2,7 +2,7 @@
 // gmf/density_ops: the Eq. 17 split (axis-aligned and rotated Gaussians, against
 // an Eigen quaternion), longest_axis, isotropic_gaussian's clamp, the pruning
 // threshold of bright_gaussians, keep_rows and keep_gaussians.
-#include "gmf/density_ops.hpp"
+#include "gmf/core/density_ops.hpp"
 
 #include <gtest/gtest.h>
 
@@ -13,7 +13,7 @@
 #include <random>
 #include <vector>
 
-#include "gmf/gaussian_mixture.hpp"
+#include "gmf/core/gaussian_mixture.hpp"
 
 namespace hisnegs::gmf {
 namespace {

@@ -9,7 +9,7 @@
 #include <cmath>
 
 #include "gmf/block_index.hpp"
-#include "gmf/gaussian_mixture.hpp"
+#include "gmf/core/gaussian_mixture.hpp"
 #include "gmf/samples.hpp"
 #include "tests/gmf/gmf_test_scenes.hpp"
 

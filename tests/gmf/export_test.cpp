@@ -18,7 +18,7 @@
 #include <iterator>
 #include <random>
 
-#include "gmf/export_formats.hpp"
+#include "gmf/core/export_formats.hpp"
 #include "io/error.hpp"
 #include "io/sparse_grid.hpp"
 #include "io/vdb_file.hpp"

@@ -10,9 +10,9 @@
 #include <random>
 
 #include "gmf/block_index.hpp"
-#include "gmf/gaussian_mixture.hpp"
+#include "gmf/core/gaussian_mixture.hpp"
 #include "gmf/objective.hpp"
-#include "gmf/psnr.hpp"
+#include "gmf/core/psnr.hpp"
 #include "gmf/samples.hpp"
 #include "io/error.hpp"
 #include "tests/gmf/gmf_test_scenes.hpp"

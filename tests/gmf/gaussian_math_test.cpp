@@ -3,7 +3,7 @@
 // every analytic derivative against central finite differences in double, on
 // random, nearly isotropic, very thin and far-away Gaussians; and each forward
 // op's VJP against Ridders differences of <upstream gradient, op(input)>.
-#include "gmf/gaussian_math.hpp"
+#include "gmf/core/gaussian_math.hpp"
 
 #include <gtest/gtest.h>
 
@@ -11,7 +11,7 @@
 #include <random>
 #include <vector>
 
-#include "gmf/gaussian_mixture.hpp"
+#include "gmf/core/gaussian_mixture.hpp"
 #include "tests/test_support.hpp"
 
 namespace hisnegs::gmf {

@@ -8,8 +8,8 @@
 #include <cstdint>
 #include <random>
 
-#include "gmf/gaussian_mixture.hpp"
-#include "gmf/rasterize.hpp"
+#include "gmf/core/gaussian_mixture.hpp"
+#include "gmf/core/rasterize.hpp"
 #include "io/sparse_grid.hpp"
 #include "io/volume.hpp"
 

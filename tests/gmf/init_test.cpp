@@ -11,7 +11,7 @@
 #include <cmath>
 #include <map>
 
-#include "gmf/gaussian_mixture.hpp"
+#include "gmf/core/gaussian_mixture.hpp"
 #include "io/error.hpp"
 #include "tests/gmf/gmf_test_scenes.hpp"
 

@@ -16,7 +16,7 @@
 
 #include "gmf/block_index.hpp"
 #include "gmf/detail/block_cost.hpp"
-#include "gmf/gaussian_math.hpp"
+#include "gmf/core/gaussian_math.hpp"
 #include "gmf/samples.hpp"
 #include "tests/gmf/gmf_test_scenes.hpp"
 #include "tests/test_support.hpp"

@@ -2,7 +2,7 @@
 // gmf/psnr: the known values (identical arrays, a known MSE), refused inputs,
 // and the chunked reduction against a plain sequential sum and across thread
 // counts.
-#include "gmf/psnr.hpp"
+#include "gmf/core/psnr.hpp"
 
 #include <gtest/gtest.h>
 #include <tbb/global_control.h>

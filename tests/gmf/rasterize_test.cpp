@@ -4,7 +4,7 @@
 // the cutoff, tail and clip rules, determinism across thread counts,
 // rasterize_mixture on a frame whose edges cut blocks, and refusal of supports
 // that leave the index range.
-#include "gmf/rasterize.hpp"
+#include "gmf/core/rasterize.hpp"
 
 #include <gtest/gtest.h>
 #include <tbb/global_control.h>
@@ -17,9 +17,9 @@
 #include <string>
 #include <vector>
 
-#include "gmf/gaussian_math.hpp"
-#include "gmf/gaussian_mixture.hpp"
-#include "gmf/psnr.hpp"
+#include "gmf/core/gaussian_math.hpp"
+#include "gmf/core/gaussian_mixture.hpp"
+#include "gmf/core/psnr.hpp"
 #include "io/error.hpp"
 #include "tests/gmf/gmf_test_scenes.hpp"
 

@@ -15,8 +15,8 @@
 #include <stdexcept>
 
 #include "gmf/block_index.hpp"
-#include "gmf/density_ops.hpp"
-#include "gmf/gaussian_math.hpp"
+#include "gmf/core/density_ops.hpp"
+#include "gmf/core/gaussian_math.hpp"
 #include "gmf/objective.hpp"
 #include "io/sparse_grid.hpp"
 #include "tests/gmf/gmf_test_scenes.hpp"

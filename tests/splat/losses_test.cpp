@@ -16,7 +16,7 @@
 #include <utility>
 #include <vector>
 
-#include "gmf/gaussian_math.hpp"
+#include "gmf/core/gaussian_math.hpp"
 #include "splat/splat_options.hpp"
 #include "tests/test_support.hpp"
 

@@ -10,8 +10,8 @@
 #include <cmath>
 #include <random>
 
-#include "gmf/psnr.hpp"
-#include "gmf/rasterize.hpp"
+#include "gmf/core/psnr.hpp"
+#include "gmf/core/rasterize.hpp"
 #include "splat/raymarch.hpp"
 #include "splat/splat_renderer.hpp"
 
@@ -55,7 +55,7 @@ TEST(MaxMixture, HardMipSplatEqualsTheRayMarchedMipOfTheMaxMixture) {
   f_max.ny = ny;
   f_max.nz = nz;
   f_max.source = "max-mixture";
-  // Softmax at β = 1e5: within (n − 1)/(e β) < 1e-4 of the max (gmf/aggregation.hpp).
+  // Softmax at β = 1e5: within (n − 1)/(e β) < 1e-4 of the max (gmf/core/aggregation.hpp).
   f_max.voxels = gmf::rasterize_mixture(
       mixture, frame, {.cutoff = 16.0, .tail = 0.0, .aggregation = gmf::Aggregation::kSoftmax, .beta = 1e5});
   io::Volume f_sum = f_max;

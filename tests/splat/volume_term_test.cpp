@@ -12,7 +12,7 @@
 #include <random>
 #include <vector>
 
-#include "gmf/param_layout.hpp"
+#include "gmf/core/param_layout.hpp"
 #include "splat/trainer.hpp"
 
 namespace hisnegs::splat {

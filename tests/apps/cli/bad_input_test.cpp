@@ -11,7 +11,7 @@
 #include <fstream>
 #include <limits>
 
-#include "gmf/checkpoint.hpp"
+#include "gmf/core/checkpoint.hpp"
 #include "io/tiff_stack.hpp"
 #include "tests/test_support.hpp"
 

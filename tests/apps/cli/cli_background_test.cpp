@@ -9,7 +9,7 @@
 #include <filesystem>
 #include <string>
 
-#include "gmf/checkpoint.hpp"
+#include "gmf/core/checkpoint.hpp"
 #include "io/tiff_stack.hpp"
 #include "tests/test_support.hpp"
 

@@ -13,7 +13,7 @@
 #include <regex>
 #include <string>
 
-#include "gmf/checkpoint.hpp"
+#include "gmf/core/checkpoint.hpp"
 #include "tests/test_support.hpp"
 
 namespace hisnegs {

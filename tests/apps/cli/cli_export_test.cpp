@@ -13,8 +13,8 @@
 #include <sstream>
 #include <string>
 
-#include "gmf/checkpoint.hpp"
-#include "gmf/export_formats.hpp"
+#include "gmf/core/checkpoint.hpp"
+#include "gmf/core/export_formats.hpp"
 #include "io/load_volume.hpp"
 #include "io/ply.hpp"
 #include "io/tiff_stack.hpp"

@@ -15,8 +15,8 @@
 #include <string>
 #include <vector>
 
-#include "gmf/checkpoint.hpp"
-#include "gmf/psnr.hpp"
+#include "gmf/core/checkpoint.hpp"
+#include "gmf/core/psnr.hpp"
 #include "io/tiff_stack.hpp"
 #include "tests/test_support.hpp"
 

@@ -15,7 +15,7 @@
 #include <fstream>
 #include <sstream>
 
-#include "gmf/checkpoint.hpp"
+#include "gmf/core/checkpoint.hpp"
 #include "io/atomic_file.hpp"
 #include "io/folder_lock.hpp"
 #include "tests/test_support.hpp"

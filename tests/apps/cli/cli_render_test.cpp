@@ -8,7 +8,7 @@
 #include <string>
 #include <utility>
 
-#include "gmf/checkpoint.hpp"
+#include "gmf/core/checkpoint.hpp"
 #include "io/gif.hpp"
 #include "io/tiff_stack.hpp"
 #include "tests/test_support.hpp"

@@ -23,7 +23,7 @@
 #include <vector>
 
 #include "apps/viewer/viewer_session.hpp"
-#include "gmf/checkpoint.hpp"
+#include "gmf/core/checkpoint.hpp"
 #include "io/error.hpp"
 #include "io/tiff_stack.hpp"
 #include "splat/camera.hpp"

@@ -25,9 +25,9 @@
 #include <string_view>
 
 #include "apps/viewer/viewer_page.hpp"
-#include "gmf/checkpoint.hpp"
-#include "gmf/compact_checkpoint.hpp"
-#include "gmf/psnr.hpp"
+#include "gmf/core/checkpoint.hpp"
+#include "gmf/core/compact_checkpoint.hpp"
+#include "gmf/core/psnr.hpp"
 #include "io/png.hpp"
 #include "io/tiff_stack.hpp"
 #include "splat/camera.hpp"

@@ -9,7 +9,7 @@
 #include <fstream>
 #include <string>
 
-#include "gmf/checkpoint.hpp"
+#include "gmf/core/checkpoint.hpp"
 #include "io/atomic_file.hpp"
 #include "tests/test_support.hpp"
 

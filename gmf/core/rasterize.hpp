@@ -17,8 +17,8 @@
 #include <string>
 #include <vector>
 
-#include "gmf/aggregation.hpp"
-#include "gmf/gaussian_mixture.hpp"
+#include "gmf/core/aggregation.hpp"
+#include "gmf/core/gaussian_mixture.hpp"
 #include "io/volume.hpp"
 
 namespace hisnegs::gmf {
@@ -52,7 +52,7 @@ struct VoxelLattice {
 // Which terms a voxel's value combines and how: Gaussian k counts at x where
 // m_k(x) <= cutoff (δ, the renderer's support; infinity for none) and
 // a_k exp(-m_k/2) >= tail (0 for none); the counted terms are summed or combined by
-// the softmax at beta (gmf/aggregation.hpp).
+// the softmax at beta (gmf/core/aggregation.hpp).
 struct RasterizeOptions {
   double cutoff = std::numeric_limits<double>::infinity();
   double tail = 0.0;

@@ -14,8 +14,8 @@
 #include <string>
 #include <vector>
 
-#include "gmf/density_ops.hpp"
-#include "gmf/param_layout.hpp"
+#include "gmf/core/density_ops.hpp"
+#include "gmf/core/param_layout.hpp"
 #include "io/binary_io.hpp"
 
 namespace hisnegs::gmf {

@@ -12,8 +12,8 @@
 #include <utility>
 #include <vector>
 
-#include "gmf/aggregation.hpp"
-#include "gmf/gaussian_mixture.hpp"
+#include "gmf/core/aggregation.hpp"
+#include "gmf/core/gaussian_mixture.hpp"
 #include "io/background.hpp"
 #include "io/ply.hpp"
 #include "io/volume.hpp"
@@ -75,7 +75,7 @@ struct Checkpoint {
 // The metadata lines of a checkpoint, each "hisnegs KEY VALUE" (the PLY header's
 // comment lines without "comment "), in checkpoint_to_ply's order. Throws
 // std::invalid_argument for metadata it could not read back, as checkpoint_to_ply.
-// The compact format (gmf/compact_checkpoint.hpp) stores the same lines.
+// The compact format (gmf/core/compact_checkpoint.hpp) stores the same lines.
 [[nodiscard]] std::vector<std::string> checkpoint_comments(const CheckpointMeta& meta);
 
 // Throws std::invalid_argument ("gaussian 17: scale_1 is nan") for the first
@@ -95,7 +95,7 @@ void check_checkpoint_mixture(const GaussianMixture& mixture);
 void save_checkpoint(const std::filesystem::path& path, const GaussianMixture& mixture, const CheckpointMeta& meta);
 
 // Reads a checkpoint written by save_checkpoint (or by another tool using the
-// same properties) or by save_compact_checkpoint (gmf/compact_checkpoint.hpp):
+// same properties) or by save_compact_checkpoint (gmf/core/compact_checkpoint.hpp):
 // the file's first bytes decide, not its name. Throws io::InputError naming the
 // file for every problem of io::read_ply and checkpoint_from_ply, or of
 // load_compact_checkpoint.

@@ -1,15 +1,15 @@
 // SPDX-License-Identifier: Apache-2.0
-// load_checkpoint (declared in gmf/checkpoint.hpp): the one reader of both
-// checkpoint formats, the PLY (gmf/checkpoint.hpp) and the compact .hgs
-// (gmf/compact_checkpoint.hpp), told apart by content. Its own file so that
+// load_checkpoint (declared in gmf/core/checkpoint.hpp): the one reader of both
+// checkpoint formats, the PLY (gmf/core/checkpoint.hpp) and the compact .hgs
+// (gmf/core/compact_checkpoint.hpp), told apart by content. Its own file so that
 // the compact format builds on the PLY one and not the other way round.
 #include <unistd.h>
 
 #include <cerrno>
 #include <cstring>
 
-#include "gmf/checkpoint.hpp"
-#include "gmf/compact_checkpoint.hpp"
+#include "gmf/core/checkpoint.hpp"
+#include "gmf/core/compact_checkpoint.hpp"
 #include "io/error.hpp"
 
 namespace hisnegs::gmf {

@@ -1,8 +1,8 @@
 // SPDX-License-Identifier: Apache-2.0
 // The compact checkpoint: quantization of each attribute, the Morton order, byte
 // planes, the zstd stage, the header, and the checks of decoding. The metadata lines
-// are the PLY checkpoint's (gmf/checkpoint.hpp); no PLY here.
-#include "gmf/compact_checkpoint.hpp"
+// are the PLY checkpoint's (gmf/core/checkpoint.hpp); no PLY here.
+#include "gmf/core/compact_checkpoint.hpp"
 
 #include <zlib.h>
 #include <zstd.h>
@@ -16,7 +16,7 @@
 #include <numeric>
 #include <stdexcept>
 
-#include "gmf/gaussian_math.hpp"
+#include "gmf/core/gaussian_math.hpp"
 #include "io/atomic_file.hpp"
 #include "io/binary_io.hpp"
 #include "io/error.hpp"

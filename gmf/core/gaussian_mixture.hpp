@@ -2,7 +2,7 @@
 // The Gaussian mixture itself: per-Gaussian parameters as CONVENTIONS "Gaussians"
 // defines them, the container, the closed-form helpers (sigmoid, scales, R(q), Σ),
 // a brute-force reference evaluator and summary statistics. No file formats
-// (gmf/checkpoint.hpp), no fitting, no rendering.
+// (gmf/core/checkpoint.hpp), no fitting, no rendering.
 #pragma once
 
 #include <Eigen/Core>
@@ -17,7 +17,7 @@
 #include <type_traits>
 #include <vector>
 
-#include "gmf/gaussian_math.hpp"
+#include "gmf/core/gaussian_math.hpp"
 
 namespace hisnegs::gmf {
 

@@ -10,8 +10,8 @@
 
 #include <cmath>
 
-#include "gmf/hd.hpp"
-#include "gmf/param_layout.hpp"
+#include "gmf/core/hd.hpp"
+#include "gmf/core/param_layout.hpp"
 
 namespace hisnegs::gmf {
 

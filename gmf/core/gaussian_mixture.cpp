@@ -1,7 +1,7 @@
 // SPDX-License-Identifier: Apache-2.0
 // Non-inline parts of gaussian_mixture.hpp: array conversion, the brute-force
 // reference evaluator and summary statistics. No file formats, no fitting.
-#include "gmf/gaussian_mixture.hpp"
+#include "gmf/core/gaussian_mixture.hpp"
 
 #include <algorithm>
 #include <bit>

@@ -10,8 +10,8 @@
 #include <string_view>
 #include <vector>
 
-#include "gmf/aggregation.hpp"
-#include "gmf/gaussian_mixture.hpp"
+#include "gmf/core/aggregation.hpp"
+#include "gmf/core/gaussian_mixture.hpp"
 #include "io/ply.hpp"
 #include "io/volume.hpp"
 

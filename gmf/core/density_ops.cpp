@@ -1,11 +1,11 @@
 // SPDX-License-Identifier: Apache-2.0
 // split_gaussian, isotropic_gaussian, bright_gaussians, keep_gaussians.
-#include "gmf/density_ops.hpp"
+#include "gmf/core/density_ops.hpp"
 
 #include <algorithm>
 #include <cmath>
 
-#include "gmf/gaussian_math.hpp"
+#include "gmf/core/gaussian_math.hpp"
 
 namespace hisnegs::gmf {
 

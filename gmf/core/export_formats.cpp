@@ -1,6 +1,6 @@
 // SPDX-License-Identifier: Apache-2.0
 // Splat-viewer PLY rows and dense resampling of a mixture (on gmf/rasterize's rasterizer).
-#include "gmf/export_formats.hpp"
+#include "gmf/core/export_formats.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -8,7 +8,7 @@
 #include <stdexcept>
 #include <string>
 
-#include "gmf/rasterize.hpp"
+#include "gmf/core/rasterize.hpp"
 
 namespace hisnegs::gmf {
 

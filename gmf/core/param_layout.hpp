@@ -4,7 +4,7 @@
 // they belong to. The one place the parameter count is defined. No math here.
 #pragma once
 
-#include "gmf/hd.hpp"
+#include "gmf/core/hd.hpp"
 
 namespace hisnegs::gmf {
 

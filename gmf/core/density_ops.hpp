@@ -10,7 +10,7 @@
 #include <span>
 #include <vector>
 
-#include "gmf/gaussian_mixture.hpp"
+#include "gmf/core/gaussian_mixture.hpp"
 
 namespace hisnegs::gmf {
 

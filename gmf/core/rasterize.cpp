@@ -1,7 +1,7 @@
 // SPDX-License-Identifier: Apache-2.0
 // BlockRasterizer: per-Gaussian supports -> sorted (block, Gaussian) pairs -> f per
 // block in mixture order; rasterize_mixture on it; VoxelLattice.
-#include "gmf/rasterize.hpp"
+#include "gmf/core/rasterize.hpp"
 
 #include <tbb/blocked_range.h>
 #include <tbb/combinable.h>
@@ -14,8 +14,8 @@
 #include <stdexcept>
 #include <string>
 
-#include "gmf/gaussian_math.hpp"
-#include "gmf/psnr.hpp"
+#include "gmf/core/gaussian_math.hpp"
+#include "gmf/core/psnr.hpp"
 #include "io/error.hpp"
 #include "io/memory_limit.hpp"
 

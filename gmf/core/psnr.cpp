@@ -1,6 +1,6 @@
 // SPDX-License-Identifier: Apache-2.0
 // mean_squared_error and sum_of_squares in fixed chunks summed in chunk order (TBB over chunks), psnr.
-#include "gmf/psnr.hpp"
+#include "gmf/core/psnr.hpp"
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>

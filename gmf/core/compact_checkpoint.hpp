@@ -2,7 +2,7 @@
 // The compact checkpoint (docs/file-formats.md "Compact checkpoint", `.hgs`): the
 // mixture quantized per attribute into byte-plane columns, compressed with zstd,
 // after a small header with the metadata; encoding, checked decoding and the error
-// bounds of the quantization. Does not know PLY (gmf/checkpoint.hpp) nor the CLI.
+// bounds of the quantization. Does not know PLY (gmf/core/checkpoint.hpp) nor the CLI.
 #pragma once
 
 #include <array>
@@ -12,8 +12,8 @@
 #include <string_view>
 #include <vector>
 
-#include "gmf/checkpoint.hpp"
-#include "gmf/gaussian_mixture.hpp"
+#include "gmf/core/checkpoint.hpp"
+#include "gmf/core/gaussian_mixture.hpp"
 
 namespace hisnegs::gmf {
 

@@ -1,8 +1,8 @@
 // SPDX-License-Identifier: Apache-2.0
 // Checkpoint <-> PLY table mapping (parameters, `comment hisnegs` metadata) and
 // save on top of io::write_ply (load_checkpoint, which reads the PLY and the compact
-// format alike, is gmf/load_checkpoint.cpp). No PLY parsing here.
-#include "gmf/checkpoint.hpp"
+// format alike, is gmf/core/load_checkpoint.cpp). No PLY parsing here.
+#include "gmf/core/checkpoint.hpp"
 
 #include <cctype>
 #include <charconv>

@@ -9,7 +9,7 @@
 
 #include <cmath>
 
-#include "gmf/hd.hpp"
+#include "gmf/core/hd.hpp"
 
 namespace hisnegs::gmf {
 
