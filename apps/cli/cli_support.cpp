@@ -207,32 +207,35 @@ int run_cli(int argc, char** argv) {
     }
     return 2;
   }
+  // Each line in one write: on several ranks the launcher forwards the ranks' stderr
+  // in the chunks they were written, between its own messages.
+  const auto say = [](const std::string& line) { std::cerr << line; };
   const auto failed = [&](int code) {
     // A rank that fails ends the others (they may be waiting for it), saying which.
     if (the_job->distributed()) {
-      std::cerr << "hisnegs: " << rank_prefix(*the_job) << "stopping every rank\n";
+      say("hisnegs: " + rank_prefix(*the_job) + "stopping every rank\n");
       the_job->abort(code);
     }
     return code;
   };
+  const std::string head = "hisnegs: " + rank_prefix(*the_job);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
     if (e.get_exit_code() == 0) return app.exit(e);  // --help, --version
-    std::cerr << "hisnegs: " << rank_prefix(*the_job) << "error: " << io::printable(e.what())
-              << " (see hisnegs --help)\n";
+    say(head + "error: " + io::printable(e.what()) + " (see hisnegs --help)\n");
     return failed(2);  // ranks launched with other arguments (MPMD) must not wait for this one
   } catch (const io::InputError& e) {
-    std::cerr << "hisnegs: " << rank_prefix(*the_job) << "error: " << io::printable(e.what()) << "\n";
+    say(head + "error: " + io::printable(e.what()) + "\n");
     return failed(2);
   } catch (const io::WriteError& e) {
-    std::cerr << "hisnegs: " << rank_prefix(*the_job) << "error: " << io::printable(e.what()) << "\n";
+    say(head + "error: " + io::printable(e.what()) + "\n");
     return failed(1);
   } catch (const std::bad_alloc&) {
-    std::cerr << "hisnegs: " << rank_prefix(*the_job) << "error: out of memory\n";
+    say(head + "error: out of memory\n");
     return failed(1);
   } catch (const std::exception& e) {
-    std::cerr << "hisnegs: " << rank_prefix(*the_job) << "internal error: " << io::printable(e.what()) << "\n";
+    say(head + "internal error: " + io::printable(e.what()) + "\n");
     return failed(1);
   }
   return 0;
