@@ -16,20 +16,62 @@
 
 namespace hisnegs::gmf {
 
-std::string optimizer_name(Optimizer optimizer) {
-  std::string name;
+namespace {
+
+// Calls f(text, value) for each configured name of an optimizer (GmfOptions' enum names).
+template <class F>
+void for_each_optimizer_name(F&& f) {
   GmfOptions o;
   o.visit([&](std::string_view key, auto& /*field*/, auto&&... names) {
     if constexpr (sizeof...(names) == 1) {
       if (key != "optimizer") return;
       for (const auto& [text, value] : (names, ...)) {
-        if constexpr (std::is_same_v<std::decay_t<decltype(value)>, Optimizer>) {
-          if (value == optimizer) name = std::string(text);
-        }
+        if constexpr (std::is_same_v<std::decay_t<decltype(value)>, Optimizer>) f(std::string_view(text), value);
       }
     }
   });
+}
+
+}  // namespace
+
+std::string optimizer_name(Optimizer optimizer) {
+  std::string name;
+  for_each_optimizer_name([&](std::string_view text, Optimizer value) {
+    if (value == optimizer) name = std::string(text);
+  });
   return name;
+}
+
+std::optional<Optimizer> find_builtin_optimizer(std::string_view name) {
+  std::optional<Optimizer> found;
+  for_each_optimizer_name([&](std::string_view text, Optimizer value) {
+    if (text == name) found = value;
+  });
+  return found;
+}
+
+std::vector<Optimizer> builtin_optimizers(const std::vector<std::string>& names, std::string_view option) {
+  std::vector<Optimizer> out;
+  for (const std::string& name : names) {
+    GmfOptions parsed;
+    io::set_enum_field(parsed, "optimizer", name, option);  // its message lists the built-in names
+    out.push_back(parsed.optimizer);
+  }
+  return out;
+}
+
+void add_optimizers(CompareOptions& options, const std::vector<std::string>& names, std::string_view option) {
+  for (const std::string& name : names) {
+    if (const NamedSolver* registered = find_registered_optimizer(name)) {
+      options.custom.push_back(*registered);
+      continue;
+    }
+    try {
+      options.optimizers.push_back(builtin_optimizers({name}, option).front());
+    } catch (const io::InputError& e) {
+      throw io::InputError(std::string(e.what()) + ", or a registered one: " + registered_optimizer_names());
+    }
+  }
 }
 
 void CompareOptions::validate() const {
@@ -44,15 +86,7 @@ void CompareOptions::validate() const {
   }
   for (std::size_t i = 0; i < custom.size(); ++i) {
     const std::string& name = custom[i].name;
-    const bool builtin = [&] {
-      GmfOptions probe;
-      try {
-        io::set_enum_field(probe, "optimizer", name, "compare.optimizers");
-        return true;
-      } catch (const io::InputError&) {
-        return false;
-      }
-    }();
+    const bool builtin = find_builtin_optimizer(name).has_value();
     if (name.empty() || builtin || !custom[i].solve) {
       io::fail_option("compare", "optimizers", name,
                       name.empty() || !custom[i].solve ? "a custom optimizer needs a name and a solver"

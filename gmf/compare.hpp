@@ -5,7 +5,9 @@
 #pragma once
 
 #include <functional>
+#include <optional>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "gmf/fit.hpp"
@@ -58,6 +60,14 @@ struct Comparison {
 
 // The configured name of an optimizer ("lm-cgnr", ...).
 std::string optimizer_name(Optimizer optimizer);
+// The built-in optimizer of that configured name, if one is.
+std::optional<Optimizer> find_builtin_optimizer(std::string_view name);
+// The built-in optimizers called `names`; io::InputError naming `option` for another name.
+std::vector<Optimizer> builtin_optimizers(const std::vector<std::string>& names, std::string_view option);
+// Adds the optimizers called `names` to `options`, in order: the built-in ones to
+// `optimizers`, the registered ones (gmf/optimizers.def) to `custom`;
+// io::InputError naming `option` (and the registered names) for another name.
+void add_optimizers(CompareOptions& options, const std::vector<std::string>& names, std::string_view option);
 
 // Runs the comparison on `samples` (fit_samples()) of `volume` in `frame`. `base`
 // supplies everything but the optimizer, the budget and density control; `initial`

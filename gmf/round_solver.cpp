@@ -25,4 +25,10 @@ const NamedSolver* find_registered_optimizer(std::string_view name) {
   return it == table.end() ? nullptr : &*it;
 }
 
+std::string registered_optimizer_names() {
+  std::string names;
+  for (const NamedSolver& s : registered_optimizers()) names += (names.empty() ? "" : ", ") + s.name;
+  return names;
+}
+
 }  // namespace hisnegs::gmf

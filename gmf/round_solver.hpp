@@ -75,5 +75,7 @@ struct NamedSolver {
 const std::vector<NamedSolver>& registered_optimizers();
 // The registered optimizer called `name`, or nullptr.
 const NamedSolver* find_registered_optimizer(std::string_view name);
+// Their names, ", "-separated ("spg").
+std::string registered_optimizer_names();
 
 }  // namespace hisnegs::gmf

@@ -6,20 +6,8 @@
 
 #include "apps/cli/cli_support.hpp"
 #include "apps/pipeline/optimizer_comparison.hpp"
-#include "io/config.hpp"
-#include "io/error.hpp"
 
 namespace hisnegs::apps {
-
-namespace {
-
-std::string registered_names() {
-  std::string names;
-  for (const gmf::NamedSolver& s : gmf::registered_optimizers()) names += (names.empty() ? "" : ", ") + s.name;
-  return names;
-}
-
-}  // namespace
 
 void add_compare_command(CLI::App& app, GlobalOptions& global) {
   auto* cmd = app.add_subcommand("compare-optimizers",
@@ -36,7 +24,7 @@ void add_compare_command(CLI::App& app, GlobalOptions& global) {
   cmd->add_option("-o,--output", args->out, "output folder")->required();
   cmd->add_option("--optimizers", args->optimizers,
                   "comma-separated subset of adam,brick-lm,lm-cgnr,lbfgs,lm,dogleg (default the first four) and of "
-                  "the registered optimizers (gmf/optimizers.def: " + registered_names() + ")");
+                  "the registered optimizers (gmf/optimizers.def: " + gmf::registered_optimizer_names() + ")");
   cmd->add_option("--gaussians", args->gaussians, "Gaussian budget (gmf.gaussians)");
   cmd->add_option("--time-budget", args->compare.time_budget_s, "seconds per optimizer (default gmf.time_budget_s)");
   cmd->add_option("--adam-steps", args->compare.adam_steps, "Adam steps that define the target loss")
@@ -54,35 +42,20 @@ void add_compare_command(CLI::App& app, GlobalOptions& global) {
     config.gmf.validate();
     gmf::CompareOptions compare = args->compare;
     if (compare.time_budget_s < 0) compare.time_budget_s = config.gmf.time_budget_s;
-    const auto optimizers = [](const std::string& text, const char* option) {
-      std::vector<gmf::Optimizer> out;
+    const auto names = [](const std::string& text) {
+      std::vector<std::string> out;
       std::stringstream list(text);
-      for (std::string name; std::getline(list, name, ',');) {
-        gmf::GmfOptions parsed;
-        io::set_enum_field(parsed, "optimizer", name, option);
-        out.push_back(parsed.optimizer);
-      }
+      for (std::string name; std::getline(list, name, ',');) out.push_back(name);
       return out;
     };
     if (!args->optimizers.empty()) {
-      // Built-in names go to compare.optimizers, registered ones (gmf/optimizers.def) to compare.custom.
-      std::string builtin;
-      std::stringstream list(args->optimizers);
-      for (std::string name; std::getline(list, name, ',');) {
-        if (const gmf::NamedSolver* registered = gmf::find_registered_optimizer(name)) {
-          compare.custom.push_back(*registered);
-        } else {
-          builtin += (builtin.empty() ? "" : ",") + name;
-        }
-      }
-      try {
-        compare.optimizers = builtin.empty() ? std::vector<gmf::Optimizer>{} : optimizers(builtin, "--optimizers");
-      } catch (const io::InputError& e) {
-        throw io::InputError(std::string(e.what()) + ", or a registered one: " + registered_names());
-      }
+      compare.optimizers.clear();
+      gmf::add_optimizers(compare, names(args->optimizers), "--optimizers");
     }
-    compare.continuation =
-        args->continuation == "none" ? std::vector<gmf::Optimizer>{} : optimizers(args->continuation, "--continuation");
+    compare.continuation.clear();
+    if (args->continuation != "none") {
+      compare.continuation = gmf::builtin_optimizers(names(args->continuation), "--continuation");
+    }
     compare.validate();
     write_optimizer_comparison(args->out, args->volume, FitConfig(config), compare, global.progress());
   });

@@ -425,12 +425,47 @@ py::dict metrics(const FloatArray& render, const FloatArray& target) {
 
 // ---- the stage-1 objective --------------------------------------------------------
 
+// value, gradient and value_and_gradient of a flat float64 x of size() values over
+// Derived's `double evaluate(const double* x, double* gradient)`, and the check of
+// such an x (io::InputError naming Derived::kName): shared by Objective and
+// RoundProblem.
+template <class Derived>
+class GradientCalls {
+ public:
+  double value(const DoubleArray& x) { return self().evaluate(checked(x), nullptr); }
+  py::array_t<double> gradient(const DoubleArray& x) {
+    py::array_t<double> g(static_cast<py::ssize_t>(self().size()));
+    self().evaluate(checked(x), g.mutable_data());
+    return g;
+  }
+  py::tuple value_and_gradient(const DoubleArray& x) {
+    py::array_t<double> g(static_cast<py::ssize_t>(self().size()));
+    const double v = self().evaluate(checked(x), g.mutable_data());
+    return py::make_tuple(v, g);
+  }
+
+ protected:
+  // x's values, once it is a flat array of size() values.
+  const double* checked(const DoubleArray& x) const {
+    const std::size_t n = static_cast<const Derived&>(*this).size();
+    if (x.ndim() != 1 || static_cast<std::size_t>(x.size()) != n) {
+      throw io::InputError(std::string(Derived::kName) + ": x must be a flat array of 11 K = " + std::to_string(n) +
+                           " values (got " + std::to_string(x.size()) + ")");
+    }
+    return x.data();
+  }
+
+ private:
+  Derived& self() { return static_cast<Derived&>(*this); }
+};
+
 // The fit's least-squares problem on a volume: its samples and weights (the sparse
 // grid with gmf.background_fraction, at the voxel centres), the model's mixture as
 // the size of x, and the mixture model (aggregation, β, cutoff). The block index is
 // rebuilt for each new x, so x may move anywhere.
-class Objective {
+class Objective : public GradientCalls<Objective> {
  public:
+  static constexpr const char* kName = "hisnegs.Objective";
   Objective(const Volume& volume, const Model& model, const std::string& config_text, const std::string& aggregation,
             double beta) {
     const AppConfig config = config_of(config_text, "hisnegs.Objective() options");
@@ -454,12 +489,6 @@ class Objective {
   [[nodiscard]] std::size_t size() const { return gmf::kGaussianParamCount * gaussians_; }
   [[nodiscard]] std::size_t samples() const { return samples_.size(); }
 
-  double value(const DoubleArray& x) { return evaluate(x, nullptr); }
-  py::array_t<double> gradient(const DoubleArray& x) {
-    py::array_t<double> g(static_cast<py::ssize_t>(size()));
-    evaluate(x, g.mutable_data());
-    return g;
-  }
   py::array_t<double> residuals(const DoubleArray& x) {
     const gmf::SampleResiduals r = sample_residuals(x, false);
     return py::array_t<double>(static_cast<py::ssize_t>(r.residuals.size()), r.residuals.data());
@@ -471,35 +500,22 @@ class Objective {
                           py::array_t<std::int64_t>(static_cast<py::ssize_t>(r.columns.size()), r.columns.data()),
                           py::array_t<std::int64_t>(static_cast<py::ssize_t>(r.row_begin.size()), r.row_begin.data()));
   }
-  py::tuple value_and_gradient(const DoubleArray& x) {
-    py::array_t<double> g(static_cast<py::ssize_t>(size()));
-    const double v = evaluate(x, g.mutable_data());
-    return py::make_tuple(v, g);
-  }
-
- private:
-  void check(const DoubleArray& x) const {
-    if (x.ndim() != 1 || static_cast<std::size_t>(x.size()) != size()) {
-      throw io::InputError("hisnegs.Objective: x must be a flat array of 11 K = " + std::to_string(size()) +
-                           " values (got " + std::to_string(x.size()) + ")");
-    }
-  }
-  // Which Gaussians may reach which sample blocks at x (rebuilt for every x).
-  [[nodiscard]] gmf::BlockIndex index_at(const double* p) const {
-    const std::vector<float> rounded(p, p + size());
-    return gmf::build_block_index(gmf::mixture_from_flat(rounded), samples_, frame_, model_.cutoff);
-  }
-  double evaluate(const DoubleArray& x, double* gradient) {
-    check(x);
-    const double* p = x.data();
+  // The loss at p (11 K values) and, when not null, its gradient.
+  double evaluate(const double* p, double* gradient) {
     py::gil_scoped_release release;
     const gmf::BlockIndex index = index_at(p);
     const gmf::FitObjective objective(samples_, index, gaussians_, model_);
     return objective.evaluate(p, gradient);
   }
+
+ private:
+  // Which Gaussians may reach which sample blocks at x (rebuilt for every x).
+  [[nodiscard]] gmf::BlockIndex index_at(const double* p) const {
+    const std::vector<float> rounded(p, p + size());
+    return gmf::build_block_index(gmf::mixture_from_flat(rounded), samples_, frame_, model_.cutoff);
+  }
   gmf::SampleResiduals sample_residuals(const DoubleArray& x, bool with_jacobian) {
-    check(x);
-    const double* p = x.data();
+    const double* p = checked(x);
     py::gil_scoped_release release;
     return gmf::sample_residuals(samples_, index_at(p), model_, p, with_jacobian);
   }
@@ -552,8 +568,9 @@ apps::Progress deferring_progress(const std::optional<py::function>& callback) {
 
 // hisnegs.RoundProblem: one round of the stage-1 fit as a Python optimizer sees it
 // (gmf::RoundSolverProblem). Valid only during the optimizer's call.
-class RoundProblem {
+class RoundProblem : public GradientCalls<RoundProblem> {
  public:
+  static constexpr const char* kName = "hisnegs.RoundProblem";
   explicit RoundProblem(const gmf::RoundSolverProblem& p)
       : p_(&p), last_x_(p.x.begin(), p.x.end()), iterate_(p.x.begin(), p.x.end()) {}
 
@@ -575,32 +592,32 @@ class RoundProblem {
   [[nodiscard]] double seconds_left() const { return problem().seconds_left; }
   [[nodiscard]] int iterations() const { return iterations_; }
 
-  double value(const DoubleArray& x) { return evaluate(x, nullptr); }
-  py::array_t<double> gradient(const DoubleArray& x) {
-    py::array_t<double> g(static_cast<py::ssize_t>(size()));
-    evaluate(x, g.mutable_data());
-    return g;
-  }
-  py::tuple value_and_gradient(const DoubleArray& x) {
-    py::array_t<double> g(static_cast<py::ssize_t>(size()));
-    const double v = evaluate(x, g.mutable_data());
-    return py::make_tuple(v, g);
+  // The round's loss at p (size() values) and, when not null, its gradient; p
+  // becomes the last point evaluated (iterate() logs it without evaluating again).
+  double evaluate(const double* p, double* gradient) {
+    const gmf::FitObjective& objective = problem().objective;
+    double loss = 0;
+    {
+      py::gil_scoped_release release;
+      loss = objective.evaluate(p, gradient);
+    }
+    std::copy(p, p + size(), last_x_.begin());
+    last_loss_ = loss;
+    has_last_ = true;
+    return loss;
   }
   // One iteration ends at x: its loss is logged (the last evaluation's when it was
   // at x, else a new one) and x becomes the round's result so far. Raises
   // StopRound when the round must end.
   void iterate(const DoubleArray& x) {
-    check(x);
-    const bool known = std::memcmp(x.data(), last_x_.data(), size() * sizeof(double)) == 0 && has_last_;
-    const double loss = known ? last_loss_ : evaluate(x, nullptr);
-    std::copy(x.data(), x.data() + size(), iterate_.begin());
+    const double* p = checked(x);
+    const bool known = has_last_ && std::memcmp(p, last_x_.data(), size() * sizeof(double)) == 0;
+    const double loss = known ? last_loss_ : evaluate(p, nullptr);
+    std::copy(p, p + size(), iterate_.begin());
     log(loss);
   }
   // The round's start, logged as every built-in optimizer logs it (iteration 0).
-  void start() {
-    const py::array_t<double> x0 = x();
-    log(evaluate(x0, nullptr));
-  }
+  void start() { log(evaluate(problem().x.data(), nullptr)); }
   // Where the round ends: `result` (the optimizer's return value) or, for None or a
   // StopRound, the last iterate.
   void finish(const py::object& result) {
@@ -625,25 +642,6 @@ class RoundProblem {
   }
   static py::array_t<double> copy_of(std::span<const double> v) {
     return py::array_t<double>(static_cast<py::ssize_t>(v.size()), v.data());
-  }
-  void check(const DoubleArray& x) const {
-    if (x.ndim() != 1 || static_cast<std::size_t>(x.size()) != size()) {
-      throw io::InputError("hisnegs.RoundProblem: x must be a flat array of 11 K = " + std::to_string(size()) +
-                           " values (got " + std::to_string(x.size()) + ")");
-    }
-  }
-  double evaluate(const DoubleArray& x, double* gradient) {
-    check(x);
-    const gmf::RoundSolverProblem& p = problem();
-    double loss = 0;
-    {
-      py::gil_scoped_release release;
-      loss = p.objective.evaluate(x.data(), gradient);
-    }
-    std::copy(x.data(), x.data() + size(), last_x_.begin());
-    last_loss_ = loss;
-    has_last_ = true;
-    return loss;
   }
   void log(double loss) {
     ++iterations_;
@@ -699,21 +697,9 @@ py::dict compare_optimizers(const Volume& volume, const std::vector<std::string>
   options.time_budget_s = budget_s;
   options.adam_steps = adam_steps;
   options.stop_at_target = stop_at_target;
-  const auto builtin = [](const std::string& name, const char* what) {
-    gmf::GmfOptions parsed;
-    io::set_enum_field(parsed, "optimizer", name, what);
-    return parsed.optimizer;
-  };
   options.optimizers.clear();
-  for (const std::string& name : builtins) {
-    if (const gmf::NamedSolver* registered = gmf::find_registered_optimizer(name)) {
-      options.custom.push_back(*registered);
-    } else {
-      options.optimizers.push_back(builtin(name, "hisnegs.compare_optimizers builtins"));
-    }
-  }
-  options.continuation.clear();
-  for (const std::string& name : continuation) options.continuation.push_back(builtin(name, "continuation"));
+  gmf::add_optimizers(options, builtins, "hisnegs.compare_optimizers builtins");
+  options.continuation = gmf::builtin_optimizers(continuation, "hisnegs.compare_optimizers continuation");
   for (const auto& [key, value] : custom) {
     const std::string name = py::str(key);
     if (!PyCallable_Check(value.ptr())) {

@@ -234,9 +234,6 @@ def compare_optimizers(volume, optimizers, budget_s=60.0, builtins=("adam", "bri
     ...         options={"maxiter": problem.max_iterations}).x
     >>> table = hisnegs.compare_optimizers(volume, {"scipy-lbfgsb": lbfgsb}, budget_s=60)
     """
-    for name, optimizer in dict(optimizers).items():
-        if not callable(optimizer):
-            raise ValueError(f"hisnegs.compare_optimizers: optimizers[{name!r}] is not callable")
     text = _sections(gmf=gmf_options, sparse_grid=sparse_grid_options or {})
     return _hisnegs._compare_optimizers(volume, [str(b) for b in builtins], dict(optimizers), text, float(budget_s),
                                         int(adam_steps), bool(stop_at_target), [str(c) for c in continuation],
