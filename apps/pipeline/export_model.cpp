@@ -37,6 +37,14 @@ io::WorldFrame native_frame(const gmf::Checkpoint& checkpoint, const std::string
   return *frame;
 }
 
+// `out` must not be the stack an export reads (`match_volume`): the CLI refuses that
+// before any work; a library caller (the Python module) is refused here.
+void refuse_to_overwrite(const std::filesystem::path& out, const std::filesystem::path& match_volume) {
+  if (!match_volume.empty() && io::same_file(match_volume, out)) {
+    io::fail_input(out, "is also the volume to match; refusing to overwrite it (choose another output)");
+  }
+}
+
 }  // namespace
 
 std::string shape_text(const io::WorldFrame& frame) {
@@ -53,6 +61,7 @@ VdbExportDone export_model_vdb(const gmf::Checkpoint& checkpoint, const std::str
                                const std::filesystem::path& out, const VdbExportRequest& request,
                                const gmf::ExportProgress& progress) {
   request.options.validate();
+  refuse_to_overwrite(out, request.match_volume);
   VdbExportDone done;
   gmf::VoxelLattice lattice;
   if (request.voxel_size) {
@@ -92,6 +101,7 @@ VolumeExportDone export_model_volume(const gmf::Checkpoint& checkpoint, const st
   if (!(request.tail > 0.0 && request.tail < 1.0)) {
     throw io::InputError("tail = " + io::number_text(request.tail) + ": must be in (0, 1)");
   }
+  refuse_to_overwrite(out, request.match_volume);
   io::Stopwatch watch;
   VolumeExportDone done;
   std::optional<io::LoadedVolume> matched;

@@ -323,6 +323,12 @@ def test_exports_equal_the_cli(work, tmp_path):
     with pytest.raises(ValueError, match="position_bits"):
         hisnegs.export_compact(model, tmp_path / "bad.hgs", position_bits=40)
     assert not (tmp_path / "bad.vdb").exists() and not (tmp_path / "bad.hgs").exists()
+    stack = tmp_path / "stack.tif"  # an export never replaces the stack it matches
+    stack.write_bytes((work / "s.tif").read_bytes())
+    for export in (hisnegs.export_volume, hisnegs.export_vdb):
+        with pytest.raises(ValueError, match="is also the volume to match"):
+            export(model, stack, match_volume=stack)
+    assert stack.read_bytes() == (work / "s.tif").read_bytes()
 
 
 def test_info_prints_what_the_cli_prints(work):
