@@ -552,42 +552,114 @@ void check_header_text(std::string_view what, const std::string& text) {
 }
 }  // namespace
 
-void write_ply(const fs::path& path, const PlyTable& table) {
-  AtomicFile out(path);
-  FilePtr file(std::fopen(out.temp_path().c_str(), "wb"));
-  if (!file) fail_input(path, std::string("cannot open for writing: ") + std::strerror(errno));
+namespace {
 
-  // The header is checked while the temporary exists: a bad table still leaves
-  // nothing behind (AtomicFile removes the temporary on the way out).
+// What the header says of one element.
+struct ElementHeader {
+  const std::string& name;
+  std::int64_t count;
+  const std::vector<PlyProperty>& properties;
+};
+
+// The binary_little_endian header; std::invalid_argument for a bad name or a
+// comment with a line break.
+std::string binary_header(const std::vector<std::string>& comments, const std::vector<std::string>& obj_info,
+                          std::span<const ElementHeader> elements) {
   std::string header = "ply\nformat binary_little_endian 1.0\n";
-  for (const std::string& c : table.comments) {
+  for (const std::string& c : comments) {
     check_header_text("comment", c);
     header += c.empty() ? "comment\n" : "comment " + c + "\n";
   }
-  for (const std::string& o : table.obj_info) {
+  for (const std::string& o : obj_info) {
     check_header_text("obj_info", o);
     header += o.empty() ? "obj_info\n" : "obj_info " + o + "\n";
   }
-  for (const PlyElement& e : table.elements) {
-    if (!is_valid_name(e.name())) throw std::invalid_argument("invalid PLY element name " + quote(e.name()));
-    header += "element " + e.name() + " " + std::to_string(e.count()) + "\n";
-    for (const PlyProperty& p : e.properties()) {
+  for (const ElementHeader& e : elements) {
+    if (!is_valid_name(e.name)) throw std::invalid_argument("invalid PLY element name " + quote(e.name));
+    header += "element " + e.name + " " + std::to_string(e.count) + "\n";
+    for (const PlyProperty& p : e.properties) {
       if (!is_valid_name(p.name)) {
-        throw std::invalid_argument("PLY element '" + e.name() + "': invalid property name " + quote(p.name));
+        throw std::invalid_argument("PLY element '" + e.name + "': invalid property name " + quote(p.name));
       }
       header += "property " + std::string(to_string(p.type)) + " " + p.name + "\n";
     }
   }
   header += "end_header\n";
+  return header;
+}
 
-  auto write = [&](const void* data, std::size_t size) {
-    if (size && std::fwrite(data, 1, size, file.get()) != size) fail_write(path, errno);
-  };
-  write(header.data(), header.size());
-  for (const PlyElement& e : table.elements) write(e.bytes().data(), e.bytes().size());
-  if (std::fflush(file.get()) != 0) fail_write(path, errno);
-  if (std::fclose(file.release()) != 0) fail_write(path, errno);
+// A temporary file beside `path` being written, renamed into place by commit().
+class BinaryOutput {
+ public:
+  explicit BinaryOutput(const fs::path& path) : out_(path), file_(std::fopen(out_.temp_path().c_str(), "wb")) {
+    if (!file_) fail_input(path, std::string("cannot open for writing: ") + std::strerror(errno));
+  }
+  void write(const void* data, std::size_t size) {
+    if (size && std::fwrite(data, 1, size, file_.get()) != size) fail_write(out_.target(), errno);
+  }
+  void commit() {
+    if (std::fflush(file_.get()) != 0) fail_write(out_.target(), errno);
+    if (std::fclose(file_.release()) != 0) fail_write(out_.target(), errno);
+    out_.commit();
+  }
+
+ private:
+  AtomicFile out_;
+  FilePtr file_;
+};
+
+}  // namespace
+
+void write_ply(const fs::path& path, const PlyTable& table) {
+  // The header is checked while the temporary exists: a bad table still leaves
+  // nothing behind (AtomicFile removes the temporary on the way out).
+  BinaryOutput out(path);
+  std::vector<ElementHeader> elements;
+  for (const PlyElement& e : table.elements) elements.push_back({e.name(), e.count(), e.properties()});
+  const std::string header = binary_header(table.comments, table.obj_info, elements);
+  out.write(header.data(), header.size());
+  for (const PlyElement& e : table.elements) out.write(e.bytes().data(), e.bytes().size());
   out.commit();
+}
+
+struct PlyRowWriter::State {
+  BinaryOutput out;
+  std::size_t row_size = 0;
+  std::int64_t expected = 0, written = 0;
+  explicit State(const fs::path& path) : out(path) {}
+};
+
+PlyRowWriter::PlyRowWriter(const fs::path& path, const std::vector<std::string>& comments, const std::string& element,
+                           std::int64_t count, const std::vector<PlyProperty>& properties)
+    : state_(std::make_unique<State>(path)) {
+  if (count < 0) throw std::invalid_argument("PLY element '" + element + "': negative count");
+  for (const PlyProperty& p : properties) state_->row_size += size_of(p.type);
+  state_->expected = count;
+  const ElementHeader e{element, count, properties};
+  const std::string header = binary_header(comments, {}, std::span<const ElementHeader>(&e, 1));
+  state_->out.write(header.data(), header.size());
+}
+
+PlyRowWriter::~PlyRowWriter() = default;
+
+void PlyRowWriter::append(std::span<const std::byte> bytes) {
+  if (state_->row_size == 0 || bytes.size() % state_->row_size != 0) {
+    throw std::logic_error("PlyRowWriter::append: not whole rows");
+  }
+  const auto rows = static_cast<std::int64_t>(bytes.size() / state_->row_size);
+  if (state_->written + rows > state_->expected) {
+    throw std::logic_error("PlyRowWriter::append: more rows than the header says");
+  }
+  state_->out.write(bytes.data(), bytes.size());
+  state_->written += rows;
+}
+
+void PlyRowWriter::commit() {
+  if (state_->written != state_->expected) {
+    throw std::logic_error("PlyRowWriter::commit: " + std::to_string(state_->written) + " rows of " +
+                           std::to_string(state_->expected));
+  }
+  state_->out.commit();
 }
 
 }  // namespace hisnegs::io

@@ -270,6 +270,29 @@ struct PlyTable {
 // removed); InputError / std::runtime_error if the file cannot be written.
 void write_ply(const std::filesystem::path& path, const PlyTable& table);
 
+// Writes a binary_little_endian PLY of one element whose rows arrive in pieces (a
+// model too large to hold at once): the header (the comments, then the element's
+// name, count and properties) at once, then append() the rows, then commit(),
+// which checks that exactly `count` rows came and renames the file into place
+// (io::AtomicFile: destroyed without commit(), nothing is left). The bytes equal
+// write_ply's for the same table. Throws as write_ply does, and std::logic_error for
+// rows that are not whole or more or fewer than `count`.
+class PlyRowWriter {
+ public:
+  PlyRowWriter(const std::filesystem::path& path, const std::vector<std::string>& comments, const std::string& element,
+               std::int64_t count, const std::vector<PlyProperty>& properties);
+  ~PlyRowWriter();
+  PlyRowWriter(const PlyRowWriter&) = delete;
+  PlyRowWriter& operator=(const PlyRowWriter&) = delete;
+  // `bytes` holds whole rows of the element (a multiple of its row size).
+  void append(std::span<const std::byte> bytes);
+  void commit();
+
+ private:
+  struct State;
+  std::unique_ptr<State> state_;
+};
+
 // ----- implementation of the templates -----
 
 template <PlyConvertible T>

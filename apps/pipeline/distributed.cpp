@@ -10,6 +10,7 @@
 #include <memory>
 #include <mutex>
 #include <optional>
+#include <stdexcept>
 
 #include "io/error.hpp"
 
@@ -32,6 +33,10 @@ class SingleProcess final : public Job {
   void sum_all(std::span<double>) const override {}
   void broadcast(std::span<double>) const override {}
   void broadcast(std::vector<unsigned char>&, int) const override {}
+  [[nodiscard]] std::vector<std::vector<unsigned char>> exchange(
+      const std::vector<std::vector<unsigned char>>&) const override {
+    return std::vector<std::vector<unsigned char>>(1);
+  }
   [[noreturn]] void abort(int code) const override { std::exit(code); }
 };
 
@@ -79,6 +84,33 @@ class MpiWorld final : public Job {
     in_pieces(bytes.size(), [&](std::size_t at, int n) {
       MPI_Bcast(bytes.data() + at, n, MPI_UNSIGNED_CHAR, root, MPI_COMM_WORLD);
     });
+  }
+  [[nodiscard]] std::vector<std::vector<unsigned char>> exchange(
+      const std::vector<std::vector<unsigned char>>& to) const override {
+    const auto n = static_cast<std::size_t>(size_);
+    if (to.size() != n) throw std::logic_error("Job::exchange: one entry per rank");
+    std::vector<unsigned long long> sizes(n), incoming(n);
+    for (std::size_t r = 0; r < n; ++r) sizes[r] = r == static_cast<std::size_t>(rank_) ? 0 : to[r].size();
+    MPI_Alltoall(sizes.data(), 1, MPI_UNSIGNED_LONG_LONG, incoming.data(), 1, MPI_UNSIGNED_LONG_LONG, MPI_COMM_WORLD);
+    std::vector<std::vector<unsigned char>> from(n);
+    std::vector<MPI_Request> requests;
+    for (std::size_t r = 0; r < n; ++r) {
+      from[r].resize(incoming[r]);
+      in_pieces(from[r].size(), [&](std::size_t at, int count) {
+        requests.emplace_back();
+        MPI_Irecv(from[r].data() + at, count, MPI_UNSIGNED_CHAR, static_cast<int>(r), 0, MPI_COMM_WORLD,
+                  &requests.back());
+      });
+    }
+    for (std::size_t r = 0; r < n; ++r) {
+      in_pieces(sizes[r], [&](std::size_t at, int count) {
+        requests.emplace_back();
+        MPI_Isend(to[r].data() + at, count, MPI_UNSIGNED_CHAR, static_cast<int>(r), 0, MPI_COMM_WORLD,
+                  &requests.back());
+      });
+    }
+    MPI_Waitall(static_cast<int>(requests.size()), requests.data(), MPI_STATUSES_IGNORE);
+    return from;
   }
   [[noreturn]] void abort(int code) const override {
     MPI_Abort(MPI_COMM_WORLD, code);

@@ -51,6 +51,12 @@ class Job {
   virtual void broadcast(std::span<double> values) const = 0;
   // Rank `root`'s bytes (and their count) on every rank.
   virtual void broadcast(std::vector<unsigned char>& bytes, int root) const = 0;
+  // Point to point: to[r] goes to rank r (to[rank()] is not sent); returns what
+  // each rank sent this one (from[r], empty from this rank and from a rank that sent
+  // nothing). Every rank must call it. MPI_Alltoall of the sizes, then
+  // MPI_Isend/MPI_Irecv of the bytes. Alone: a list of one empty entry.
+  [[nodiscard]] virtual std::vector<std::vector<unsigned char>> exchange(
+      const std::vector<std::vector<unsigned char>>& to) const = 0;
   // Ends every rank of the job with `code` (MPI_Abort): a rank that fails must not
   // leave the others waiting for it. Alone: std::exit(code).
   [[noreturn]] virtual void abort(int code) const = 0;

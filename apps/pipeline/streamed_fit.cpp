@@ -167,6 +167,52 @@ void shift_means(gmf::GaussianMixture& m, const Eigen::Vector3d& shift) {
   }
 }
 
+Eigen::Vector3d index_of(const StreamContext& c, const gmf::GaussianParams& g) {
+  return c.frame.index_from_world(Eigen::Vector3d(g.mean[0], g.mean[1], g.mean[2]));
+}
+
+// True when the centre (continuous index) lies within `halo` of `box` grown by `grow` voxels.
+bool within(const Eigen::Vector3d& ijk, const io::VoxelBox& box, const std::array<int, 3>& grow) {
+  for (int a = 0; a < 3; ++a) {
+    if (ijk[a] < box.lo[a] - grow[a] - 0.5 || ijk[a] >= box.hi[a] + grow[a] - 0.5) return false;
+  }
+  return true;
+}
+
+// The bounding box of a brick's Gaussian centres (continuous index): which other
+// bricks' regions (grown by the halo) its Gaussians can be within, so that a rank
+// reads or is sent only the bricks it needs.
+struct CentreBox {
+  std::array<double, 3> lo{0, 0, 0}, hi{0, 0, 0};
+  bool empty = true;
+  void add(const Eigen::Vector3d& ijk) {
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = empty ? ijk[a] : std::min(lo[a], ijk[a]);
+      hi[a] = empty ? ijk[a] : std::max(hi[a], ijk[a]);
+    }
+    empty = false;
+  }
+  void add(const CentreBox& o) {
+    if (o.empty) return;
+    add(Eigen::Vector3d(o.lo[0], o.lo[1], o.lo[2]));
+    add(Eigen::Vector3d(o.hi[0], o.hi[1], o.hi[2]));
+  }
+  // Whether a centre in the box may be within(·, box, grow).
+  [[nodiscard]] bool meets(const io::VoxelBox& box, const std::array<int, 3>& grow) const {
+    if (empty) return false;
+    for (int a = 0; a < 3; ++a) {
+      if (hi[a] < box.lo[a] - grow[a] - 0.5 || lo[a] >= box.hi[a] + grow[a] - 0.5) return false;
+    }
+    return true;
+  }
+};
+
+CentreBox centre_box(const StreamContext& c, const gmf::GaussianMixture& m) {
+  CentreBox box;
+  for (const gmf::GaussianParams& g : m) box.add(index_of(c, g));
+  return box;
+}
+
 // ---- the brick folder ------------------------------------------------------
 
 std::filesystem::path brick_path(const StreamContext& c, int id, const char* ext) {
@@ -237,7 +283,9 @@ void write_plan(const StreamContext& c, const io::SourceStatistics& stats) {
 // What a finished brick leaves: its Gaussians (brick_N.ply) and this (brick_N.json,
 // written last: a brick is finished when it exists).
 struct BrickResult {
-  gmf::GaussianMixture kept;
+  gmf::GaussianMixture kept;  // empty once saved: the bricks stay in the folder, not in memory
+  std::size_t count = 0;      // Gaussians kept
+  CentreBox centres;
   io::BackgroundCounts background;
   std::vector<gmf::FitIteration> log;
   std::int64_t foreground_core = 0;
@@ -270,13 +318,26 @@ void save_brick(const StreamContext& c, int id, const BrickResult& r) {
   for (const gmf::FitIteration& it : r.log) {
     log.push_back({it.round, it.iteration, it.seconds, it.loss, it.psnr_fg, it.psnr_3d, it.gaussians, it.beta});
   }
-  nlohmann::json j = {{"fingerprint", c.fingerprint}, {"brick", id},          {"kept", r.kept.size()},
+  nlohmann::json j = {{"fingerprint", c.fingerprint}, {"brick", id},          {"kept", r.count},
                       {"foreground_core", r.foreground_core}, {"samples", r.samples}, {"seconds", r.seconds},
                       {"final_beta", r.final_beta}, {"background", counts_json(r.background)}, {"log", log}};
+  if (!r.centres.empty) j["centres"] = {r.centres.lo, r.centres.hi};
   const std::string text = j.dump() + "\n";
   io::write_file_atomic(brick_path(c, id, "json"), text.data(), text.size());
 }
 
+// The Gaussians of a finished brick: after the brick pass (`kind` "ply") or after
+// the seam pass ("seam.ply"), `count` of them.
+gmf::GaussianMixture load_gaussians(const StreamContext& c, int id, const char* kind, std::size_t count) {
+  gmf::GaussianMixture m = gmf::load_checkpoint(brick_path(c, id, kind)).mixture;
+  if (m.size() != count) {
+    io::fail_input(brick_path(c, id, kind), "holds " + std::to_string(m.size()) + " Gaussians, its brick record " +
+                                                std::to_string(count));
+  }
+  return m;
+}
+
+// A finished brick's record (its Gaussians stay on disk: load_gaussians).
 std::optional<BrickResult> load_brick(const StreamContext& c, int id) {
   const std::filesystem::path json_path = brick_path(c, id, "json");
   if (!std::filesystem::exists(json_path)) return std::nullopt;
@@ -304,9 +365,14 @@ std::optional<BrickResult> load_brick(const StreamContext& c, int id) {
       it.beta = row.at(7).get<double>();
       r.log.push_back(it);
     }
-    r.kept = gmf::load_checkpoint(brick_path(c, id, "ply")).mixture;
-    if (r.kept.size() != j.at("kept").get<std::size_t>()) {
-      io::fail_input(brick_path(c, id, "ply"), "holds a different count of Gaussians than its .json says");
+    r.count = j.at("kept").get<std::size_t>();
+    if (j.contains("centres")) {
+      const auto lo = j.at("centres").at(0).get<std::array<double, 3>>();
+      const auto hi = j.at("centres").at(1).get<std::array<double, 3>>();
+      r.centres.add(Eigen::Vector3d(lo[0], lo[1], lo[2]));
+      r.centres.add(Eigen::Vector3d(hi[0], hi[1], hi[2]));
+    } else if (r.count > 0) {  // a record of an earlier build: read the Gaussians once
+      r.centres = centre_box(c, load_gaussians(c, id, "ply", r.count));
     }
   } catch (const nlohmann::json::exception& e) {
     io::fail_input(json_path, std::string("not a hisnegs brick record: ") + e.what());
@@ -383,20 +449,10 @@ BrickResult fit_brick(const StreamContext& c, const gmf::StreamBrick& b, double 
   for (const gmf::GaussianParams& g : mixture) {
     if (c.plan.owner(c.frame, Eigen::Vector3d(g.mean[0], g.mean[1], g.mean[2])) == b.id) r.kept.push_back(g);
   }
+  r.count = r.kept.size();
+  r.centres = centre_box(c, r.kept);
   r.seconds = watch.elapsed();
   return r;
-}
-
-Eigen::Vector3d index_of(const StreamContext& c, const gmf::GaussianParams& g) {
-  return c.frame.index_from_world(Eigen::Vector3d(g.mean[0], g.mean[1], g.mean[2]));
-}
-
-// True when the centre (continuous index) lies within `halo` of `box` grown by `grow` voxels.
-bool within(const Eigen::Vector3d& ijk, const io::VoxelBox& box, const std::array<int, 3>& grow) {
-  for (int a = 0; a < 3; ++a) {
-    if (ijk[a] < box.lo[a] - grow[a] - 0.5 || ijk[a] >= box.hi[a] + grow[a] - 0.5) return false;
-  }
-  return true;
 }
 
 // Distance in voxels (per axis, scaled by the halo) from the centre to the nearest
@@ -413,20 +469,21 @@ struct SeamStats {
   std::size_t refitted = 0, held = 0;
 };
 
-// Refits brick b's Gaussians near its shared faces with every other Gaussian that
-// reaches its region held fixed; `owned[b]` is replaced by the result.
-SeamStats seam_brick(const StreamContext& c, const gmf::StreamBrick& b, std::vector<gmf::GaussianMixture>& owned,
-                     double beta, double seconds) {
-  SeamStats s;
+// Brick b's Gaussians after refitting those near its shared faces with every other
+// Gaussian of `held` that reaches its region held fixed (held[b]: all of b's;
+// held[o]: at least o's Gaussians within b's region grown by the halo).
+gmf::GaussianMixture seam_brick(const StreamContext& c, const gmf::StreamBrick& b,
+                                const std::vector<gmf::GaussianMixture>& held, double beta, double seconds,
+                                SeamStats& stats) {
   gmf::GaussianMixture stay, free;  // b's Gaussians away from its shared faces, and near them
-  for (const gmf::GaussianParams& g : owned[static_cast<std::size_t>(b.id)]) {
+  for (const gmf::GaussianParams& g : held[static_cast<std::size_t>(b.id)]) {
     (near_shared_face(c, b, index_of(c, g)) ? free : stay).push_back(g);
   }
-  if (free.empty()) return s;
+  if (free.empty()) return held[static_cast<std::size_t>(b.id)];
   gmf::GaussianMixture fixed = stay;  // held: b's own away from the faces and every neighbour reaching b
   for (const gmf::StreamBrick& other : c.plan.bricks) {
     if (other.id == b.id) continue;
-    for (const gmf::GaussianParams& g : owned[static_cast<std::size_t>(other.id)]) {
+    for (const gmf::GaussianParams& g : held[static_cast<std::size_t>(other.id)]) {
       if (within(index_of(c, g), b.region, c.plan.halo)) fixed.push_back(g);
     }
   }
@@ -452,21 +509,17 @@ SeamStats seam_brick(const StreamContext& c, const gmf::StreamBrick& b, std::vec
   (void)gmf::fit_mixture(v, samples, rf.frame, local, options);
   shift_means(local, rf.shift);
   for (std::size_t k = fixed.size(); k < local.size(); ++k) stay.push_back(local[k]);
-  owned[static_cast<std::size_t>(b.id)] = std::move(stay);
-  s.refitted = free.size();
-  s.held = fixed.size();
-  return s;
+  stats.refitted += free.size();
+  stats.held += fixed.size();
+  return stay;
 }
 
 // Σ (f − V)² over brick b's core voxels (the model's Gaussians that reach its region).
-double core_squared_error(const StreamContext& c, const gmf::StreamBrick& b, const gmf::GaussianMixture& model,
+// `local`: the model's Gaussians within b's region grown by the halo, in brick order.
+double core_squared_error(const StreamContext& c, const gmf::StreamBrick& b, gmf::GaussianMixture local,
                           const gmf::RasterizeOptions& raster) {
   const io::Volume v = read_region(c, b.region);
   const gmf::RegionFrame rf = gmf::region_frame(c.frame, b.region);
-  gmf::GaussianMixture local;
-  for (const gmf::GaussianParams& g : model) {
-    if (within(index_of(c, g), b.region, c.plan.halo)) local.push_back(g);
-  }
   shift_means(local, -rf.shift);
   const std::vector<float> f = gmf::rasterize_mixture(local, rf.frame, raster);
   const io::VoxelBox core = local_box(b.core, b.region);
@@ -625,33 +678,202 @@ std::vector<int> share_of_bricks(const std::vector<int>& todo, const std::functi
 
 namespace {
 
-// After a colour of the seam pass on several ranks: each brick of `of_colour` goes
-// from the rank that refitted it (rank_of) to every rank, bit for bit. Returns the
-// bytes sent.
-double share_seam_results(const std::vector<int>& of_colour, const std::vector<int>& rank_of, const Job& ranks,
-                          std::vector<gmf::GaussianMixture>& owned) {
-  double bytes = 0;
-  for (std::size_t i = 0; i < of_colour.size(); ++i) {
-    const int r = rank_of[i];
-    gmf::GaussianMixture& m = owned[static_cast<std::size_t>(of_colour[i])];
-    std::vector<unsigned char> data;
-    if (ranks.rank() == r) {
-      data.resize(m.size() * sizeof(gmf::GaussianParams));
-      if (!data.empty()) std::memcpy(data.data(), m.data(), data.size());
+// Where each brick's Gaussians are, pass by pass: the bricks' records (count and
+// centres after the brick pass), then the seam pass's.
+struct BrickState {
+  std::vector<std::size_t> count;
+  std::vector<CentreBox> centres;
+  const char* kind = "ply";  // the files holding them: brick_N.ply, or brick_N.seam.ply after a seam pass
+};
+
+// The Gaussians of every brick that may be within(·, box, halo) for one of `boxes`,
+// read from the folder; held[id] for `full` bricks in full, for the others only
+// those within (order kept).
+std::vector<gmf::GaussianMixture> read_needed(const StreamContext& c, const BrickState& state,
+                                              const std::vector<io::VoxelBox>& boxes, const std::vector<bool>& full) {
+  std::vector<gmf::GaussianMixture> held(c.plan.bricks.size());
+  for (std::size_t o = 0; o < held.size(); ++o) {
+    std::vector<const io::VoxelBox*> near;
+    for (const io::VoxelBox& box : boxes) {
+      if (state.centres[o].meets(box, c.plan.halo)) near.push_back(&box);
     }
-    ranks.broadcast(data, r);
-    if (ranks.rank() != r) {
-      m.resize(data.size() / sizeof(gmf::GaussianParams));
-      if (!data.empty()) std::memcpy(m.data(), data.data(), data.size());
+    if (!full[o] && near.empty()) continue;
+    gmf::GaussianMixture m = load_gaussians(c, static_cast<int>(o), state.kind, state.count[o]);
+    if (full[o]) {
+      held[o] = std::move(m);
+      continue;
     }
-    bytes += static_cast<double>(data.size()) * (ranks.size() - 1);
+    for (const gmf::GaussianParams& g : m) {
+      const Eigen::Vector3d ijk = index_of(c, g);
+      if (std::any_of(near.begin(), near.end(), [&](const io::VoxelBox* box) { return within(ijk, *box, c.plan.halo); })) {
+        held[o].push_back(g);
+      }
+    }
   }
-  return bytes;
+  return held;
 }
 
-}  // namespace
+void append_record(std::vector<unsigned char>& out, int id, const gmf::GaussianMixture& m) {
+  const std::uint64_t head[2] = {static_cast<std::uint64_t>(id), m.size()};
+  const auto* h = reinterpret_cast<const unsigned char*>(head);
+  out.insert(out.end(), h, h + sizeof head);
+  const auto* g = reinterpret_cast<const unsigned char*>(m.data());
+  out.insert(out.end(), g, g + m.size() * sizeof(gmf::GaussianParams));
+}
 
-namespace {
+void apply_records(const std::vector<unsigned char>& in, std::vector<gmf::GaussianMixture>& held) {
+  for (std::size_t at = 0; at < in.size();) {
+    std::uint64_t head[2];
+    std::memcpy(head, in.data() + at, sizeof head);
+    at += sizeof head;
+    gmf::GaussianMixture& m = held.at(head[0]);
+    m.resize(head[1]);
+    std::memcpy(static_cast<void*>(m.data()), in.data() + at, m.size() * sizeof(gmf::GaussianParams));
+    at += m.size() * sizeof(gmf::GaussianParams);
+  }
+}
+
+struct SeamOutcome {
+  SeamStats stats;
+  double exchanged = 0;  // bytes, all ranks together
+};
+
+// The seam pass, colour by colour (bricks of one colour share no face; each is
+// refitted from the state before its colour). Each rank refits its share of a
+// colour's bricks, then sends each refitted brick's Gaussians only to the ranks
+// with a brick of a later colour they can reach, and only those that reach it.
+// Every brick's result goes to brick_N.seam.ply; `state` becomes the seam pass's.
+SeamOutcome seam_pass(const StreamContext& c, BrickState& state, const Job& ranks, double beta, double budget) {
+  io::Stopwatch watch;
+  const std::size_t n = c.plan.bricks.size();
+  const auto colour_of = [&](std::size_t id) { return c.plan.bricks[id].colour(); };
+  // Who refits each brick: per colour, shared by the Gaussians each holds.
+  std::vector<int> rank_of(n, 0);
+  for (int colour = 0; colour < 8; ++colour) {
+    std::vector<int> of_colour;
+    for (const gmf::StreamBrick& b : c.plan.bricks) {
+      if (b.colour() == colour) of_colour.push_back(b.id);
+    }
+    const std::vector<int> r = brick_ranks(of_colour, ranks.size(), [&](int id) {
+      return 1.0 + static_cast<double>(state.count[static_cast<std::size_t>(id)]);
+    });
+    for (std::size_t i = 0; i < of_colour.size(); ++i) rank_of[static_cast<std::size_t>(of_colour[i])] = r[i];
+  }
+  std::vector<bool> mine(n);
+  std::vector<io::VoxelBox> my_regions;
+  for (std::size_t id = 0; id < n; ++id) {
+    mine[id] = rank_of[id] == ranks.rank();
+    if (mine[id]) my_regions.push_back(c.plan.bricks[id].region);
+  }
+  std::vector<gmf::GaussianMixture> held = read_needed(c, state, my_regions, mine);
+  SeamOutcome out;
+  std::vector<CentreBox> after = state.centres;
+  for (int colour = 0; colour < 8; ++colour) {
+    std::vector<std::pair<std::size_t, gmf::GaussianMixture>> refitted;
+    for (std::size_t id = 0; id < n; ++id) {
+      if (!mine[id] || colour_of(id) != colour) continue;
+      const double left = std::max(0.0, budget - watch.elapsed());
+      refitted.emplace_back(id, seam_brick(c, c.plan.bricks[id], held, beta, left / static_cast<double>(n), out.stats));
+      release_free_memory();
+    }
+    std::vector<std::vector<unsigned char>> to(static_cast<std::size_t>(ranks.size()));
+    for (auto& [id, m] : refitted) {
+      held[id] = std::move(m);
+      after[id] = centre_box(c, held[id]);
+      CentreBox reach = state.centres[id];  // where its Gaussians were and are
+      reach.add(after[id]);
+      for (int r = 0; r < ranks.size(); ++r) {
+        if (r == ranks.rank()) continue;
+        std::vector<const io::VoxelBox*> later;  // rank r's regions of later colours this brick reaches
+        for (std::size_t o = 0; o < n; ++o) {
+          if (rank_of[o] == r && colour_of(o) > colour && reach.meets(c.plan.bricks[o].region, c.plan.halo)) {
+            later.push_back(&c.plan.bricks[o].region);
+          }
+        }
+        if (later.empty()) continue;
+        gmf::GaussianMixture near;
+        for (const gmf::GaussianParams& g : held[id]) {
+          const Eigen::Vector3d ijk = index_of(c, g);
+          if (std::any_of(later.begin(), later.end(), [&](const io::VoxelBox* box) { return within(ijk, *box, c.plan.halo); })) {
+            near.push_back(g);
+          }
+        }
+        append_record(to[static_cast<std::size_t>(r)], static_cast<int>(id), near);
+      }
+    }
+    if (ranks.distributed()) {
+      for (const auto& bytes : to) out.exchanged += static_cast<double>(bytes.size());
+      for (const auto& bytes : ranks.exchange(to)) apply_records(bytes, held);
+    }
+  }
+  // Each brick's result to the folder, and where every brick's Gaussians are now.
+  std::vector<double> boxes(6 * n, 0.0), totals = {out.exchanged, static_cast<double>(out.stats.refitted),
+                                                  static_cast<double>(out.stats.held)};
+  for (std::size_t id = 0; id < n; ++id) {
+    if (!mine[id]) continue;
+    gmf::CheckpointMeta meta;
+    meta.extra.emplace_back("brick", std::to_string(id));
+    gmf::save_checkpoint(brick_path(c, static_cast<int>(id), "seam.ply"), held[id], meta);
+    for (int a = 0; a < 3; ++a) {
+      boxes[6 * id + a] = after[id].lo[a];
+      boxes[6 * id + 3 + a] = after[id].hi[a];
+    }
+  }
+  held.clear();
+  ranks.sum_all(boxes);  // one rank gives each brick's box, the others 0: exact
+  ranks.sum_all(totals);
+  for (std::size_t id = 0; id < n; ++id) {
+    state.centres[id] = CentreBox{};
+    if (state.count[id] == 0) continue;
+    state.centres[id].add(Eigen::Vector3d(boxes[6 * id], boxes[6 * id + 1], boxes[6 * id + 2]));
+    state.centres[id].add(Eigen::Vector3d(boxes[6 * id + 3], boxes[6 * id + 4], boxes[6 * id + 5]));
+  }
+  state.kind = "seam.ply";
+  out.exchanged = totals[0];
+  out.stats.refitted = static_cast<std::size_t>(totals[1]);
+  out.stats.held = static_cast<std::size_t>(totals[2]);
+  return out;
+}
+
+// The 3D PSNR's numerator: Σ (f − V)² over every core, each rank measuring its share
+// of the bricks (each brick's sum is the same whoever measures it; they are added
+// in brick order).
+double measure_pass(const StreamContext& c, const BrickState& state, const Job& ranks,
+                    const gmf::RasterizeOptions& raster) {
+  const std::size_t n = c.plan.bricks.size();
+  std::vector<int> ids(n);
+  for (std::size_t id = 0; id < n; ++id) ids[id] = static_cast<int>(id);
+  const std::vector<int> rank_of =
+      brick_ranks(ids, ranks.size(), [&](int id) { return 1.0 + static_cast<double>(state.count[static_cast<std::size_t>(id)]); });
+  std::vector<double> sse(n, 0.0);
+  for (std::size_t id = 0; id < n; ++id) {
+    if (rank_of[id] != ranks.rank()) continue;
+    const gmf::StreamBrick& b = c.plan.bricks[id];
+    const std::vector<gmf::GaussianMixture> near = read_needed(c, state, {b.region}, std::vector<bool>(n, false));
+    gmf::GaussianMixture local;
+    for (const gmf::GaussianMixture& m : near) {
+      for (const gmf::GaussianParams& g : m) local.push_back(g);
+    }
+    sse[id] = core_squared_error(c, b, std::move(local), raster);
+    release_free_memory();
+  }
+  ranks.sum_all(sse);
+  double total = 0;
+  for (double e : sse) total += e;
+  return total;
+}
+
+// The checkpoint, brick after brick in brick order (never the whole model at once).
+void write_checkpoint(const StreamContext& c, const BrickState& state, const std::filesystem::path& out,
+                      const gmf::CheckpointMeta& meta) {
+  std::size_t total = 0;
+  for (std::size_t k : state.count) total += k;
+  gmf::CheckpointWriter writer(out, meta, total);
+  for (std::size_t id = 0; id < state.count.size(); ++id) {
+    if (state.count[id] > 0) writer.append(load_gaussians(c, static_cast<int>(id), state.kind, state.count[id]));
+  }
+  writer.commit();
+}
 
 FitOutcome run_streamed(const std::string& volume, const FitConfig& config, const FitPlanChoice& choice,
                         const std::filesystem::path& out, const std::filesystem::path& log_csv,
@@ -751,10 +973,11 @@ FitOutcome run_streamed(const std::string& volume, const FitConfig& config, cons
     BrickResult r = fit_brick(c, b, left, std::max<std::int64_t>(1, rest_foreground - done_here));
     release_free_memory();
     save_brick(c, id, r);
+    r.kept = {};  // in the folder now
     done_here += r.foreground_core;
     const int rounds = r.log.empty() ? 0 : r.log.back().round + 1;
     progress.say("fit: brick %d/%zu (cell %d,%d,%d): %lld samples, %zu Gaussians kept, %d rounds, beta %g, %s", id + 1,
-                 n, b.cell[0], b.cell[1], b.cell[2], static_cast<long long>(r.samples), r.kept.size(), rounds,
+                 n, b.cell[0], b.cell[1], b.cell[2], static_cast<long long>(r.samples), r.count, rounds,
                  r.final_beta, format_seconds(r.seconds).c_str());
     results[static_cast<std::size_t>(id)] = std::move(r);
   });
@@ -765,20 +988,20 @@ FitOutcome run_streamed(const std::string& volume, const FitConfig& config, cons
     note_for_interrupt(c, ranks, "waiting for the other ranks' bricks (its own are finished)");
     ranks.barrier();
     io::set_interrupt_note("");
-    // Every rank holds the whole model for the seam pass (K x 44 bytes).
-    for (std::size_t b = 0; b < n; ++b) {
+    for (std::size_t b = 0; b < n; ++b) {  // their records; the Gaussians stay in the folder
       if (!results[b]) results[b] = load_brick(c, static_cast<int>(b));
       if (!results[b]) throw std::runtime_error("brick " + std::to_string(b) + " is missing after the brick pass");
     }
   }
-  std::vector<gmf::GaussianMixture> owned(n);
+  BrickState state;
   io::BackgroundCounts background;
   double beta = 0;
   bool any_beta = false;
   for (std::size_t b = 0; b < n; ++b) {
-    owned[b] = std::move(results[b]->kept);
+    state.count.push_back(results[b]->count);
+    state.centres.push_back(results[b]->centres);
     background.merge(results[b]->background);
-    if (!owned[b].empty() && results[b]->final_beta > 0) {
+    if (results[b]->count > 0 && results[b]->final_beta > 0) {
       // the highest β any brick reached: a brick given little time (little foreground)
       // stops earlier in the schedule, and its few, separate Gaussians change least with β
       beta = std::max(beta, results[b]->final_beta);
@@ -787,64 +1010,32 @@ FitOutcome run_streamed(const std::string& volume, const FitConfig& config, cons
   }
   const bool softmax = c.gmf.aggregation == gmf::Aggregation::kSoftmax;
   if (!any_beta) beta = softmax ? c.gmf.beta_start : 0.0;
-  // The seam pass, colour by colour (bricks of one colour share no face). On
-  // several ranks each refits its share of a colour's bricks, then every brick's
-  // new Gaussians go from its rank to all (the next colour holds them fixed).
   if (seam) {
     io::Stopwatch seam_watch;
-    SeamStats total;
-    double exchanged = 0;
     const double seam_budget = std::max(0.0, total_budget * 0.95 - watch.elapsed());
-    for (int colour = 0; colour < 8; ++colour) {
-      std::vector<int> of_colour;
-      for (const gmf::StreamBrick& b : c.plan.bricks) {
-        if (b.colour() == colour) of_colour.push_back(b.id);
-      }
-      // Shared by the Gaussians each brick holds (its seam work), as every rank
-      // sees them before any of this colour is refitted.
-      const std::vector<int> rank_of = brick_ranks(of_colour, ranks.size(), [&](int id) {
-        return 1.0 + static_cast<double>(owned[static_cast<std::size_t>(id)].size());
-      });
-      for (std::size_t i = 0; i < of_colour.size(); ++i) {
-        if (rank_of[i] != ranks.rank()) continue;
-        const int id = of_colour[i];
-        const double left = std::max(0.0, seam_budget - seam_watch.elapsed());
-        const SeamStats s = seam_brick(c, c.plan.bricks[static_cast<std::size_t>(id)], owned, softmax ? beta : 0.0,
-                                       left / static_cast<double>(n));
-        release_free_memory();
-        total.refitted += s.refitted;
-        total.held += s.held;
-      }
-      if (ranks.distributed()) exchanged += share_seam_results(of_colour, rank_of, ranks, owned);
-    }
+    const SeamOutcome s = seam_pass(c, state, ranks, softmax ? beta : 0.0, seam_budget);
     if (ranks.distributed()) {
-      progress.say("fit: seam pass on %d ranks: %.2f MiB exchanged (every refitted brick's Gaussians to every "
+      progress.say("fit: seam pass on %d ranks: %zu Gaussians near shared faces refitted with %zu neighbours held "
+                   "fixed; %.2f MiB exchanged (each refitted brick's Gaussians near a later brick, to that brick's "
                    "rank), %s",
-                   ranks.size(), exchanged / 1048576.0, format_seconds(seam_watch.elapsed()).c_str());
+                   ranks.size(), s.stats.refitted, s.stats.held, s.exchanged / 1048576.0,
+                   format_seconds(seam_watch.elapsed()).c_str());
     } else {
       progress.say("fit: seam pass: %zu Gaussians near shared faces refitted (%d Adam steps each brick) with %zu "
                    "neighbours held fixed, %s",
-                   total.refitted, c.gmf.seam_iterations, total.held, format_seconds(seam_watch.elapsed()).c_str());
+                   s.stats.refitted, c.gmf.seam_iterations, s.stats.held, format_seconds(seam_watch.elapsed()).c_str());
     }
   }
-  if (!ranks.root()) {  // rank 0 goes on alone: measuring, checkpoint
-    return FitOutcome{0, 0.0, watch.elapsed(), rank_prefix(ranks) + std::to_string(mine.size()) + " bricks"};
-  }
-  gmf::GaussianMixture mixture;
-  for (const auto& m : owned) {
-    for (const auto& g : m) mixture.push_back(g);
-  }
   const double fit_seconds = watch.elapsed();
-  // The measuring pass: the 3D PSNR over every voxel, brick by brick.
+  // The measuring pass: the 3D PSNR over every voxel, brick by brick, on every rank.
   io::Stopwatch measuring;
   gmf::MixtureModel report = c.gmf.model(0);
   report.beta = softmax ? beta : 0.0;
-  double sse = 0;
-  for (const gmf::StreamBrick& b : c.plan.bricks) {
-    sse += core_squared_error(c, b, mixture, gmf::RasterizeOptions::of(report));
-    release_free_memory();
-  }
+  const double sse = measure_pass(c, state, ranks, gmf::RasterizeOptions::of(report));
   const double psnr_3d = gmf::psnr_from_mse(sse / static_cast<double>(c.source->whole().voxels()));
+  if (!ranks.root()) {  // rank 0 goes on alone: the checkpoint
+    return FitOutcome{0, 0.0, watch.elapsed(), rank_prefix(ranks) + std::to_string(mine.size()) + " bricks"};
+  }
   // The checkpoint.
   gmf::CheckpointMeta meta = checkpoint_meta(c.frame, c.source->spacing, c.normalization, volume);
   meta.extra.emplace_back("bricks", c.plan.describe());
@@ -860,7 +1051,7 @@ FitOutcome run_streamed(const std::string& volume, const FitConfig& config, cons
       record_background(c.frame, config, model, meta, progress);
     }
   }
-  gmf::save_checkpoint(out, mixture, meta);
+  write_checkpoint(c, state, out, meta);
   if (!log_csv.empty()) {
     std::ostringstream s;
     s << fit_log_csv_header() << "\n";
@@ -870,10 +1061,12 @@ FitOutcome run_streamed(const std::string& volume, const FitConfig& config, cons
   }
   std::error_code ec;
   std::filesystem::remove_all(c.folder, ec);  // the checkpoint holds everything now
-  const FitOutcome outcome{mixture.size(), psnr_3d, watch.elapsed(),
+  std::size_t total = 0;
+  for (std::size_t k : state.count) total += k;
+  const FitOutcome outcome{total, psnr_3d, watch.elapsed(),
                            std::string("bricks: ") + std::to_string(n) + (seam ? " + seam pass" : "")};
   progress.say("fit: wrote %s: K %zu from %zu bricks, 3D PSNR %.2f dB (measured in %s), %s (fit %s)", out.c_str(),
-               mixture.size(), n, psnr_3d, format_seconds(measuring.elapsed()).c_str(),
+               total, n, psnr_3d, format_seconds(measuring.elapsed()).c_str(),
                format_seconds(outcome.seconds).c_str(), format_seconds(fit_seconds).c_str());
   return outcome;
 }

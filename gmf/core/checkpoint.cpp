@@ -159,7 +159,7 @@ struct Invalid {
   std::string problem;
 };
 
-std::optional<Invalid> first_invalid(const GaussianMixture& mixture) {
+std::optional<Invalid> first_invalid(std::span<const GaussianParams> mixture) {
   for (std::size_t k = 0; k < mixture.size(); ++k) {
     const std::array<float, kGaussianParamCount> v = to_array(mixture[k]);
     // Fast scan (no early exit, vectorizable); the slow loop below names the culprit.
@@ -274,13 +274,19 @@ CheckpointMeta checkpoint_meta_from_comments(const std::vector<std::string>& com
   return parse_meta(comments, source);
 }
 
+namespace {
+std::vector<io::PlyProperty> vertex_properties() {
+  std::vector<io::PlyProperty> props;
+  for (std::string_view name : kGaussianParamNames) props.push_back({std::string(name), io::PlyType::kFloat32});
+  return props;
+}
+}  // namespace
+
 io::PlyTable checkpoint_to_ply(const GaussianMixture& mixture, const CheckpointMeta& meta) {
   io::PlyTable table;
   table.comments = meta_comments(meta);
   check_checkpoint_mixture(mixture);
-  std::vector<io::PlyProperty> props;
-  for (std::string_view name : kGaussianParamNames) props.push_back({std::string(name), io::PlyType::kFloat32});
-  io::PlyElement vertex(std::string(kVertex), static_cast<std::int64_t>(mixture.size()), std::move(props));
+  io::PlyElement vertex(std::string(kVertex), static_cast<std::int64_t>(mixture.size()), vertex_properties());
   // The rows are exactly GaussianParams' 11 packed floats (static_asserts in the header).
   static_assert(sizeof(GaussianParams) == kGaussianParamCount * sizeof(float));
   if (!mixture.empty()) std::memcpy(vertex.bytes().data(), mixture.data(), vertex.bytes().size());
@@ -367,6 +373,32 @@ void save_checkpoint(const fs::path& path, const GaussianMixture& mixture, const
   }
   io::write_ply(path, table);
 }
+
+namespace {
+std::vector<std::string> checked_comments(const fs::path& path, const CheckpointMeta& meta) {
+  try {
+    return meta_comments(meta);
+  } catch (const std::invalid_argument& e) {
+    throw std::invalid_argument(io::describe(path, std::string("cannot save checkpoint: ") + e.what()));
+  }
+}
+}  // namespace
+
+CheckpointWriter::CheckpointWriter(const fs::path& path, const CheckpointMeta& meta, std::size_t count)
+    : path_(path),
+      rows_(path, checked_comments(path, meta), std::string(kVertex), static_cast<std::int64_t>(count),
+            vertex_properties()) {}
+
+void CheckpointWriter::append(std::span<const GaussianParams> gaussians) {
+  if (const std::optional<Invalid> bad = first_invalid(gaussians)) {
+    throw std::invalid_argument(io::describe(path_, "cannot save checkpoint: gaussian " +
+                                                        std::to_string(appended_ + bad->index) + ": " + bad->problem));
+  }
+  rows_.append(std::as_bytes(gaussians));
+  appended_ += gaussians.size();
+}
+
+void CheckpointWriter::commit() { rows_.commit(); }
 
 MixtureModel model_of(const CheckpointMeta& meta, double cutoff) {
   MixtureModel m;

@@ -8,6 +8,7 @@
 #include <array>
 #include <filesystem>
 #include <optional>
+#include <span>
 #include <string>
 #include <utility>
 #include <vector>
@@ -93,6 +94,24 @@ void check_checkpoint_mixture(const GaussianMixture& mixture);
 // (nothing is written then), io::InputError / std::runtime_error if the file
 // cannot be written.
 void save_checkpoint(const std::filesystem::path& path, const GaussianMixture& mixture, const CheckpointMeta& meta);
+
+// save_checkpoint for a model that arrives in pieces, in order (one too large to
+// hold whole: the bricked fit writes brick after brick). Give the count first,
+// append() every Gaussian, then commit(); the file equals save_checkpoint's of the
+// same Gaussians and metadata. Destroyed without commit() (an exception), nothing
+// is left. Throws as save_checkpoint does; std::logic_error for more or fewer
+// Gaussians than `count`.
+class CheckpointWriter {
+ public:
+  CheckpointWriter(const std::filesystem::path& path, const CheckpointMeta& meta, std::size_t count);
+  void append(std::span<const GaussianParams> gaussians);
+  void commit();
+
+ private:
+  std::filesystem::path path_;
+  io::PlyRowWriter rows_;
+  std::size_t appended_ = 0;
+};
 
 // Reads a checkpoint written by save_checkpoint (or by another tool using the
 // same properties) or by save_compact_checkpoint (gmf/core/compact_checkpoint.hpp):

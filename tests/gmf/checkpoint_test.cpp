@@ -15,6 +15,7 @@
 #include <limits>
 #include <numbers>
 #include <random>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -256,6 +257,45 @@ TEST(Checkpoint, RandomMixtureRoundTripIsBitIdentical) {
   EXPECT_TRUE(bit_equal(c.mixture, m));
   EXPECT_EQ(c.meta, meta);  // doubles compared exactly
   EXPECT_EQ(dir.entries(), std::vector<std::string>{"model.ply"});
+}
+
+// The bricked fit's rank 0 writes the checkpoint brick after brick.
+TEST(Checkpoint, AWriterOfPiecesWritesTheBytesOfSaveCheckpoint) {
+  ScratchDir dir;
+  const GaussianMixture m = random_mixture(1000, 7);
+  save_checkpoint(dir / "whole.ply", m, full_meta());
+  CheckpointWriter writer(dir / "pieces.ply", full_meta(), m.size());
+  const std::span<const GaussianParams> all = m.params();
+  writer.append(all.subspan(0, 0));
+  writer.append(all.subspan(0, 333));
+  writer.append(all.subspan(333));
+  writer.commit();
+  EXPECT_EQ(hisnegs::testing::read_bytes(dir / "pieces.ply"), hisnegs::testing::read_bytes(dir / "whole.ply"));
+}
+
+TEST(Checkpoint, AWriterGivenTooFewOrBadGaussiansLeavesNoFile) {
+  ScratchDir dir;
+  const GaussianMixture m = random_mixture(10, 8);
+  {
+    CheckpointWriter writer(dir / "short.ply", CheckpointMeta(), 11);
+    writer.append(m.params());
+    EXPECT_THROW(writer.commit(), std::logic_error);
+  }
+  {
+    CheckpointWriter writer(dir / "long.ply", CheckpointMeta(), 9);
+    EXPECT_THROW(writer.append(m.params()), std::logic_error);
+  }
+  GaussianMixture bad = m;
+  bad[4].log_scale[1] = std::numeric_limits<float>::quiet_NaN();
+  try {
+    CheckpointWriter writer(dir / "bad.ply", CheckpointMeta(), 20);
+    writer.append(m.params());
+    writer.append(bad.params());
+    FAIL() << "a NaN was written";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("gaussian 14: scale_1 is nan"), std::string::npos) << e.what();
+  }
+  EXPECT_TRUE(dir.entries().empty());
 }
 
 TEST(Checkpoint, EmptyMixtureIsAValidModel) {

@@ -85,6 +85,17 @@ TEST_F(Mpi, TwoRanksFitTheCheckpointOfOneProcessByteForByte) {
   EXPECT_NE(two.out.find("rank 1 of 2: fit: brick "), std::string::npos) << "rank 1 fitted nothing:\n" << two.out;
   EXPECT_NE(two.out.find("seam pass on 2 ranks"), std::string::npos) << two.out;
   EXPECT_EQ(testing::read_bytes(dir() / "two.ply"), testing::read_bytes(dir() / "one.ply"));
+  // The seam pass sends each refitted brick's Gaussians near a later brick to that
+  // brick's rank only: less than the whole model (what sending every refitted brick
+  // to every rank would be).
+  const auto exchanged = two.out.find(" MiB exchanged");
+  ASSERT_NE(exchanged, std::string::npos) << two.out;
+  const double mib = std::stod(two.out.substr(two.out.rfind("; ", exchanged) + 2));
+  const auto wrote = two.out.find(": K ");
+  ASSERT_NE(wrote, std::string::npos) << two.out;
+  const std::size_t k = std::stoul(two.out.substr(wrote + 4));
+  EXPECT_GT(k, 0u);
+  EXPECT_LT(mib * 1048576.0, 44.0 * static_cast<double>(k)) << two.out;
   EXPECT_FALSE(fs::exists(dir() / "two.ply.bricks")) << "the brick folder outlives the checkpoint";
 }
 
