@@ -72,7 +72,7 @@ int BrickPlan::owner(const io::WorldFrame& frame, const Eigen::Vector3d& p) cons
 
 RegionFrame region_frame(const io::WorldFrame& stack, const io::VoxelBox& region) {
   const Eigen::Vector3i n(region.hi[0] - region.lo[0], region.hi[1] - region.lo[1], region.hi[2] - region.lo[2]);
-  const Eigen::Vector3d voxel = stack.voxel_size();
+  const Eigen::Vector3d& voxel = stack.voxel_size();
   const Eigen::Vector3d aspect = (voxel.array() * n.cast<double>().array() / 2.0).matrix();
   RegionFrame r;
   r.frame = io::WorldFrame(n.x(), n.y(), n.z(), aspect);

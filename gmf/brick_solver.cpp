@@ -178,6 +178,7 @@ int solve_brick(std::uint32_t b, const SampleSet& samples, const BlockIndex& ind
   const auto flush = [&] {
     if (costs.empty()) return;
     std::vector<double*> parameter_blocks;
+    parameter_blocks.reserve(chunk.size());
     for (std::uint32_t l : chunk) parameter_blocks.push_back(local[l].data());
     problem.AddResidualBlock(new BrickCost(std::move(costs), chunk.size()), nullptr, parameter_blocks);
     for (std::uint32_t l : chunk) in_chunk[l] = -1;

@@ -109,6 +109,7 @@ Comparison compare_optimizers(const io::Volume& volume, const SampleSet& samples
 
   // Built-in optimizers, then the custom ones (Optimizer::kCustom with their solver).
   std::vector<std::pair<Optimizer, std::shared_ptr<const NamedSolver>>> runs;
+  runs.reserve(order.size() + options.custom.size());
   for (const Optimizer optimizer : order) runs.emplace_back(optimizer, nullptr);
   for (const NamedSolver& solver : options.custom) {
     runs.emplace_back(Optimizer::kCustom, std::make_shared<const NamedSolver>(solver));

@@ -347,6 +347,7 @@ Checkpoint import_vdb_points(const fs::path& path) {
   std::istringstream lines(header->value());
   for (std::string line; std::getline(lines, line);) table.comments.push_back(line);
   std::vector<io::PlyProperty> props;
+  props.reserve(kGaussianParamNames.size());
   for (std::string_view name : kGaussianParamNames) props.push_back({std::string(name), io::PlyType::kFloat32});
   io::PlyElement vertex("vertex", static_cast<std::int64_t>(K), std::move(props));
   static_assert(sizeof(GaussianParams) == kGaussianParamCount * sizeof(float));

@@ -81,7 +81,7 @@ GaussianMixture initialize_on_grid(const io::Volume& volume, const io::WorldFram
   std::sort(sorted.begin(), sorted.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
   GaussianMixture mixture;
   mixture.reserve(sorted.size());
-  const Eigen::Vector3d voxel = frame.voxel_size();
+  const Eigen::Vector3d& voxel = frame.voxel_size();
   for (const auto& [key, c] : sorted) {
     // σ = half a grid step, but never below half a voxel along an axis.
     const Eigen::Vector3d sigma = (0.5 * voxel).cwiseMax(0.5 * cell);
@@ -148,7 +148,7 @@ GaussianMixture initialize_at_maxima(const io::Volume& volume, const io::WorldFr
   });
   if (peaks.size() > static_cast<std::size_t>(budget)) peaks.resize(static_cast<std::size_t>(budget));
   // σ: half the spacing the peaks would have if spread evenly over the foreground.
-  const Eigen::Vector3d voxel = frame.voxel_size();
+  const Eigen::Vector3d& voxel = frame.voxel_size();
   const double voxel_volume = voxel.prod();
   const double spacing =
       std::cbrt(static_cast<double>(foreground) * voxel_volume / std::max<std::size_t>(1, peaks.size()));

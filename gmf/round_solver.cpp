@@ -11,7 +11,7 @@ namespace hisnegs::gmf {
 #undef HISNEGS_OPTIMIZER
 
 const std::vector<NamedSolver>& registered_optimizers() {
-#define HISNEGS_OPTIMIZER(name, function, description) NamedSolver{name, description, &function},
+#define HISNEGS_OPTIMIZER(name, function, description) NamedSolver{name, description, &(function)},
   static const std::vector<NamedSolver> table = {
 #include "gmf/optimizers.def"
   };

@@ -23,7 +23,7 @@ namespace {
 // appended as background. Without them nothing stops a Gaussian at the edge of
 // the stack from growing out of it, where the ray-marched MIPs see nothing.
 void add_outside_samples(const io::SparseGrid& grid, const io::WorldFrame& frame, int depth, SampleSet& out) {
-  const Eigen::Vector3i n = frame.shape();
+  const Eigen::Vector3i& n = frame.shape();
   std::vector<std::array<int, 3>> outside;
   grid.visit_active_leaves(io::SparseGridPart::kForeground, [&](const auto&, auto voxels) {
     for (const io::ActiveVoxel& v : voxels) {

@@ -210,7 +210,7 @@ fs::path require_replaceable_output(const fs::path& target) {
   return path;
 }
 
-AtomicFile::AtomicFile(fs::path target) : target_(require_replaceable_output(target)) {
+AtomicFile::AtomicFile(const fs::path& target) : target_(require_replaceable_output(target)) {
   const fs::path parent = target_.has_parent_path() ? target_.parent_path() : fs::path(".");
   std::error_code ec;
   fs::create_directories(parent, ec);

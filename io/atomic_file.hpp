@@ -18,7 +18,7 @@ class AtomicFile {
   // Checks the target with require_replaceable_output (a symlink to a regular file
   // is followed: the file it names is replaced, the link stays) and creates its
   // parent folders if needed; throws InputError if either fails.
-  explicit AtomicFile(std::filesystem::path target);
+  explicit AtomicFile(const std::filesystem::path& target);
   ~AtomicFile();
   AtomicFile(const AtomicFile&) = delete;
   AtomicFile& operator=(const AtomicFile&) = delete;

@@ -51,7 +51,7 @@ class MemorySource final : public VolumeSource {
 // pages of the box's z range by their offsets and decodes the strips/tiles it meets.
 class TiffSource final : public VolumeSource {
  public:
-  TiffSource(std::filesystem::path path, TiffReadOptions options) : path_(std::move(path)), options_(std::move(options)) {}
+  TiffSource(std::filesystem::path path, TiffReadOptions options) : path_(std::move(path)), options_(options) {}
   void read(const VoxelBox& box, float* out) const override {
     check_box(box);
     read_tiff_region(path_, options_, box.lo, box.hi, out, index().get());

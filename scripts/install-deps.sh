@@ -20,6 +20,7 @@ packages=(
   libopenmpi-dev openmpi-bin  # optional at build time: fit and gt on MPI ranks (tests/apps/cli/cli_mpi_test.cpp)
   python3-dev python3-numpy pybind11-dev  # optional at build time: the Python module (apps/python)
   python3-pytest python3-scipy  # tests/python: pytest, and scipy.optimize driving hisnegs.Objective
+  clang-tidy  # scripts/tidy.sh, run by scripts/test.sh (.clang-tidy)
 )
 
 missing=()

@@ -3,6 +3,7 @@
 #include "splat/camera.hpp"
 
 #include <Eigen/Geometry>
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
@@ -61,6 +62,7 @@ CameraView orbit_view(double elevation_deg, double azimuth_deg, double radius, s
 
 std::vector<double> even_azimuths(int count, double azimuth0_deg) {
   std::vector<double> a;
+  a.reserve(static_cast<std::size_t>(std::max(0, count)));
   for (int j = 0; j < count; ++j) a.push_back(360.0 * j / count + azimuth0_deg);
   return a;
 }

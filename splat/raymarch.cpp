@@ -54,7 +54,7 @@ RayMarcher::RayMarcher(const io::Volume& volume, const io::WorldFrame& frame, co
 
 kernels::MarchParams march_params(const io::WorldFrame& frame, const RaymarchOptions& options, float global_max) {
   kernels::MarchParams mp{};
-  const Eigen::Vector3d scale = frame.voxel_size();
+  const Eigen::Vector3d& scale = frame.voxel_size();
   const Eigen::Vector3d offset = frame.world_from_index(Eigen::Vector3d::Zero());
   for (int a = 0; a < 3; ++a) {
     mp.index_from_world_scale[a] = 1.0 / scale[a];

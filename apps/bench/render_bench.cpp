@@ -22,7 +22,7 @@ enum class Pass { kHard, kSoft, kBackward };
 
 const char* pass_name(Pass p) { return p == Pass::kHard ? "hard" : p == Pass::kSoft ? "soft" : "soft_backward"; }
 
-void register_case(const std::string& label, std::shared_ptr<const gmf::GaussianMixture> mixture, int size,
+void register_case(const std::string& label, const std::shared_ptr<const gmf::GaussianMixture>& mixture, int size,
                    splat::Backend backend, Pass pass, float beta) {
   benchmark::RegisterBenchmark(label.c_str(),
                                [=](benchmark::State& state) {

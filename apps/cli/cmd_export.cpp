@@ -22,6 +22,9 @@
 namespace hisnegs::apps {
 namespace {
 
+// Bytes of base64 text for `bytes` bytes (4 characters per 3 bytes, the last group padded).
+std::size_t base64_size(std::size_t bytes) { return (bytes + 2) / 3 * 4; }
+
 // Progress lines appear only once an export has run this long (small ones stay quiet).
 constexpr double kProgressAfterSeconds = 2.0;
 
@@ -168,7 +171,7 @@ void run_export_html(const HtmlArgs& args, GlobalOptions& global) {
       "hard MIP, cutoff %g, low-pass %g px^2; open it with #view=N&ui=0 for view N; %s\n",
       args.out.c_str(), format_bytes(page).c_str(), page / k, checkpoint.mixture.size(), format_bytes(block).c_str(),
       args.float32 ? "float32" : "compact .hgs", block / k,
-      static_cast<double>((done.model_block_bytes + 2) / 3 * 4) / k, args.model.c_str(),
+      static_cast<double>(base64_size(done.model_block_bytes)) / k, args.model.c_str(),
       format_bytes(model_bytes).c_str(), cameras.views.size(), cameras.intrinsics.width, cameras.intrinsics.height,
       args.cameras.empty() ? "the evaluation orbit" : args.cameras.c_str(), done.settings.cutoff,
       done.settings.low_pass, format_seconds(watch.elapsed()).c_str());

@@ -18,7 +18,7 @@
 #include "io/error.hpp"
 #include "splat/camera.hpp"
 
-extern char** environ;
+extern char** environ;  // NOLINT(readability-redundant-declaration): POSIX declares it only under _GNU_SOURCE
 
 namespace hisnegs::apps {
 namespace {

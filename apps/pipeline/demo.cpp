@@ -31,7 +31,8 @@ train:
 std::filesystem::path write_demo_volume(const std::filesystem::path& dir, const SyntheticConfig& config,
                                         const Progress& progress) {
   std::filesystem::create_directories(dir);
-  const auto tif = dir / "volume.tif", fresh = dir / ".volume.new.tif";
+  auto tif = dir / "volume.tif";
+  const auto fresh = dir / ".volume.new.tif";
   const io::Volume synthetic = write_synthetic_stack(fresh, config, Progress{});
   const bool same = std::filesystem::exists(tif) && io::read_file(tif) == io::read_file(fresh);
   if (same) {

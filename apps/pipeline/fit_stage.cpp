@@ -149,7 +149,7 @@ FitOutcome fit_to_checkpoint(const std::string& volume, const FitConfig& config,
     const std::string csv = s.str();
     io::write_file_atomic(log_csv, csv.data(), csv.size());
   }
-  const FitOutcome outcome{mixture.size(), result.final_psnr_3d, watch.elapsed(), result.stop_reason};
+  FitOutcome outcome{mixture.size(), result.final_psnr_3d, watch.elapsed(), result.stop_reason};
   progress.say("fit: wrote %s: K %zu (%d pruned), 3D PSNR %.2f dB, %s (%s)", out.c_str(), mixture.size(), result.pruned,
                result.final_psnr_3d, format_seconds(outcome.seconds).c_str(), result.stop_reason.c_str());
   return outcome;

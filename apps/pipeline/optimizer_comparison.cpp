@@ -156,7 +156,7 @@ gmf::Comparison compare_prepared(const FitSetup& setup, const std::string& volum
                                                    static_cast<int>(setup.mixture.size()), samples));
     io::write_png(dir / "loss_vs_time.png", loss_plot(c));
   };
-  const gmf::Comparison c = gmf::compare_optimizers(
+  gmf::Comparison c = gmf::compare_optimizers(
       setup.loaded.volume, setup.samples, setup.loaded.frame, setup.mixture, config.get<&AppConfig::gmf>(), compare,
       [&](const gmf::OptimizerRun& run, const gmf::FitIteration& it) {
         if (it.psnr_3d < 0 && it.iteration % 25 != 0) return;

@@ -23,6 +23,7 @@ std::vector<double> write_orbit_gif(const std::filesystem::path& gif, splat::Spl
       renderer, params, cameras, splat::SplatSettings::from(config.get<&AppConfig::splat>()), {}, floors, shares);
   if (gif.empty()) return r.stack.seconds_per_view;
   std::vector<io::Image8> images;
+  images.reserve(static_cast<std::size_t>(r.stack.views));
   for (int i = 0; i < r.stack.views; ++i)
     images.push_back(io::to_gray8(r.stack.view(i), r.stack.width, r.stack.height));
   io::write_gif(gif, images, orbit.delay_ms);

@@ -4,6 +4,7 @@
 #include "apps/pipeline/run_pipeline.hpp"
 
 #include <filesystem>
+#include <iterator>
 
 #include "apps/pipeline/format.hpp"
 #include "apps/pipeline/run_report.hpp"
@@ -80,6 +81,7 @@ class StageRunner {
   template <RunStage S>
   std::vector<fs::path> outputs_of() const {
     std::vector<fs::path> paths;
+    paths.reserve(std::size(S::kOutputs));
     for (const char* output : S::kOutputs) paths.push_back(request_.dir / output);
     return paths;
   }
@@ -102,7 +104,7 @@ class StageRunner {
         !previous.contains("outputs") || !previous["outputs"].is_object()) {
       return false;
     }
-    const Json recorded = previous["outputs"];
+    const Json& recorded = previous["outputs"];
     const Json current = output_identities(outputs);
     for (const auto& [name, identity] : current.items()) {  // key order does not matter
       if (identity.get<std::string>().empty() || !recorded.contains(name) || recorded[name] != identity) return false;
@@ -150,7 +152,7 @@ void run_stages(StageList<Stages...>, StageRunner& runner, const AppConfig& conf
 
 }  // namespace
 
-RunSummary run_pipeline(const RunRequest& asked, AppConfig config, const Progress& progress) {
+RunSummary run_pipeline(const RunRequest& asked, const AppConfig& config, const Progress& progress) {
   check_request(asked, config);
   RunRequest request = asked;  // the stages of one run share one streaming pass over the stack
   if (request.reading.statistics_cache.empty()) request.reading.statistics_cache = request.dir / "stack_statistics.json";

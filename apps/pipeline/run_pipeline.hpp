@@ -33,6 +33,6 @@ using PipelineStages = StageList<VolumeStage, GroundTruthStage, FitStage, TrainS
 // fingerprint (stage_fingerprint) and its outputs exist, unless `request.force`; a
 // started stage with a resume marker continues. Progress: "run: [i/n] ..." per stage
 // and the stages' own lines. Throws io::InputError for a bad request or run.json.
-RunSummary run_pipeline(const RunRequest& request, AppConfig config, const Progress& progress);
+RunSummary run_pipeline(const RunRequest& request, const AppConfig& config, const Progress& progress);
 
 }  // namespace hisnegs::apps

@@ -1063,7 +1063,7 @@ FitOutcome run_streamed(const std::string& volume, const FitConfig& config, cons
   std::filesystem::remove_all(c.folder, ec);  // the checkpoint holds everything now
   std::size_t total = 0;
   for (std::size_t k : state.count) total += k;
-  const FitOutcome outcome{total, psnr_3d, watch.elapsed(),
+  FitOutcome outcome{total, psnr_3d, watch.elapsed(),
                            std::string("bricks: ") + std::to_string(n) + (seam ? " + seam pass" : "")};
   progress.say("fit: wrote %s: K %zu from %zu bricks, 3D PSNR %.2f dB (measured in %s), %s (fit %s)", out.c_str(),
                total, n, psnr_3d, format_seconds(measuring.elapsed()).c_str(),

@@ -105,11 +105,7 @@ std::string viewer_html(const gmf::GaussianMixture& mixture, const splat::Camera
   meta["floats_per_gaussian"] = kViewerFloatsPerGaussian;
   meta["cutoff"] = settings.cutoff;
   meta["low_pass"] = settings.low_pass;
-  if (settings.um_per_world) {
-    meta["um_per_world"] = *settings.um_per_world;
-  } else {
-    meta["um_per_world"] = nullptr;
-  }
+  meta["um_per_world"] = settings.um_per_world ? nlohmann::ordered_json(*settings.um_per_world) : nlohmann::ordered_json();
   meta["truth"] = settings.truth;
   if (settings.floor.none()) {
     meta["floor"] = nullptr;

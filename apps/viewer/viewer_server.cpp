@@ -369,8 +369,8 @@ int serve_viewer(const ViewerRoutes& routes, const ViewerServerOptions& options,
 
   int port = options.port;
   if (port == 0) {
-    port = server.bind_to_any_port(options.host.c_str());
-  } else if (!server.bind_to_port(options.host.c_str(), port)) {
+    port = server.bind_to_any_port(options.host);
+  } else if (!server.bind_to_port(options.host, port)) {
     port = -1;
   }
   if (port < 0) {

@@ -277,6 +277,7 @@ CheckpointMeta checkpoint_meta_from_comments(const std::vector<std::string>& com
 namespace {
 std::vector<io::PlyProperty> vertex_properties() {
   std::vector<io::PlyProperty> props;
+  props.reserve(kGaussianParamNames.size());
   for (std::string_view name : kGaussianParamNames) props.push_back({std::string(name), io::PlyType::kFloat32});
   return props;
 }

@@ -43,6 +43,7 @@ io::PlyTable splat_ply_table(const GaussianMixture& mixture, const SplatPlyOptio
     names.emplace_back(n);
   }
   std::vector<io::PlyProperty> props;
+  props.reserve(names.size());
   for (std::string& n : names) props.push_back({std::move(n), io::PlyType::kFloat32});
   const std::size_t columns = props.size();
   io::PlyElement vertex("vertex", static_cast<std::int64_t>(mixture.size()), std::move(props));

@@ -29,7 +29,7 @@ static_assert(kRasterMaxIndex < double(1 << (kKeyBits - 1 + kRasterBlockLog2)));
 
 std::uint64_t block_key(int bx, int by, int bz) {
   constexpr int kBias = 1 << (kKeyBits - 1);
-  const auto u = [](int v) { return static_cast<std::uint64_t>(v + kBias); };
+  const auto u = [](int v) { return static_cast<std::uint64_t>(static_cast<std::int64_t>(v) + kBias); };
   return (u(bz) << (2 * kKeyBits)) | (u(by) << kKeyBits) | u(bx);
 }
 
@@ -249,7 +249,7 @@ void for_each_rasterized_voxel(const BlockRasterizer& raster, const Eigen::Vecto
 
 std::vector<float> rasterize_mixture(const GaussianMixture& mixture, const io::WorldFrame& frame,
                                      const RasterizeOptions& options) {
-  const Eigen::Vector3i n = frame.shape();
+  const Eigen::Vector3i& n = frame.shape();
   std::vector<float> out(static_cast<std::size_t>(n.x()) * n.y() * n.z(), 0.0f);
   const BlockRasterizer raster(mixture, VoxelLattice::of(frame), options, "mixture");
   for_each_rasterized_voxel(raster, n,
@@ -259,7 +259,7 @@ std::vector<float> rasterize_mixture(const GaussianMixture& mixture, const io::W
 
 double mixture_psnr(const GaussianMixture& mixture, const io::WorldFrame& frame, const RasterizeOptions& options,
                     std::span<const float> reference) {
-  const Eigen::Vector3i n = frame.shape();
+  const Eigen::Vector3i& n = frame.shape();
   const std::size_t plane = static_cast<std::size_t>(n.x()) * n.y();
   if (reference.size() != plane * static_cast<std::size_t>(n.z()) || reference.empty()) {
     throw std::invalid_argument("mixture_psnr: " + std::to_string(reference.size()) + " reference values for a " +
