@@ -13,6 +13,8 @@
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
+#include <deque>
+#include <ctime>
 #include <fstream>
 #include <mutex>
 #include <set>
@@ -20,6 +22,7 @@
 #include <stdexcept>
 #include <string>
 #include <system_error>
+#include <vector>
 
 #include "io/error.hpp"
 #include "io/fault_injection.hpp"
@@ -123,11 +126,49 @@ void write_interrupt_note() {
   }
 }
 
+// set_interrupt_watch's files, built whole before they are published (and kept
+// until exit: a watch is set a few times per process).
+struct InterruptWatch {
+  int wait_ms = 0;
+  std::vector<std::string> said, unless;
+};
+std::deque<InterruptWatch> g_watches;  // every watch set (the handler may be reading an old one)
+std::atomic<const InterruptWatch*> g_watch{nullptr};
+
+// Async-signal-safe: open, read, access, nanosleep, write.
+void write_watched_lines() {
+  const InterruptWatch* w = g_watch.load();
+  if (!w || w->said.empty()) return;
+  timespec pause{w->wait_ms / 1000, static_cast<long>(w->wait_ms % 1000) * 1000000L};
+  while (::nanosleep(&pause, &pause) != 0 && errno == EINTR) {
+  }
+  for (std::size_t i = 0; i < w->said.size(); ++i) {
+    if (::access(w->unless[i].c_str(), F_OK) == 0) continue;
+    const int fd = ::open(w->said[i].c_str(), O_RDONLY | O_CLOEXEC);
+    if (fd < 0) continue;
+    char text[1024];
+    const ssize_t n = ::read(fd, text, sizeof text);
+    ::close(fd);
+    if (n <= 0) continue;
+    const char* end = text + n;
+    const char* line = std::find(static_cast<const char*>(text), end, '\n');
+    if (line == end) continue;
+    ++line;
+    const char* stop = std::find(line, end, '\n');
+    if (stop == line) continue;
+    const char head[] = "hisnegs: ";
+    (void)!::write(STDERR_FILENO, head, sizeof head - 1);
+    (void)!::write(STDERR_FILENO, line, static_cast<std::size_t>(stop - line));
+    (void)!::write(STDERR_FILENO, "\n", 1);
+  }
+}
+
 extern "C" void remove_temporaries_and_exit(int sig) {
   for (auto& slot : g_live_temps) {
     if (const char* p = slot.load()) ::unlink(p);
   }
   write_interrupt_note();
+  write_watched_lines();
   const char* name = sig == SIGINT ? "SIGINT" : sig == SIGTERM ? "SIGTERM" : "SIGHUP";
   const char head[] = "hisnegs: interrupted by ";
   const char tail[] = "; unfinished outputs removed\n";
@@ -166,6 +207,22 @@ void set_interrupt_note(std::string_view line, const fs::path& marker) {
   std::memcpy(note.marker, m.data(), k);
   note.marker[k] = '\0';
   g_note.store(i);
+}
+
+void set_interrupt_watch(const std::vector<std::pair<fs::path, fs::path>>& files, int wait_ms) {
+  if (files.empty()) {
+    g_watch.store(nullptr);
+    return;
+  }
+  InterruptWatch w;
+  w.wait_ms = std::max(0, wait_ms);
+  for (const auto& [said, unless] : files) {
+    w.said.push_back(said.string());
+    w.unless.push_back(unless.string());
+  }
+  const std::lock_guard lock(g_note_mutex);
+  g_watches.push_back(std::move(w));
+  g_watch.store(&g_watches.back());
 }
 
 void protect_input(const fs::path& path) {

@@ -7,6 +7,8 @@
 #include <filesystem>
 #include <string>
 #include <string_view>
+#include <utility>
+#include <vector>
 
 namespace hisnegs::io {
 
@@ -73,6 +75,15 @@ void install_interrupt_cleanup();
 // from outside (an MPI launcher's SIGTERM after another rank died, Ctrl-C). An
 // empty `line` clears it. Lines over 1023 bytes and markers over 4095 are cut.
 void set_interrupt_note(std::string_view line, const std::filesystem::path& marker = {});
+
+// What those handlers look at after their note, to say what another process left
+// unsaid (an MPI rank killed outright cannot speak): `wait_ms` after the signal,
+// for each file `said` that exists while its `unless` does not, they write the
+// file's second line to stderr, prefixed "hisnegs: ". An empty list clears it.
+// (The fit's ranks: `said` = the brick a rank holds, `unless` = the mark its own
+// handler leaves when it is stopped rather than killed.)
+void set_interrupt_watch(const std::vector<std::pair<std::filesystem::path, std::filesystem::path>>& files,
+                         int wait_ms);
 
 // Writes `bytes` to `target` atomically.
 void write_file_atomic(const std::filesystem::path& target, const void* bytes, std::size_t size);
