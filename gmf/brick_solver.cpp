@@ -139,6 +139,40 @@ class BrickCost final : public ceres::CostFunction {
   std::vector<int> row_;
 };
 
+std::size_t samples_in(const SampleSet& samples, const std::vector<std::uint32_t>& blocks) {
+  std::size_t total = 0;
+  for (std::uint32_t block : blocks) total += samples.block_begin[block + 1] - samples.block_begin[block];
+  return total;
+}
+
+// Exact LM for one brick: sparse normal equations where Ceres has them, one thread.
+ceres::Solver::Options brick_solver_options(const BrickSweepOptions& options, double seconds_left) {
+  ceres::Solver::Options so;
+  so.minimizer_type = ceres::TRUST_REGION;
+  so.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
+  // Sparse normal equations (SuiteSparse, or Eigen's sparse Cholesky) where Ceres
+  // has one: they are formed chunk by chunk. Without one, dense.
+  static const ceres::SparseLinearAlgebraLibraryType sparse_library =
+      ceres::IsSparseLinearAlgebraLibraryTypeAvailable(ceres::SUITE_SPARSE) ? ceres::SUITE_SPARSE : ceres::EIGEN_SPARSE;
+  if (options.sparse && ceres::IsSparseLinearAlgebraLibraryTypeAvailable(sparse_library)) {
+    so.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
+    so.sparse_linear_algebra_library_type = sparse_library;
+  } else {
+    so.linear_solver_type = ceres::DENSE_NORMAL_CHOLESKY;
+  }
+  so.max_num_iterations = options.iterations;
+  so.max_solver_time_in_seconds = seconds_left;
+  // Ceres starts at radius 1e4 (μ 1e-4: nearly plain Gauss–Newton); on the softmax
+  // the first steps are then rejected until the radius has shrunk, which spent
+  // most of a brick's few iterations. op1, one sweep from the grid init: loss
+  // 2009 → 1792 at 1e4, → 788 at 1, → 1330 at 0.01 (docs/benchmarks.md).
+  so.initial_trust_region_radius = 1.0;
+  so.num_threads = 1;  // bricks run in parallel instead; one thread keeps each solve deterministic
+  so.logging_type = ceres::SILENT;
+  so.minimizer_progress_to_stdout = false;
+  return so;
+}
+
 // Exact LM on brick b's Gaussians; returns its iterations, or -1 when skipped.
 int solve_brick(std::uint32_t b, const SampleSet& samples, const BlockIndex& index, const BrickPartition& partition,
                 std::span<ParamsD> params, std::span<const GaussianFrame<double>> frames,
@@ -163,9 +197,7 @@ int solve_brick(std::uint32_t b, const SampleSet& samples, const BlockIndex& ind
     detail::add_gaussian_block(problem, local[i].data(), &manifold, &lower[at], &upper[at]);
   }
   // The fixed terms live as long as the problem (its costs keep spans into them).
-  std::size_t total = 0;
-  for (std::uint32_t block : blocks) total += samples.block_begin[block + 1] - samples.block_begin[block];
-  std::vector<PointTerms<double>> fixed(total);
+  std::vector<PointTerms<double>> fixed(samples_in(samples, blocks));
   std::size_t offset = 0;
   // The brick's sample blocks, in order, grouped into chunks whose free Gaussians
   // (the union over the chunk's blocks) stay within options.chunk_gaussians: one
@@ -216,29 +248,7 @@ int solve_brick(std::uint32_t b, const SampleSet& samples, const BlockIndex& ind
   flush();
   if (problem.NumResidualBlocks() == 0) return 0;  // no Gaussian of the brick reaches a sample now
 
-  ceres::Solver::Options so;
-  so.minimizer_type = ceres::TRUST_REGION;
-  so.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
-  // Sparse normal equations (SuiteSparse, or Eigen's sparse Cholesky) where Ceres
-  // has one: they are formed chunk by chunk. Without one, dense.
-  static const ceres::SparseLinearAlgebraLibraryType sparse_library =
-      ceres::IsSparseLinearAlgebraLibraryTypeAvailable(ceres::SUITE_SPARSE) ? ceres::SUITE_SPARSE : ceres::EIGEN_SPARSE;
-  if (options.sparse && ceres::IsSparseLinearAlgebraLibraryTypeAvailable(sparse_library)) {
-    so.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
-    so.sparse_linear_algebra_library_type = sparse_library;
-  } else {
-    so.linear_solver_type = ceres::DENSE_NORMAL_CHOLESKY;
-  }
-  so.max_num_iterations = options.iterations;
-  so.max_solver_time_in_seconds = seconds_left;
-  // Ceres starts at radius 1e4 (μ 1e-4: nearly plain Gauss–Newton); on the softmax
-  // the first steps are then rejected until the radius has shrunk, which spent
-  // most of a brick's few iterations. op1, one sweep from the grid init: loss
-  // 2009 → 1792 at 1e4, → 788 at 1, → 1330 at 0.01 (docs/benchmarks.md).
-  so.initial_trust_region_radius = 1.0;
-  so.num_threads = 1;  // bricks run in parallel instead; one thread keeps each solve deterministic
-  so.logging_type = ceres::SILENT;
-  so.minimizer_progress_to_stdout = false;
+  const ceres::Solver::Options so = brick_solver_options(options, seconds_left);
   ceres::Solver::Summary summary;
   ceres::Solve(so, &problem, &summary);
   if (summary.termination_type == ceres::FAILURE) return 0;  // e.g. a non-finite start: the brick keeps its values

@@ -262,11 +262,12 @@ const openvdb::points::AttributeArray& attribute(const openvdb::points::PointDat
 
 }  // namespace
 
-Checkpoint import_vdb_points(const fs::path& path) {
-  namespace vp = openvdb::points;
+namespace {
+
+// The grid 'gaussians' of a file `export vdb --points` wrote, its bytes checked first.
+PointDataGrid::Ptr read_points_grid(const fs::path& path) {
   io::require_regular_file(path);
   io::ensure_openvdb_initialized();
-  PointDataGrid::Ptr grid;
   const io::VdbFileCheck check = io::check_vdb_structure(path);
   const io::VdbGridCheck* points = io::find_grid(check, kPointsGrid);
   if (!points) io::fail_input(path, "has no grid named 'gaussians' (export it with hisnegs export vdb --points)");
@@ -281,6 +282,7 @@ Checkpoint import_vdb_points(const fs::path& path) {
                                "hisnegs): export it again with hisnegs export vdb --points");
   }
   const io::VdbReadGuard guard(path);
+  PointDataGrid::Ptr grid;
   try {
     openvdb::io::File file(path.string());
     file.open(false);
@@ -293,18 +295,13 @@ Checkpoint import_vdb_points(const fs::path& path) {
                              " of memory (64x the file, at least 1 GiB)");
   }
   if (!grid) io::fail_input(path, "grid 'gaussians' is not a PointDataGrid");
-  const auto header = grid->getMetadata<openvdb::StringMetadata>(kCheckpointMetaKey);
-  if (!header) {
-    io::fail_input(
-        path, "grid 'gaussians' lacks metadata '" + std::string(kCheckpointMetaKey) + "' (not written by hisnegs?)");
-  }
+  return grid;
+}
 
-  const std::size_t K = static_cast<std::size_t>(vp::pointCount(grid->tree()));
-  if (const auto count = grid->getMetadata<openvdb::Int64Metadata>("gaussians");
-      count && count->value() != static_cast<openvdb::Int64>(K)) {
-    io::fail_input(path, "grid 'gaussians' holds " + std::to_string(K) + " points but its metadata 'gaussians' says " +
-                             std::to_string(count->value()));
-  }
+// The K Gaussians of the grid's points, placed by their 'id' attribute (each of
+// 0..K-1 once).
+GaussianMixture gaussians_of_points(const PointDataGrid& grid, std::size_t K, const fs::path& path) {
+  namespace vp = openvdb::points;
   GaussianMixture mixture;
   mixture.resize(K);
   std::vector<char> seen(K, 0);
@@ -312,7 +309,7 @@ Checkpoint import_vdb_points(const fs::path& path) {
   const std::string real = openvdb::typeNameAsString<float>();
   const std::string int32 = openvdb::typeNameAsString<std::int32_t>();
   try {
-    for (auto leaf = grid->tree().cbeginLeaf(); leaf; ++leaf) {
+    for (auto leaf = grid.tree().cbeginLeaf(); leaf; ++leaf) {
       const vp::AttributeHandle<openvdb::Vec3f> mean(attribute(*leaf, path, kMeanAttr, vec3, 1));
       const vp::AttributeHandle<openvdb::Vec3f> log_scale(attribute(*leaf, path, kLogScaleAttr, vec3, 1));
       const vp::AttributeHandle<float> rotation(attribute(*leaf, path, kRotationAttr, real, 4));
@@ -340,7 +337,25 @@ Checkpoint import_vdb_points(const fs::path& path) {
   } catch (const openvdb::Exception& e) {
     io::fail_input(path, "cannot read grid 'gaussians': " + io::printable(e.what()));
   }
+  return mixture;
+}
 
+}  // namespace
+
+Checkpoint import_vdb_points(const fs::path& path) {
+  const PointDataGrid::Ptr grid = read_points_grid(path);
+  const auto header = grid->getMetadata<openvdb::StringMetadata>(kCheckpointMetaKey);
+  if (!header) {
+    io::fail_input(
+        path, "grid 'gaussians' lacks metadata '" + std::string(kCheckpointMetaKey) + "' (not written by hisnegs?)");
+  }
+  const auto K = static_cast<std::size_t>(openvdb::points::pointCount(grid->tree()));
+  if (const auto count = grid->getMetadata<openvdb::Int64Metadata>("gaussians");
+      count && count->value() != static_cast<openvdb::Int64>(K)) {
+    io::fail_input(path, "grid 'gaussians' holds " + std::to_string(K) + " points but its metadata 'gaussians' says " +
+                             std::to_string(count->value()));
+  }
+  const GaussianMixture mixture = gaussians_of_points(*grid, K, path);
   // Through the checkpoint's own reader: the same checks (finite values, non-zero
   // quaternions, well-formed metadata) as loading a .ply, with this file named.
   io::PlyTable table;

@@ -12,6 +12,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <span>
 #include <vector>
 
 #include "gmf/detail/candidates.hpp"
@@ -71,6 +72,114 @@ FitObjective::FitObjective(const SampleSet& samples, const BlockIndex& index, st
 
 FitObjective::~FitObjective() = default;
 
+namespace {
+
+// Per chunk of blocks: the near candidates of the current block, their distances
+// to the current sample and the terms that reach it.
+struct ChunkScratch {
+  std::vector<Term> terms;
+  std::vector<std::uint32_t> near;  // the block's candidates that may reach one of its samples
+  detail::CandidatePack pack;       // the near candidates
+  std::vector<std::int64_t> offset;
+  std::vector<double> slack, m, e, z, g, w;
+};
+
+// s.near and s.pack: the `candidates` of a block whose samples lie in `ball` that
+// may reach one of them (√m at the centre within `reach` + the ball's radius).
+void select_near(std::span<const std::uint32_t> candidates, const std::vector<double>& rows,
+                 const std::array<double, 4>& ball, double reach, ChunkScratch& s) {
+  const std::uint32_t* ids = candidates.data();
+  const std::size_t n_ids = candidates.size();
+  const std::size_t padded = (n_ids + detail::kCandidateAlign - 1) / detail::kCandidateAlign * detail::kCandidateAlign;
+  s.offset.resize(padded);
+  s.slack.resize(padded);
+  for (std::size_t i = 0; i < n_ids; ++i) s.offset[i] = static_cast<std::int64_t>(ids[i] * detail::kGaussianRow);
+  std::fill(s.offset.begin() + static_cast<std::ptrdiff_t>(n_ids), s.offset.end(), s.offset[0]);
+  detail::candidate_slack(rows.data(), s.offset.data(), n_ids, ball.data(), ball[3], reach, s.slack.data());
+  s.near.clear();
+  for (std::size_t i = 0; i < n_ids; ++i) {
+    if (s.slack[i] <= 0) s.near.push_back(ids[i]);
+  }
+  s.pack.assign(rows.data(), s.near.data(), s.near.size());
+  if (s.m.size() < s.pack.stride) {
+    s.m.resize(s.pack.stride);
+    s.e.resize(s.pack.stride);
+    s.z.resize(3 * s.pack.stride);
+    s.g.resize(s.pack.stride);
+    s.w.resize(s.pack.stride);
+  }
+}
+
+// The model at sample x: s.terms (the near candidates within the support) and f,
+// the sum or the softmax-weighted mean Σ w_k g_k, w = softmax(β g), with
+// e^{β (g_k − max g)} computed once and kept for ∂f/∂g_k; `S` the softmax's Σ w.
+double sample_value(const double x[3], const std::vector<GaussianFrame<double>>& frames, const MixtureModel& model,
+                    ChunkScratch& s, double& S) {
+  s.terms.clear();
+  double sum = 0, top = -INFINITY;
+  detail::candidate_distances(s.pack, x, s.m.data(), s.e.data(), s.z.data());
+  for (std::size_t i = 0; i < s.pack.size; ++i) {
+    if (s.m[i] > model.cutoff) continue;  // outside the support: contributes nothing
+    Term t;
+    t.k = s.near[i];
+    t.e = s.e[i];
+    t.g = frames[t.k].a * t.e;
+    for (int j = 0; j < 3; ++j) t.z[j] = s.z[static_cast<std::size_t>(j) * s.pack.stride + i];
+    s.g[s.terms.size()] = t.g;
+    sum += t.g;
+    top = std::max(top, t.g);
+    s.terms.push_back(t);
+  }
+  S = 0;
+  if (model.aggregation != Aggregation::kSoftmax) return sum;
+  if (s.terms.empty()) return 0;
+  double W = 0;
+  detail::shifted_exp(s.g.data(), s.terms.size(), model.beta, top, s.w.data());
+  for (std::size_t i = 0; i < s.terms.size(); ++i) {
+    Term& t = s.terms[i];
+    t.w = s.w[i];
+    S += t.w;
+    W += t.w * t.g;
+  }
+  return W / S;
+}
+
+// Adds one sample's dL/df to the accumulators (acc, kAccCount per Gaussian) of the
+// Gaussians that reach it.
+void accumulate_sample(const double x[3], double dL_df, double f, double S, const MixtureModel& model,
+                       const std::vector<Term>& terms, const std::vector<GaussianFrame<double>>& frames, double* acc) {
+  const bool soft = model.aggregation == Aggregation::kSoftmax;
+  for (const Term& t : terms) {
+    const double df_dg = soft ? t.w / S * (1.0 + model.beta * (t.g - f)) : 1.0;  // w_k (1 + β (g_k − f))
+    const double dL_dg = dL_df * df_dg;
+    const double dL_dm = -0.5 * t.g * dL_dg;
+    const GaussianFrame<double>& fr = frames[t.k];
+    double* a = acc + kAccCount * static_cast<std::size_t>(t.k);
+    const double zs[3] = {t.z[0] * fr.inv_scale[0], t.z[1] * fr.inv_scale[1], t.z[2] * fr.inv_scale[2]};
+    const double d[3] = {x[0] - fr.mean[0], x[1] - fr.mean[1], x[2] - fr.mean[2]};
+    for (int i = 0; i < 3; ++i) {
+      a[kAccMean + i] += dL_dm * zs[i];
+      a[kAccScale + i] += dL_dm * t.z[i] * t.z[i];
+      const double dm2 = 2.0 * dL_dm * d[i];
+      for (int j = 0; j < 3; ++j) a[kAccR + 3 * i + j] += dm2 * zs[j];
+    }
+    a[kAccA] += dL_dg * t.e;
+  }
+}
+
+// One Gaussian's gradient from its summed accumulators: the once-per-Gaussian VJPs.
+void finish_gradient(const GaussianFrame<double>& fr, const double (&a)[kAccCount], double* out) {
+  for (int r = 0; r < 3; ++r) {
+    out[kMeanX + r] =
+        -2.0 * (fr.R[3 * r] * a[kAccMean] + fr.R[3 * r + 1] * a[kAccMean + 1] + fr.R[3 * r + 2] * a[kAccMean + 2]);
+    out[kLogScale0 + r] = -2.0 * a[kAccScale + r];
+  }
+  rotation_vjp(fr, a + kAccR, out + kRotW);
+  out[kLogit] = sigmoid_vjp(fr.a, a[kAccA]);
+}
+
+}  // namespace
+
 double FitObjective::evaluate(const double* params, double* gradient, double* foreground_se) const {
   // Fixed chunks of residual blocks, each reduced sequentially into its own buffer
   // and combined in chunk order: the result does not depend on thread scheduling.
@@ -78,7 +187,6 @@ double FitObjective::evaluate(const double* params, double* gradient, double* fo
   const Blocks& bl = *blocks_;
   const SampleSet& sm = *bl.samples;
   const MixtureModel& model = bl.model;
-  const bool soft = model.aggregation == Aggregation::kSoftmax;
   const std::size_t K = gaussians_;
   std::vector<GaussianFrame<double>> frames(K);
   // Per Gaussian, one row of its candidate fields (detail::kGaussianRow).
@@ -102,93 +210,20 @@ double FitObjective::evaluate(const double* params, double* gradient, double* fo
     double loss = 0, fg = 0;
     std::vector<double>& acc = chunk_acc[chunk];
     if (gradient) acc.assign(K * kAccCount, 0.0);
-    std::vector<Term> terms;
-    std::vector<std::uint32_t> near;  // the block's candidates that may reach one of its samples
-    detail::CandidatePack pack;       // the near candidates
-    std::vector<std::int64_t> offset;
-    std::vector<double> slack, m, e, z, g, w;
+    ChunkScratch scratch;
     for (std::size_t c = begin; c < end; ++c) {
       const std::size_t b = bl.block[c];
       const bool foreground = sm.block_begin[b] < sm.foreground;
-      const std::uint32_t s0 = sm.block_begin[b], s1 = sm.block_begin[b + 1];
-      const std::array<double, 4>& ball = bl.ball[c];
-      const std::span<const std::uint32_t> candidates = bl.index->of(b);
-      const std::uint32_t* ids = candidates.data();
-      const std::size_t n_ids = candidates.size();
-      const std::size_t padded =
-          (n_ids + detail::kCandidateAlign - 1) / detail::kCandidateAlign * detail::kCandidateAlign;
-      offset.resize(padded);
-      slack.resize(padded);
-      for (std::size_t i = 0; i < n_ids; ++i) offset[i] = static_cast<std::int64_t>(ids[i] * detail::kGaussianRow);
-      std::fill(offset.begin() + static_cast<std::ptrdiff_t>(n_ids), offset.end(), offset[0]);
-      detail::candidate_slack(rows.data(), offset.data(), n_ids, ball.data(), ball[3], reach, slack.data());
-      near.clear();
-      for (std::size_t i = 0; i < n_ids; ++i) {
-        if (slack[i] <= 0) near.push_back(ids[i]);
-      }
-      pack.assign(rows.data(), near.data(), near.size());
-      if (m.size() < pack.stride) {
-        m.resize(pack.stride);
-        e.resize(pack.stride);
-        z.resize(3 * pack.stride);
-        g.resize(pack.stride);
-        w.resize(pack.stride);
-      }
-      for (std::uint32_t s = s0; s < s1; ++s) {
+      select_near(bl.index->of(b), rows, bl.ball[c], reach, scratch);
+      for (std::uint32_t s = sm.block_begin[b]; s < sm.block_begin[b + 1]; ++s) {
         const double x[3] = {sm.x[s], sm.y[s], sm.z[s]};
-        terms.clear();
-        double sum = 0, top = -INFINITY;
-        detail::candidate_distances(pack, x, m.data(), e.data(), z.data());
-        for (std::size_t i = 0; i < pack.size; ++i) {
-          if (m[i] > model.cutoff) continue;  // outside the support: contributes nothing
-          Term t;
-          t.k = near[i];
-          t.e = e[i];
-          t.g = frames[t.k].a * t.e;
-          for (int j = 0; j < 3; ++j) t.z[j] = z[static_cast<std::size_t>(j) * pack.stride + i];
-          g[terms.size()] = t.g;
-          sum += t.g;
-          top = std::max(top, t.g);
-          terms.push_back(t);
-        }
-        // f: the sum, or the softmax-weighted mean Σ w_k g_k, w = softmax(β g),
-        // with e^{β (g_k − max g)} computed once and kept for ∂f/∂g_k.
-        double f = 0, S = 0;
-        if (!soft) {
-          f = sum;
-        } else if (!terms.empty()) {
-          double W = 0;
-          detail::shifted_exp(g.data(), terms.size(), model.beta, top, w.data());
-          for (std::size_t i = 0; i < terms.size(); ++i) {
-            Term& t = terms[i];
-            t.w = w[i];
-            S += t.w;
-            W += t.w * t.g;
-          }
-          f = W / S;
-        }
+        double S = 0;
+        const double f = sample_value(x, frames, model, scratch, S);
         const double weight = sm.weight[s];
         const double r = weight * (f - sm.value[s]);
         loss += 0.5 * r * r;
         if (foreground_se && foreground) fg += (f - sm.value[s]) * (f - sm.value[s]);
-        if (!gradient) continue;
-        const double dL_df = r * weight;
-        for (const Term& t : terms) {
-          const double df_dg = soft ? t.w / S * (1.0 + model.beta * (t.g - f)) : 1.0;  // w_k (1 + β (g_k − f))
-          const double dL_dg = dL_df * df_dg;
-          const double dL_dm = -0.5 * t.g * dL_dg;
-          const GaussianFrame<double>& fr = frames[t.k];
-          double* a = acc.data() + kAccCount * static_cast<std::size_t>(t.k);
-          const double zs[3] = {t.z[0] * fr.inv_scale[0], t.z[1] * fr.inv_scale[1], t.z[2] * fr.inv_scale[2]};
-          const double d[3] = {x[0] - fr.mean[0], x[1] - fr.mean[1], x[2] - fr.mean[2]};
-          for (int i = 0; i < 3; ++i) {
-            a[kAccMean + i] += dL_dm * zs[i];
-            a[kAccScale + i] += dL_dm * t.z[i] * t.z[i];
-            const double dm2 = 2.0 * dL_dm * d[i];
-            for (int j = 0; j < 3; ++j) a[kAccR + 3 * i + j] += dm2 * zs[j];
-          }
-          a[kAccA] += dL_dg * t.e;
-        }
+        if (gradient) accumulate_sample(x, r * weight, f, S, model, scratch.terms, frames, acc.data());
       }
     }
     chunk_loss[chunk] = loss;
@@ -202,24 +237,15 @@ double FitObjective::evaluate(const double* params, double* gradient, double* fo
   }
   if (!gradient) return loss;
   // Per Gaussian: the chunks' sums in chunk order, then the once-per-Gaussian VJPs.
-  auto finish_gradient = [&](std::size_t k) {
-    double a[kAccCount] = {};
-    for (std::size_t chunk = 0; chunk < kChunks; ++chunk) {
-      const double* src = chunk_acc[chunk].data() + kAccCount * k;
-      for (int i = 0; i < kAccCount; ++i) a[i] += src[i];
-    }
-    const GaussianFrame<double>& fr = frames[k];
-    double* out = gradient + kGaussianParamCount * k;
-    for (int r = 0; r < 3; ++r) {
-      out[kMeanX + r] =
-          -2.0 * (fr.R[3 * r] * a[kAccMean] + fr.R[3 * r + 1] * a[kAccMean + 1] + fr.R[3 * r + 2] * a[kAccMean + 2]);
-      out[kLogScale0 + r] = -2.0 * a[kAccScale + r];
-    }
-    rotation_vjp(fr, a + kAccR, out + kRotW);
-    out[kLogit] = sigmoid_vjp(fr.a, a[kAccA]);
-  };
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, K, 256), [&](const tbb::blocked_range<std::size_t>& range) {
-    for (std::size_t k = range.begin(); k != range.end(); ++k) finish_gradient(k);
+    for (std::size_t k = range.begin(); k != range.end(); ++k) {
+      double a[kAccCount] = {};
+      for (std::size_t chunk = 0; chunk < kChunks; ++chunk) {
+        const double* src = chunk_acc[chunk].data() + kAccCount * k;
+        for (int i = 0; i < kAccCount; ++i) a[i] += src[i];
+      }
+      finish_gradient(frames[k], a, gradient + kGaussianParamCount * k);
+    }
   });
   return loss;
 }

@@ -127,32 +127,33 @@ BackgroundFloors floors_of(const gmf::CheckpointMeta& meta, const std::string& s
   return BackgroundFloors(model, *frame);
 }
 
-FloorCalibration calibrate_background(io::BackgroundModel& model, const io::WorldFrame& frame,
-                                      const RaymarchOptions& options, std::uint64_t seed) {
-  FloorCalibration out;
-  out.samples_per_voxel = model.samples_per_voxel;
-  if (model.none()) return out;
-  // A noise-only block with the stack's voxel size, at most 64 voxels a side.
+namespace {
+
+// A noise-only block drawn from `model` with the stack's voxel size, at most 64
+// voxels a side.
+io::Volume noise_block(const io::BackgroundModel& model, const io::WorldFrame& frame, std::mt19937_64& rng) {
   io::Volume noise;
   const Eigen::Vector3i& shape = frame.shape();
   noise.nx = std::min(shape.x(), 64);
   noise.ny = std::min(shape.y(), 64);
   noise.nz = std::min(shape.z(), 64);
   noise.voxels.resize(noise.size());
-  std::mt19937_64 rng(seed);
   std::uniform_real_distribution<double> u(0.0, 1.0);
   for (float& v : noise.voxels) v = static_cast<float>(model.quantile(u(rng)));
-  const Eigen::Vector3d aspect =
-      0.5 * frame.voxel_size().cwiseProduct(Eigen::Vector3d(noise.nx, noise.ny, noise.nz));
-  const Eigen::Vector3d unit_aspect = aspect / aspect.maxCoeff();  // the marcher's world: max half-extent 1
-  const io::WorldFrame box(noise.nx, noise.ny, noise.nz, unit_aspect);
-  const RayMarcher marcher(noise, box, options);
-  // What a ray samples is the trilinear interpolation of the voxels, not a voxel:
-  // its distribution (at uniformly random points) has the lighter tail the MIP
-  // sees. The model becomes that distribution.
-  model = interpolated_distribution(noise, rng, static_cast<int>(model.values.size()));
+  return noise;
+}
 
-  // 24 orbit views, 64 x 64 pixels, each pixel a (chord, MIP) pair.
+// Rays of one chord-length bin, a factor 1.25 wide, and their mean MIP.
+struct ChordBin {
+  std::vector<double> chords;
+  double mean_mip = 0;
+};
+
+// (chord, MIP) pairs of 24 orbit views of 64 x 64 pixels of the block (chords of
+// under 4 voxels left out: too few samples to say anything), binned by chord
+// length; bins of fewer than 40 rays are left out. `rays` counts the pairs.
+std::vector<ChordBin> chord_bins(const RayMarcher& marcher, const io::WorldFrame& box, const Eigen::Vector3d& unit_aspect,
+                                 int& rays) {
   CameraOptions camera;
   camera.width = camera.height = 64;
   camera.fov_deg = 40.0;
@@ -167,52 +168,48 @@ FloorCalibration calibrate_background(io::BackgroundModel& model, const io::Worl
     for (int r = 0; r < camera.height; ++r) {
       for (int c = 0; c < camera.width; ++c) {
         const double L = box_path_voxels(box, origin, ray_direction(cameras.intrinsics, view, c + 0.5, r + 0.5));
-        if (L < 4.0) continue;  // grazing chords: too few samples to say anything
+        if (L < 4.0) continue;
         chord.push_back(L);
         mip.push_back(image[static_cast<std::size_t>(r) * camera.width + c]);
       }
     }
   }
-  out.rays = static_cast<int>(chord.size());
-  // Bins of chord length, a factor 1.25 wide; those with at least 40 rays count.
-  struct Bin {
-    std::vector<double> chords;
-    double mean_mip = 0;
-  };
-  std::vector<Bin> bins;
-  {
-    std::vector<std::vector<std::size_t>> members(64);
-    for (std::size_t i = 0; i < chord.size(); ++i) {
-      members[std::min<std::size_t>(63, static_cast<std::size_t>(std::log(chord[i] / 4.0) / std::log(1.25)))]
-          .push_back(i);
-    }
-    for (const auto& m : members) {
-      if (m.size() < 40) continue;
-      Bin b;
-      for (const std::size_t i : m) {
-        b.chords.push_back(chord[i]);
-        b.mean_mip += mip[i];
-      }
-      b.mean_mip /= static_cast<double>(m.size());
-      bins.push_back(std::move(b));
-    }
+  rays = static_cast<int>(chord.size());
+  std::vector<std::vector<std::size_t>> members(64);
+  for (std::size_t i = 0; i < chord.size(); ++i) {
+    members[std::min<std::size_t>(63, static_cast<std::size_t>(std::log(chord[i] / 4.0) / std::log(1.25)))].push_back(i);
   }
-  if (bins.empty()) return out;
-  // Relative squared error of E[max of c L] against the bins' mean MIP.
-  const auto error = [&](double c, double* worst) {
+  std::vector<ChordBin> bins;
+  for (const auto& m : members) {
+    if (m.size() < 40) continue;
+    ChordBin b;
+    for (const std::size_t i : m) {
+      b.chords.push_back(chord[i]);
+      b.mean_mip += mip[i];
+    }
+    b.mean_mip /= static_cast<double>(m.size());
+    bins.push_back(std::move(b));
+  }
+  return bins;
+}
+
+// The samples per voxel c whose E[max of c L samples] best matches the bins' mean
+// MIP (relative squared error; golden-section search over ln c in [ln 0.02, ln 8],
+// E[max] rises with c), and the worst relative error there.
+double fit_samples_per_voxel(const io::BackgroundModel& model, const std::vector<ChordBin>& bins, double& worst) {
+  const auto error = [&](double c, double* largest) {
     double sum = 0.0;
-    if (worst) *worst = 0.0;
-    for (const Bin& b : bins) {
+    if (largest) *largest = 0.0;
+    for (const ChordBin& b : bins) {
       double predicted = 0.0;
       for (const double L : b.chords) predicted += model.expected_max(c * L);
       predicted /= static_cast<double>(b.chords.size());
       const double rel = b.mean_mip > 0 ? (predicted - b.mean_mip) / b.mean_mip : predicted;
       sum += rel * rel;
-      if (worst) *worst = std::max(*worst, std::abs(rel));
+      if (largest) *largest = std::max(*largest, std::abs(rel));
     }
     return sum;
   };
-  // Golden-section search over ln c in [ln 0.02, ln 8] (E[max] rises with c).
   double lo = std::log(0.02), hi = std::log(8.0);
   const double phi = 0.5 * (std::sqrt(5.0) - 1.0);
   double x1 = hi - phi * (hi - lo), x2 = lo + phi * (hi - lo);
@@ -232,8 +229,32 @@ FloorCalibration calibrate_background(io::BackgroundModel& model, const io::Worl
       f2 = error(std::exp(x2), nullptr);
     }
   }
-  out.samples_per_voxel = std::exp(0.5 * (lo + hi));
-  (void)error(out.samples_per_voxel, &out.worst_relative_error);
+  const double c = std::exp(0.5 * (lo + hi));
+  (void)error(c, &worst);
+  return c;
+}
+
+}  // namespace
+
+FloorCalibration calibrate_background(io::BackgroundModel& model, const io::WorldFrame& frame,
+                                      const RaymarchOptions& options, std::uint64_t seed) {
+  FloorCalibration out;
+  out.samples_per_voxel = model.samples_per_voxel;
+  if (model.none()) return out;
+  std::mt19937_64 rng(seed);
+  const io::Volume noise = noise_block(model, frame, rng);
+  const Eigen::Vector3d aspect =
+      0.5 * frame.voxel_size().cwiseProduct(Eigen::Vector3d(noise.nx, noise.ny, noise.nz));
+  const Eigen::Vector3d unit_aspect = aspect / aspect.maxCoeff();  // the marcher's world: max half-extent 1
+  const io::WorldFrame box(noise.nx, noise.ny, noise.nz, unit_aspect);
+  const RayMarcher marcher(noise, box, options);
+  // What a ray samples is the trilinear interpolation of the voxels, not a voxel:
+  // its distribution (at uniformly random points) has the lighter tail the MIP
+  // sees. The model becomes that distribution.
+  model = interpolated_distribution(noise, rng, static_cast<int>(model.values.size()));
+  const std::vector<ChordBin> bins = chord_bins(marcher, box, unit_aspect, out.rays);
+  if (bins.empty()) return out;
+  out.samples_per_voxel = fit_samples_per_voxel(model, bins, out.worst_relative_error);
   model.samples_per_voxel = out.samples_per_voxel;
   return out;
 }

@@ -86,15 +86,7 @@ void Trainer::resize_state(std::size_t K) {
   grad_count_.assign(K, 0);
 }
 
-Trainer::StepSums Trainer::train_step(std::span<const int> view_indices) {
-  if (view_indices.empty()) throw std::invalid_argument("Trainer::step: no views");
-  SplatSettings settings = splat_;
-  settings.beta = static_cast<float>(soft_mip_beta(options_, epoch_));
-  const std::size_t K = params_.size() / gmf::kGaussianParamCount;
-  grad_.assign(params_.size(), 0.0f);
-  view_screen_grad_.resize(K);
-  StepSums sums;
-  // Every member draws every view's crop, so their generators stay in step.
+std::vector<std::array<int, 2>> Trainer::draw_crops(std::span<const int> view_indices) {
   std::vector<std::array<int, 2>> crops(view_indices.size(), {0, 0});
   for (std::size_t j = 0; j < view_indices.size(); ++j) {
     const int i = view_indices[j];
@@ -104,57 +96,84 @@ Trainer::StepSums Trainer::train_step(std::span<const int> view_indices) {
       crops[j][1] = std::uniform_int_distribution<int>(0, data_.intrinsics.height - options_.crop_size)(rng_);
     }
   }
+  return crops;
+}
+
+void Trainer::add_view_gradient(int view, const std::array<int, 2>& crop, SplatSettings settings, StepSums& sums) {
+  const std::size_t K = view_screen_grad_.size();
+  Intrinsics intr = data_.intrinsics;
+  std::span<const float> target = data_.image(view);
+  settings.floor = floor_of(view);
+  if (options_.crop_size > 0) {
+    // A random crop is the same pinhole camera with its principal point shifted.
+    const int c = options_.crop_size;
+    const int x0 = crop[0];
+    const int y0 = crop[1];
+    const auto cut = [&](std::span<const float> image, std::vector<float>& out) {
+      out.resize(static_cast<std::size_t>(c) * c);
+      for (int r = 0; r < c; ++r) {
+        std::copy_n(image.begin() + static_cast<std::ptrdiff_t>(y0 + r) * intr.width + x0, c,
+                    out.begin() + static_cast<std::ptrdiff_t>(r) * c);
+      }
+    };
+    cut(target, target_crop_);
+    if (!settings.floor.empty()) {
+      cut(settings.floor, floor_crop_);
+      settings.floor = floor_crop_;
+    }
+    intr.cx -= x0;
+    intr.cy -= y0;
+    intr.width = intr.height = c;
+    target = target_crop_;
+  }
+  const std::size_t N = static_cast<std::size_t>(intr.width) * intr.height;
+  image_.resize(N);
+  dimage_.assign(N, 0.0f);
+  renderer_->forward(params_, intr, data_.views[static_cast<std::size_t>(view)], settings, image_);
+  const ImageLossTerms terms = combined_image_loss(image_, target, intr.width, intr.height, weights_, dimage_, workspace_);
+  std::fill(view_screen_grad_.begin(), view_screen_grad_.end(), 0.0f);
+  renderer_->backward(dimage_, grad_, view_screen_grad_);
+  for (std::size_t k = 0; k < K; ++k) {
+    if (view_screen_grad_[k] > 0.0f) {
+      const double g = static_cast<double>(view_screen_grad_[k]) * static_cast<double>(N);
+      if (group_) {
+        step_accum_[k] += g;
+        step_accum_[K + k] += 1.0;
+      } else {
+        grad_accum_[k] += g;
+        ++grad_count_[k];
+      }
+    }
+  }
+  sums.loss += terms.total;
+  sums.psnr += gmf::psnr(image_, target);
+}
+
+void Trainer::add_regularizers(std::size_t views, StepSums& sums) {
+  const double reg = options_.lambda_scale * scale_regularizer(std::span<const float>(params_), options_.scale_min,
+                                                               options_.scale_max, options_.lambda_scale, grad_);
+  sums.loss += static_cast<double>(views) * reg;
+  if (volume_ && options_.lambda_3d > 0) {
+    volume_batch_.resize(static_cast<std::size_t>(options_.volume_blocks));
+    std::uniform_int_distribution<std::uint32_t> pick(0, static_cast<std::uint32_t>(volume_->blocks() - 1));
+    for (std::uint32_t& b : volume_batch_) b = pick(rng_);
+    sums.loss_3d = volume_->add(params_, volume_batch_, options_.lambda_3d, grad_);
+    sums.loss += static_cast<double>(views) * sums.loss_3d;
+  }
+}
+
+Trainer::StepSums Trainer::train_step(std::span<const int> view_indices) {
+  if (view_indices.empty()) throw std::invalid_argument("Trainer::step: no views");
+  SplatSettings settings = splat_;
+  settings.beta = static_cast<float>(soft_mip_beta(options_, epoch_));
+  const std::size_t K = params_.size() / gmf::kGaussianParamCount;
+  grad_.assign(params_.size(), 0.0f);
+  view_screen_grad_.resize(K);
+  StepSums sums;
+  const std::vector<std::array<int, 2>> crops = draw_crops(view_indices);
   if (group_) step_accum_.assign(2 * K, 0.0);
   for (std::size_t j = 0; j < view_indices.size(); ++j) {
-    if (!mine(j)) continue;
-    const int i = view_indices[j];
-    Intrinsics intr = data_.intrinsics;
-    std::span<const float> target = data_.image(i);
-    settings.floor = floor_of(i);
-    if (options_.crop_size > 0) {
-      // A random crop is the same pinhole camera with its principal point shifted.
-      const int c = options_.crop_size;
-      const int x0 = crops[j][0];
-      const int y0 = crops[j][1];
-      const auto crop = [&](std::span<const float> image, std::vector<float>& out) {
-        out.resize(static_cast<std::size_t>(c) * c);
-        for (int r = 0; r < c; ++r) {
-          std::copy_n(image.begin() + static_cast<std::ptrdiff_t>(y0 + r) * intr.width + x0, c,
-                      out.begin() + static_cast<std::ptrdiff_t>(r) * c);
-        }
-      };
-      crop(target, target_crop_);
-      if (!settings.floor.empty()) {
-        crop(settings.floor, floor_crop_);
-        settings.floor = floor_crop_;
-      }
-      intr.cx -= x0;
-      intr.cy -= y0;
-      intr.width = intr.height = c;
-      target = target_crop_;
-    }
-    const std::size_t N = static_cast<std::size_t>(intr.width) * intr.height;
-    image_.resize(N);
-    dimage_.assign(N, 0.0f);
-    renderer_->forward(params_, intr, data_.views[static_cast<std::size_t>(i)], settings, image_);
-    const ImageLossTerms terms =
-        combined_image_loss(image_, target, intr.width, intr.height, weights_, dimage_, workspace_);
-    std::fill(view_screen_grad_.begin(), view_screen_grad_.end(), 0.0f);
-    renderer_->backward(dimage_, grad_, view_screen_grad_);
-    for (std::size_t k = 0; k < K; ++k) {
-      if (view_screen_grad_[k] > 0.0f) {
-        const double g = static_cast<double>(view_screen_grad_[k]) * static_cast<double>(N);
-        if (group_) {
-          step_accum_[k] += g;
-          step_accum_[K + k] += 1.0;
-        } else {
-          grad_accum_[k] += g;
-          ++grad_count_[k];
-        }
-      }
-    }
-    sums.loss += terms.total;
-    sums.psnr += gmf::psnr(image_, target);
+    if (mine(j)) add_view_gradient(view_indices[j], crops[j], settings, sums);
   }
   if (group_) {
     group_->sum(grad_);
@@ -172,16 +191,7 @@ Trainer::StepSums Trainer::train_step(std::span<const int> view_indices) {
   if (view_indices.size() > 1) {
     for (float& g : grad_) g /= B;
   }
-  const double reg = options_.lambda_scale * scale_regularizer(std::span<const float>(params_), options_.scale_min,
-                                                               options_.scale_max, options_.lambda_scale, grad_);
-  sums.loss += static_cast<double>(view_indices.size()) * reg;
-  if (volume_ && options_.lambda_3d > 0) {
-    volume_batch_.resize(static_cast<std::size_t>(options_.volume_blocks));
-    std::uniform_int_distribution<std::uint32_t> pick(0, static_cast<std::uint32_t>(volume_->blocks() - 1));
-    for (std::uint32_t& b : volume_batch_) b = pick(rng_);
-    sums.loss_3d = volume_->add(params_, volume_batch_, options_.lambda_3d, grad_);
-    sums.loss += static_cast<double>(view_indices.size()) * sums.loss_3d;
-  }
+  add_regularizers(view_indices.size(), sums);
   if (!std::isfinite(sums.loss)) {
     throw std::runtime_error("training diverged: the loss is not finite in epoch " + std::to_string(epoch_ + 1) +
                              ", step " + std::to_string(adam_.steps() + 1));

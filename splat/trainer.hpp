@@ -5,6 +5,7 @@
 // data (training_data.hpp) nor the checkpoint files (training_checkpoint.hpp).
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <filesystem>
 #include <memory>
@@ -181,6 +182,13 @@ class Trainer {
     double loss_3d = 0;  // the step's 3D term
   };
   StepSums train_step(std::span<const int> view_indices);
+  // Each view's random crop origin (all members draw all, to keep their generators in step).
+  std::vector<std::array<int, 2>> draw_crops(std::span<const int> view_indices);
+  // Renders view `view` (cropped at `crop` when cropping), adds its gradient to grad_
+  // and its density statistics, and its loss and PSNR to `sums`.
+  void add_view_gradient(int view, const std::array<int, 2>& crop, SplatSettings settings, StepSums& sums);
+  // Adds the scale regularizer and the 3D term (over a batch of `views`) to grad_ and `sums`.
+  void add_regularizers(std::size_t views, StepSums& sums);
   // Whether this member renders the view at `position` of a step (always alone).
   [[nodiscard]] bool mine(std::size_t position) const {
     return !group_ || static_cast<int>(position % static_cast<std::size_t>(group_->size())) == group_->rank();

@@ -17,8 +17,10 @@
 
 namespace hisnegs::apps::bench {
 
-void register_io_benchmarks(const std::filesystem::path& volume) {
-  const std::string name = volume.filename().string();
+namespace {
+
+// Reading the stack: whole, by regions, and (TIFF) its last pages.
+void register_reading(const std::filesystem::path& volume, const std::string& name) {
   benchmark::RegisterBenchmark(("io/read_stack/" + name).c_str(),
                                [volume](benchmark::State& state) {
                                  std::size_t voxels = 0;
@@ -81,7 +83,10 @@ void register_io_benchmarks(const std::filesystem::path& volume) {
           ->UseRealTime();
     }
   }
+}
 
+// From the stack in memory: loading with normalization, and the sparse grids.
+void register_in_memory(const std::filesystem::path& volume, const std::string& name) {
   benchmark::RegisterBenchmark(("io/load_and_normalize/" + name).c_str(),
                                [volume](benchmark::State& state) {
                                  io::VolumeOptions options;
@@ -119,6 +124,14 @@ void register_io_benchmarks(const std::filesystem::path& volume) {
       })
       ->Unit(benchmark::kMillisecond)
       ->UseRealTime();
+}
+
+}  // namespace
+
+void register_io_benchmarks(const std::filesystem::path& volume) {
+  const std::string name = volume.filename().string();
+  register_reading(volume, name);
+  register_in_memory(volume, name);
 }
 
 }  // namespace hisnegs::apps::bench

@@ -145,15 +145,9 @@ void guard_all_outputs(CLI::App& app) {
 
 }  // namespace
 
-int run_cli(int argc, char** argv) {
-  io::install_interrupt_cleanup();
-  CLI::App app{"hisnegs: Gaussian Mixture Field fitting and soft-MIP Gaussian splatting of microscopy volumes",
-               "hisnegs"};
-  app.set_version_flag("--version", std::string("hisnegs ") + HISNEGS_VERSION);
-  app.require_subcommand(1);
-  GlobalOptions global;
-  app.add_option("--config", global.config_path, "YAML config (default: built-in = configs/default.yaml)");
-  app.add_flag("-q,--quiet", global.quiet, "no progress output");
+namespace {
+
+void add_commands(CLI::App& app, GlobalOptions& global) {
   add_demo_command(app, global);
   add_synth_command(app, global);
   add_noise_command(app, global);
@@ -172,8 +166,11 @@ int run_cli(int argc, char** argv) {
   add_config_command(app, global);
   add_bench_command(app, global);
   guard_all_outputs(app);
-  // CLI11 would only say "a subcommand is required" for a misspelt command: name it.
-  std::string command;
+}
+
+// The command named on the command line ("" for none): CLI11 would only say "a
+// subcommand is required" for a misspelt one, so it is named here (nullopt).
+std::optional<std::string> command_of(CLI::App& app, int argc, char** argv) {
   for (int i = 1; i < argc; ++i) {
     const std::string arg = argv[i];
     if (arg == "--config") {
@@ -186,18 +183,23 @@ int run_cli(int argc, char** argv) {
       std::string names;
       for (const auto* sub : subs) names += (names.empty() ? "" : ", ") + sub->get_name();
       std::cerr << "hisnegs: error: unknown command '" << arg << "'; expected one of " << names << "\n";
-      return 2;
+      return std::nullopt;
     }
-    command = arg;
-    break;
+    return arg;
   }
-  // An MPI launch of several ranks (mpirun, srun): MPI starts here, before any work.
+  return std::string();
+}
+
+// The job of this process (MPI starts here, before any work, in a launch of several
+// ranks), or nullptr after saying why not: MPI cannot start, or `command` does not
+// run on several ranks.
+const Job* start_job(const std::string& command) {
   const Job* the_job = nullptr;
   try {
     the_job = &job();
   } catch (const io::InputError& e) {
     std::cerr << "hisnegs: error: " << io::printable(e.what()) << "\n";
-    return 2;
+    return nullptr;
   }
   if (the_job->distributed() && command != "fit" && command != "gt" && command != "render" && command != "train" &&
       !command.empty()) {
@@ -205,8 +207,27 @@ int run_cli(int argc, char** argv) {
       std::cerr << "hisnegs: error: '" << command << "' does not run on several MPI ranks (" << the_job->size()
                 << " launched); fit, gt, render and train do; run it as one process\n";
     }
-    return 2;
+    return nullptr;
   }
+  return the_job;
+}
+
+}  // namespace
+
+int run_cli(int argc, char** argv) {
+  io::install_interrupt_cleanup();
+  CLI::App app{"hisnegs: Gaussian Mixture Field fitting and soft-MIP Gaussian splatting of microscopy volumes",
+               "hisnegs"};
+  app.set_version_flag("--version", std::string("hisnegs ") + HISNEGS_VERSION);
+  app.require_subcommand(1);
+  GlobalOptions global;
+  app.add_option("--config", global.config_path, "YAML config (default: built-in = configs/default.yaml)");
+  app.add_flag("-q,--quiet", global.quiet, "no progress output");
+  add_commands(app, global);
+  const std::optional<std::string> command = command_of(app, argc, argv);
+  if (!command) return 2;
+  const Job* the_job = start_job(*command);
+  if (!the_job) return 2;
   // Each line in one write: on several ranks the launcher forwards the ranks' stderr
   // in the chunks they were written, between its own messages.
   const auto say = [](const std::string& line) { std::cerr << line; };

@@ -177,14 +177,8 @@ void run_export_html(const HtmlArgs& args, GlobalOptions& global) {
       done.settings.low_pass, format_seconds(watch.elapsed()).c_str());
 }
 
-}  // namespace
-
-void add_export_command(CLI::App& app, GlobalOptions& global) {
-  auto* cmd = app.add_subcommand(
-      "export",
-      "convert a checkpoint: OpenVDB grids, splat-viewer PLY, dense TIFF stack, compact checkpoint, HTML viewer");
-  cmd->require_subcommand(1);
-
+// export vdb: the density grid (and the points).
+void add_export_vdb(CLI::App* cmd, GlobalOptions& global) {
   auto* vdb = cmd->add_subcommand("vdb", "the mixture as a sparse OpenVDB `density` grid (+ `gaussians` points)");
   auto vdb_args = std::make_shared<VdbArgs>();
   vdb->add_option("--model", vdb_args->model, "checkpoint (.ply)")->required();
@@ -204,7 +198,10 @@ void add_export_command(CLI::App& app, GlobalOptions& global) {
                 "a sum checkpoint: every term everywhere (report Eq. 1), not the fitted f (terms inside gmf.mahalanobis_cutoff)");
   vdb_args->overrides.add_to(vdb);
   vdb->callback([vdb_args, &global] { run_export_vdb(*vdb_args, global); });
+}
 
+// export splat-ply: a PLY for splatting viewers.
+void add_export_splat_ply(CLI::App* cmd, GlobalOptions& global) {
   auto* splat = cmd->add_subcommand("splat-ply", "a PLY for 3D Gaussian-splatting viewers (a visual aid, not a MIP)");
   struct SplatArgs {
     std::string model, out, colormap = "grey";
@@ -233,7 +230,10 @@ void add_export_command(CLI::App& app, GlobalOptions& global) {
           options.sh_rest ? ", SH degree 3 layout" : "");
     }
   });
+}
 
+// export volume: the mixture on a voxel grid.
+void add_export_volume(CLI::App* cmd, GlobalOptions& global) {
   auto* volume = cmd->add_subcommand("volume", "the mixture resampled onto the voxel grid as a float32 TIFF stack");
   auto volume_args = std::make_shared<VolumeArgs>();
   volume->add_option("--model", volume_args->model, "checkpoint (.ply)")->required();
@@ -246,7 +246,10 @@ void add_export_command(CLI::App& app, GlobalOptions& global) {
                    "a sum checkpoint: every term everywhere (report Eq. 1), not the fitted f (terms inside gmf.mahalanobis_cutoff)");
   volume_args->overrides.add_to(volume);
   volume->callback([volume_args, &global] { run_export_volume(*volume_args, global); });
+}
 
+// export compact: the .hgs checkpoint.
+void add_export_compact(CLI::App* cmd, GlobalOptions& global) {
   auto* compact = cmd->add_subcommand(
       "compact", "a compact checkpoint (.hgs: quantized, zstd) that every command reads like the .ply");
   auto compact_args = std::make_shared<CompactArgs>();
@@ -269,7 +272,10 @@ void add_export_command(CLI::App& app, GlobalOptions& global) {
       ->check(CLI::Range(1, 22))
       ->capture_default_str();
   compact->callback([compact_args, &global] { run_export_compact(*compact_args, global); });
+}
 
+// export html: the self-contained viewer page.
+void add_export_html(CLI::App* cmd, GlobalOptions& global) {
   auto* html = cmd->add_subcommand(
       "html", "one self-contained HTML file: a WebGL2 hard-MIP viewer with the model and cameras inside");
   auto html_args = std::make_shared<HtmlArgs>();
@@ -280,6 +286,20 @@ void add_export_command(CLI::App& app, GlobalOptions& global) {
                  "embed exact float32 parameters instead of the compact .hgs encoding (about 3x larger)");
   html_args->background.add_to(html);
   html->callback([html_args, &global] { run_export_html(*html_args, global); });
+}
+
+}  // namespace
+
+void add_export_command(CLI::App& app, GlobalOptions& global) {
+  auto* cmd = app.add_subcommand(
+      "export",
+      "convert a checkpoint: OpenVDB grids, splat-viewer PLY, dense TIFF stack, compact checkpoint, HTML viewer");
+  cmd->require_subcommand(1);
+  add_export_vdb(cmd, global);
+  add_export_splat_ply(cmd, global);
+  add_export_volume(cmd, global);
+  add_export_compact(cmd, global);
+  add_export_html(cmd, global);
 }
 
 void add_import_command(CLI::App& app, GlobalOptions& global) {

@@ -607,12 +607,25 @@ void note_for_interrupt(const StreamContext& c, const Job& ranks, const std::str
                          stopped_path(c, ranks.rank()));
 }
 
+// Writes FOLDER/rank-R.holds: "ID SIZE" for the rerun, then the line a neighbour
+// rank says if this one dies holding the brick (io::set_interrupt_watch).
 void hold_brick(const StreamContext& c, const Job& ranks, const gmf::StreamBrick& b) {
-  const std::string text = std::to_string(b.id) + " " + std::to_string(ranks.size()) + "\n";
+  const std::string brick =
+      strf("brick %d/%zu (cell %d,%d,%d)", b.id + 1, c.plan.bricks.size(), b.cell[0], b.cell[1], b.cell[2]);
+  const std::string text = std::to_string(b.id) + " " + std::to_string(ranks.size()) + "\n" +
+                           strf("rank %d of %d died (killed, crashed or out of memory) while fitting ", ranks.rank(),
+                                ranks.size()) +
+                           brick + "\n";
   io::write_file_atomic(held_path(c, ranks.rank()), text.data(), text.size());
-  note_for_interrupt(c, ranks,
-                     strf("fitting brick %d/%zu (cell %d,%d,%d)", b.id + 1, c.plan.bricks.size(), b.cell[0], b.cell[1],
-                          b.cell[2]));
+  note_for_interrupt(c, ranks, "fitting " + brick);
+}
+
+// Each rank watches the next: stopped by the launcher because a rank died, rank R
+// names what rank R + 1 held if that one left no mark of being stopped (so one
+// dead rank is named once, by the rank before it).
+void watch_next_rank(const StreamContext& c, const Job& ranks) {
+  const int next = (ranks.rank() + 1) % ranks.size();
+  io::set_interrupt_watch({{held_path(c, next), stopped_path(c, next)}}, 300);
 }
 
 // Says, for each rank of a previous launch that left its mark, the unfinished brick
@@ -738,75 +751,58 @@ struct SeamOutcome {
   double exchanged = 0;  // bytes, all ranks together
 };
 
-// The seam pass, colour by colour (bricks of one colour share no face; each is
-// refitted from the state before its colour). Each rank refits its share of a
-// colour's bricks, then sends each refitted brick's Gaussians only to the ranks
-// with a brick of a later colour they can reach, and only those that reach it.
-// Every brick's result goes to brick_N.seam.ply; `state` becomes the seam pass's.
-SeamOutcome seam_pass(const StreamContext& c, BrickState& state, const Job& ranks, double beta, double budget) {
-  io::Stopwatch watch;
-  const std::size_t n = c.plan.bricks.size();
-  const auto colour_of = [&](std::size_t id) { return c.plan.bricks[id].colour(); };
-  // Who refits each brick: per colour, shared by the Gaussians each holds.
-  std::vector<int> rank_of(n, 0);
+// The rank that refits each brick in the seam pass: per colour, the colour's bricks
+// shared by the Gaussians each holds.
+std::vector<int> seam_ranks(const StreamContext& c, const BrickState& state, int ranks) {
+  std::vector<int> rank_of(c.plan.bricks.size(), 0);
   for (int colour = 0; colour < 8; ++colour) {
     std::vector<int> of_colour;
     for (const gmf::StreamBrick& b : c.plan.bricks) {
       if (b.colour() == colour) of_colour.push_back(b.id);
     }
-    const std::vector<int> r = brick_ranks(of_colour, ranks.size(), [&](int id) {
+    const std::vector<int> r = brick_ranks(of_colour, ranks, [&](int id) {
       return 1.0 + static_cast<double>(state.count[static_cast<std::size_t>(id)]);
     });
     for (std::size_t i = 0; i < of_colour.size(); ++i) rank_of[static_cast<std::size_t>(of_colour[i])] = r[i];
   }
-  std::vector<bool> mine(n);
-  std::vector<io::VoxelBox> my_regions;
-  for (std::size_t id = 0; id < n; ++id) {
-    mine[id] = rank_of[id] == ranks.rank();
-    if (mine[id]) my_regions.push_back(c.plan.bricks[id].region);
-  }
-  std::vector<gmf::GaussianMixture> held = read_needed(c, state, my_regions, mine);
-  SeamOutcome out;
-  std::vector<CentreBox> after = state.centres;
-  for (int colour = 0; colour < 8; ++colour) {
-    std::vector<std::pair<std::size_t, gmf::GaussianMixture>> refitted;
-    for (std::size_t id = 0; id < n; ++id) {
-      if (!mine[id] || colour_of(id) != colour) continue;
-      const double left = std::max(0.0, budget - watch.elapsed());
-      refitted.emplace_back(id, seam_brick(c, c.plan.bricks[id], held, beta, left / static_cast<double>(n), out.stats));
-      release_free_memory();
-    }
-    std::vector<std::vector<unsigned char>> to(static_cast<std::size_t>(ranks.size()));
-    for (auto& [id, m] : refitted) {
-      held[id] = std::move(m);
-      after[id] = centre_box(c, held[id]);
-      CentreBox reach = state.centres[id];  // where its Gaussians were and are
-      reach.add(after[id]);
-      for (int r = 0; r < ranks.size(); ++r) {
-        if (r == ranks.rank()) continue;
-        std::vector<const io::VoxelBox*> later;  // rank r's regions of later colours this brick reaches
-        for (std::size_t o = 0; o < n; ++o) {
-          if (rank_of[o] == r && colour_of(o) > colour && reach.meets(c.plan.bricks[o].region, c.plan.halo)) {
-            later.push_back(&c.plan.bricks[o].region);
-          }
-        }
-        if (later.empty()) continue;
-        gmf::GaussianMixture near;
-        for (const gmf::GaussianParams& g : held[id]) {
-          const Eigen::Vector3d ijk = index_of(c, g);
-          if (std::any_of(later.begin(), later.end(), [&](const io::VoxelBox* box) { return within(ijk, *box, c.plan.halo); })) {
-            near.push_back(g);
-          }
-        }
-        append_record(to[static_cast<std::size_t>(r)], static_cast<int>(id), near);
+  return rank_of;
+}
+
+// Appends to to[r], for every other rank r with a brick of a later colour than
+// brick `id`'s that its Gaussians can reach (`reach`: where they were and are), the
+// record of those of `m` within such a brick's region (grown by the halo).
+void send_to_later_neighbours(const StreamContext& c, std::size_t id, const gmf::GaussianMixture& m,
+                              const CentreBox& reach, const std::vector<int>& rank_of, int me,
+                              std::vector<std::vector<unsigned char>>& to) {
+  const int colour = c.plan.bricks[id].colour();
+  for (std::size_t r = 0; r < to.size(); ++r) {
+    if (static_cast<int>(r) == me) continue;
+    std::vector<const io::VoxelBox*> later;
+    for (const gmf::StreamBrick& o : c.plan.bricks) {
+      if (rank_of[static_cast<std::size_t>(o.id)] == static_cast<int>(r) && o.colour() > colour &&
+          reach.meets(o.region, c.plan.halo)) {
+        later.push_back(&o.region);
       }
     }
-    if (ranks.distributed()) {
-      for (const auto& bytes : to) out.exchanged += static_cast<double>(bytes.size());
-      for (const auto& bytes : ranks.exchange(to)) apply_records(bytes, held);
+    if (later.empty()) continue;
+    gmf::GaussianMixture near;
+    for (const gmf::GaussianParams& g : m) {
+      const Eigen::Vector3d ijk = index_of(c, g);
+      if (std::any_of(later.begin(), later.end(),
+                      [&](const io::VoxelBox* box) { return within(ijk, *box, c.plan.halo); })) {
+        near.push_back(g);
+      }
     }
+    append_record(to[r], static_cast<int>(id), near);
   }
-  // Each brick's result to the folder, and where every brick's Gaussians are now.
+}
+
+// Writes this rank's seam results (brick_N.seam.ply) and makes `state` the seam
+// pass's on every rank: each brick's box of centres comes from the rank that
+// refitted it. Sums the outcome over the ranks.
+void publish_seam_results(const StreamContext& c, const std::vector<gmf::GaussianMixture>& held,
+                          const std::vector<bool>& mine, const Job& ranks, BrickState& state, SeamOutcome& out) {
+  const std::size_t n = held.size();
   std::vector<double> boxes(6 * n, 0.0), totals = {out.exchanged, static_cast<double>(out.stats.refitted),
                                                   static_cast<double>(out.stats.held)};
   for (std::size_t id = 0; id < n; ++id) {
@@ -814,12 +810,12 @@ SeamOutcome seam_pass(const StreamContext& c, BrickState& state, const Job& rank
     gmf::CheckpointMeta meta;
     meta.extra.emplace_back("brick", std::to_string(id));
     gmf::save_checkpoint(brick_path(c, static_cast<int>(id), "seam.ply"), held[id], meta);
+    const CentreBox box = centre_box(c, held[id]);
     for (int a = 0; a < 3; ++a) {
-      boxes[6 * id + a] = after[id].lo[a];
-      boxes[6 * id + 3 + a] = after[id].hi[a];
+      boxes[6 * id + a] = box.lo[a];
+      boxes[6 * id + 3 + a] = box.hi[a];
     }
   }
-  held.clear();
   ranks.sum_all(boxes);  // one rank gives each brick's box, the others 0: exact
   ranks.sum_all(totals);
   for (std::size_t id = 0; id < n; ++id) {
@@ -832,6 +828,46 @@ SeamOutcome seam_pass(const StreamContext& c, BrickState& state, const Job& rank
   out.exchanged = totals[0];
   out.stats.refitted = static_cast<std::size_t>(totals[1]);
   out.stats.held = static_cast<std::size_t>(totals[2]);
+}
+
+// The seam pass, colour by colour (bricks of one colour share no face; each is
+// refitted from the state before its colour). Each rank refits its share of a
+// colour's bricks, then sends each refitted brick's Gaussians only to the ranks
+// with a brick of a later colour they can reach, and only those that reach it.
+// Every brick's result goes to brick_N.seam.ply; `state` becomes the seam pass's.
+SeamOutcome seam_pass(const StreamContext& c, BrickState& state, const Job& ranks, double beta, double budget) {
+  io::Stopwatch watch;
+  const std::size_t n = c.plan.bricks.size();
+  const std::vector<int> rank_of = seam_ranks(c, state, ranks.size());
+  std::vector<bool> mine(n);
+  std::vector<io::VoxelBox> my_regions;
+  for (std::size_t id = 0; id < n; ++id) {
+    mine[id] = rank_of[id] == ranks.rank();
+    if (mine[id]) my_regions.push_back(c.plan.bricks[id].region);
+  }
+  std::vector<gmf::GaussianMixture> held = read_needed(c, state, my_regions, mine);
+  SeamOutcome out;
+  for (int colour = 0; colour < 8; ++colour) {
+    std::vector<std::pair<std::size_t, gmf::GaussianMixture>> refitted;
+    for (std::size_t id = 0; id < n; ++id) {
+      if (!mine[id] || c.plan.bricks[id].colour() != colour) continue;
+      const double left = std::max(0.0, budget - watch.elapsed());
+      refitted.emplace_back(id, seam_brick(c, c.plan.bricks[id], held, beta, left / static_cast<double>(n), out.stats));
+      release_free_memory();
+    }
+    std::vector<std::vector<unsigned char>> to(static_cast<std::size_t>(ranks.size()));
+    for (auto& [id, m] : refitted) {
+      held[id] = std::move(m);
+      CentreBox reach = state.centres[id];
+      reach.add(centre_box(c, held[id]));
+      send_to_later_neighbours(c, id, held[id], reach, rank_of, ranks.rank(), to);
+    }
+    if (ranks.distributed()) {
+      for (const auto& bytes : to) out.exchanged += static_cast<double>(bytes.size());
+      for (const auto& bytes : ranks.exchange(to)) apply_records(bytes, held);
+    }
+  }
+  publish_seam_results(c, held, mine, ranks, state, out);
   return out;
 }
 
@@ -875,28 +911,25 @@ void write_checkpoint(const StreamContext& c, const BrickState& state, const std
   writer.commit();
 }
 
-FitOutcome run_streamed(const std::string& volume, const FitConfig& config, const FitPlanChoice& choice,
-                        const std::filesystem::path& out, const std::filesystem::path& log_csv,
-                        const Progress& progress) {
-  io::Stopwatch watch;
+// The stack opened on every rank (a shared filesystem; a rank that cannot ends the
+// job before any work), the plan and the fingerprint, and the opening lines.
+StreamContext open_stream(const std::string& volume, const FitConfig& config, const FitPlanChoice& choice,
+                          const std::filesystem::path& out, const Progress& progress) {
   const io::VolumeOptions& vo = config.get<&AppConfig::volume>();
   StreamContext c;
   c.path = volume;
   c.config = &config;
   c.gmf = config.get<&AppConfig::gmf>();
-  // Every rank opens the stack itself (a shared filesystem); one that cannot ends the
-  // job before any work.
-  const Job& ranks = job();
-  open_on_every_rank(ranks, [&] { c.source = io::open_volume_source(volume, io::stack_read_options(vo)); });
+  open_on_every_rank(job(), [&] { c.source = io::open_volume_source(volume, io::stack_read_options(vo)); });
   c.frame = io::stack_frame(c.source->nx, c.source->ny, c.source->nz, c.source->spacing, vo.aspect, volume);
   c.gmf.max_scale_world = brick_max_scale(c.frame, c.gmf);
   c.plan = choice.plan;
   c.max_memory = choice.max_memory;
   c.folder = brick_folder(out);
   c.fingerprint = fingerprint_of(volume, *c.source, config, c.plan);
-  const double total_budget = c.gmf.budget_seconds();
   progress.say("fit: %s: %d x %d x %d %s (%s as float32), %s; in-memory fit would need %s of %s: bricked: %s",
-               volume.c_str(), c.source->nx, c.source->ny, c.source->nz, std::string(io::to_string(c.source->stored_as)).c_str(),
+               volume.c_str(), c.source->nx, c.source->ny, c.source->nz,
+               std::string(io::to_string(c.source->stored_as)).c_str(),
                io::gib_text(4.0 * static_cast<double>(c.source->whole().voxels())).c_str(), c.source->format.c_str(),
                io::gib_text(choice.whole_need).c_str(), choice.memory_source.c_str(), c.plan.describe().c_str());
   if (choice.for_ranks) {
@@ -907,69 +940,73 @@ FitOutcome run_streamed(const std::string& volume, const FitConfig& config, cons
   progress.say("fit: each brick keeps the Gaussians centred in its core; scales <= %g voxels (gmf.stream_scale_voxels) "
                "reach at most sqrt(%g) x that, inside the halo; planned peak %s",
                c.gmf.stream_scale_voxels, c.gmf.mahalanobis_cutoff, io::gib_text(choice.brick_need).c_str());
-  // Rank 0 (the only one alone) holds the folder and makes the statistics pass; the
-  // other ranks of a launch read its plan.json once it is written.
-  std::optional<io::FolderLock> lock;
-  if (ranks.root()) {
-    lock.emplace(c.folder);
-    load_or_scan_statistics(c, progress);
-  }
-  ranks.barrier();
-  if (!ranks.root()) load_or_scan_statistics(c, Progress{});
-  if (c.foreground == 0) {
-    io::fail_input(volume, "no voxel above sparse_grid.threshold " +
-                               io::number_text(config.get<&AppConfig::sparse_grid>().threshold));
-  }
-  // The brick pass.
+  return c;
+}
+
+// The bricks this rank fits of those still to fit (`todo`, `rest` foreground voxels
+// in their cores): all alone; on several ranks its share, balanced by their work
+// (the foreground of their cores, counted by the ranks together). Returns them and
+// the foreground they hold (the time budget is shared by it).
+std::pair<std::vector<int>, std::int64_t> share_for_rank(const StreamContext& c, const std::vector<int>& todo,
+                                                         std::int64_t rest, const Progress& progress) {
+  const Job& ranks = job();
+  if (!ranks.distributed()) return {todo, rest};
+  io::Stopwatch counting;
+  const std::vector<double> foreground = core_foreground(c, todo, ranks);
+  const auto weight = [&](int id) {
+    return brick_work(foreground[static_cast<std::size_t>(id)],
+                      static_cast<double>(c.plan.bricks[static_cast<std::size_t>(id)].core.voxels()));
+  };
+  std::vector<int> mine = share_of_bricks(todo, weight, ranks.rank(), ranks.size());
+  double own = 0, all = 0;
+  for (int id : mine) own += weight(id);
+  for (int id : todo) all += weight(id);
+  std::int64_t held = 0;
+  for (int id : mine) held += std::llround(foreground[static_cast<std::size_t>(id)]);
+  progress.say("fit: %d ranks share %zu bricks to fit, balanced by the foreground of their cores (counted in %s); "
+               "rank 0 fits %zu of them, %.0f%% of the work",
+               ranks.size(), todo.size(), format_seconds(counting.elapsed()).c_str(), mine.size(),
+               all > 0 ? 100.0 * own / all : 0.0);
+  return {std::move(mine), held};
+}
+
+// Every brick's record after the brick pass (resumed or fitted, here or on another
+// rank), and how many this rank fitted.
+struct BrickPass {
+  std::vector<std::optional<BrickResult>> results;
+  std::size_t fitted_here = 0;
+};
+
+// The brick pass: this rank's share of the bricks not in the folder yet, each
+// written to it as it finishes, within `budget` seconds of `watch`.
+BrickPass brick_pass(const StreamContext& c, const io::Stopwatch& watch, double budget, const Progress& progress) {
+  const Job& ranks = job();
   const std::size_t n = c.plan.bricks.size();
-  std::vector<std::optional<BrickResult>> results(n);
+  BrickPass pass;
+  pass.results.resize(n);
+  std::vector<std::optional<BrickResult>>& results = pass.results;
   std::int64_t done_foreground = 0;
-  int resumed_bricks = 0;
-  for (std::size_t b = 0; b < n; ++b) {
-    results[b] = load_brick(c, static_cast<int>(b));
-    if (results[b]) {
-      done_foreground += results[b]->foreground_core;
-      ++resumed_bricks;
-    }
-  }
-  if (resumed_bricks > 0) progress.say("fit: %d of %zu bricks already finished", resumed_bricks, n);
-  if (ranks.root()) say_what_stopped_ranks_held(c, results, progress);
-  const bool seam = c.gmf.seam_iterations > 0 && n > 1;
-  const double brick_budget = total_budget * (seam ? 0.85 : 0.95);
   std::vector<int> todo;
   for (std::size_t b = 0; b < n; ++b) {
+    results[b] = load_brick(c, static_cast<int>(b));
+    if (results[b]) done_foreground += results[b]->foreground_core;
     if (!results[b]) todo.push_back(static_cast<int>(b));
   }
-  // This rank's share of the bricks still to fit, balanced by their work (the
-  // foreground of their cores, counted by the ranks together), and the foreground
-  // it holds (the time budget is shared by it).
-  std::vector<int> mine = todo;
-  std::int64_t rest_foreground = c.foreground - done_foreground;
-  if (ranks.distributed()) {
-    io::Stopwatch counting;
-    const std::vector<double> foreground = core_foreground(c, todo, ranks);
-    const auto weight = [&](int id) {
-      return brick_work(foreground[static_cast<std::size_t>(id)],
-                        static_cast<double>(c.plan.bricks[static_cast<std::size_t>(id)].core.voxels()));
-    };
-    mine = share_of_bricks(todo, weight, ranks.rank(), ranks.size());
-    double own = 0, all = 0;
-    for (int id : mine) own += weight(id);
-    for (int id : todo) all += weight(id);
-    rest_foreground = 0;
-    for (int id : mine) rest_foreground += std::llround(foreground[static_cast<std::size_t>(id)]);
-    progress.say("fit: %d ranks share %zu bricks to fit, balanced by the foreground of their cores (counted in %s); "
-                 "rank 0 fits %zu of them, %.0f%% of the work",
-                 ranks.size(), todo.size(), format_seconds(counting.elapsed()).c_str(), mine.size(),
-                 all > 0 ? 100.0 * own / all : 0.0);
-  }
+  if (todo.size() < n) progress.say("fit: %zu of %zu bricks already finished", n - todo.size(), n);
+  if (ranks.root()) say_what_stopped_ranks_held(c, results, progress);
+  const std::pair<std::vector<int>, std::int64_t> share =
+      share_for_rank(c, todo, c.foreground - done_foreground, progress);
+  const std::vector<int>& mine = share.first;
+  const std::int64_t rest_foreground = share.second;  // not a structured binding: clang 14 cannot capture those
+  pass.fitted_here = mine.size();
   std::int64_t done_here = 0;
+  if (ranks.distributed()) watch_next_rank(c, ranks);
   SequentialBricks executor;
   executor.run(mine, [&](int id) {
     const gmf::StreamBrick& b = c.plan.bricks[static_cast<std::size_t>(id)];
     if (ranks.distributed()) hold_brick(c, ranks, b);
     // Time: what is left of the brick pass, shared by the foreground still to fit.
-    const double left = std::max(0.0, brick_budget - watch.elapsed());
+    const double left = std::max(0.0, budget - watch.elapsed());
     BrickResult r = fit_brick(c, b, left, std::max<std::int64_t>(1, rest_foreground - done_here));
     release_free_memory();
     save_brick(c, id, r);
@@ -988,62 +1025,71 @@ FitOutcome run_streamed(const std::string& volume, const FitConfig& config, cons
     note_for_interrupt(c, ranks, "waiting for the other ranks' bricks (its own are finished)");
     ranks.barrier();
     io::set_interrupt_note("");
+    io::set_interrupt_watch({}, 0);
     for (std::size_t b = 0; b < n; ++b) {  // their records; the Gaussians stay in the folder
       if (!results[b]) results[b] = load_brick(c, static_cast<int>(b));
       if (!results[b]) throw std::runtime_error("brick " + std::to_string(b) + " is missing after the brick pass");
     }
   }
+  return pass;
+}
+
+// What the bricks' records add up to: where their Gaussians are, the background
+// counts and the β of the model.
+struct BrickTotals {
   BrickState state;
   io::BackgroundCounts background;
-  double beta = 0;
+  double beta = 0;  // 0 for a sum
+};
+
+BrickTotals brick_totals(const StreamContext& c, const std::vector<std::optional<BrickResult>>& results) {
+  BrickTotals t;
   bool any_beta = false;
-  for (std::size_t b = 0; b < n; ++b) {
-    state.count.push_back(results[b]->count);
-    state.centres.push_back(results[b]->centres);
-    background.merge(results[b]->background);
-    if (results[b]->count > 0 && results[b]->final_beta > 0) {
+  for (const std::optional<BrickResult>& r : results) {
+    t.state.count.push_back(r->count);
+    t.state.centres.push_back(r->centres);
+    t.background.merge(r->background);
+    if (r->count > 0 && r->final_beta > 0) {
       // the highest β any brick reached: a brick given little time (little foreground)
       // stops earlier in the schedule, and its few, separate Gaussians change least with β
-      beta = std::max(beta, results[b]->final_beta);
+      t.beta = std::max(t.beta, r->final_beta);
       any_beta = true;
     }
   }
   const bool softmax = c.gmf.aggregation == gmf::Aggregation::kSoftmax;
-  if (!any_beta) beta = softmax ? c.gmf.beta_start : 0.0;
-  if (seam) {
-    io::Stopwatch seam_watch;
-    const double seam_budget = std::max(0.0, total_budget * 0.95 - watch.elapsed());
-    const SeamOutcome s = seam_pass(c, state, ranks, softmax ? beta : 0.0, seam_budget);
-    if (ranks.distributed()) {
-      progress.say("fit: seam pass on %d ranks: %zu Gaussians near shared faces refitted with %zu neighbours held "
-                   "fixed; %.2f MiB exchanged (each refitted brick's Gaussians near a later brick, to that brick's "
-                   "rank), %s",
-                   ranks.size(), s.stats.refitted, s.stats.held, s.exchanged / 1048576.0,
-                   format_seconds(seam_watch.elapsed()).c_str());
-    } else {
-      progress.say("fit: seam pass: %zu Gaussians near shared faces refitted (%d Adam steps each brick) with %zu "
-                   "neighbours held fixed, %s",
-                   s.stats.refitted, c.gmf.seam_iterations, s.stats.held, format_seconds(seam_watch.elapsed()).c_str());
-    }
+  if (!any_beta) t.beta = softmax ? c.gmf.beta_start : 0.0;
+  if (!softmax) t.beta = 0.0;
+  return t;
+}
+
+void say_seam_pass(const StreamContext& c, const SeamOutcome& s, double seconds, const Progress& progress) {
+  const Job& ranks = job();
+  if (ranks.distributed()) {
+    progress.say("fit: seam pass on %d ranks: %zu Gaussians near shared faces refitted with %zu neighbours held "
+                 "fixed; %.2f MiB exchanged (each refitted brick's Gaussians near a later brick, to that brick's "
+                 "rank), %s",
+                 ranks.size(), s.stats.refitted, s.stats.held, s.exchanged / 1048576.0,
+                 format_seconds(seconds).c_str());
+  } else {
+    progress.say("fit: seam pass: %zu Gaussians near shared faces refitted (%d Adam steps each brick) with %zu "
+                 "neighbours held fixed, %s",
+                 s.stats.refitted, c.gmf.seam_iterations, s.stats.held, format_seconds(seconds).c_str());
   }
-  const double fit_seconds = watch.elapsed();
-  // The measuring pass: the 3D PSNR over every voxel, brick by brick, on every rank.
-  io::Stopwatch measuring;
-  gmf::MixtureModel report = c.gmf.model(0);
-  report.beta = softmax ? beta : 0.0;
-  const double sse = measure_pass(c, state, ranks, gmf::RasterizeOptions::of(report));
-  const double psnr_3d = gmf::psnr_from_mse(sse / static_cast<double>(c.source->whole().voxels()));
-  if (!ranks.root()) {  // rank 0 goes on alone: the checkpoint
-    return FitOutcome{0, 0.0, watch.elapsed(), rank_prefix(ranks) + std::to_string(mine.size()) + " bricks"};
-  }
-  // The checkpoint.
-  gmf::CheckpointMeta meta = checkpoint_meta(c.frame, c.source->spacing, c.normalization, volume);
+}
+
+// Rank 0's outputs: the checkpoint (brick after brick) with the fit's metadata and
+// background, the log, and the brick folder removed. Returns K.
+std::size_t write_outputs(const StreamContext& c, const BrickTotals& totals,
+                          const std::vector<std::optional<BrickResult>>& results, const std::filesystem::path& out,
+                          const std::filesystem::path& log_csv, const Progress& progress) {
+  const FitConfig& config = *c.config;
+  gmf::CheckpointMeta meta = checkpoint_meta(c.frame, c.source->spacing, c.normalization, c.path);
   meta.extra.emplace_back("bricks", c.plan.describe());
   meta.aggregation = c.gmf.aggregation;
-  meta.beta = softmax ? beta : 0.0;
-  if (config.get<&AppConfig::background>().estimate && background.total > 0) {
+  meta.beta = totals.beta;
+  if (config.get<&AppConfig::background>().estimate && totals.background.total > 0) {
     const io::BackgroundModel model =
-        io::background_from_counts(background, config.get<&AppConfig::background>(), volume);
+        io::background_from_counts(totals.background, config.get<&AppConfig::background>(), c.path);
     if (model.none()) {
       progress.say("fit: background: exactly 0 outside the neuron (%lld voxels): no floor to draw",
                    static_cast<long long>(model.voxels));
@@ -1051,20 +1097,64 @@ FitOutcome run_streamed(const std::string& volume, const FitConfig& config, cons
       record_background(c.frame, config, model, meta, progress);
     }
   }
-  write_checkpoint(c, state, out, meta);
+  write_checkpoint(c, totals.state, out, meta);
   if (!log_csv.empty()) {
     std::ostringstream s;
     s << fit_log_csv_header() << "\n";
-    for (std::size_t b = 0; b < n; ++b) append_fit_log_csv(s, results[b]->log, "");
+    for (const std::optional<BrickResult>& r : results) append_fit_log_csv(s, r->log, "");
     const std::string csv = s.str();
     io::write_file_atomic(log_csv, csv.data(), csv.size());
   }
   std::error_code ec;
   std::filesystem::remove_all(c.folder, ec);  // the checkpoint holds everything now
   std::size_t total = 0;
-  for (std::size_t k : state.count) total += k;
+  for (std::size_t k : totals.state.count) total += k;
+  return total;
+}
+
+FitOutcome run_streamed(const std::string& volume, const FitConfig& config, const FitPlanChoice& choice,
+                        const std::filesystem::path& out, const std::filesystem::path& log_csv,
+                        const Progress& progress) {
+  io::Stopwatch watch;
+  StreamContext c = open_stream(volume, config, choice, out, progress);
+  const Job& ranks = job();
+  const double total_budget = c.gmf.budget_seconds();
+  // Rank 0 (the only one alone) holds the folder and makes the statistics pass; the
+  // other ranks of a launch read its plan.json once it is written.
+  std::optional<io::FolderLock> lock;
+  if (ranks.root()) {
+    lock.emplace(c.folder);
+    load_or_scan_statistics(c, progress);
+  }
+  ranks.barrier();
+  if (!ranks.root()) load_or_scan_statistics(c, Progress{});
+  if (c.foreground == 0) {
+    io::fail_input(volume, "no voxel above sparse_grid.threshold " +
+                               io::number_text(config.get<&AppConfig::sparse_grid>().threshold));
+  }
+  const std::size_t n = c.plan.bricks.size();
+  const bool seam = c.gmf.seam_iterations > 0 && n > 1;
+  const BrickPass pass = brick_pass(c, watch, total_budget * (seam ? 0.85 : 0.95), progress);
+  BrickTotals totals = brick_totals(c, pass.results);
+  if (seam) {
+    io::Stopwatch seam_watch;
+    const double seam_budget = std::max(0.0, total_budget * 0.95 - watch.elapsed());
+    const SeamOutcome s = seam_pass(c, totals.state, ranks, totals.beta, seam_budget);
+    say_seam_pass(c, s, seam_watch.elapsed(), progress);
+  }
+  const double fit_seconds = watch.elapsed();
+  // The measuring pass: the 3D PSNR over every voxel, brick by brick, on every rank.
+  io::Stopwatch measuring;
+  gmf::MixtureModel report = c.gmf.model(0);
+  report.beta = totals.beta;
+  const double sse = measure_pass(c, totals.state, ranks, gmf::RasterizeOptions::of(report));
+  const double psnr_3d = gmf::psnr_from_mse(sse / static_cast<double>(c.source->whole().voxels()));
+  if (!ranks.root()) {  // rank 0 goes on alone: the checkpoint
+    return FitOutcome{0, 0.0, watch.elapsed(), rank_prefix(ranks) + std::to_string(pass.fitted_here) + " bricks"};
+  }
+  const std::size_t total = write_outputs(c, totals, pass.results, out, log_csv, progress);
   FitOutcome outcome{total, psnr_3d, watch.elapsed(),
-                           std::string("bricks: ") + std::to_string(n) + (seam ? " + seam pass" : "")};
+                     std::string("bricks: ") + std::to_string(n) + (seam ? " + seam pass" : "")};
   progress.say("fit: wrote %s: K %zu from %zu bricks, 3D PSNR %.2f dB (measured in %s), %s (fit %s)", out.c_str(),
                total, n, psnr_3d, format_seconds(measuring.elapsed()).c_str(),
                format_seconds(outcome.seconds).c_str(), format_seconds(fit_seconds).c_str());

@@ -340,17 +340,11 @@ void check_options(const ViewerServerOptions& options) {
   }
 }
 
-}  // namespace
-
-int serve_viewer(const ViewerRoutes& routes, const ViewerServerOptions& options,
-                 const std::function<void(const std::string& url)>& on_listening) {
-  check_options(options);
-  if (!routes.page) throw std::invalid_argument("serve_viewer: no page route");
-  GuardedServer server(options.limits);
+// Exact paths only: "/..", "/%2e%2e/", "//etc/passwd" and the like match nothing.
+void add_routes(GuardedServer& server, const ViewerRoutes& routes) {
   const auto serve_page = [&routes](const httplib::Request& req, httplib::Response& res) {
     answer(req, res, [&] { return routes.page(); });
   };
-  // Exact paths only: "/..", "/%2e%2e/", "//etc/passwd" and the like match nothing.
   server.Get("/", serve_page);
   server.Get("/index.html", serve_page);
   if (routes.truth) {
@@ -366,7 +360,10 @@ int serve_viewer(const ViewerRoutes& routes, const ViewerServerOptions& options,
                io::printable(req.path, 200).c_str());
     }
   });
+}
 
+// Binds the server to the host and port (0: any free one); returns its URL.
+std::string bind_server(GuardedServer& server, const ViewerServerOptions& options) {
   int port = options.port;
   if (port == 0) {
     port = server.bind_to_any_port(options.host);
@@ -378,8 +375,18 @@ int serve_viewer(const ViewerRoutes& routes, const ViewerServerOptions& options,
                          std::to_string(options.port) + " (in use, or not an address of this machine)");
   }
   const bool v6 = options.host.find(':') != std::string::npos;
-  const std::string url =
-      "http://" + (v6 ? "[" + options.host + "]" : options.host) + ":" + std::to_string(port) + "/";
+  return "http://" + (v6 ? "[" + options.host + "]" : options.host) + ":" + std::to_string(port) + "/";
+}
+
+}  // namespace
+
+int serve_viewer(const ViewerRoutes& routes, const ViewerServerOptions& options,
+                 const std::function<void(const std::string& url)>& on_listening) {
+  check_options(options);
+  if (!routes.page) throw std::invalid_argument("serve_viewer: no page route");
+  GuardedServer server(options.limits);
+  add_routes(server, routes);
+  const std::string url = bind_server(server, options);
 
   int fds[2];
   if (::pipe2(fds, O_CLOEXEC) != 0) throw std::runtime_error("view: cannot create the signal pipe");

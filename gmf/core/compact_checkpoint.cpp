@@ -233,17 +233,14 @@ bool has_compact_magic(std::string_view bytes) {
          std::memcmp(bytes.data(), kCompactMagic.data(), kCompactMagic.size()) == 0;
 }
 
-std::string encode_compact_checkpoint(const GaussianMixture& mixture, const CheckpointMeta& meta,
-                                      const CompactOptions& options, std::vector<std::size_t>* order_out) {
-  options.validate();
-  const std::string metadata = metadata_text(meta);
-  check_checkpoint_mixture(mixture);
-  const std::size_t count = mixture.size();
+namespace {
 
+// The header of `mixture`'s file: count, bits and the boxes of centres and log-scales.
+CompactHeader header_of(const GaussianMixture& mixture, const CompactOptions& options) {
   CompactHeader h;
-  h.count = count;
+  h.count = mixture.size();
   h.bits = options;
-  if (count > 0) {
+  if (!mixture.empty()) {
     h.position_lo = h.position_hi = mixture[0].mean;
     h.log_scale_lo = h.log_scale_hi = mixture[0].log_scale;
   }
@@ -255,79 +252,69 @@ std::string encode_compact_checkpoint(const GaussianMixture& mixture, const Chec
       h.log_scale_hi[d] = std::max(h.log_scale_hi[d], g.log_scale[d]);
     }
   }
+  return h;
+}
 
-  // The Morton order of the quantized centres: neighbours in the file are
-  // neighbours in space, so the gaps between successive codes are small numbers
-  // whose high byte planes are nearly all zero.
-  const std::uint64_t m_pos = max_code(options.position_bits);
-  std::vector<std::uint64_t> code(count);
-  for (std::size_t k = 0; k < count; ++k) {
+// The Morton codes of the quantized centres.
+std::vector<std::uint64_t> morton_codes(const GaussianMixture& mixture, const CompactHeader& h) {
+  const std::uint64_t m_pos = max_code(h.bits.position_bits);
+  std::vector<std::uint64_t> code(mixture.size());
+  for (std::size_t k = 0; k < mixture.size(); ++k) {
     std::uint64_t c = 0;
-    for (int d = 0; d < 3; ++d) {
-      c |= spread3(quantize(mixture[k].mean[d], h.position_lo[d], h.position_hi[d], m_pos)) << d;
-    }
+    for (int d = 0; d < 3; ++d) c |= spread3(quantize(mixture[k].mean[d], h.position_lo[d], h.position_hi[d], m_pos)) << d;
     code[k] = c;
   }
-  std::vector<std::size_t> order(count);
-  std::iota(order.begin(), order.end(), std::size_t{0});
-  std::stable_sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return code[a] < code[b]; });
+  return code;
+}
 
-  const Layout layout = layout_of(options);
-  std::string raw(count * layout.per_gaussian(), '\0');
-  const Columns cols(raw.data(), count, layout);
-  const std::uint64_t m_scale = max_code(options.scale_bits), m_rot = max_code(options.rotation_bits);
-  const int rb = options.rotation_bits;
-  const std::uint64_t m_int = max_code(options.intensity_bits);
-  std::uint64_t previous = 0;
-  for (std::size_t i = 0; i < count; ++i) {
-    const GaussianParams& g = mixture[order[i]];
-    cols.position.put(i, code[order[i]] - previous);
-    previous = code[order[i]];
-    for (int d = 0; d < 3; ++d) {
-      cols.scale(d).put(i, quantize(g.log_scale[d], h.log_scale_lo[d], h.log_scale_hi[d], m_scale));
-    }
-    // Smallest three: drop the largest component (index in the top 2 bits), made
-    // positive (q and −q are one rotation); the others lie in [−1/√2, 1/√2].
-    std::array<double, 4> q;
-    double norm2 = 0.0;
-    for (int j = 0; j < 4; ++j) norm2 += static_cast<double>(g.rotation[j]) * g.rotation[j];
-    const double inv = 1.0 / std::sqrt(norm2);
-    int largest = 0;
-    for (int j = 0; j < 4; ++j) {
-      q[j] = g.rotation[j] * inv;
-      if (std::abs(q[j]) > std::abs(q[largest])) largest = j;
-    }
-    if (q[largest] < 0) {
-      for (double& v : q) v = -v;
-    }
-    std::uint64_t word = static_cast<std::uint64_t>(largest);
-    for (int j = 0; j < 4; ++j) {
-      if (j != largest) word = (word << rb) | quantize(q[j], -kHalfSqrt2, kHalfSqrt2, m_rot);
-    }
-    cols.rotation.put(i, word);
-    cols.intensity.put(i, quantize(sigmoid<double>(g.intensity_logit), 0.0, 1.0, m_int));
+// Smallest three: drop the largest component (index in the top 2 bits), made
+// positive (q and −q are one rotation); the others lie in [−1/√2, 1/√2], `bits` each.
+std::uint64_t rotation_word(const std::array<float, 4>& rotation, int bits) {
+  std::array<double, 4> q;
+  double norm2 = 0.0;
+  for (int j = 0; j < 4; ++j) norm2 += static_cast<double>(rotation[j]) * rotation[j];
+  const double inv = 1.0 / std::sqrt(norm2);
+  int largest = 0;
+  for (int j = 0; j < 4; ++j) {
+    q[j] = rotation[j] * inv;
+    if (std::abs(q[j]) > std::abs(q[largest])) largest = j;
   }
+  if (q[largest] < 0) {
+    for (double& v : q) v = -v;
+  }
+  const std::uint64_t m_rot = max_code(bits);
+  auto word = static_cast<std::uint64_t>(largest);
+  for (int j = 0; j < 4; ++j) {
+    if (j != largest) word = (word << bits) | quantize(q[j], -kHalfSqrt2, kHalfSqrt2, m_rot);
+  }
+  return word;
+}
 
-  // One frame that records its content size (the reader checks it against K before
-  // allocating) and a checksum of the content (a flipped bit is an error, not a
-  // quietly different model).
+// One zstd frame that records its content size (the reader checks it against K
+// before allocating) and a checksum of the content (a flipped bit is an error, not a
+// quietly different model).
+std::string compress_frame(const std::string& raw, int level) {
   const std::unique_ptr<ZSTD_CCtx, decltype(&ZSTD_freeCCtx)> cctx(ZSTD_createCCtx(), &ZSTD_freeCCtx);
   if (!cctx) throw std::bad_alloc();
   const auto zstd_check = [](std::size_t r) {
     if (ZSTD_isError(r)) throw std::runtime_error(std::string("zstd compression failed: ") + ZSTD_getErrorName(r));
     return r;
   };
-  zstd_check(ZSTD_CCtx_setParameter(cctx.get(), ZSTD_c_compressionLevel, options.zstd_level));
+  zstd_check(ZSTD_CCtx_setParameter(cctx.get(), ZSTD_c_compressionLevel, level));
   zstd_check(ZSTD_CCtx_setParameter(cctx.get(), ZSTD_c_checksumFlag, 1));
   zstd_check(ZSTD_CCtx_setParameter(cctx.get(), ZSTD_c_contentSizeFlag, 1));
   std::string payload(ZSTD_compressBound(raw.size()), '\0');
   payload.resize(zstd_check(ZSTD_compress2(cctx.get(), payload.data(), payload.size(), raw.data(), raw.size())));
+  return payload;
+}
 
+// The file: fixed header, metadata, payload size, payload, CRC-32 of all before it.
+std::string assemble_file(const CompactHeader& h, const std::string& metadata, const std::string& payload) {
   io::BinaryWriter w;
   for (char c : kCompactMagic) w.put(c);
   w.put(kCompactFormatVersion);
-  w.put(static_cast<std::uint64_t>(count));
-  for (int bits : {options.position_bits, options.scale_bits, options.rotation_bits, options.intensity_bits}) {
+  w.put(static_cast<std::uint64_t>(h.count));
+  for (int bits : {h.bits.position_bits, h.bits.scale_bits, h.bits.rotation_bits, h.bits.intensity_bits}) {
     w.put(static_cast<std::uint8_t>(bits));
   }
   for (const auto* box : {&h.position_lo, &h.position_hi, &h.log_scale_lo, &h.log_scale_hi}) {
@@ -343,59 +330,81 @@ std::string encode_compact_checkpoint(const GaussianMixture& mixture, const Chec
   io::BinaryWriter checksum;
   checksum.put(crc32_of(out));
   out += checksum.take();
+  return out;
+}
+
+}  // namespace
+
+std::string encode_compact_checkpoint(const GaussianMixture& mixture, const CheckpointMeta& meta,
+                                      const CompactOptions& options, std::vector<std::size_t>* order_out) {
+  options.validate();
+  const std::string metadata = metadata_text(meta);
+  check_checkpoint_mixture(mixture);
+  const std::size_t count = mixture.size();
+  const CompactHeader h = header_of(mixture, options);
+  // The Morton order of the quantized centres: neighbours in the file are
+  // neighbours in space, so the gaps between successive codes are small numbers
+  // whose high byte planes are nearly all zero.
+  const std::vector<std::uint64_t> code = morton_codes(mixture, h);
+  std::vector<std::size_t> order(count);
+  std::iota(order.begin(), order.end(), std::size_t{0});
+  std::stable_sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return code[a] < code[b]; });
+
+  const Layout layout = layout_of(options);
+  std::string raw(count * layout.per_gaussian(), '\0');
+  const Columns cols(raw.data(), count, layout);
+  const std::uint64_t m_scale = max_code(options.scale_bits), m_int = max_code(options.intensity_bits);
+  std::uint64_t previous = 0;
+  for (std::size_t i = 0; i < count; ++i) {
+    const GaussianParams& g = mixture[order[i]];
+    cols.position.put(i, code[order[i]] - previous);
+    previous = code[order[i]];
+    for (int d = 0; d < 3; ++d) {
+      cols.scale(d).put(i, quantize(g.log_scale[d], h.log_scale_lo[d], h.log_scale_hi[d], m_scale));
+    }
+    cols.rotation.put(i, rotation_word(g.rotation, options.rotation_bits));
+    cols.intensity.put(i, quantize(sigmoid<double>(g.intensity_logit), 0.0, 1.0, m_int));
+  }
+  std::string out = assemble_file(h, metadata, compress_frame(raw, options.zstd_level));
   if (order_out) *order_out = std::move(order);
   return out;
 }
 
-CompactHeader read_compact_header(std::string_view bytes, const fs::path& source) {
-  const auto fail = [&](const std::string& problem) { io::fail_input(source, kWhat + problem); };
+namespace {
+
+[[noreturn]] void fail_compact(const fs::path& source, const std::string& problem) {
+  io::fail_input(source, kWhat + problem);
+}
+
+// From version 2 the whole file (header, metadata and payload) is covered by the
+// CRC-32 at its end: checked before any other field is trusted.
+void check_file_checksum(std::string_view bytes, const fs::path& source) {
   const std::size_t size = bytes.size();
-  if (size == 0) fail("the file is empty");
-  const std::size_t magic_bytes = std::min(size, kCompactMagic.size());
-  if (std::memcmp(bytes.data(), kCompactMagic.data(), magic_bytes) != 0) {
-    fail("the file does not start with the .hgs signature 89 48 47 53 0D 0A 1A 0A");
+  if (size < kFixedHeaderBytes + kChecksumBytes) {
+    fail_compact(source, "truncated: " + std::to_string(size) + " bytes, the header and checksum alone need " +
+                             std::to_string(kFixedHeaderBytes + kChecksumBytes));
   }
-  if (size < kFixedHeaderBytes) {
-    fail("truncated: " + std::to_string(size) + " bytes, the header alone needs " + std::to_string(kFixedHeaderBytes));
+  std::uint32_t stored = 0;
+  std::memcpy(&stored, bytes.data() + size - kChecksumBytes, kChecksumBytes);
+  const std::uint32_t computed = crc32_of(bytes.substr(0, size - kChecksumBytes));
+  if (stored == computed) return;
+  // A cut-short file fails the checksum too; its declared sizes (read only for
+  // this message) say which it is.
+  std::uint64_t metadata = 0, payload = 0;
+  std::memcpy(&metadata, bytes.data() + kFixedHeaderBytes - 16, 8);
+  const std::uint64_t room = size - kFixedHeaderBytes - kChecksumBytes;  // for metadata and payload
+  if (metadata <= room) std::memcpy(&payload, bytes.data() + kFixedHeaderBytes - 8 + metadata, 8);
+  if (metadata > room || payload > room - metadata) {
+    fail_compact(source, "truncated: " + std::to_string(size) +
+                             " bytes, fewer than its header declares (and the checksum fails)");
   }
-  io::BinaryReader r(bytes, source.string(), "compact checkpoint");
-  for (std::size_t i = 0; i < kCompactMagic.size(); ++i) (void)r.get<char>();
-  CompactHeader h;
-  h.file_bytes = size;
-  h.version = r.get<std::uint32_t>();
-  if (h.version == 0 || h.version > kCompactFormatVersion) {
-    fail("format version " + std::to_string(h.version) + " is not one this build reads (1.." +
-         std::to_string(kCompactFormatVersion) + ")");
-  }
-  // From version 2 the whole file (header, metadata and payload) is covered by the
-  // CRC-32 at its end: checked before any other field is trusted.
-  std::size_t trailer = 0;
-  if (h.version >= kFirstChecksummedVersion) {
-    if (size < kFixedHeaderBytes + kChecksumBytes) {
-      fail("truncated: " + std::to_string(size) + " bytes, the header and checksum alone need " +
-           std::to_string(kFixedHeaderBytes + kChecksumBytes));
-    }
-    trailer = kChecksumBytes;
-    std::uint32_t stored = 0;
-    std::memcpy(&stored, bytes.data() + size - kChecksumBytes, kChecksumBytes);
-    const std::uint32_t computed = crc32_of(bytes.substr(0, size - kChecksumBytes));
-    if (stored != computed) {
-      // A cut-short file fails the checksum too; its declared sizes (read only for
-      // this message) say which it is.
-      std::uint64_t metadata = 0, payload = 0;
-      std::memcpy(&metadata, bytes.data() + kFixedHeaderBytes - 16, 8);
-      const std::uint64_t room = size - kFixedHeaderBytes - kChecksumBytes;  // for metadata and payload
-      if (metadata <= room) std::memcpy(&payload, bytes.data() + kFixedHeaderBytes - 8 + metadata, 8);
-      if (metadata > room || payload > room - metadata) {
-        fail("truncated: " + std::to_string(size) + " bytes, fewer than its header declares (and the checksum fails)");
-      }
-      char text[96];
-      std::snprintf(text, sizeof text, "checksum mismatch (CRC-32 stored %08x, computed %08x)", stored, computed);
-      fail(std::string(text) + ": the file was changed or damaged after it was written");
-    }
-    h.checksummed = true;
-  }
-  h.count = r.get<std::uint64_t>();
+  char text[96];
+  std::snprintf(text, sizeof text, "checksum mismatch (CRC-32 stored %08x, computed %08x)", stored, computed);
+  fail_compact(source, std::string(text) + ": the file was changed or damaged after it was written");
+}
+
+// The header's bits and ranges, checked.
+void read_bits_and_ranges(io::BinaryReader& r, CompactHeader& h, const fs::path& source) {
   h.bits.position_bits = r.get<std::uint8_t>();
   h.bits.scale_bits = r.get<std::uint8_t>();
   h.bits.rotation_bits = r.get<std::uint8_t>();
@@ -403,7 +412,7 @@ CompactHeader read_compact_header(std::string_view bytes, const fs::path& source
   try {
     h.bits.validate();
   } catch (const io::InputError& e) {
-    fail(std::string("header ") + e.what());
+    fail_compact(source, std::string("header ") + e.what());
   }
   const char* names[] = {"position", "log-scale"};
   std::array<float, 3>* boxes[] = {&h.position_lo, &h.position_hi, &h.log_scale_lo, &h.log_scale_hi};
@@ -415,67 +424,109 @@ CompactHeader read_compact_header(std::string_view bytes, const fs::path& source
     const auto& hi = *boxes[2 * b + 1];
     for (int d = 0; d < 3; ++d) {
       if (!std::isfinite(lo[d]) || !std::isfinite(hi[d]) || lo[d] > hi[d]) {
-        fail(std::string("header ") + names[b] + " range of axis " + std::to_string(d) + " [" + io::number_text(lo[d]) +
-             ", " + io::number_text(hi[d]) + "] is not finite with lo <= hi");
+        fail_compact(source, std::string("header ") + names[b] + " range of axis " + std::to_string(d) + " [" +
+                                 io::number_text(lo[d]) + ", " + io::number_text(hi[d]) +
+                                 "] is not finite with lo <= hi");
       }
     }
   }
-  h.metadata_bytes = r.get<std::uint64_t>();
+}
+
+// The metadata and payload sizes against the file's (`trailer`: checksum bytes),
+// and K against what the payload can hold, before anything is allocated.
+void check_section_sizes(std::string_view bytes, std::size_t trailer, CompactHeader& h, const fs::path& source) {
+  const std::size_t size = bytes.size();
   if (h.metadata_bytes > kMaxMetadataBytes) {
-    fail("metadata of " + std::to_string(h.metadata_bytes) + " bytes is more than the " +
-         std::to_string(kMaxMetadataBytes) + " allowed");
+    fail_compact(source, "metadata of " + std::to_string(h.metadata_bytes) + " bytes is more than the " +
+                             std::to_string(kMaxMetadataBytes) + " allowed");
   }
   if (h.metadata_bytes > size - trailer - kFixedHeaderBytes) {
-    fail("truncated: " + std::to_string(size) + " bytes, the header with its " + std::to_string(h.metadata_bytes) +
-         " bytes of metadata needs " + std::to_string(kFixedHeaderBytes + h.metadata_bytes + trailer));
+    fail_compact(source, "truncated: " + std::to_string(size) + " bytes, the header with its " +
+                             std::to_string(h.metadata_bytes) + " bytes of metadata needs " +
+                             std::to_string(kFixedHeaderBytes + h.metadata_bytes + trailer));
   }
   std::memcpy(&h.payload_bytes, bytes.data() + kFixedHeaderBytes - 8 + h.metadata_bytes, 8);
   const std::uint64_t rest = size - trailer - kFixedHeaderBytes - h.metadata_bytes;
   if (h.payload_bytes > rest) {
-    fail("truncated: the payload should be " + std::to_string(h.payload_bytes) + " bytes, the file holds " +
-         std::to_string(rest));
+    fail_compact(source, "truncated: the payload should be " + std::to_string(h.payload_bytes) +
+                             " bytes, the file holds " + std::to_string(rest));
   }
   if (h.payload_bytes < rest) {
-    fail(std::to_string(rest - h.payload_bytes) + " bytes follow the payload of " + std::to_string(h.payload_bytes) +
-         " bytes");
+    fail_compact(source, std::to_string(rest - h.payload_bytes) + " bytes follow the payload of " +
+                             std::to_string(h.payload_bytes) + " bytes");
   }
   // K × bytes per Gaussian must fit in 64 bits and in what a model's payload of this
   // size can hold (kMaxCompressionRatio), before anything that size is allocated.
   const std::uint64_t per = layout_of(h.bits).per_gaussian();
   if (h.count > std::numeric_limits<std::uint64_t>::max() / 64 ||
       h.count * per > std::max(kFreeRawBytes, h.payload_bytes * kMaxCompressionRatio)) {
-    fail(std::to_string(h.count) + " Gaussians of " + std::to_string(per) + " bytes would be more than " +
-         std::to_string(kMaxCompressionRatio) + " times the payload of " + std::to_string(h.payload_bytes) +
-         " bytes; no model compresses that well (damaged, or not written by hisnegs)");
+    fail_compact(source, std::to_string(h.count) + " Gaussians of " + std::to_string(per) +
+                             " bytes would be more than " + std::to_string(kMaxCompressionRatio) +
+                             " times the payload of " + std::to_string(h.payload_bytes) +
+                             " bytes; no model compresses that well (damaged, or not written by hisnegs)");
   }
+}
+
+}  // namespace
+
+CompactHeader read_compact_header(std::string_view bytes, const fs::path& source) {
+  const std::size_t size = bytes.size();
+  if (size == 0) fail_compact(source, "the file is empty");
+  const std::size_t magic_bytes = std::min(size, kCompactMagic.size());
+  if (std::memcmp(bytes.data(), kCompactMagic.data(), magic_bytes) != 0) {
+    fail_compact(source, "the file does not start with the .hgs signature 89 48 47 53 0D 0A 1A 0A");
+  }
+  if (size < kFixedHeaderBytes) {
+    fail_compact(source, "truncated: " + std::to_string(size) + " bytes, the header alone needs " +
+                             std::to_string(kFixedHeaderBytes));
+  }
+  io::BinaryReader r(bytes, source.string(), "compact checkpoint");
+  for (std::size_t i = 0; i < kCompactMagic.size(); ++i) (void)r.get<char>();
+  CompactHeader h;
+  h.file_bytes = size;
+  h.version = r.get<std::uint32_t>();
+  if (h.version == 0 || h.version > kCompactFormatVersion) {
+    fail_compact(source, "format version " + std::to_string(h.version) + " is not one this build reads (1.." +
+                             std::to_string(kCompactFormatVersion) + ")");
+  }
+  std::size_t trailer = 0;
+  if (h.version >= kFirstChecksummedVersion) {
+    check_file_checksum(bytes, source);
+    trailer = kChecksumBytes;
+    h.checksummed = true;
+  }
+  h.count = r.get<std::uint64_t>();
+  read_bits_and_ranges(r, h, source);
+  h.metadata_bytes = r.get<std::uint64_t>();
+  check_section_sizes(bytes, trailer, h, source);
   return h;
 }
 
-Checkpoint decode_compact_checkpoint(std::string_view bytes, const fs::path& source) {
-  const CompactHeader h = read_compact_header(bytes, source);
-  const auto fail = [&](const std::string& problem) { io::fail_input(source, kWhat + problem); };
+namespace {
 
-  // The metadata: "hisnegs KEY VALUE" lines joined by line feeds, parsed as a PLY's.
-  const std::string_view metadata = bytes.substr(kFixedHeaderBytes - 8, h.metadata_bytes);
+// The metadata: "hisnegs KEY VALUE" lines joined by line feeds, parsed as a PLY's.
+CheckpointMeta parse_compact_metadata(std::string_view metadata, const fs::path& source) {
   std::vector<std::string> lines;
   for (std::size_t start = 0; start < metadata.size();) {
     std::size_t end = metadata.find('\n', start);
     if (end == std::string_view::npos) end = metadata.size();
     const std::string_view line = metadata.substr(start, end - start);
     if (const std::string problem = metadata_line_problem(line); !problem.empty()) {
-      fail("metadata line " + std::to_string(lines.size() + 1) + " '" + io::printable(line, 60) + "' " + problem);
+      fail_compact(source, "metadata line " + std::to_string(lines.size() + 1) + " '" + io::printable(line, 60) +
+                               "' " + problem);
     }
     lines.emplace_back(line);
     start = end + 1;
-    if (end + 1 == metadata.size()) fail("metadata ends with an empty line");
+    if (end + 1 == metadata.size()) fail_compact(source, "metadata ends with an empty line");
   }
-  Checkpoint out;
-  out.meta = checkpoint_meta_from_comments(lines, source);
+  return checkpoint_meta_from_comments(lines, source);
+}
 
-  // The payload: one zstd frame that records its size, exactly K × per Gaussian.
-  const std::string_view payload = bytes.substr(kFixedHeaderBytes + h.metadata_bytes, h.payload_bytes);
-  const Layout layout = layout_of(h.bits);
-  const std::uint64_t expected = h.count * layout.per_gaussian();
+// The payload: one zstd frame that records its size, exactly `count` × `per` bytes.
+std::string decompress_payload(std::string_view payload, std::uint64_t count, std::uint64_t per,
+                               const fs::path& source) {
+  const std::uint64_t expected = count * per;
+  const auto fail = [&](const std::string& problem) { fail_compact(source, problem); };
   // RFC 8878 §3.1.1: magic 28 B5 2F FD, then the frame header descriptor, whose
   // bit 2 says the frame ends with a checksum of its content (always written here).
   if (payload.size() < 5 || std::memcmp(payload.data(), "\x28\xb5\x2f\xfd", 4) != 0) {
@@ -486,8 +537,8 @@ Checkpoint decode_compact_checkpoint(std::string_view bytes, const fs::path& sou
   if (content == ZSTD_CONTENTSIZE_ERROR) fail("the payload is not a zstd frame");
   if (content == ZSTD_CONTENTSIZE_UNKNOWN) fail("the payload's zstd frame does not record its content size");
   if (content != expected) {
-    fail("the payload holds " + std::to_string(content) + " bytes, " + std::to_string(h.count) + " Gaussians of " +
-         std::to_string(layout.per_gaussian()) + " bytes need " + std::to_string(expected));
+    fail("the payload holds " + std::to_string(content) + " bytes, " + std::to_string(count) + " Gaussians of " +
+         std::to_string(per) + " bytes need " + std::to_string(expected));
   }
   const std::size_t frame = ZSTD_findFrameCompressedSize(payload.data(), payload.size());
   if (ZSTD_isError(frame)) fail(std::string("payload: zstd: ") + ZSTD_getErrorName(frame));
@@ -495,18 +546,50 @@ Checkpoint decode_compact_checkpoint(std::string_view bytes, const fs::path& sou
     fail("the payload's zstd frame is " + std::to_string(frame) + " of its " + std::to_string(payload.size()) +
          " bytes");
   }
-  io::check_allocation(source, static_cast<double>(expected) + static_cast<double>(h.count) * sizeof(GaussianParams),
-                       std::to_string(h.count) + " Gaussians");
+  io::check_allocation(source, static_cast<double>(expected) + static_cast<double>(count) * sizeof(GaussianParams),
+                       std::to_string(count) + " Gaussians");
   std::string raw(expected, '\0');
   const std::size_t got = ZSTD_decompress(raw.data(), raw.size(), payload.data(), payload.size());
   if (ZSTD_isError(got)) fail(std::string("payload: zstd: ") + ZSTD_getErrorName(got));
-  if (got != expected)
+  if (got != expected) {
     fail("the payload decompressed to " + std::to_string(got) + " of " + std::to_string(expected) + " bytes");
+  }
+  return raw;
+}
 
+// The inverse of rotation_word: the largest component from the others (unit norm).
+std::array<float, 4> rotation_of(std::uint64_t word, int bits) {
+  const std::uint64_t m_rot = max_code(bits);
+  const int largest = static_cast<int>(word >> (3 * bits));
+  std::array<double, 4> q{};
+  double small2 = 0.0;
+  for (int j = 3, shift = 0; j >= 0; --j) {
+    if (j == largest) continue;
+    q[j] = dequantize((word >> shift) & m_rot, -kHalfSqrt2, kHalfSqrt2, m_rot);
+    small2 += q[j] * q[j];
+    shift += bits;
+  }
+  q[largest] = std::sqrt(std::max(0.0, 1.0 - small2));
+  const double inv = 1.0 / std::sqrt(small2 + q[largest] * q[largest]);  // 1 unless bits is tiny
+  std::array<float, 4> rotation;
+  for (int j = 0; j < 4; ++j) rotation[j] = static_cast<float>(q[j] * inv);
+  return rotation;
+}
+
+}  // namespace
+
+Checkpoint decode_compact_checkpoint(std::string_view bytes, const fs::path& source) {
+  const CompactHeader h = read_compact_header(bytes, source);
+  const auto fail = [&](const std::string& problem) { fail_compact(source, problem); };
+  Checkpoint out;
+  out.meta = parse_compact_metadata(bytes.substr(kFixedHeaderBytes - 8, h.metadata_bytes), source);
+  const Layout layout = layout_of(h.bits);
+  std::string raw = decompress_payload(bytes.substr(kFixedHeaderBytes + h.metadata_bytes, h.payload_bytes), h.count,
+                                       layout.per_gaussian(), source);
   const auto count = static_cast<std::size_t>(h.count);
   const Columns cols(raw.data(), count, layout);
   const int pb = h.bits.position_bits, rb = h.bits.rotation_bits;
-  const std::uint64_t m_pos = max_code(pb), m_scale = max_code(h.bits.scale_bits), m_rot = max_code(rb);
+  const std::uint64_t m_pos = max_code(pb), m_scale = max_code(h.bits.scale_bits);
   const std::uint64_t m_code = max_code(3 * pb), m_word = max_code(2 + 3 * rb), m_int = max_code(h.bits.intensity_bits);
   const auto where = [](std::size_t i) { return "Gaussian " + std::to_string(i) + ": "; };
   out.mixture.resize(count);
@@ -524,18 +607,7 @@ Checkpoint decode_compact_checkpoint(std::string_view bytes, const fs::path& sou
     }
     const std::uint64_t word = cols.rotation.get(i);
     if (word > m_word) fail(where(i) + "rotation code beyond its bits");
-    const int largest = static_cast<int>(word >> (3 * rb));
-    std::array<double, 4> q{};
-    double small2 = 0.0;
-    for (int j = 3, shift = 0; j >= 0; --j) {
-      if (j == largest) continue;
-      q[j] = dequantize((word >> shift) & m_rot, -kHalfSqrt2, kHalfSqrt2, m_rot);
-      small2 += q[j] * q[j];
-      shift += rb;
-    }
-    q[largest] = std::sqrt(std::max(0.0, 1.0 - small2));
-    const double inv = 1.0 / std::sqrt(small2 + q[largest] * q[largest]);  // 1 unless rb is tiny
-    for (int j = 0; j < 4; ++j) g.rotation[j] = static_cast<float>(q[j] * inv);
+    g.rotation = rotation_of(word, rb);
     const std::uint64_t c = cols.intensity.get(i);
     if (c > m_int) fail(where(i) + "intensity code " + std::to_string(c) + " beyond its bits");
     const double a = std::clamp(dequantize(c, 0.0, 1.0, m_int), kIntensityEnd, 1.0 - kIntensityEnd);

@@ -118,7 +118,8 @@ TEST_F(Mpi, ACommandThatDoesNotRunDistributedIsRefused) {
 }
 
 // Rank 1 is killed (SIGKILL) as it saves its second brick: the job ends (the
-// launcher names rank 1, rank 0 says what it was doing when stopped), the finished
+// launcher names rank 1, rank 0 says what it was doing when stopped and which brick
+// rank 1 died holding), the finished
 // bricks stay, and the rerun names the brick the dead rank held and resumes to the
 // uninterrupted checkpoint.
 TEST_F(Mpi, AKilledRankEndsTheJobAndTheRerunResumes) {
@@ -132,6 +133,10 @@ TEST_F(Mpi, AKilledRankEndsTheJobAndTheRerunResumes) {
   // The launcher names the dead rank; the rank it stopped says what it was doing.
   EXPECT_NE(killed.out.find("process rank 1"), std::string::npos) << killed.out;
   EXPECT_NE(killed.out.find("hisnegs: rank 0 of 2: stopped while "), std::string::npos) << killed.out;
+  // Rank 0 watches rank 1 and names the brick it died holding, in one line.
+  EXPECT_NE(killed.out.find("hisnegs: rank 1 of 2 died (killed, crashed or out of memory) while fitting brick "),
+            std::string::npos)
+      << killed.out;
   const auto rerun = mpirun(2, fit_args("k.ply"));
   ASSERT_EQ(rerun.status, 0) << rerun.out;
   EXPECT_NE(rerun.out.find("bricks already finished"), std::string::npos) << rerun.out;
