@@ -361,10 +361,7 @@ Checkpoint import_vdb_points(const fs::path& path) {
   io::PlyTable table;
   std::istringstream lines(header->value());
   for (std::string line; std::getline(lines, line);) table.comments.push_back(line);
-  std::vector<io::PlyProperty> props;
-  props.reserve(kGaussianParamNames.size());
-  for (std::string_view name : kGaussianParamNames) props.push_back({std::string(name), io::PlyType::kFloat32});
-  io::PlyElement vertex("vertex", static_cast<std::int64_t>(K), std::move(props));
+  io::PlyElement vertex("vertex", static_cast<std::int64_t>(K), checkpoint_properties());
   static_assert(sizeof(GaussianParams) == kGaussianParamCount * sizeof(float));
   if (K > 0) std::memcpy(vertex.bytes().data(), mixture.data(), vertex.bytes().size());
   table.elements.push_back(std::move(vertex));

@@ -197,6 +197,13 @@ struct CentreBox {
     add(Eigen::Vector3d(o.lo[0], o.lo[1], o.lo[2]));
     add(Eigen::Vector3d(o.hi[0], o.hi[1], o.hi[2]));
   }
+  // The box from `lo` to `hi` (as recorded in a brick record or sent by a rank).
+  static CentreBox spanning(const double* lo, const double* hi) {
+    CentreBox box;
+    box.add(Eigen::Vector3d(lo[0], lo[1], lo[2]));
+    box.add(Eigen::Vector3d(hi[0], hi[1], hi[2]));
+    return box;
+  }
   // Whether a centre in the box may be within(·, box, grow).
   [[nodiscard]] bool meets(const io::VoxelBox& box, const std::array<int, 3>& grow) const {
     if (empty) return false;
@@ -207,10 +214,28 @@ struct CentreBox {
   }
 };
 
+// The Gaussians of `m` within(·, box, halo) of one of `boxes`, in order.
+gmf::GaussianMixture within_any(const StreamContext& c, const gmf::GaussianMixture& m,
+                                const std::vector<const io::VoxelBox*>& boxes) {
+  gmf::GaussianMixture near;
+  for (const gmf::GaussianParams& g : m) {
+    const Eigen::Vector3d ijk = index_of(c, g);
+    if (std::any_of(boxes.begin(), boxes.end(), [&](const io::VoxelBox* box) { return within(ijk, *box, c.plan.halo); })) {
+      near.push_back(g);
+    }
+  }
+  return near;
+}
+
 CentreBox centre_box(const StreamContext& c, const gmf::GaussianMixture& m) {
   CentreBox box;
   for (const gmf::GaussianParams& g : m) box.add(index_of(c, g));
   return box;
+}
+
+// "brick 6/16 (cell 1,1,0)": how every line names a brick.
+std::string brick_text(const StreamContext& c, const gmf::StreamBrick& b) {
+  return strf("brick %d/%zu (cell %d,%d,%d)", b.id + 1, c.plan.bricks.size(), b.cell[0], b.cell[1], b.cell[2]);
 }
 
 // ---- the brick folder ------------------------------------------------------
@@ -369,8 +394,7 @@ std::optional<BrickResult> load_brick(const StreamContext& c, int id) {
     if (j.contains("centres")) {
       const auto lo = j.at("centres").at(0).get<std::array<double, 3>>();
       const auto hi = j.at("centres").at(1).get<std::array<double, 3>>();
-      r.centres.add(Eigen::Vector3d(lo[0], lo[1], lo[2]));
-      r.centres.add(Eigen::Vector3d(hi[0], hi[1], hi[2]));
+      r.centres = CentreBox::spanning(lo.data(), hi.data());
     } else if (r.count > 0) {  // a record of an earlier build: read the Gaussians once
       r.centres = centre_box(c, load_gaussians(c, id, "ply", r.count));
     }
@@ -610,8 +634,7 @@ void note_for_interrupt(const StreamContext& c, const Job& ranks, const std::str
 // Writes FOLDER/rank-R.holds: "ID SIZE" for the rerun, then the line a neighbour
 // rank says if this one dies holding the brick (io::set_interrupt_watch).
 void hold_brick(const StreamContext& c, const Job& ranks, const gmf::StreamBrick& b) {
-  const std::string brick =
-      strf("brick %d/%zu (cell %d,%d,%d)", b.id + 1, c.plan.bricks.size(), b.cell[0], b.cell[1], b.cell[2]);
+  const std::string brick = brick_text(c, b);
   const std::string text = std::to_string(b.id) + " " + std::to_string(ranks.size()) + "\n" +
                            strf("rank %d of %d died (killed, crashed or out of memory) while fitting ", ranks.rank(),
                                 ranks.size()) +
@@ -645,11 +668,9 @@ void say_what_stopped_ranks_held(const StreamContext& c, const std::vector<std::
     const bool died = !std::filesystem::exists(stopped, ec);
     if (id >= 0 && id < static_cast<long long>(results.size()) && !results[static_cast<std::size_t>(id)]) {
       const gmf::StreamBrick& b = c.plan.bricks[static_cast<std::size_t>(id)];
-      progress.say("fit: the previous run's %s of %lld %s while fitting brick %lld/%zu (cell %d,%d,%d); it is "
-                   "fitted again",
+      progress.say("fit: the previous run's %s of %lld %s while fitting %s; it is fitted again",
                    name.substr(0, name.size() - 6).replace(4, 1, " ").c_str(), size,
-                   died ? "died (killed, crashed or out of memory)" : "was stopped", id + 1, results.size(),
-                   b.cell[0], b.cell[1], b.cell[2]);
+                   died ? "died (killed, crashed or out of memory)" : "was stopped", brick_text(c, b).c_str());
     }
     std::filesystem::remove(entry.path(), ec);
     std::filesystem::remove(stopped, ec);
@@ -712,16 +733,7 @@ std::vector<gmf::GaussianMixture> read_needed(const StreamContext& c, const Bric
     }
     if (!full[o] && near.empty()) continue;
     gmf::GaussianMixture m = load_gaussians(c, static_cast<int>(o), state.kind, state.count[o]);
-    if (full[o]) {
-      held[o] = std::move(m);
-      continue;
-    }
-    for (const gmf::GaussianParams& g : m) {
-      const Eigen::Vector3d ijk = index_of(c, g);
-      if (std::any_of(near.begin(), near.end(), [&](const io::VoxelBox* box) { return within(ijk, *box, c.plan.halo); })) {
-        held[o].push_back(g);
-      }
-    }
+    held[o] = full[o] ? std::move(m) : within_any(c, m, near);
   }
   return held;
 }
@@ -784,16 +796,7 @@ void send_to_later_neighbours(const StreamContext& c, std::size_t id, const gmf:
         later.push_back(&o.region);
       }
     }
-    if (later.empty()) continue;
-    gmf::GaussianMixture near;
-    for (const gmf::GaussianParams& g : m) {
-      const Eigen::Vector3d ijk = index_of(c, g);
-      if (std::any_of(later.begin(), later.end(),
-                      [&](const io::VoxelBox* box) { return within(ijk, *box, c.plan.halo); })) {
-        near.push_back(g);
-      }
-    }
-    append_record(to[r], static_cast<int>(id), near);
+    if (!later.empty()) append_record(to[r], static_cast<int>(id), within_any(c, m, later));
   }
 }
 
@@ -819,10 +822,7 @@ void publish_seam_results(const StreamContext& c, const std::vector<gmf::Gaussia
   ranks.sum_all(boxes);  // one rank gives each brick's box, the others 0: exact
   ranks.sum_all(totals);
   for (std::size_t id = 0; id < n; ++id) {
-    state.centres[id] = CentreBox{};
-    if (state.count[id] == 0) continue;
-    state.centres[id].add(Eigen::Vector3d(boxes[6 * id], boxes[6 * id + 1], boxes[6 * id + 2]));
-    state.centres[id].add(Eigen::Vector3d(boxes[6 * id + 3], boxes[6 * id + 4], boxes[6 * id + 5]));
+    state.centres[id] = state.count[id] == 0 ? CentreBox{} : CentreBox::spanning(&boxes[6 * id], &boxes[6 * id + 3]);
   }
   state.kind = "seam.ply";
   out.exchanged = totals[0];
@@ -1013,9 +1013,8 @@ BrickPass brick_pass(const StreamContext& c, const io::Stopwatch& watch, double 
     r.kept = {};  // in the folder now
     done_here += r.foreground_core;
     const int rounds = r.log.empty() ? 0 : r.log.back().round + 1;
-    progress.say("fit: brick %d/%zu (cell %d,%d,%d): %lld samples, %zu Gaussians kept, %d rounds, beta %g, %s", id + 1,
-                 n, b.cell[0], b.cell[1], b.cell[2], static_cast<long long>(r.samples), r.count, rounds,
-                 r.final_beta, format_seconds(r.seconds).c_str());
+    progress.say("fit: %s: %lld samples, %zu Gaussians kept, %d rounds, beta %g, %s", brick_text(c, b).c_str(),
+                 static_cast<long long>(r.samples), r.count, rounds, r.final_beta, format_seconds(r.seconds).c_str());
     results[static_cast<std::size_t>(id)] = std::move(r);
   });
   if (ranks.distributed()) {

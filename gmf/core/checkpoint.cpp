@@ -274,20 +274,18 @@ CheckpointMeta checkpoint_meta_from_comments(const std::vector<std::string>& com
   return parse_meta(comments, source);
 }
 
-namespace {
-std::vector<io::PlyProperty> vertex_properties() {
+std::vector<io::PlyProperty> checkpoint_properties() {
   std::vector<io::PlyProperty> props;
   props.reserve(kGaussianParamNames.size());
   for (std::string_view name : kGaussianParamNames) props.push_back({std::string(name), io::PlyType::kFloat32});
   return props;
 }
-}  // namespace
 
 io::PlyTable checkpoint_to_ply(const GaussianMixture& mixture, const CheckpointMeta& meta) {
   io::PlyTable table;
   table.comments = meta_comments(meta);
   check_checkpoint_mixture(mixture);
-  io::PlyElement vertex(std::string(kVertex), static_cast<std::int64_t>(mixture.size()), vertex_properties());
+  io::PlyElement vertex(std::string(kVertex), static_cast<std::int64_t>(mixture.size()), checkpoint_properties());
   // The rows are exactly GaussianParams' 11 packed floats (static_asserts in the header).
   static_assert(sizeof(GaussianParams) == kGaussianParamCount * sizeof(float));
   if (!mixture.empty()) std::memcpy(vertex.bytes().data(), mixture.data(), vertex.bytes().size());
@@ -388,7 +386,7 @@ std::vector<std::string> checked_comments(const fs::path& path, const Checkpoint
 CheckpointWriter::CheckpointWriter(const fs::path& path, const CheckpointMeta& meta, std::size_t count)
     : path_(path),
       rows_(path, checked_comments(path, meta), std::string(kVertex), static_cast<std::int64_t>(count),
-            vertex_properties()) {}
+            checkpoint_properties()) {}
 
 void CheckpointWriter::append(std::span<const GaussianParams> gaussians) {
   if (const std::optional<Invalid> bad = first_invalid(gaussians)) {

@@ -79,6 +79,9 @@ struct Checkpoint {
 // The compact format (gmf/core/compact_checkpoint.hpp) stores the same lines.
 [[nodiscard]] std::vector<std::string> checkpoint_comments(const CheckpointMeta& meta);
 
+// The vertex properties a checkpoint writes: kGaussianParamNames, float32 each.
+[[nodiscard]] std::vector<io::PlyProperty> checkpoint_properties();
+
 // Throws std::invalid_argument ("gaussian 17: scale_1 is nan") for the first
 // Gaussian no checkpoint may hold: a non-finite parameter or an all-zero quaternion.
 void check_checkpoint_mixture(const GaussianMixture& mixture);
