@@ -226,10 +226,16 @@ RoundOutcome solve_lbfgs(RoundProblem& r, const RoundContext& c) {
 // is not started when it would end past the time left. The logged loss is measured
 // at the report model's β when that differs from the solved one.
 RoundOutcome solve_adam(RoundProblem& r, const RoundContext& c, Adam<double>& adam) {
-  const FitObjective objective(c.samples, r.index, r.params.size(), c.model);
-  std::optional<FitObjective> report;
-  if (c.report.beta != c.model.beta) report.emplace(c.samples, r.index, r.params.size(), c.report);
   double* x = r.x();
+  // The frozen Gaussians (gmf.frozen: a seam refit's neighbours) are combined once.
+  const std::size_t frozen = std::min(c.options.frozen, r.params.size());
+  FitObjective objective(c.samples, r.index, r.params.size(), c.model);
+  objective.hold_fixed(x, frozen);
+  std::optional<FitObjective> report;
+  if (c.report.beta != c.model.beta) {
+    report.emplace(c.samples, r.index, r.params.size(), c.report);
+    report->hold_fixed(x, frozen);
+  }
   const std::size_t n = objective.parameters();
   if (adam.gaussians() != n / kGaussianParamCount) adam = Adam<double>(AdamOptions{}, n / kGaussianParamCount);
   std::vector<double> g(n);

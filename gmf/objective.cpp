@@ -13,6 +13,8 @@
 #include <array>
 #include <cmath>
 #include <span>
+#include <stdexcept>
+#include <string>
 #include <vector>
 
 #include "gmf/detail/candidates.hpp"
@@ -43,6 +45,21 @@ struct FitObjective::Blocks {
   // Per listed block, the ball holding its samples: centre (their mean) and
   // radius (their largest distance from it, with a relative margin of 1e-9).
   std::vector<std::array<double, 4>> ball;
+  // After hold_fixed: Gaussians [0, frozen) are held; listed block c's free
+  // candidates are free[free_begin[c] .. free_begin[c + 1]), and fixed[s] holds
+  // the held terms at sample s.
+  std::size_t frozen = 0;
+  std::vector<std::size_t> free_begin;
+  std::vector<std::uint32_t> free;
+  std::vector<PointTerms<double>> fixed;
+
+  [[nodiscard]] std::span<const std::uint32_t> candidates(std::size_t c) const {
+    if (frozen == 0) return index->of(block[c]);
+    return {free.data() + free_begin[c], free.data() + free_begin[c + 1]};
+  }
+  [[nodiscard]] const PointTerms<double>* held_terms(std::uint32_t s) const {
+    return fixed.empty() ? nullptr : &fixed[s];
+  }
 };
 
 FitObjective::FitObjective(const SampleSet& samples, const BlockIndex& index, std::size_t gaussians,
@@ -58,7 +75,7 @@ FitObjective::FitObjective(const SampleSet& samples, const BlockIndex& index, st
     if (ids.empty()) {
       if (foreground) {
         for (std::uint32_t s = samples.block_begin[b]; s < samples.block_begin[b + 1]; ++s) {
-          unreached_foreground_se_ += samples.value[s] * samples.value[s];
+          constant_foreground_se_ += samples.value[s] * samples.value[s];
         }
       }
       continue;
@@ -113,8 +130,9 @@ void select_near(std::span<const std::uint32_t> candidates, const std::vector<do
 // The model at sample x: s.terms (the near candidates within the support) and f,
 // the sum or the softmax-weighted mean Σ w_k g_k, w = softmax(β g), with
 // e^{β (g_k − max g)} computed once and kept for ∂f/∂g_k; `S` the softmax's Σ w.
+// `fixed` (or null): the held Gaussians' terms at x, which join the near ones.
 double sample_value(const double x[3], const std::vector<GaussianFrame<double>>& frames, const MixtureModel& model,
-                    ChunkScratch& s, double& S) {
+                    const PointTerms<double>* fixed, ChunkScratch& s, double& S) {
   s.terms.clear();
   double sum = 0, top = -INFINITY;
   detail::candidate_distances(s.pack, x, s.m.data(), s.e.data(), s.z.data());
@@ -131,10 +149,18 @@ double sample_value(const double x[3], const std::vector<GaussianFrame<double>>&
     s.terms.push_back(t);
   }
   S = 0;
-  if (model.aggregation != Aggregation::kSoftmax) return sum;
-  if (s.terms.empty()) return 0;
+  if (model.aggregation != Aggregation::kSoftmax) return fixed ? fixed->sum + sum : sum;
+  const bool held = fixed != nullptr && fixed->soft.S > 0;
+  if (s.terms.empty()) return held ? softmax_value(fixed->soft) : 0.0;
+  // e^{β g − shift β} for every term, shift the largest g of free and held alike
+  const double shift = held ? std::max(top, fixed->soft.m / model.beta) : top;
   double W = 0;
-  detail::shifted_exp(s.g.data(), s.terms.size(), model.beta, top, s.w.data());
+  if (held) {
+    const double r = std::exp(fixed->soft.m - model.beta * shift);
+    S = fixed->soft.S * r;
+    W = fixed->soft.W * r;
+  }
+  detail::shifted_exp(s.g.data(), s.terms.size(), model.beta, shift, s.w.data());
   for (std::size_t i = 0; i < s.terms.size(); ++i) {
     Term& t = s.terms[i];
     t.w = s.w[i];
@@ -178,7 +204,99 @@ void finish_gradient(const GaussianFrame<double>& fr, const double (&a)[kAccCoun
   out[kLogit] = sigmoid_vjp(fr.a, a[kAccA]);
 }
 
+// The frames and candidate rows (detail::kGaussianRow each) of Gaussians [from, K)
+// of `params`; those before `from` are left as they are.
+void prepare_frames(const double* params, std::size_t from, std::size_t K, std::vector<GaussianFrame<double>>& frames,
+                    std::vector<double>& rows) {
+  frames.resize(K);
+  rows.resize(K * detail::kGaussianRow);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(from, K, 256), [&](const tbb::blocked_range<std::size_t>& range) {
+    for (std::size_t k = range.begin(); k != range.end(); ++k) {
+      prepare_gaussian(params + kGaussianParamCount * k, frames[k]);
+      detail::write_candidate_row(frames[k], rows.data() + k * detail::kGaussianRow);
+    }
+  });
+}
+
+// A candidate whose √m at the block's centre exceeds √cutoff by more than
+// max_inv_scale × the block's radius reaches none of its samples (√m is a norm
+// of x − μ). The margin keeps the test conservative under rounding, so the
+// terms are exactly those of testing each sample.
+double reach_of(const MixtureModel& model) { return std::sqrt(model.cutoff) * (1 + 1e-9) + 1e-12; }
+
+// The terms of s.pack's candidates (s.near) at x, combined as `model` says.
+PointTerms<double> terms_at(const double x[3], const std::vector<GaussianFrame<double>>& frames,
+                            const MixtureModel& model, ChunkScratch& s) {
+  PointTerms<double> t = no_terms<double>();
+  detail::candidate_distances(s.pack, x, s.m.data(), s.e.data(), s.z.data());
+  for (std::size_t i = 0; i < s.pack.size; ++i) {
+    if (s.m[i] <= model.cutoff) add_term(t, frames[s.near[i]].a * s.e[i], model);
+  }
+  return t;
+}
+
 }  // namespace
+
+void FitObjective::hold_fixed(const double* params, std::size_t frozen) {
+  Blocks& bl = *blocks_;
+  if (frozen == 0) return;
+  if (bl.frozen > 0 || frozen > gaussians_) {
+    throw std::invalid_argument("FitObjective::hold_fixed: " + std::to_string(frozen) + " of " +
+                                std::to_string(gaussians_) + " Gaussians, " + std::to_string(bl.frozen) +
+                                " held already");
+  }
+  const SampleSet& sm = *bl.samples;
+  std::vector<GaussianFrame<double>> frames;
+  std::vector<double> rows;
+  prepare_frames(params, 0, frozen, frames, rows);
+  const double reach = reach_of(bl.model);
+  const std::size_t blocks = bl.block.size();
+  bl.fixed.assign(sm.size(), no_terms<double>());
+  std::vector<std::vector<std::uint32_t>> free_of(blocks);
+  std::vector<double> block_loss(blocks, 0.0), block_fg(blocks, 0.0);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, blocks, 16), [&](const tbb::blocked_range<std::size_t>& range) {
+    ChunkScratch scratch;
+    std::vector<std::uint32_t> held;
+    for (std::size_t c = range.begin(); c != range.end(); ++c) {
+      const std::size_t b = bl.block[c];
+      held.clear();
+      for (std::uint32_t k : bl.index->of(b)) (k < frozen ? held : free_of[c]).push_back(k);
+      if (held.empty()) continue;
+      select_near(held, rows, bl.ball[c], reach, scratch);
+      for (std::uint32_t s = sm.block_begin[b]; s < sm.block_begin[b + 1]; ++s) {
+        const double x[3] = {sm.x[s], sm.y[s], sm.z[s]};
+        bl.fixed[s] = terms_at(x, frames, bl.model, scratch);
+        if (!free_of[c].empty()) continue;
+        // reached by held Gaussians alone: a constant residual
+        const double d = terms_value(bl.fixed[s], bl.model) - sm.value[s];
+        block_loss[c] += 0.5 * sm.weight[s] * sm.weight[s] * d * d;
+        if (sm.block_begin[b] < sm.foreground) block_fg[c] += d * d;
+      }
+    }
+  });
+  // The blocks with free candidates stay listed; the others join the constant (in block order).
+  std::vector<std::size_t> kept;
+  bl.free_begin.assign(1, 0);
+  for (std::size_t c = 0; c < blocks; ++c) {
+    if (free_of[c].empty()) {
+      constant_ += block_loss[c];
+      constant_foreground_se_ += block_fg[c];
+      continue;
+    }
+    kept.push_back(c);
+    bl.free.insert(bl.free.end(), free_of[c].begin(), free_of[c].end());
+    bl.free_begin.push_back(bl.free.size());
+  }
+  for (std::size_t i = 0; i < kept.size(); ++i) {
+    bl.block[i] = bl.block[kept[i]];
+    bl.ball[i] = bl.ball[kept[i]];
+  }
+  bl.block.resize(kept.size());
+  bl.ball.resize(kept.size());
+  bl.frozen = frozen;
+}
+
+std::size_t FitObjective::held() const { return blocks_->frozen; }
 
 double FitObjective::evaluate(const double* params, double* gradient, double* foreground_se) const {
   // Fixed chunks of residual blocks, each reduced sequentially into its own buffer
@@ -188,20 +306,10 @@ double FitObjective::evaluate(const double* params, double* gradient, double* fo
   const SampleSet& sm = *bl.samples;
   const MixtureModel& model = bl.model;
   const std::size_t K = gaussians_;
-  std::vector<GaussianFrame<double>> frames(K);
-  // Per Gaussian, one row of its candidate fields (detail::kGaussianRow).
-  std::vector<double> rows(K * detail::kGaussianRow);
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, K, 256), [&](const tbb::blocked_range<std::size_t>& range) {
-    for (std::size_t k = range.begin(); k != range.end(); ++k) {
-      prepare_gaussian(params + kGaussianParamCount * k, frames[k]);
-      detail::write_candidate_row(frames[k], rows.data() + k * detail::kGaussianRow);
-    }
-  });
-  // A candidate whose √m at the block's centre exceeds √cutoff by more than
-  // max_inv_scale × the block's radius reaches none of its samples (√m is a norm
-  // of x − μ). The margin keeps the test conservative under rounding, so the
-  // terms are exactly those of testing each sample.
-  const double reach = std::sqrt(model.cutoff) * (1 + 1e-9) + 1e-12;
+  std::vector<GaussianFrame<double>> frames;
+  std::vector<double> rows;  // per Gaussian, one row of its candidate fields
+  prepare_frames(params, bl.frozen, K, frames, rows);
+  const double reach = reach_of(model);
   const std::size_t blocks = bl.block.size();
   std::vector<double> chunk_loss(kChunks, 0.0), chunk_fg(kChunks, 0.0);
   std::vector<std::vector<double>> chunk_acc(kChunks);
@@ -214,11 +322,11 @@ double FitObjective::evaluate(const double* params, double* gradient, double* fo
     for (std::size_t c = begin; c < end; ++c) {
       const std::size_t b = bl.block[c];
       const bool foreground = sm.block_begin[b] < sm.foreground;
-      select_near(bl.index->of(b), rows, bl.ball[c], reach, scratch);
+      select_near(bl.candidates(c), rows, bl.ball[c], reach, scratch);
       for (std::uint32_t s = sm.block_begin[b]; s < sm.block_begin[b + 1]; ++s) {
         const double x[3] = {sm.x[s], sm.y[s], sm.z[s]};
         double S = 0;
-        const double f = sample_value(x, frames, model, scratch, S);
+        const double f = sample_value(x, frames, model, bl.held_terms(s), scratch, S);
         const double weight = sm.weight[s];
         const double r = weight * (f - sm.value[s]);
         loss += 0.5 * r * r;
@@ -230,7 +338,7 @@ double FitObjective::evaluate(const double* params, double* gradient, double* fo
     chunk_fg[chunk] = fg;
   });
   double loss = constant_;
-  if (foreground_se) *foreground_se = unreached_foreground_se_;
+  if (foreground_se) *foreground_se = constant_foreground_se_;
   for (std::size_t chunk = 0; chunk < kChunks; ++chunk) {
     loss += chunk_loss[chunk];
     if (foreground_se) *foreground_se += chunk_fg[chunk];
@@ -239,6 +347,10 @@ double FitObjective::evaluate(const double* params, double* gradient, double* fo
   // Per Gaussian: the chunks' sums in chunk order, then the once-per-Gaussian VJPs.
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, K, 256), [&](const tbb::blocked_range<std::size_t>& range) {
     for (std::size_t k = range.begin(); k != range.end(); ++k) {
+      if (k < bl.frozen) {  // held: no gradient
+        std::fill_n(gradient + kGaussianParamCount * k, kGaussianParamCount, 0.0);
+        continue;
+      }
       double a[kAccCount] = {};
       for (std::size_t chunk = 0; chunk < kChunks; ++chunk) {
         const double* src = chunk_acc[chunk].data() + kAccCount * k;

@@ -29,15 +29,26 @@ class FitObjective {
   // chunks of residual blocks, combined in chunk order (deterministic).
   double evaluate(const double* params, double* gradient, double* foreground_se = nullptr) const;
   [[nodiscard]] std::size_t parameters() const { return kGaussianParamCount * gaussians_; }
-  // ½ Σ (w V)² of the samples no Gaussian reaches (included in evaluate()).
+  // ½ Σ (w V)² of the samples no Gaussian reaches (included in evaluate()); after
+  // hold_fixed, also ½ Σ w² (f − V)² of those only held Gaussians reach.
   [[nodiscard]] double constant() const { return constant_; }
+
+  // Holds Gaussians [0, frozen) fixed at their values in `params`: their terms at
+  // every sample are combined once (PointTerms), the sample blocks only they reach
+  // join the constant, and evaluate() then reads and differentiates the others
+  // alone (the held ones' entries of `params` are not read; their gradient is 0).
+  // The value is the same function as before (up to rounding: the held terms are
+  // combined first). For a seam refit, where most Gaussians are neighbours held
+  // fixed, a step costs what the free ones reach. Once per objective.
+  void hold_fixed(const double* params, std::size_t frozen);
+  [[nodiscard]] std::size_t held() const;
 
  private:
   struct Blocks;
   std::unique_ptr<Blocks> blocks_;
   std::size_t gaussians_;
   double constant_ = 0;
-  double unreached_foreground_se_ = 0;  // Σ V² of the foreground samples no Gaussian reaches
+  double constant_foreground_se_ = 0;  // Σ (f − V)² of the foreground samples no free Gaussian reaches
 };
 
 // The residuals of every sample, r_j = w_j (f(x_j) − V_j) in sample order, and

@@ -237,6 +237,71 @@ TEST(GmfObjective, FusedGradientEqualsBlockCostJacobianTimesResidual) {
   }
 }
 
+// hold_fixed: with half the Gaussians held, the value and foreground error equal
+// the whole objective's (the held parameters are not read again) and the free
+// Gaussians' gradient equals its share of the whole gradient, the held ones' is 0;
+// for the sum and the softmax, with the blocks only held Gaussians reach moved
+// into the constant. With an unbounded support (no term leaves as a Gaussian
+// moves) the gradient is also the Ridders derivative of the held value.
+TEST(GmfObjective, HoldingGaussiansFixedKeepsTheValueAndTheFreeGradient) {
+  const Scene scene = make_scene(37);
+  const io::SparseGrid grid = grid_of(scene, 0.05);
+  const SampleSet samples = extract_samples(grid, 2.0, 2);
+  std::mt19937_64 rng(38);
+  std::normal_distribution<double> n(0, 1);
+  GaussianMixture m = scene.truth;
+  for (auto& g : m) {
+    for (int a = 0; a < 3; ++a) g.mean[a] += static_cast<float>(0.4 * scene.frame.voxel_size().x() * n(rng));
+    g.intensity_logit += static_cast<float>(0.5 * n(rng));
+  }
+  const std::vector<double> x = flat_of(m);
+  const std::size_t frozen = m.size() / 2, held_params = kGaussianParamCount * frozen;
+  for (const MixtureModel model : {MixtureModel{.cutoff = 16.0},
+                                   MixtureModel{.aggregation = Aggregation::kSoftmax, .beta = 8.0, .cutoff = 16.0},
+                                   MixtureModel{.aggregation = Aggregation::kSoftmax, .beta = 64.0, .cutoff = 9.0},
+                                   MixtureModel{.cutoff = 1e9},
+                                   MixtureModel{.aggregation = Aggregation::kSoftmax, .beta = 8.0, .cutoff = 1e9}}) {
+    SCOPED_TRACE(::testing::Message() << "beta " << model.beta << ", cutoff " << model.cutoff);
+    const bool bounded = model.cutoff < 100;
+    const BlockIndex index = build_block_index(m, samples, scene.frame, model.cutoff);
+    const FitObjective whole(samples, index, m.size(), model);
+    FitObjective held(samples, index, m.size(), model);
+    held.hold_fixed(x.data(), frozen);
+    EXPECT_EQ(held.held(), frozen);
+    if (bounded) {
+      EXPECT_GT(held.constant(), whole.constant()) << "some blocks are reached by held Gaussians alone";
+    }
+    // The free Gaussians moved; the held entries of z are not read (NaN).
+    std::vector<double> y = x;
+    for (std::size_t i = held_params; i < y.size(); ++i) y[i] += 0.02 * n(rng);
+    std::vector<double> z = y;
+    std::fill_n(z.begin(), held_params, std::nan(""));
+    std::vector<double> gw(x.size()), gh(x.size());
+    double fg_whole = 0, fg_held = 0;
+    const double lw = whole.evaluate(y.data(), gw.data(), &fg_whole);
+    const double lh = held.evaluate(z.data(), gh.data(), &fg_held);
+    EXPECT_NEAR(lh, lw, 1e-11 * lw);
+    EXPECT_NEAR(fg_held, fg_whole, 1e-11 * fg_whole);
+    double largest = 0;
+    for (double g : gw) largest = std::max(largest, std::abs(g));
+    ASSERT_GT(largest, 0.0);
+    for (std::size_t i = 0; i < x.size(); ++i) {
+      ASSERT_NEAR(gh[i], i < held_params ? 0.0 : gw[i], 1e-9 * largest) << "parameter " << i;
+    }
+    if (bounded) continue;
+    for (std::size_t i : {held_params, held_params + 5, held_params + 2 * kGaussianParamCount + kLogit, y.size() - 3}) {
+      auto f = [&](double v) {
+        std::vector<double> w = z;
+        w[i] = v;
+        return held.evaluate(w.data(), nullptr);
+      };
+      const double h0 = (i % kGaussianParamCount) <= kMeanZ ? 0.1 * scene.frame.voxel_size().x() : 0.01;
+      const double fd = testing::ridders_derivative(f, z[i], h0);
+      EXPECT_NEAR(gh[i], fd, 1e-6 * std::max({std::abs(gh[i]), std::abs(fd), 1e-3 * largest})) << "parameter " << i;
+    }
+  }
+}
+
 // Evaluation does not depend on the thread count: the loss and gradient with one
 // TBB thread equal those with two bit for bit (fixed chunks combined in order).
 TEST(GmfObjective, ValueAndGradientAreIdenticalForOneAndTwoThreads) {
