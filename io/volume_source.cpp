@@ -126,20 +126,23 @@ std::unique_ptr<VolumeSource> memory_source(Volume volume) { return std::make_un
 
 namespace {
 
-// Calls fn(box, values) for slabs of the stack in order: whole pages while a page is
-// under slab_bytes of float32, else bands of rows of one page.
+// for_each_slab, with the callback inlined for the statistics' own passes.
 template <class F>
-void for_each_slab(const VolumeSource& source, std::size_t slab_bytes, F&& fn) {
+void slabs_of(const VolumeSource& source, std::size_t slab_bytes, const ScanShare& share, F&& fn) {
   const std::size_t row = 4 * static_cast<std::size_t>(source.nx);
   const std::size_t page = row * static_cast<std::size_t>(source.ny);
   const int depth = static_cast<int>(std::clamp<std::size_t>(slab_bytes / page, 1, static_cast<std::size_t>(source.nz)));
   const int rows = page <= slab_bytes ? source.ny
                                       : static_cast<int>(std::clamp<std::size_t>(slab_bytes / row, 1,
                                                                                   static_cast<std::size_t>(source.ny)));
+  const auto page_of = [&](int part) {
+    return static_cast<int>(static_cast<std::int64_t>(source.nz) * part / std::max(1, share.parts));
+  };
+  const int z0 = page_of(share.part), z1 = page_of(share.part + 1);
   std::vector<float> block;
-  for (int z = 0; z < source.nz; z += depth) {
+  for (int z = z0; z < z1; z += depth) {
     for (int y = 0; y < source.ny; y += rows) {
-      const VoxelBox box{{0, y, z}, {source.nx, std::min(source.ny, y + rows), std::min(source.nz, z + depth)}};
+      const VoxelBox box{{0, y, z}, {source.nx, std::min(source.ny, y + rows), std::min(z1, z + depth)}};
       block.resize(box.voxels());
       source.read(box, block.data());
       fn(box, std::span<const float>(block));
@@ -147,7 +150,20 @@ void for_each_slab(const VolumeSource& source, std::size_t slab_bytes, F&& fn) {
   }
 }
 
+// Counts summed over the parts (exact: doubles hold integers to 2^53).
+void sum_counts(const ScanShare& share, std::span<std::int64_t> counts) {
+  if (!share.shared()) return;
+  std::vector<double> values(counts.begin(), counts.end());
+  share.sum(values);
+  for (std::size_t i = 0; i < counts.size(); ++i) counts[i] = static_cast<std::int64_t>(values[i]);
+}
+
 }  // namespace
+
+void for_each_slab(const VolumeSource& source, std::size_t slab_bytes, const ScanShare& share,
+                   const std::function<void(const VoxelBox& box, std::span<const float> values)>& fn) {
+  slabs_of(source, slab_bytes, share, fn);
+}
 
 double SourceStatistics::percentile(double p) const {
   if (voxels == 0) return 0.0;
@@ -176,13 +192,13 @@ double SourceStatistics::percentile(double p) const {
   return a + (pos - static_cast<double>(k)) * (b - a);
 }
 
-SourceStatistics scan_statistics(const VolumeSource& source, std::size_t slab_bytes) {
+SourceStatistics scan_statistics(const VolumeSource& source, std::size_t slab_bytes, const ScanShare& share) {
   SourceStatistics st;
   const bool integer = source.stored_as != SampleType::kFloat32;
   if (integer) st.histogram.assign(source.stored_as == SampleType::kUint8 ? 256 : 65536, 0);
   st.min = std::numeric_limits<double>::infinity();
   st.max = -std::numeric_limits<double>::infinity();
-  for_each_slab(source, slab_bytes, [&](const VoxelBox& box, std::span<const float> block) {
+  slabs_of(source, slab_bytes, share, [&](const VoxelBox& box, std::span<const float> block) {
     for (const float v : block) {
       if (!std::isfinite(v)) {
         fail_input(source.source, "holds a NaN/Inf voxel in pages " + std::to_string(box.lo[2]) + "..");
@@ -193,16 +209,25 @@ SourceStatistics scan_statistics(const VolumeSource& source, std::size_t slab_by
     }
     st.voxels += static_cast<std::int64_t>(block.size());
   });
+  if (share.shared()) {
+    double extremes[2] = {-st.min, st.max};
+    share.max(extremes);
+    st.min = -extremes[0];
+    st.max = extremes[1];
+    sum_counts(share, std::span<std::int64_t>(&st.voxels, 1));
+    sum_counts(share, st.histogram);
+  }
   if (!integer && st.voxels > 0 && st.max > st.min) {
     // float32: a second pass into kFloatBins equal bins over [min, max]
     st.bin_width = (st.max - st.min) / static_cast<double>(SourceStatistics::kFloatBins);
     st.histogram.assign(SourceStatistics::kFloatBins, 0);
-    for_each_slab(source, slab_bytes, [&](const VoxelBox&, std::span<const float> block) {
+    slabs_of(source, slab_bytes, share, [&](const VoxelBox&, std::span<const float> block) {
       for (const float v : block) {
         const auto b = static_cast<std::size_t>((static_cast<double>(v) - st.min) / st.bin_width);
         ++st.histogram[std::min(b, SourceStatistics::kFloatBins - 1)];
       }
     });
+    sum_counts(share, st.histogram);
   }
   return st;
 }
@@ -242,7 +267,7 @@ Normalization normalization_from(const SourceStatistics& stats, const Normalizat
 }
 
 std::int64_t count_above(const VolumeSource& source, const SourceStatistics& stats, const Normalization& map,
-                         double threshold, std::size_t slab_bytes) {
+                         double threshold, std::size_t slab_bytes, const ScanShare& share) {
   std::int64_t n = 0;
   if (!stats.histogram.empty() && stats.bin_width == 0) {
     // 8/16-bit: every stored value normalized once, as apply_normalization does
@@ -253,11 +278,12 @@ std::int64_t count_above(const VolumeSource& source, const SourceStatistics& sta
     return n;
   }
   std::vector<float> normalized;
-  for_each_slab(source, slab_bytes, [&](const VoxelBox&, std::span<const float> block) {
+  slabs_of(source, slab_bytes, share, [&](const VoxelBox&, std::span<const float> block) {
     normalized.assign(block.begin(), block.end());
     (void)apply_normalization(normalized, map);
     n += std::count_if(normalized.begin(), normalized.end(), [&](float v) { return v > threshold; });
   });
+  sum_counts(share, std::span<std::int64_t>(&n, 1));
   return n;
 }
 

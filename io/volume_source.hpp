@@ -10,6 +10,7 @@
 #include <array>
 #include <cstdint>
 #include <filesystem>
+#include <functional>
 #include <memory>
 #include <span>
 #include <string>
@@ -71,9 +72,27 @@ struct SourceStatistics {
   // over it (and clipped_voxels is not counted).
   [[nodiscard]] double percentile(double p) const;
 };
+// The processes of a job scanning one stack together: process `part` of `parts`
+// reads pages [nz·part/parts, nz·(part+1)/parts) and the partial results meet in
+// `sum` (element-wise sums) and `max` (element-wise maxima), each leaving the
+// whole's values on every process. The results are counts, minima and maxima,
+// so they equal one process's exactly whatever `parts`. Alone: the defaults.
+struct ScanShare {
+  int part = 0, parts = 1;
+  std::function<void(std::span<double>)> sum, max;
+  [[nodiscard]] bool shared() const { return parts > 1; }
+};
+
+// Calls fn(box, values) for slabs of the stack in z order (of this part's pages
+// when shared): whole pages while a page is under slab_bytes of float32, else
+// bands of rows of one page. The pass every statistic here is made of.
+void for_each_slab(const VolumeSource& source, std::size_t slab_bytes, const ScanShare& share,
+                   const std::function<void(const VoxelBox& box, std::span<const float> values)>& fn);
+
 // One streaming pass (two for float32): slabs of whole pages, or bands of rows of
-// one page, each at most slab_bytes of float32.
-[[nodiscard]] SourceStatistics scan_statistics(const VolumeSource& source, std::size_t slab_bytes = 256u << 20);
+// one page, each at most slab_bytes of float32; this part's pages when shared.
+[[nodiscard]] SourceStatistics scan_statistics(const VolumeSource& source, std::size_t slab_bytes = 256u << 20,
+                                               const ScanShare& share = {});
 
 // The map normalize() would apply to the whole stack, from its statistics (the same
 // errors: a constant stack, percentiles that coincide).
@@ -84,6 +103,6 @@ struct SourceStatistics {
 // histogram of an 8/16-bit stack, else (float32) one more pass of slabs.
 [[nodiscard]] std::int64_t count_above(const VolumeSource& source, const SourceStatistics& stats,
                                        const Normalization& map, double threshold,
-                                       std::size_t slab_bytes = 256u << 20);
+                                       std::size_t slab_bytes = 256u << 20, const ScanShare& share = {});
 
 }  // namespace hisnegs::io

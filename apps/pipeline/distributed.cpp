@@ -31,6 +31,7 @@ class SingleProcess final : public Job {
   void merge_soft_to_root(std::span<splat::SoftPixel>) const override {}
   void sum_all(std::span<float>) const override {}
   void sum_all(std::span<double>) const override {}
+  void max_all(std::span<double>) const override {}
   void broadcast(std::span<double>) const override {}
   void broadcast(std::vector<unsigned char>&, int) const override {}
   [[nodiscard]] std::vector<std::vector<unsigned char>> exchange(
@@ -73,6 +74,11 @@ class MpiWorld final : public Job {
   }
   void sum_all(std::span<double> values) const override {
     sum_all(values.data(), values.size(), MPI_DOUBLE, ordered_sum_op<double>());
+  }
+  void max_all(std::span<double> values) const override {
+    in_pieces(values.size(), [&](std::size_t at, int n) {
+      MPI_Allreduce(MPI_IN_PLACE, values.data() + at, n, MPI_DOUBLE, MPI_MAX, MPI_COMM_WORLD);
+    });
   }
   void broadcast(std::span<double> values) const override {
     MPI_Bcast(values.data(), static_cast<int>(values.size()), MPI_DOUBLE, 0, MPI_COMM_WORLD);
@@ -265,6 +271,15 @@ void open_on_every_rank(const Job& job, const std::function<void()>& open) {
     job.barrier();
     job.abort(2);  // not reached unless the failing rank exits without aborting
   }
+}
+
+io::ScanShare scan_share(const Job& job) {
+  io::ScanShare share;
+  share.part = job.rank();
+  share.parts = job.size();
+  share.sum = [&job](std::span<double> values) { job.sum_all(values); };
+  share.max = [&job](std::span<double> values) { job.max_all(values); };
+  return share;
 }
 
 std::string rank_prefix(const Job& job) {

@@ -20,6 +20,7 @@
 #include <string>
 #include <vector>
 
+#include "io/volume_source.hpp"
 #include "splat/render_views.hpp"
 
 namespace hisnegs::apps {
@@ -47,6 +48,9 @@ class Job {
   // order than one process's, so not bit-equal to it.
   virtual void sum_all(std::span<float> values) const = 0;
   virtual void sum_all(std::span<double> values) const = 0;
+  // values[i] = the max of values[i] over the ranks, on every rank (MPI_Allreduce
+  // with MPI_MAX: exact).
+  virtual void max_all(std::span<double> values) const = 0;
   // Rank 0's values on every rank.
   virtual void broadcast(std::span<double> values) const = 0;
   // Rank `root`'s bytes (and their count) on every rank.
@@ -75,6 +79,10 @@ class Job {
 // error ends the job), the others wait for that end, so no rank starts work the job
 // will not finish. Alone: open().
 void open_on_every_rank(const Job& job, const std::function<void()>& open);
+
+// The ranks of `job` scanning a stack's statistics together (io::ScanShare): each
+// reads its share of the pages; the counts and extremes meet exactly.
+[[nodiscard]] io::ScanShare scan_share(const Job& job);
 
 // "rank 1 of 4: " when distributed, else "".
 [[nodiscard]] std::string rank_prefix(const Job& job);

@@ -125,17 +125,9 @@ void write_streamed_sets(const std::filesystem::path& dir, const std::filesystem
   loaded.volume.spacing = source->spacing;
   loaded.volume.stored_as = source->stored_as;
   loaded.volume.source = volume_path.string();
-  // Rank 0 makes the statistics pass (or reads the run's cache); the others take its map.
-  if (ranks.root()) loaded.volume.normalization = source_normalization(*source, vo, volume_path, reading, progress);
-  if (ranks.distributed()) {
-    io::Normalization& n = loaded.volume.normalization;
-    double shared[4] = {static_cast<double>(n.method), n.raw_lo, n.raw_hi, static_cast<double>(n.clipped_voxels)};
-    ranks.broadcast(shared);
-    n.method = static_cast<io::NormalizationMethod>(static_cast<int>(shared[0]));
-    n.raw_lo = shared[1];
-    n.raw_hi = shared[2];
-    n.clipped_voxels = static_cast<std::int64_t>(shared[3]);
-  }
+  // The ranks make the statistics pass together (or read the run's cache).
+  loaded.volume.normalization =
+      source_normalization(*source, vo, volume_path, reading, ranks.root() ? progress : Progress{}, scan_share(ranks));
   loaded.frame = io::stack_frame(source->nx, source->ny, source->nz, source->spacing, vo.aspect, volume_path);
   progress.say("gt: %s (X=%d Y=%d Z=%d) read by bricks of %d voxels: statistics (%s) in %s", volume_path.c_str(),
                source->nx, source->ny, source->nz, core_voxels, loaded.volume.normalization.describe().c_str(),

@@ -82,7 +82,7 @@ std::string statistics_key(const std::filesystem::path& volume, const io::Volume
 
 io::Normalization source_normalization(const io::VolumeSource& source, const io::VolumeOptions& options,
                                        const std::filesystem::path& volume, const StackReading& reading,
-                                       const Progress& progress) {
+                                       const Progress& progress, const io::ScanShare& share) {
   const std::filesystem::path& cache = reading.statistics_cache;
   const std::string key = cache.empty() ? "" : statistics_key(volume, options);
   std::error_code ec;
@@ -102,8 +102,8 @@ io::Normalization source_normalization(const io::VolumeSource& source, const io:
     }
   }
   const io::Normalization n =
-      io::normalization_from(io::scan_statistics(source, 64u << 20), options.normalization, volume.string());
-  if (!cache.empty()) {
+      io::normalization_from(io::scan_statistics(source, 64u << 20, share), options.normalization, volume.string());
+  if (!cache.empty() && share.part == 0) {
     const nlohmann::json j{{"key", key},
                            {"raw_lo", n.raw_lo},
                            {"raw_hi", n.raw_hi},

@@ -62,10 +62,13 @@ struct BrickNeed {
 // The normalization load_volume would give `source` (the file `volume`, read with
 // `options`): from reading.statistics_cache when it holds the pass of this very file
 // (size, time, inode) and these options, else one streaming pass, then cached there.
-// A cache that cannot be written is said through `progress`, not thrown.
+// A cache that cannot be written is said through `progress`, not thrown. Shared
+// (the ranks of a job, all calling it): each reads the cache (the same file, so the
+// same answer) or its share of the pages; part 0 writes the cache.
 [[nodiscard]] io::Normalization source_normalization(const io::VolumeSource& source, const io::VolumeOptions& options,
                                                      const std::filesystem::path& volume, const StackReading& reading,
-                                                     const Progress& progress = Progress{});
+                                                     const Progress& progress = Progress{},
+                                                     const io::ScanShare& share = {});
 
 // The sparse grid of `volume` (volume options, sparse options): from the loaded stack
 // when it fits, else built tile by tile from its source (io::build_sparse_grid), the

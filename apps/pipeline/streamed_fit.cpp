@@ -9,9 +9,11 @@
 #endif
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstring>
 #include <fstream>
+#include <numeric>
 #include <optional>
 #include <stdexcept>
 #include <nlohmann/json.hpp>
@@ -112,6 +114,7 @@ struct StreamContext {
   io::WorldFrame frame;
   gmf::BrickPlan plan;
   std::int64_t foreground = 0;  // voxels above sparse_grid.threshold, whole stack
+  std::vector<std::int64_t> core_foreground;  // per brick (its core); counted on several ranks only
   double max_memory = 0;        // bytes (FitPlanChoice)
   std::string fingerprint;
   std::filesystem::path folder;
@@ -300,6 +303,7 @@ void write_plan(const StreamContext& c, const io::SourceStatistics& stats) {
   j["raw_lo"] = c.normalization.raw_lo;
   j["raw_hi"] = c.normalization.raw_hi;
   j["foreground"] = c.foreground;
+  if (!c.core_foreground.empty()) j["core_foreground"] = c.core_foreground;
   j["voxels"] = stats.voxels;
   const std::string text = j.dump(2) + "\n";
   io::write_file_atomic(c.folder / "plan.json", text.data(), text.size());
@@ -560,54 +564,69 @@ double core_squared_error(const StreamContext& c, const gmf::StreamBrick& b, gmf
   return sse;
 }
 
-// The normalization and foreground count: from plan.json when resuming (the same
-// fingerprint), else one streaming pass, recorded in a new plan.json.
-void load_or_scan_statistics(StreamContext& c, const Progress& progress) {
-  const io::VolumeOptions& vo = c.config->get<&AppConfig::volume>();
-  const std::string& volume = c.path;
-  const FitConfig& config = *c.config;
-  const std::optional<nlohmann::json> plan = existing_plan(c);
-  if (plan && plan->contains("raw_lo")) {
-    c.normalization.method = vo.normalization.method;
-    c.normalization.raw_lo = plan->at("raw_lo").get<double>();
-    c.normalization.raw_hi = plan->at("raw_hi").get<double>();
-    c.foreground = plan->at("foreground").get<std::int64_t>();
-    progress.say("fit: resuming from %s (normalization %s, statistics not read again)", c.folder.c_str(),
-                 c.normalization.describe().c_str());
-    return;
-  }
-  io::Stopwatch scan;
-  // slabs of at most a quarter of what the plan leaves beside the program
+// Slabs of at most a quarter of what the plan leaves beside the program.
+std::size_t scan_slab_bytes(const StreamContext& c) {
   const FitMemoryModel memory;
   const double spare = std::max(0.0, c.max_memory - memory.base_bytes);
-  const auto slab = static_cast<std::size_t>(std::clamp(spare / 4.0, 4.0 * 1048576.0, 256.0 * 1048576.0));
-  const io::SourceStatistics stats = io::scan_statistics(*c.source, slab);
-  c.normalization = io::normalization_from(stats, vo.normalization, volume);
-  c.foreground =
-      io::count_above(*c.source, stats, c.normalization, config.get<&AppConfig::sparse_grid>().threshold, slab);
-  if (!plan) write_plan(c, stats);
-  progress.say("fit: statistics in one pass: %s, %lld foreground voxels, %s", c.normalization.describe().c_str(),
-               static_cast<long long>(c.foreground), format_seconds(scan.elapsed()).c_str());
+  return static_cast<std::size_t>(std::clamp(spare / 4.0, 4.0 * 1048576.0, 256.0 * 1048576.0));
+}
+
+std::vector<std::int64_t> count_core_foreground(const StreamContext& c, std::size_t slab, const Job& ranks) {
+  return core_foreground_counts(*c.source, c.normalization, c.plan, c.config->get<&AppConfig::sparse_grid>().threshold,
+                                slab, scan_share(ranks));
+}
+
+// The statistics a resume takes from plan.json (and the bricks' foreground when
+// the run that wrote it counted them).
+void take_plan_statistics(StreamContext& c, const nlohmann::json& plan) {
+  c.normalization.method = c.config->get<&AppConfig::volume>().normalization.method;
+  c.normalization.raw_lo = plan.at("raw_lo").get<double>();
+  c.normalization.raw_hi = plan.at("raw_hi").get<double>();
+  c.foreground = plan.at("foreground").get<std::int64_t>();
+  if (plan.contains("core_foreground")) c.core_foreground = plan.at("core_foreground").get<std::vector<std::int64_t>>();
+  if (c.core_foreground.size() != c.plan.bricks.size()) c.core_foreground.clear();
+}
+
+// The normalization and foreground count: from plan.json when resuming (the same
+// fingerprint), else one streaming pass, each rank reading its share of the pages
+// (the counts and extremes are exact, so the same as one process's), recorded by
+// rank 0 in a new plan.json. On several ranks also each brick's foreground (one
+// more pass, shared alike), which shares the brick pass. Every rank calls it.
+void load_or_scan_statistics(StreamContext& c, const Job& ranks, const Progress& progress) {
+  const io::VolumeOptions& vo = c.config->get<&AppConfig::volume>();
+  const std::optional<nlohmann::json> plan = existing_plan(c);
+  const std::size_t slab = scan_slab_bytes(c);
+  io::Stopwatch scan;
+  if (plan && plan->contains("raw_lo")) {
+    take_plan_statistics(c, *plan);
+    progress.say("fit: resuming from %s (normalization %s, statistics not read again)", c.folder.c_str(),
+                 c.normalization.describe().c_str());
+  } else {
+    const io::ScanShare share = scan_share(ranks);
+    const io::SourceStatistics stats = io::scan_statistics(*c.source, slab, share);
+    c.normalization = io::normalization_from(stats, vo.normalization, c.path);
+    if (ranks.distributed()) {
+      c.core_foreground = count_core_foreground(c, slab, ranks);
+      c.foreground = std::accumulate(c.core_foreground.begin(), c.core_foreground.end(), std::int64_t{0});
+    } else {
+      c.foreground = io::count_above(*c.source, stats, c.normalization,
+                                     c.config->get<&AppConfig::sparse_grid>().threshold, slab);
+    }
+    if (!plan && ranks.root()) write_plan(c, stats);
+    progress.say("fit: statistics in one pass%s: %s, %lld foreground voxels, %s",
+                 ranks.distributed() ? strf(" (%d ranks, each its share of the pages)", ranks.size()).c_str() : "",
+                 c.normalization.describe().c_str(), static_cast<long long>(c.foreground),
+                 format_seconds(scan.elapsed()).c_str());
+  }
+  if (ranks.distributed() && c.core_foreground.empty()) {  // resuming a run of one process
+    c.core_foreground = count_core_foreground(c, slab, ranks);
+    progress.say("fit: the foreground of each brick counted in %s", format_seconds(scan.elapsed()).c_str());
+  }
 }
 
 }  // namespace
 
 namespace {
-
-// The foreground voxels of each brick's core (indexed by brick id; 0 for those not in
-// `todo`): rank r reads the cores of every size-th brick of `todo`, the counts are
-// summed over the ranks.
-std::vector<double> core_foreground(const StreamContext& c, const std::vector<int>& todo, const Job& ranks) {
-  std::vector<double> counts(c.plan.bricks.size(), 0.0);
-  const double threshold = c.config->get<&AppConfig::sparse_grid>().threshold;
-  for (std::size_t i = static_cast<std::size_t>(ranks.rank()); i < todo.size();
-       i += static_cast<std::size_t>(ranks.size())) {
-    const auto id = static_cast<std::size_t>(todo[i]);
-    counts[id] = static_cast<double>(count_above(read_region(c, c.plan.bricks[id].core).voxels, threshold));
-  }
-  ranks.sum_all(counts);
-  return counts;
-}
 
 // FOLDER/rank-R.holds: the brick rank R of a launch is fitting, so that the rerun
 // after a rank died can say which one it held (MPI ends the job without a word
@@ -698,7 +717,46 @@ std::vector<int> brick_ranks(const std::vector<int>& ids, int ranks, const std::
   return rank_of;
 }
 
+std::vector<std::int64_t> core_foreground_counts(const io::VolumeSource& source, const io::Normalization& map,
+                                                 const gmf::BrickPlan& p, double threshold, std::size_t slab,
+                                                 const io::ScanShare& share) {
+  std::array<std::vector<std::size_t>, 3> cell;  // per axis, each voxel's brick coordinate
+  for (int a = 0; a < 3; ++a) {
+    cell[a].resize(static_cast<std::size_t>(p.shape[a]));
+    for (int v = 0; v < p.shape[a]; ++v) cell[a][static_cast<std::size_t>(v)] = static_cast<std::size_t>(v / p.core[a]);
+  }
+  const auto nx = static_cast<std::size_t>(p.count[0]), ny = static_cast<std::size_t>(p.count[1]);
+  std::vector<double> counts(p.bricks.size(), 0.0);
+  std::vector<float> normalized;  // ~64 Ki values at a time: the slab is the pass's only large buffer
+  io::for_each_slab(source, slab, share, [&](const io::VoxelBox& box, std::span<const float> values) {
+    const auto width = static_cast<std::size_t>(box.hi[0] - box.lo[0]);
+    const auto height = static_cast<std::size_t>(box.hi[1] - box.lo[1]);
+    const std::size_t rows = values.size() / width, group = std::max<std::size_t>(1, 65536 / width);
+    for (std::size_t r0 = 0; r0 < rows; r0 += group) {
+      const std::size_t r1 = std::min(rows, r0 + group);
+      normalized.assign(values.begin() + static_cast<std::ptrdiff_t>(r0 * width),
+                        values.begin() + static_cast<std::ptrdiff_t>(r1 * width));
+      (void)io::apply_normalization(normalized, map);
+      for (std::size_t r = r0; r < r1; ++r) {
+        const std::size_t z = static_cast<std::size_t>(box.lo[2]) + r / height;
+        const std::size_t y = static_cast<std::size_t>(box.lo[1]) + r % height;
+        const std::size_t row = (cell[2][z] * ny + cell[1][y]) * nx;
+        const float* v = normalized.data() + (r - r0) * width;
+        for (std::size_t i = 0; i < width; ++i) {
+          if (v[i] > threshold) counts[row + cell[0][static_cast<std::size_t>(box.lo[0]) + i]] += 1.0;
+        }
+      }
+    }
+  });
+  if (share.shared()) share.sum(counts);  // integers below 2^53: exact
+  std::vector<std::int64_t> out(counts.size());
+  for (std::size_t id = 0; id < out.size(); ++id) out[id] = std::llround(counts[id]);
+  return out;
+}
+
 double brick_work(double core_foreground, double core_voxels) { return core_foreground + core_voxels / 4000.0; }
+
+double measure_work(double region_voxels, double gaussians) { return region_voxels + 2000.0 * gaussians; }
 
 std::vector<int> share_of_bricks(const std::vector<int>& todo, const std::function<double(int)>& weight, int rank,
                                  int ranks) {
@@ -872,15 +930,18 @@ SeamOutcome seam_pass(const StreamContext& c, BrickState& state, const Job& rank
 }
 
 // The 3D PSNR's numerator: Σ (f − V)² over every core, each rank measuring its share
-// of the bricks (each brick's sum is the same whoever measures it; they are added
-// in brick order).
+// of the bricks by their cost (region voxels and Gaussians: measure_work). Each
+// brick's sum is the same whoever measures it; they are added in brick order.
 double measure_pass(const StreamContext& c, const BrickState& state, const Job& ranks,
                     const gmf::RasterizeOptions& raster) {
   const std::size_t n = c.plan.bricks.size();
   std::vector<int> ids(n);
   for (std::size_t id = 0; id < n; ++id) ids[id] = static_cast<int>(id);
   const std::vector<int> rank_of =
-      brick_ranks(ids, ranks.size(), [&](int id) { return 1.0 + static_cast<double>(state.count[static_cast<std::size_t>(id)]); });
+      brick_ranks(ids, ranks.size(), [&](int id) {
+        const auto b = static_cast<std::size_t>(id);
+        return measure_work(static_cast<double>(c.plan.bricks[b].region.voxels()), static_cast<double>(state.count[b]));
+      });
   std::vector<double> sse(n, 0.0);
   for (std::size_t id = 0; id < n; ++id) {
     if (rank_of[id] != ranks.rank()) continue;
@@ -945,16 +1006,15 @@ StreamContext open_stream(const std::string& volume, const FitConfig& config, co
 
 // The bricks this rank fits of those still to fit (`todo`, `rest` foreground voxels
 // in their cores): all alone; on several ranks its share, balanced by their work
-// (the foreground of their cores, counted by the ranks together). Returns them and
+// (the foreground of their cores, counted with the statistics). Returns them and
 // the foreground they hold (the time budget is shared by it).
 std::pair<std::vector<int>, std::int64_t> share_for_rank(const StreamContext& c, const std::vector<int>& todo,
                                                          std::int64_t rest, const Progress& progress) {
   const Job& ranks = job();
   if (!ranks.distributed()) return {todo, rest};
-  io::Stopwatch counting;
-  const std::vector<double> foreground = core_foreground(c, todo, ranks);
+  const std::vector<std::int64_t>& foreground = c.core_foreground;
   const auto weight = [&](int id) {
-    return brick_work(foreground[static_cast<std::size_t>(id)],
+    return brick_work(static_cast<double>(foreground[static_cast<std::size_t>(id)]),
                       static_cast<double>(c.plan.bricks[static_cast<std::size_t>(id)].core.voxels()));
   };
   std::vector<int> mine = share_of_bricks(todo, weight, ranks.rank(), ranks.size());
@@ -962,11 +1022,10 @@ std::pair<std::vector<int>, std::int64_t> share_for_rank(const StreamContext& c,
   for (int id : mine) own += weight(id);
   for (int id : todo) all += weight(id);
   std::int64_t held = 0;
-  for (int id : mine) held += std::llround(foreground[static_cast<std::size_t>(id)]);
-  progress.say("fit: %d ranks share %zu bricks to fit, balanced by the foreground of their cores (counted in %s); "
+  for (int id : mine) held += foreground[static_cast<std::size_t>(id)];
+  progress.say("fit: %d ranks share %zu bricks to fit, balanced by the foreground of their cores; "
                "rank 0 fits %zu of them, %.0f%% of the work",
-               ranks.size(), todo.size(), format_seconds(counting.elapsed()).c_str(), mine.size(),
-               all > 0 ? 100.0 * own / all : 0.0);
+               ranks.size(), todo.size(), mine.size(), all > 0 ? 100.0 * own / all : 0.0);
   return {std::move(mine), held};
 }
 
@@ -1118,15 +1177,13 @@ FitOutcome run_streamed(const std::string& volume, const FitConfig& config, cons
   StreamContext c = open_stream(volume, config, choice, out, progress);
   const Job& ranks = job();
   const double total_budget = c.gmf.budget_seconds();
-  // Rank 0 (the only one alone) holds the folder and makes the statistics pass; the
-  // other ranks of a launch read its plan.json once it is written.
+  // Rank 0 (the only one alone) holds the folder; the ranks make the statistics pass
+  // together (or read plan.json when resuming), and none fits before rank 0 wrote it.
   std::optional<io::FolderLock> lock;
-  if (ranks.root()) {
-    lock.emplace(c.folder);
-    load_or_scan_statistics(c, progress);
-  }
+  if (ranks.root()) lock.emplace(c.folder);
   ranks.barrier();
-  if (!ranks.root()) load_or_scan_statistics(c, Progress{});
+  load_or_scan_statistics(c, ranks, ranks.root() ? progress : Progress{});
+  ranks.barrier();
   if (c.foreground == 0) {
     io::fail_input(volume, "no voxel above sparse_grid.threshold " +
                                io::number_text(config.get<&AppConfig::sparse_grid>().threshold));

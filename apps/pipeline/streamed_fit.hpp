@@ -19,6 +19,7 @@
 
 #include "apps/pipeline/fit_stage.hpp"
 #include "gmf/brick_plan.hpp"
+#include "io/volume_source.hpp"
 
 namespace hisnegs::apps {
 
@@ -90,6 +91,20 @@ class SequentialBricks final : public BrickExecutor {
 // reading (a voxel read and sampled costs about 1/4000 of a foreground voxel fitted:
 // 0.37 µs against ~1.4 ms on one core, docs/benchmarks.md "Several MPI ranks").
 [[nodiscard]] double brick_work(double core_foreground, double core_voxels);
+// The foreground voxels (above `threshold` once normalized by `map`) of every
+// brick's core of plan `p`, by brick id, from one pass of slabs of pages (this
+// part's share when shared; the exact counts summed). What the ranks share the
+// brick pass by: a brick's own region read would cost more (a region of a striped
+// or tiled file decodes whole strips or tiles).
+[[nodiscard]] std::vector<std::int64_t> core_foreground_counts(const io::VolumeSource& source,
+                                                               const io::Normalization& map, const gmf::BrickPlan& p,
+                                                               double threshold, std::size_t slab,
+                                                               const io::ScanShare& share = {});
+// What measuring a brick's 3D error costs, in voxels: its region's (read, rendered
+// and compared) plus its Gaussians' (a Gaussian rendered costs about 2,000 voxels:
+// ~20 µs against ~8 ns on one core, from the measuring passes of op1 and the
+// largest stack, docs/benchmarks.md "Several MPI ranks").
+[[nodiscard]] double measure_work(double region_voxels, double gaussians);
 
 // The streamed fit of `volume` to the checkpoint `out` (and the log `log_csv` unless
 // empty), with `choice` from choose_fit_plan (bricked). Same lines, checkpoint

@@ -8,6 +8,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <barrier>
 #include <cstdlib>
 #include <random>
 #include <thread>
@@ -178,6 +179,81 @@ TEST(VolumeSource, CountAboveAThresholdMatchesTheNormalizedStack) {
       const auto expected = std::count_if(whole.voxels.begin(), whole.voxels.end(), [&](float x) { return x > threshold; });
       EXPECT_EQ(count_above(*s, st, whole.normalization, threshold, 4 * 45 * 31 * 2), expected)
           << to_string(type) << " threshold " << threshold;
+    }
+  }
+}
+
+// Parts of one scan meeting through their sum and max, as the ranks of a job do
+// (apps::scan_share): here threads, each part's values put in its slot and combined
+// in part order once all are in.
+class ThreadedShares {
+ public:
+  explicit ThreadedShares(int parts) : slots_(static_cast<std::size_t>(parts)), sync_(parts) {}
+
+  ScanShare share(int part) {
+    ScanShare s;
+    s.part = part;
+    s.parts = static_cast<int>(slots_.size());
+    s.sum = [this, part](std::span<double> v) { combine(part, v, [](double a, double b) { return a + b; }); };
+    s.max = [this, part](std::span<double> v) { combine(part, v, [](double a, double b) { return std::max(a, b); }); };
+    return s;
+  }
+
+ private:
+  template <class Op>
+  void combine(int part, std::span<double> values, Op op) {
+    slots_[static_cast<std::size_t>(part)].assign(values.begin(), values.end());
+    sync_.arrive_and_wait();  // every part's values are in
+    for (std::size_t i = 0; i < values.size(); ++i) {
+      double whole = slots_[0][i];
+      for (std::size_t p = 1; p < slots_.size(); ++p) whole = op(whole, slots_[p][i]);
+      values[i] = whole;
+    }
+    sync_.arrive_and_wait();  // every part has read them
+  }
+
+  std::vector<std::vector<double>> slots_;
+  std::barrier<> sync_;
+};
+
+// A scan shared by parts (pages split between them; more parts than pages leaves
+// some with none) gives one process's statistics and foreground count exactly,
+// for 8/16-bit and float32 stacks.
+TEST(VolumeSource, AScanSharedByPartsEqualsOneProcesssScan) {
+  for (const SampleType type : {SampleType::kUint8, SampleType::kUint16, SampleType::kFloat32}) {
+    Volume v = stack(type == SampleType::kFloat32 ? SampleType::kUint16 : type, 11);
+    if (type == SampleType::kFloat32) {
+      v.stored_as = SampleType::kFloat32;
+      for (float& x : v.voxels) x = x * 0.731f + 0.25f;
+    }
+    const auto s = memory_source(v);
+    const std::size_t slab = 4 * 45 * 31 * 2;
+    const SourceStatistics one = scan_statistics(*s, slab);
+    const Normalization map = normalization_from(one, {}, "s");
+    const std::int64_t above = count_above(*s, one, map, 0.2, slab);
+    for (const int parts : {2, 3, 17}) {
+      ThreadedShares shares(parts);
+      std::vector<SourceStatistics> got(static_cast<std::size_t>(parts));
+      std::vector<std::int64_t> counted(static_cast<std::size_t>(parts));
+      std::vector<std::thread> threads;
+      for (int p = 0; p < parts; ++p) {
+        threads.emplace_back([&, p] {
+          const ScanShare share = shares.share(p);
+          got[static_cast<std::size_t>(p)] = scan_statistics(*s, slab, share);
+          counted[static_cast<std::size_t>(p)] = count_above(*s, got[static_cast<std::size_t>(p)], map, 0.2, slab, share);
+        });
+      }
+      for (auto& t : threads) t.join();
+      for (int p = 0; p < parts; ++p) {
+        const SourceStatistics& st = got[static_cast<std::size_t>(p)];
+        SCOPED_TRACE(::testing::Message() << to_string(type) << ", part " << p << " of " << parts);
+        EXPECT_EQ(st.min, one.min);
+        EXPECT_EQ(st.max, one.max);
+        EXPECT_EQ(st.voxels, one.voxels);
+        EXPECT_EQ(st.bin_width, one.bin_width);
+        EXPECT_EQ(st.histogram, one.histogram);
+        EXPECT_EQ(counted[static_cast<std::size_t>(p)], above);
+      }
     }
   }
 }

@@ -5,6 +5,8 @@
 
 #include <gtest/gtest.h>
 
+#include <random>
+#include <span>
 #include <vector>
 
 namespace hisnegs::apps {
@@ -39,6 +41,51 @@ TEST(BrickRanks, SharesFollowTheForegroundOfTheCores) {
   EXPECT_EQ(share_of_bricks({0, 1, 2, 3}, weight, 0, 1), (std::vector<int>{0, 1, 2, 3}));
   EXPECT_DOUBLE_EQ(brick_work(0, 4000), 1.0);  // reading 4000 voxels ~ fitting one foreground voxel
   EXPECT_GT(brick_work(0, core_voxels), 0.0);  // an empty brick still costs its reading
+}
+
+// The foreground of every brick's core from one pass of slabs equals each core's
+// own count, for slabs of pages and of bands of rows; parts of the pass (as the
+// ranks read them; their sum left out here) add up to it.
+TEST(CoreForeground, APassOfSlabsCountsEachCore) {
+  io::Volume v;
+  v.nx = 37, v.ny = 29, v.nz = 11;
+  v.stored_as = io::SampleType::kUint16;
+  v.voxels.resize(v.size());
+  std::mt19937_64 rng(7);
+  std::uniform_int_distribution<int> value(0, 4000);
+  for (float& x : v.voxels) x = static_cast<float>(value(rng));
+  const auto source = io::memory_source(v);
+  io::Normalization map;
+  map.method = io::NormalizationMethod::kMinMax;
+  map.raw_lo = 0;
+  map.raw_hi = 4000;
+  const double threshold = 0.6;
+  const gmf::BrickPlan plan = gmf::plan_bricks({v.nx, v.ny, v.nz}, {16, 10, 4}, {2, 2, 1});
+  std::vector<std::int64_t> expected(plan.bricks.size(), 0);
+  for (const gmf::StreamBrick& b : plan.bricks) {
+    for (int z = b.core.lo[2]; z < b.core.hi[2]; ++z) {
+      for (int y = b.core.lo[1]; y < b.core.hi[1]; ++y) {
+        for (int x = b.core.lo[0]; x < b.core.hi[0]; ++x) {
+          const float n = (v.voxels[v.index(x, y, z)] - 0.0f) / 4000.0f;
+          expected[static_cast<std::size_t>(b.id)] += n > threshold ? 1 : 0;
+        }
+      }
+    }
+  }
+  ASSERT_EQ(plan.bricks.size(), 3u * 3 * 3);
+  for (const std::size_t slab : {std::size_t{4 * 37 * 3}, std::size_t{4 * 37 * 29 * 4}, std::size_t{1} << 30}) {
+    EXPECT_EQ(core_foreground_counts(*source, map, plan, threshold, slab), expected) << "slab " << slab;
+    std::vector<std::int64_t> parts(plan.bricks.size(), 0);
+    for (int part = 0; part < 4; ++part) {
+      io::ScanShare share;
+      share.part = part;
+      share.parts = 4;
+      share.sum = [](std::span<double>) {};  // each part's own counts
+      const std::vector<std::int64_t> mine = core_foreground_counts(*source, map, plan, threshold, slab, share);
+      for (std::size_t id = 0; id < parts.size(); ++id) parts[id] += mine[id];
+    }
+    EXPECT_EQ(parts, expected) << "slab " << slab;
+  }
 }
 
 }  // namespace
