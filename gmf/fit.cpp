@@ -369,8 +369,7 @@ RoundProblem prepare_round(const GaussianMixture& mixture, const SampleSet& samp
   const std::size_t n = r.params.size() * kGaussianParamCount;
   r.lower.assign(n, -std::numeric_limits<double>::infinity());
   r.upper.assign(n, std::numeric_limits<double>::infinity());
-  const double largest = options.max_scale_world > 0 ? options.max_scale_world : std::min(0.5, 32.0 * max_voxel);
-  const double scale_lo = std::log(0.2 * min_voxel), scale_hi = std::log(std::max(0.2 * min_voxel, largest));
+  const double scale_lo = std::log(0.2 * min_voxel), scale_hi = std::log(options.largest_scale(min_voxel, max_voxel));
   for (std::size_t k = 0; k < r.params.size(); ++k) {
     Params& p = r.params[k];
     double* lo = r.lower.data() + kGaussianParamCount * k;

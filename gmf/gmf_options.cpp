@@ -64,6 +64,11 @@ void GmfOptions::validate() const {
   }
 }
 
+double GmfOptions::largest_scale(double min_voxel, double max_voxel) const {
+  const double largest = max_scale_world > 0 ? max_scale_world : std::min(0.5, 32.0 * max_voxel);
+  return std::max(0.2 * min_voxel, largest);
+}
+
 double GmfOptions::jitter() const { return sample_jitter.value_or(aggregation == Aggregation::kSum ? 0.0 : 1.0); }
 
 MixtureModel GmfOptions::model(int round) const {

@@ -122,6 +122,10 @@ struct GmfOptions {
   // are held fixed (the seam pass; Adam only, no density control).
   double max_scale_world = 0.0;
   std::size_t frozen = 0;
+  // The largest σ the fit allows (world units) on voxels of these smallest and
+  // largest edges: max_scale_world, or min(0.5, 32 largest voxels); at least 0.2
+  // smallest voxel. The init starts within it and every round keeps to it.
+  [[nodiscard]] double largest_scale(double min_voxel, double max_voxel) const;
   // Not a config key (set by compare-optimizers): softmax only, when > 0 every
   // logged loss is the objective at this β while the rounds follow the schedule, so
   // that runs with and without β continuation are measured on one objective. Only

@@ -100,11 +100,21 @@ GaussianMixture initialize_on_grid(const io::Volume& volume, const io::WorldFram
 
 GaussianMixture initialize_mixture(const io::Volume& volume, const io::WorldFrame& frame, double threshold,
                                    const GmfOptions& options, InitReport* report) {
-  if (options.init == FitInit::kMaxima)
-    return initialize_at_maxima(volume, frame, threshold, options.gaussians, report);
-  return initialize_on_grid(
-      volume, frame, threshold, options.gaussians, report,
-      options.aggregation == Aggregation::kSum ? InitIntensity::kCellMean : InitIntensity::kAtCentre);
+  GaussianMixture m =
+      options.init == FitInit::kMaxima
+          ? initialize_at_maxima(volume, frame, threshold, options.gaussians, report)
+          : initialize_on_grid(volume, frame, threshold, options.gaussians, report,
+                               options.aggregation == Aggregation::kSum ? InitIntensity::kCellMean
+                                                                        : InitIntensity::kAtCentre);
+  // Within the fit's largest scale even if no round runs (a time budget too short
+  // for one): a grid of few cells starts with σ of half a cell, and a bricked
+  // fit's halo holds only Gaussians within its bound.
+  const auto largest = static_cast<float>(
+      std::log(options.largest_scale(frame.voxel_size().minCoeff(), frame.voxel_size().maxCoeff())));
+  for (GaussianParams& g : m) {
+    for (float& s : g.log_scale) s = std::min(s, largest);
+  }
+  return m;
 }
 
 GaussianMixture initialize_at_maxima(const io::Volume& volume, const io::WorldFrame& frame, double threshold,

@@ -521,9 +521,12 @@ gmf::GaussianMixture seam_brick(const StreamContext& c, const gmf::StreamBrick& 
   options.seed = brick_seed(c.gmf, b.id) ^ 0x5ea4ull;
   options.optimizer = gmf::Optimizer::kAdam;
   options.densify = false;
-  options.rounds = 1;
-  options.iterations_per_round = c.gmf.seam_iterations;
-  options.max_iterations = 0;
+  // Rounds as long as the fit's, each on freshly jittered samples: one long round
+  // on one set of jittered samples fits that set (600 steps: 0.8 dB lower MIPs
+  // than 200 on op1 in 9 bricks), as the fit's own rounds avoid.
+  options.iterations_per_round = std::max(1, std::min(c.gmf.seam_iterations, c.gmf.iterations_per_round));
+  options.rounds = (c.gmf.seam_iterations + options.iterations_per_round - 1) / options.iterations_per_round;
+  options.max_iterations = c.gmf.seam_iterations;  // the last round may be shorter
   options.beta_start = options.beta_end = std::max(beta, 1e-6);
   options.time_budget_s = c.gmf.time_budget_s == 0 ? 0.0 : std::max(1e-3, seconds);
   options.frozen = fixed.size();
@@ -904,13 +907,19 @@ SeamOutcome seam_pass(const StreamContext& c, BrickState& state, const Job& rank
     if (mine[id]) my_regions.push_back(c.plan.bricks[id].region);
   }
   std::vector<gmf::GaussianMixture> held = read_needed(c, state, my_regions, mine);
+  // With a time budget, each of this rank's bricks gets the time left times its
+  // share of the Gaussians of those still to refit here.
+  double to_refit = 0;
+  for (std::size_t id = 0; id < n; ++id) to_refit += mine[id] ? 1.0 + static_cast<double>(state.count[id]) : 0.0;
   SeamOutcome out;
   for (int colour = 0; colour < 8; ++colour) {
     std::vector<std::pair<std::size_t, gmf::GaussianMixture>> refitted;
     for (std::size_t id = 0; id < n; ++id) {
       if (!mine[id] || c.plan.bricks[id].colour() != colour) continue;
-      const double left = std::max(0.0, budget - watch.elapsed());
-      refitted.emplace_back(id, seam_brick(c, c.plan.bricks[id], held, beta, left / static_cast<double>(n), out.stats));
+      const double share = (1.0 + static_cast<double>(state.count[id])) / std::max(1.0, to_refit);
+      to_refit -= 1.0 + static_cast<double>(state.count[id]);
+      const double seconds = std::max(0.0, budget - watch.elapsed()) * std::min(1.0, share);
+      refitted.emplace_back(id, seam_brick(c, c.plan.bricks[id], held, beta, seconds, out.stats));
       release_free_memory();
     }
     std::vector<std::vector<unsigned char>> to(static_cast<std::size_t>(ranks.size()));

@@ -139,5 +139,28 @@ TEST(GmfInit, MeetsSmallBudgetsForAForegroundAroundTheCentre) {
   for (int a = 0; a < 3; ++a) EXPECT_NEAR(one[0].mean[a], 0.0, 1e-6);
 }
 
+// The init starts within the fit's largest scale: a budget of one Gaussian on a
+// spread foreground makes one cell of the whole box (σ of half of it), which
+// initialize_mixture caps at GmfOptions::largest_scale (a bricked fit's bound, or
+// the default), so a fit that runs no round still keeps to it.
+TEST(GmfInit, StartsWithinTheFitsLargestScale) {
+  io::Volume v = zeros(32, 32, 32);
+  v.at(2, 3, 4) = 0.5f;
+  v.at(29, 28, 27) = 0.7f;
+  const io::WorldFrame frame(32, 32, 32, Eigen::Vector3d::Ones());
+  const double voxel = frame.voxel_size().maxCoeff();
+  ASSERT_GT(std::exp(initialize_on_grid(v, frame, 0.1, 1)[0].log_scale[0]), 8.0 * voxel) << "the case must be large";
+  for (const double bound : {0.0, 3.0 * voxel}) {
+    GmfOptions o;
+    o.gaussians = 1;
+    o.max_scale_world = bound;
+    const GaussianMixture m = initialize_mixture(v, frame, 0.1, o);
+    ASSERT_EQ(m.size(), 1u);
+    const double largest = o.largest_scale(frame.voxel_size().minCoeff(), voxel);
+    EXPECT_EQ(largest, bound > 0 ? bound : std::min(0.5, 32.0 * voxel));
+    for (int a = 0; a < 3; ++a) EXPECT_NEAR(std::exp(m[0].log_scale[a]), largest, 1e-6 * largest) << "bound " << bound;
+  }
+}
+
 }  // namespace
 }  // namespace hisnegs::gmf
