@@ -444,7 +444,7 @@ class RoundLoop {
     // The final all-voxel measurement (measure()) must fit in the budget too: its
     // cost, probed on the initial mixture (1.5x: the mixture grows), is kept free.
     double final_reserve = 0;
-    if (options_.time_budget_s > 0 && !mixture_.empty()) {
+    if (options_.time_budget_s > 0 && !mixture_.empty() && options_.measure) {
       io::Stopwatch probe;
       (void)stack_.psnr_3d(mixture_, RasterizeOptions::of(report_));
       final_reserve = 1.5 * probe.elapsed();
@@ -468,10 +468,17 @@ class RoundLoop {
       stats.pruned = take_round_result(problem, options_, mixture_);
       problem = RoundProblem{};  // its padded index is the largest allocation: gone before the next index is built
       result_.pruned += stats.pruned;
-      // The round's result's block index: for its measurement and its density control.
-      const BlockIndex current =
-          build_block_index(mixture_, samples, frame_, model_.cutoff, 1.0, jitter_reach(frame_, jitter_));
-      log_round(samples, current, round);
+      // The round's result's block index: for its measurement and its density
+      // control, built when one of them runs.
+      std::optional<BlockIndex> current;
+      const auto current_index = [&]() -> const BlockIndex& {
+        if (!current) {
+          current.emplace(
+              build_block_index(mixture_, samples, frame_, model_.cutoff, 1.0, jitter_reach(frame_, jitter_)));
+        }
+        return *current;
+      };
+      if (options_.measure) log_round(samples, current_index(), round);
       const bool last = log_.reached_stop_loss || (options_.max_iterations > 0 && iterations_ >= options_.max_iterations);
       if (log_.reached_stop_loss) {
         result_.stop_reason = "reached gmf.stop_loss";
@@ -480,7 +487,7 @@ class RoundLoop {
       }
       // Density control for the next round (not after the last one, nor when out of time).
       if (!last && options_.densify && round + 1 < options_.rounds && clock_.now() < options_.budget_seconds()) {
-        density(samples, current, stats);
+        density(samples, current_index(), stats);
       }
       overhead = clock_.now() - solved_at;
       if (!last) stats.gaussians = static_cast<int>(mixture_.size());
@@ -557,6 +564,7 @@ class RoundLoop {
   // measure: the all-voxel 3D PSNR and, when the rounds measured moved samples, the
   // foreground PSNR at the voxel centres; the final log line carries both.
   void measure() {
+    if (!options_.measure) return;
     io::Stopwatch measuring;
     result_.final_psnr_3d = stack_.psnr_3d(mixture_, RasterizeOptions::of(report_));
     if (jitter_ > 0 && !result_.log.empty()) {

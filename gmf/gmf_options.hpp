@@ -122,6 +122,11 @@ struct GmfOptions {
   // are held fixed (the seam pass; Adam only, no density control).
   double max_scale_world = 0.0;
   std::size_t frozen = 0;
+  // Not a config key: false = the rounds are not measured (no round's loss and
+  // foreground PSNR on all its samples, no final 3D PSNR). The streamed fit's seam
+  // refit discards them, and measuring every Gaussian each round was a quarter of
+  // its pass; the optimizer's own per-step log (and gmf.stop_loss) stays.
+  bool measure = true;
   // The largest σ the fit allows (world units) on voxels of these smallest and
   // largest edges: max_scale_world, or min(0.5, 32 largest voxels); at least 0.2
   // smallest voxel. The init starts within it and every round keeps to it.

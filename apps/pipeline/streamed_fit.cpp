@@ -531,6 +531,7 @@ gmf::GaussianMixture seam_brick(const StreamContext& c, const gmf::StreamBrick& 
   options.time_budget_s = c.gmf.time_budget_s == 0 ? 0.0 : std::max(1e-3, seconds);
   options.frozen = fixed.size();
   options.prune_intensity = 0.0;  // nothing leaves in a seam pass (a faint one stays faint)
+  options.measure = false;        // its log is not kept: no round measures every Gaussian
   const gmf::SampleSet samples = region_samples(c, v, rf, options);
   gmf::GaussianMixture local;
   local.reserve(fixed.size() + free.size());

@@ -252,6 +252,20 @@ TEST(GmfFit, MovedSamplesResultIsMeasuredAtTheVoxelCentres) {
   EXPECT_GT(r.final_psnr_fg, 20.0);
 }
 
+// `dense`, counting the moved sample sets and the 3D PSNRs asked of it.
+StackAccess counting(const StackAccess& dense, int& jittered, int& measured) {
+  StackAccess counted;
+  counted.jittered = [&dense, &jittered](const SampleSet& c, double jitter, std::uint64_t seed) {
+    ++jittered;
+    return dense.jittered(c, jitter, seed);
+  };
+  counted.psnr_3d = [&dense, &measured](const GaussianMixture& m, const RasterizeOptions& r) {
+    ++measured;
+    return dense.psnr_3d(m, r);
+  };
+  return counted;
+}
+
 // The round loop reaches the stack only through StackAccess: a caller's own access
 // (here: the dense one, counted) is asked for one set of moved samples per round and
 // one 3D PSNR at the end (and, under a time budget, one at the start: the probe of
@@ -264,15 +278,7 @@ TEST(GmfFit, TheRoundLoopReachesTheStackThroughItsAccess) {
   const SampleSet centres = fit_samples(grid, o);
   const StackAccess dense = stack_access(scene.volume, scene.frame);
   int jittered = 0, measured = 0;
-  StackAccess counted;
-  counted.jittered = [&](const SampleSet& c, double jitter, std::uint64_t seed) {
-    ++jittered;
-    return dense.jittered(c, jitter, seed);
-  };
-  counted.psnr_3d = [&](const GaussianMixture& m, const RasterizeOptions& r) {
-    ++measured;
-    return dense.psnr_3d(m, r);
-  };
+  const StackAccess counted = counting(dense, jittered, measured);
   GaussianMixture a = scene.truth, b = scene.truth;
   const FitResult ra = fit_mixture(counted, centres, scene.frame, a, o);
   const FitResult rb = fit_mixture(scene.volume, centres, scene.frame, b, o);
@@ -281,6 +287,34 @@ TEST(GmfFit, TheRoundLoopReachesTheStackThroughItsAccess) {
   EXPECT_EQ(measured, 2);  // the probe, the measurement
   EXPECT_EQ(ra.final_psnr_3d, rb.final_psnr_3d);
   EXPECT_GT(ra.final_psnr_3d, 20.0);
+  ASSERT_EQ(a.size(), b.size());
+  const auto pa = flat_params(a), pb = flat_params(b);
+  EXPECT_TRUE(std::equal(pa.begin(), pa.end(), pb.begin(), pb.end()));
+}
+
+// An unmeasured fit (GmfOptions::measure false: the seam refit's) takes the same
+// steps to the same mixture, and never measures: no 3D PSNR of the stack, even
+// under a time budget, and no round line in its log (only the optimizer's steps).
+TEST(GmfFit, AnUnmeasuredFitTakesTheSameStepsWithoutMeasuring) {
+  const Scene scene = make_scene(5);
+  const io::SparseGrid grid = grid_of(scene, 0.01);
+  GmfOptions o = three_jittered_rounds(6);
+  o.time_budget_s = 600;
+  const SampleSet centres = fit_samples(grid, o);
+  const StackAccess dense = stack_access(scene.volume, scene.frame);
+  int jittered = 0, measured = 0;
+  const StackAccess counted = counting(dense, jittered, measured);
+  GaussianMixture a = scene.truth, b = scene.truth;
+  const FitResult ra = fit_mixture(counted, centres, scene.frame, a, o);
+  EXPECT_EQ(measured, 2);
+  o.measure = false;
+  measured = 0;
+  const FitResult rb = fit_mixture(counted, centres, scene.frame, b, o);
+  EXPECT_EQ(measured, 0);
+  EXPECT_EQ(rb.final_psnr_3d, 0.0);
+  ASSERT_EQ(rb.log.size(), 3u * 6u);  // one line per Adam step, none per round
+  EXPECT_TRUE(std::none_of(rb.log.begin(), rb.log.end(), [](const FitIteration& it) { return it.psnr_fg >= 0; }));
+  EXPECT_TRUE(std::any_of(ra.log.begin(), ra.log.end(), [](const FitIteration& it) { return it.psnr_fg >= 0; }));
   ASSERT_EQ(a.size(), b.size());
   const auto pa = flat_params(a), pb = flat_params(b);
   EXPECT_TRUE(std::equal(pa.begin(), pa.end(), pb.begin(), pb.end()));
