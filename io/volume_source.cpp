@@ -267,7 +267,7 @@ Normalization normalization_from(const SourceStatistics& stats, const Normalizat
 }
 
 std::int64_t count_above(const VolumeSource& source, const SourceStatistics& stats, const Normalization& map,
-                         double threshold, std::size_t slab_bytes, const ScanShare& share) {
+                         double threshold, std::size_t slab_bytes) {
   std::int64_t n = 0;
   if (!stats.histogram.empty() && stats.bin_width == 0) {
     // 8/16-bit: every stored value normalized once, as apply_normalization does
@@ -278,12 +278,11 @@ std::int64_t count_above(const VolumeSource& source, const SourceStatistics& sta
     return n;
   }
   std::vector<float> normalized;
-  slabs_of(source, slab_bytes, share, [&](const VoxelBox&, std::span<const float> block) {
+  slabs_of(source, slab_bytes, ScanShare{}, [&](const VoxelBox&, std::span<const float> block) {
     normalized.assign(block.begin(), block.end());
     (void)apply_normalization(normalized, map);
     n += std::count_if(normalized.begin(), normalized.end(), [&](float v) { return v > threshold; });
   });
-  sum_counts(share, std::span<std::int64_t>(&n, 1));
   return n;
 }
 

@@ -103,6 +103,6 @@ void for_each_slab(const VolumeSource& source, std::size_t slab_bytes, const Sca
 // histogram of an 8/16-bit stack, else (float32) one more pass of slabs.
 [[nodiscard]] std::int64_t count_above(const VolumeSource& source, const SourceStatistics& stats,
                                        const Normalization& map, double threshold,
-                                       std::size_t slab_bytes = 256u << 20, const ScanShare& share = {});
+                                       std::size_t slab_bytes = 256u << 20);
 
 }  // namespace hisnegs::io

@@ -582,12 +582,22 @@ std::vector<std::int64_t> count_core_foreground(const StreamContext& c, std::siz
 
 // The statistics a resume takes from plan.json (and the bricks' foreground when
 // the run that wrote it counted them).
+// A damaged field is one line naming it (a wrong length of core_foreground is not:
+// the counts are taken again).
 void take_plan_statistics(StreamContext& c, const nlohmann::json& plan) {
+  const auto field = [&]<typename T>(const char* key, T& to, const char* what) {
+    try {
+      to = plan.at(key).get<T>();
+    } catch (const nlohmann::json::exception&) {
+      io::fail_input(c.folder / "plan.json", std::string("field '") + key + "' is missing or not " + what +
+                                                 ": not a hisnegs brick plan; remove the folder or choose another -o");
+    }
+  };
   c.normalization.method = c.config->get<&AppConfig::volume>().normalization.method;
-  c.normalization.raw_lo = plan.at("raw_lo").get<double>();
-  c.normalization.raw_hi = plan.at("raw_hi").get<double>();
-  c.foreground = plan.at("foreground").get<std::int64_t>();
-  if (plan.contains("core_foreground")) c.core_foreground = plan.at("core_foreground").get<std::vector<std::int64_t>>();
+  field("raw_lo", c.normalization.raw_lo, "a number");
+  field("raw_hi", c.normalization.raw_hi, "a number");
+  field("foreground", c.foreground, "an integer");
+  if (plan.contains("core_foreground")) field("core_foreground", c.core_foreground, "a list of integers");
   if (c.core_foreground.size() != c.plan.bricks.size()) c.core_foreground.clear();
 }
 

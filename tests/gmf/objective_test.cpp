@@ -8,6 +8,7 @@
 #include <tbb/global_control.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <functional>
 #include <random>
@@ -33,6 +34,28 @@ std::vector<double> flat_of(const GaussianMixture& m) {
   }
   return x;
 }
+
+// The scene's Gaussians with means moved by 0.4 voxel and intensity logits by 0.5
+// (normal); `widened`: also scales × e^0.4 and rotations tilted, so that several
+// overlap at most samples.
+GaussianMixture perturbed(const Scene& scene, std::mt19937_64& rng, bool widened) {
+  std::normal_distribution<double> n(0, 1);
+  GaussianMixture m = scene.truth;
+  for (auto& g : m) {
+    for (int a = 0; a < 3; ++a) g.mean[a] += static_cast<float>(0.4 * scene.frame.voxel_size().x() * n(rng));
+    if (widened) {
+      for (float& s : g.log_scale) s += 0.4f;
+      g.rotation = {0.9f, static_cast<float>(0.2 * n(rng)), static_cast<float>(0.2 * n(rng)), 0.1f};
+    }
+    g.intensity_logit += static_cast<float>(0.5 * n(rng));
+  }
+  return m;
+}
+
+// The sum, and the softmax at a low β and at a high β with a narrower support.
+const std::array<MixtureModel, 3> kBoundedModels = {
+    MixtureModel{.cutoff = 16.0}, MixtureModel{.aggregation = Aggregation::kSoftmax, .beta = 8.0, .cutoff = 16.0},
+    MixtureModel{.aggregation = Aggregation::kSoftmax, .beta = 64.0, .cutoff = 9.0}};
 
 // The first-order objective's gradient is the derivative of its value.
 TEST(GmfObjective, GradientMatchesItsValue) {
@@ -182,20 +205,9 @@ TEST(GmfObjective, FusedGradientEqualsBlockCostJacobianTimesResidual) {
   const io::SparseGrid grid = grid_of(scene, 0.05);
   const SampleSet samples = extract_samples(grid, 2.0, 2);
   std::mt19937_64 rng(32);
-  std::normal_distribution<double> n(0, 1);
-  GaussianMixture m = scene.truth;
-  for (auto& g : m) {
-    for (int a = 0; a < 3; ++a) {
-      g.mean[a] += static_cast<float>(0.4 * scene.frame.voxel_size().x() * n(rng));
-      g.log_scale[a] += 0.4f;
-    }
-    g.rotation = {0.9f, static_cast<float>(0.2 * n(rng)), static_cast<float>(0.2 * n(rng)), 0.1f};
-    g.intensity_logit += static_cast<float>(0.5 * n(rng));
-  }
+  const GaussianMixture m = perturbed(scene, rng, true);
   const std::vector<double> x = flat_of(m);
-  for (const MixtureModel model : {MixtureModel{.cutoff = 16.0},
-                                   MixtureModel{.aggregation = Aggregation::kSoftmax, .beta = 8.0, .cutoff = 16.0},
-                                   MixtureModel{.aggregation = Aggregation::kSoftmax, .beta = 64.0, .cutoff = 9.0}}) {
+  for (const MixtureModel& model : kBoundedModels) {
     const BlockIndex index = build_block_index(m, samples, scene.frame, model.cutoff);
     const FitObjective objective(samples, index, m.size(), model);
     std::vector<double> grad(x.size());
@@ -249,18 +261,13 @@ TEST(GmfObjective, HoldingGaussiansFixedKeepsTheValueAndTheFreeGradient) {
   const SampleSet samples = extract_samples(grid, 2.0, 2);
   std::mt19937_64 rng(38);
   std::normal_distribution<double> n(0, 1);
-  GaussianMixture m = scene.truth;
-  for (auto& g : m) {
-    for (int a = 0; a < 3; ++a) g.mean[a] += static_cast<float>(0.4 * scene.frame.voxel_size().x() * n(rng));
-    g.intensity_logit += static_cast<float>(0.5 * n(rng));
-  }
+  const GaussianMixture m = perturbed(scene, rng, false);
   const std::vector<double> x = flat_of(m);
   const std::size_t frozen = m.size() / 2, held_params = kGaussianParamCount * frozen;
-  for (const MixtureModel model : {MixtureModel{.cutoff = 16.0},
-                                   MixtureModel{.aggregation = Aggregation::kSoftmax, .beta = 8.0, .cutoff = 16.0},
-                                   MixtureModel{.aggregation = Aggregation::kSoftmax, .beta = 64.0, .cutoff = 9.0},
-                                   MixtureModel{.cutoff = 1e9},
-                                   MixtureModel{.aggregation = Aggregation::kSoftmax, .beta = 8.0, .cutoff = 1e9}}) {
+  std::vector<MixtureModel> models(kBoundedModels.begin(), kBoundedModels.end());
+  models.push_back(MixtureModel{.cutoff = 1e9});
+  models.push_back(MixtureModel{.aggregation = Aggregation::kSoftmax, .beta = 8.0, .cutoff = 1e9});
+  for (const MixtureModel& model : models) {
     SCOPED_TRACE(::testing::Message() << "beta " << model.beta << ", cutoff " << model.cutoff);
     const bool bounded = model.cutoff < 100;
     const BlockIndex index = build_block_index(m, samples, scene.frame, model.cutoff);

@@ -36,6 +36,16 @@ Volume stack(SampleType type, std::uint64_t seed) {
   return v;
 }
 
+// stack(), or for float32 a 16-bit one scaled and shifted off the integers.
+Volume stack_of_any_type(SampleType type, std::uint64_t seed) {
+  Volume v = stack(type == SampleType::kFloat32 ? SampleType::kUint16 : type, seed);
+  if (type == SampleType::kFloat32) {
+    v.stored_as = SampleType::kFloat32;
+    for (float& x : v.voxels) x = x * 0.731f + 0.25f;
+  }
+  return v;
+}
+
 // A box of random position and extent inside `v` (at least one voxel).
 VoxelBox random_box(const Volume& v, std::mt19937& rng) {
   VoxelBox b;
@@ -166,11 +176,7 @@ TEST(VolumeSource, Float32PercentilesAreWithinOneBinOfTheExactOnes) {
 // whose histogram holds bins, not values).
 TEST(VolumeSource, CountAboveAThresholdMatchesTheNormalizedStack) {
   for (const SampleType type : {SampleType::kUint8, SampleType::kUint16, SampleType::kFloat32}) {
-    Volume v = stack(type == SampleType::kFloat32 ? SampleType::kUint16 : type, 5);
-    if (type == SampleType::kFloat32) {
-      v.stored_as = SampleType::kFloat32;
-      for (float& x : v.voxels) x = x * 0.731f + 0.25f;
-    }
+    const Volume v = stack_of_any_type(type, 5);
     const auto s = memory_source(v);
     const SourceStatistics st = scan_statistics(*s, 4 * 45 * 31 * 3);
     Volume whole = v;
@@ -217,15 +223,11 @@ class ThreadedShares {
 };
 
 // A scan shared by parts (pages split between them; more parts than pages leaves
-// some with none) gives one process's statistics and foreground count exactly,
-// for 8/16-bit and float32 stacks.
+// some with none) gives one process's statistics exactly, for 8/16-bit and float32
+// stacks (and so its normalization and foreground count).
 TEST(VolumeSource, AScanSharedByPartsEqualsOneProcesssScan) {
   for (const SampleType type : {SampleType::kUint8, SampleType::kUint16, SampleType::kFloat32}) {
-    Volume v = stack(type == SampleType::kFloat32 ? SampleType::kUint16 : type, 11);
-    if (type == SampleType::kFloat32) {
-      v.stored_as = SampleType::kFloat32;
-      for (float& x : v.voxels) x = x * 0.731f + 0.25f;
-    }
+    const Volume v = stack_of_any_type(type, 11);
     const auto s = memory_source(v);
     const std::size_t slab = 4 * 45 * 31 * 2;
     const SourceStatistics one = scan_statistics(*s, slab);
@@ -234,13 +236,11 @@ TEST(VolumeSource, AScanSharedByPartsEqualsOneProcesssScan) {
     for (const int parts : {2, 3, 17}) {
       ThreadedShares shares(parts);
       std::vector<SourceStatistics> got(static_cast<std::size_t>(parts));
-      std::vector<std::int64_t> counted(static_cast<std::size_t>(parts));
       std::vector<std::thread> threads;
       for (int p = 0; p < parts; ++p) {
         threads.emplace_back([&, p] {
           const ScanShare share = shares.share(p);
           got[static_cast<std::size_t>(p)] = scan_statistics(*s, slab, share);
-          counted[static_cast<std::size_t>(p)] = count_above(*s, got[static_cast<std::size_t>(p)], map, 0.2, slab, share);
         });
       }
       for (auto& t : threads) t.join();
@@ -252,7 +252,7 @@ TEST(VolumeSource, AScanSharedByPartsEqualsOneProcesssScan) {
         EXPECT_EQ(st.voxels, one.voxels);
         EXPECT_EQ(st.bin_width, one.bin_width);
         EXPECT_EQ(st.histogram, one.histogram);
-        EXPECT_EQ(counted[static_cast<std::size_t>(p)], above);
+        EXPECT_EQ(count_above(*s, st, normalization_from(st, {}, "s"), 0.2, slab), above);
       }
     }
   }

@@ -2,7 +2,8 @@
 // The streamed brick fit through the real binary (apps/pipeline/streamed_fit.hpp):
 // a stack cut into bricks fits to a model as good as the whole fit's; a fit killed
 // (SIGKILL) between bricks resumes from the finished ones to the checkpoint of an
-// uninterrupted run, byte for byte; a brick folder of another config is refused;
+// uninterrupted run, byte for byte; a brick folder of another config is refused,
+// and a damaged field of its plan.json is one line naming it;
 // --max-memory that does not parse or is too small is one line, exit 2, nothing
 // written; a write that fails (the file-size limit standing in for a full disk)
 // stops the fit with the finished bricks intact.
@@ -12,6 +13,8 @@
 #include <filesystem>
 #include <regex>
 #include <string>
+
+#include <nlohmann/json.hpp>
 
 #include "gmf/core/checkpoint.hpp"
 #include "tests/test_support.hpp"
@@ -117,6 +120,29 @@ TEST_F(BrickedFit, ABrickFolderOfAnotherConfigIsRefusedAndKept) {
   EXPECT_NE(other.err.find("holds the bricks of another stack, config or plan"), std::string::npos) << other.err;
   EXPECT_EQ(finished_bricks(dir() / "f.ply.bricks"), 2) << "the other fit's bricks were touched";
   EXPECT_FALSE(fs::exists(dir() / "f.ply"));
+}
+
+// A plan.json of this fit whose statistics are damaged (a field of the wrong type)
+// is one line naming the file and the field, exit 2; the finished bricks are kept.
+TEST_F(BrickedFit, ADamagedFieldOfThePlanIsOneLineNamingIt) {
+  ::setenv("HISNEGS_FAULT", "brick-save:3", 1);
+  ASSERT_EQ(fit("p.ply").exit_code, 128 + 9);
+  ::unsetenv("HISNEGS_FAULT");
+  const fs::path plan = dir() / "p.ply.bricks" / "plan.json";
+  const nlohmann::json good = nlohmann::json::parse(testing::read_bytes(plan));
+  for (const std::string key : {"raw_lo", "core_foreground"}) {
+    SCOPED_TRACE(key);
+    nlohmann::json damaged_plan = good;  // a string where a number or a list of them belongs
+    damaged_plan[key] = "damaged";
+    testing::write_text(plan, damaged_plan.dump());
+    const auto damaged = fit("p.ply");
+    EXPECT_EQ(damaged.exit_code, 2) << damaged.err;
+    EXPECT_EQ(testing::count_lines(damaged.err), 1) << damaged.err;
+    EXPECT_NE(damaged.err.find("plan.json"), std::string::npos) << damaged.err;
+    EXPECT_NE(damaged.err.find("field '" + key + "'"), std::string::npos) << damaged.err;
+    EXPECT_EQ(finished_bricks(dir() / "p.ply.bricks"), 2);
+    EXPECT_FALSE(fs::exists(dir() / "p.ply"));
+  }
 }
 
 TEST_F(BrickedFit, MaxMemoryThatDoesNotParseOrIsTooSmallIsOneLine) {
