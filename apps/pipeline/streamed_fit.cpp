@@ -483,16 +483,6 @@ BrickResult fit_brick(const StreamContext& c, const gmf::StreamBrick& b, double 
   return r;
 }
 
-// Distance in voxels (per axis, scaled by the halo) from the centre to the nearest
-// face of `b`'s core that another brick shares; true when under one halo.
-bool near_shared_face(const StreamContext& c, const gmf::StreamBrick& b, const Eigen::Vector3d& ijk) {
-  for (int a = 0; a < 3; ++a) {
-    if (b.cell[a] > 0 && ijk[a] - (b.core.lo[a] - 0.5) < c.plan.halo[a]) return true;
-    if (b.cell[a] + 1 < c.plan.count[a] && (b.core.hi[a] - 0.5) - ijk[a] < c.plan.halo[a]) return true;
-  }
-  return false;
-}
-
 struct SeamStats {
   std::size_t refitted = 0, held = 0;
 };
@@ -505,7 +495,7 @@ gmf::GaussianMixture seam_brick(const StreamContext& c, const gmf::StreamBrick& 
                                 SeamStats& stats) {
   gmf::GaussianMixture stay, free;  // b's Gaussians away from its shared faces, and near them
   for (const gmf::GaussianParams& g : held[static_cast<std::size_t>(b.id)]) {
-    (near_shared_face(c, b, index_of(c, g)) ? free : stay).push_back(g);
+    (reaches_shared_face(c.plan, c.frame, c.gmf.mahalanobis_cutoff, b, g) ? free : stay).push_back(g);
   }
   if (free.empty()) return held[static_cast<std::size_t>(b.id)];
   gmf::GaussianMixture fixed = stay;  // held: b's own away from the faces and every neighbour reaching b
@@ -771,6 +761,19 @@ std::vector<std::int64_t> core_foreground_counts(const io::VolumeSource& source,
 double brick_work(double core_foreground, double core_voxels) { return core_foreground + core_voxels / 4000.0; }
 
 double measure_work(double region_voxels, double gaussians) { return region_voxels + 2000.0 * gaussians; }
+
+bool reaches_shared_face(const gmf::BrickPlan& p, const io::WorldFrame& frame, double cutoff, const gmf::StreamBrick& b,
+                         const gmf::GaussianParams& g) {
+  const Eigen::Vector3d ijk = frame.index_from_world(Eigen::Vector3d(g.mean[0], g.mean[1], g.mean[2]));
+  const Eigen::Matrix3d sigma = gmf::covariance(g);
+  for (int a = 0; a < 3; ++a) {
+    const double extent = std::sqrt(cutoff * sigma(a, a)) / frame.voxel_size()[a];  // voxels along axis a
+    const double reach = std::min(1.25 * extent + 1.0, static_cast<double>(p.halo[a]));
+    if (b.cell[a] > 0 && ijk[a] - (b.core.lo[a] - 0.5) < reach) return true;
+    if (b.cell[a] + 1 < p.count[a] && (b.core.hi[a] - 0.5) - ijk[a] < reach) return true;
+  }
+  return false;
+}
 
 std::vector<int> share_of_bricks(const std::vector<int>& todo, const std::function<double(int)>& weight, int rank,
                                  int ranks) {

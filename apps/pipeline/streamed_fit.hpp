@@ -19,6 +19,7 @@
 
 #include "apps/pipeline/fit_stage.hpp"
 #include "gmf/brick_plan.hpp"
+#include "gmf/core/gaussian_mixture.hpp"
 #include "io/volume_source.hpp"
 
 namespace hisnegs::apps {
@@ -105,6 +106,15 @@ class SequentialBricks final : public BrickExecutor {
 // ~20 µs against ~8 ns on one core, from the measuring passes of op1 and the
 // largest stack, docs/benchmarks.md "Several MPI ranks").
 [[nodiscard]] double measure_work(double region_voxels, double gaussians);
+// True when g's support (dᵀΣ⁻¹d <= `cutoff`: along axis a it extends sqrt(δ Σ_aa))
+// reaches a face of brick b's core that another brick of `p` shares, with a margin
+// for one round's growth (x 1.25) and a voxel, never beyond the halo: the Gaussians
+// the seam pass refits. Two Gaussians of neighbouring bricks whose supports overlap
+// have one of them reaching across the face between them (the overlap lies on one
+// side of it), and that one is refitted with the other held; a Gaussian whose
+// support stays inside its core meets the neighbour's only there.
+[[nodiscard]] bool reaches_shared_face(const gmf::BrickPlan& p, const io::WorldFrame& frame, double cutoff,
+                                       const gmf::StreamBrick& b, const gmf::GaussianParams& g);
 
 // The streamed fit of `volume` to the checkpoint `out` (and the log `log_csv` unless
 // empty), with `choice` from choose_fit_plan (bricked). Same lines, checkpoint

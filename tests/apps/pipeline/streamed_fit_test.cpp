@@ -1,10 +1,12 @@
 // SPDX-License-Identifier: Apache-2.0
 // How the streamed fit shares bricks among MPI ranks (apps/pipeline/streamed_fit.hpp):
-// heaviest first to the least-loaded rank, the same answer on every rank.
+// heaviest first to the least-loaded rank, the same answer on every rank; and which
+// Gaussians its seam pass refits.
 #include "apps/pipeline/streamed_fit.hpp"
 
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <random>
 #include <span>
 #include <vector>
@@ -86,6 +88,44 @@ TEST(CoreForeground, APassOfSlabsCountsEachCore) {
     }
     EXPECT_EQ(parts, expected) << "slab " << slab;
   }
+}
+
+// The seam pass refits a Gaussian when its own support (4σ at δ = 16, a quarter
+// more and a voxel) reaches a face its brick shares: not when it is merely within
+// the halo of one, nor for the stack's own faces; an elongated one by its extent
+// along the face's normal.
+TEST(SeamPass, RefitsTheGaussiansWhoseSupportReachesASharedFace) {
+  const io::WorldFrame frame(64, 32, 16, Eigen::Vector3d(1.0, 0.5, 0.25));  // voxels of 1/32 world
+  const gmf::BrickPlan plan = gmf::plan_bricks({64, 32, 16}, {32, 32, 16}, {8, 8, 8});  // shared face at x = 31.5
+  ASSERT_EQ(plan.bricks.size(), 2u);
+  const double voxel = frame.voxel_size().x();
+  const auto gaussian = [&](double i, double sx, double sy) {  // centre (i, 16, 8), σ in voxels, axis-aligned
+    gmf::GaussianParams g;
+    const Eigen::Vector3d p = frame.world_from_index(Eigen::Vector3d(i, 16, 8));
+    for (int a = 0; a < 3; ++a) g.mean[a] = static_cast<float>(p[a]);
+    g.log_scale = {static_cast<float>(std::log(sx * voxel)), static_cast<float>(std::log(sy * voxel)),
+                   static_cast<float>(std::log(0.5 * voxel))};
+    return g;
+  };
+  const auto reaches = [&](int brick, const gmf::GaussianParams& g) {
+    return reaches_shared_face(plan, frame, 16.0, plan.bricks[static_cast<std::size_t>(brick)], g);
+  };
+  // σ 0.5 voxel: support 2 voxels, reach 3.5 voxels from the face
+  EXPECT_FALSE(reaches(0, gaussian(27.0, 0.5, 0.5)));  // 4.5 voxels away: within the halo (8) only
+  EXPECT_TRUE(reaches(0, gaussian(29.0, 0.5, 0.5)));   // 2.5 voxels away
+  EXPECT_TRUE(reaches(1, gaussian(34.0, 0.5, 0.5)));   // the same from the other side
+  EXPECT_FALSE(reaches(1, gaussian(36.0, 0.5, 0.5)));
+  // σ 3 voxels: support 12 voxels, the reach bounded by the halo (8)
+  EXPECT_TRUE(reaches(0, gaussian(25.0, 3.0, 3.0)));
+  EXPECT_FALSE(reaches(0, gaussian(22.0, 3.0, 3.0)));
+  // long along y, thin along x (the face's normal): thin; then turned 90° about z
+  gmf::GaussianParams needle = gaussian(27.0, 0.5, 4.0);
+  EXPECT_FALSE(reaches(0, needle));
+  needle.rotation = {static_cast<float>(std::sqrt(0.5)), 0.0f, 0.0f, static_cast<float>(std::sqrt(0.5))};
+  EXPECT_TRUE(reaches(0, needle));
+  // the stack's own faces are shared with no brick
+  EXPECT_FALSE(reaches(0, gaussian(1.0, 3.0, 3.0)));
+  EXPECT_FALSE(reaches(1, gaussian(62.0, 3.0, 3.0)));
 }
 
 }  // namespace
