@@ -487,13 +487,13 @@ struct SeamStats {
   std::size_t refitted = 0, held = 0;
 };
 
-// Brick b's Gaussians after refitting those near its shared faces with every other
+// Brick b's Gaussians after refitting those reaching its shared faces with every other
 // Gaussian of `held` that reaches its region held fixed (held[b]: all of b's;
 // held[o]: at least o's Gaussians within b's region grown by the halo).
 gmf::GaussianMixture seam_brick(const StreamContext& c, const gmf::StreamBrick& b,
                                 const std::vector<gmf::GaussianMixture>& held, double beta, double seconds,
                                 SeamStats& stats) {
-  gmf::GaussianMixture stay, free;  // b's Gaussians away from its shared faces, and near them
+  gmf::GaussianMixture stay, free;  // b's Gaussians that reach no shared face, and those that do
   for (const gmf::GaussianParams& g : held[static_cast<std::size_t>(b.id)]) {
     (reaches_shared_face(c.plan, c.frame, c.gmf.mahalanobis_cutoff, b, g) ? free : stay).push_back(g);
   }
@@ -1146,13 +1146,13 @@ BrickTotals brick_totals(const StreamContext& c, const std::vector<std::optional
 void say_seam_pass(const StreamContext& c, const SeamOutcome& s, double seconds, const Progress& progress) {
   const Job& ranks = job();
   if (ranks.distributed()) {
-    progress.say("fit: seam pass on %d ranks: %zu Gaussians near shared faces refitted with %zu neighbours held "
+    progress.say("fit: seam pass on %d ranks: %zu Gaussians reaching a shared face refitted with %zu neighbours held "
                  "fixed; %.2f MiB exchanged (each refitted brick's Gaussians near a later brick, to that brick's "
                  "rank), %s",
                  ranks.size(), s.stats.refitted, s.stats.held, s.exchanged / 1048576.0,
                  format_seconds(seconds).c_str());
   } else {
-    progress.say("fit: seam pass: %zu Gaussians near shared faces refitted (%d Adam steps each brick) with %zu "
+    progress.say("fit: seam pass: %zu Gaussians reaching a shared face refitted (%d Adam steps each brick) with %zu "
                  "neighbours held fixed, %s",
                  s.stats.refitted, c.gmf.seam_iterations, s.stats.held, format_seconds(seconds).c_str());
   }
