@@ -498,7 +498,7 @@ gmf::GaussianMixture seam_brick(const StreamContext& c, const gmf::StreamBrick& 
     (reaches_shared_face(c.plan, c.frame, c.gmf.mahalanobis_cutoff, b, g) ? free : stay).push_back(g);
   }
   if (free.empty()) return held[static_cast<std::size_t>(b.id)];
-  gmf::GaussianMixture fixed = stay;  // held: b's own away from the faces and every neighbour reaching b
+  gmf::GaussianMixture fixed = stay;  // held: b's own that reach no shared face and every neighbour reaching b
   for (const gmf::StreamBrick& other : c.plan.bricks) {
     if (other.id == b.id) continue;
     for (const gmf::GaussianParams& g : held[static_cast<std::size_t>(other.id)]) {
@@ -571,9 +571,8 @@ std::vector<std::int64_t> count_core_foreground(const StreamContext& c, std::siz
 }
 
 // The statistics a resume takes from plan.json (and the bricks' foreground when
-// the run that wrote it counted them).
-// A damaged field is one line naming it (a wrong length of core_foreground is not:
-// the counts are taken again).
+// the run that wrote it counted them). A damaged field is one line naming it; a
+// core_foreground of the wrong length is dropped and the counts are taken again.
 void take_plan_statistics(StreamContext& c, const nlohmann::json& plan) {
   const auto field = [&]<typename T>(const char* key, T& to, const char* what) {
     try {
