@@ -165,6 +165,12 @@ void for_each_slab(const VolumeSource& source, std::size_t slab_bytes, const Sca
   slabs_of(source, slab_bytes, share, fn);
 }
 
+std::size_t SourceStatistics::cell_bin(std::size_t value) const {
+  if (!cell_log_bins) return value;
+  const auto b = static_cast<std::size_t>(std::floor(16.0 * std::log2(static_cast<double>(value) + 1.0)));
+  return std::min(b, kCellBins - 1);
+}
+
 double SourceStatistics::percentile(double p) const {
   if (voxels == 0) return 0.0;
   if (p <= 0.0) return min;
@@ -192,20 +198,64 @@ double SourceStatistics::percentile(double p) const {
   return a + (pos - static_cast<double>(k)) * (b - a);
 }
 
-SourceStatistics scan_statistics(const VolumeSource& source, std::size_t slab_bytes, const ScanShare& share) {
+namespace {
+
+// Per axis, each voxel coordinate's cell coordinate in `cells`.
+std::array<std::vector<std::size_t>, 3> cell_coordinates(const VolumeSource& source, const CellGrid& cells) {
+  const std::array<int, 3> n{source.nx, source.ny, source.nz};
+  std::array<std::vector<std::size_t>, 3> of;
+  for (int a = 0; a < 3; ++a) {
+    of[a].resize(static_cast<std::size_t>(n[a]));
+    for (int v = 0; v < n[a]; ++v) {
+      of[a][static_cast<std::size_t>(v)] = static_cast<std::size_t>(std::min(v / cells.edge[a], cells.count[a] - 1));
+    }
+  }
+  return of;
+}
+
+}  // namespace
+
+SourceStatistics scan_statistics(const VolumeSource& source, std::size_t slab_bytes, const ScanShare& share,
+                                 const CellGrid* cells) {
   SourceStatistics st;
   const bool integer = source.stored_as != SampleType::kFloat32;
   if (integer) st.histogram.assign(source.stored_as == SampleType::kUint8 ? 256 : 65536, 0);
+  const bool by_cell = integer && cells != nullptr;
+  std::array<std::vector<std::size_t>, 3> cell_of;
+  std::vector<std::uint8_t> bin_of;  // cell_bin of every stored value
+  if (by_cell) {
+    st.cell_log_bins = source.stored_as != SampleType::kUint8;
+    st.cell_histograms.assign(cells->cells() * SourceStatistics::kCellBins, 0);
+    cell_of = cell_coordinates(source, *cells);
+    bin_of.resize(st.histogram.size());
+    for (std::size_t v = 0; v < bin_of.size(); ++v) bin_of[v] = static_cast<std::uint8_t>(st.cell_bin(v));
+  }
   st.min = std::numeric_limits<double>::infinity();
   st.max = -std::numeric_limits<double>::infinity();
   slabs_of(source, slab_bytes, share, [&](const VoxelBox& box, std::span<const float> block) {
-    for (const float v : block) {
-      if (!std::isfinite(v)) {
-        fail_input(source.source, "holds a NaN/Inf voxel in pages " + std::to_string(box.lo[2]) + "..");
+    const auto width = static_cast<std::size_t>(box.hi[0] - box.lo[0]);
+    const auto height = static_cast<std::size_t>(box.hi[1] - box.lo[1]);
+    for (std::size_t r = 0; r < block.size() / width; ++r) {
+      std::int64_t* cell_row = nullptr;  // this row's cells' histograms (cell x at kCellBins · x)
+      if (by_cell) {
+        const std::size_t z = static_cast<std::size_t>(box.lo[2]) + r / height;
+        const std::size_t y = static_cast<std::size_t>(box.lo[1]) + r % height;
+        const auto cx = static_cast<std::size_t>(cells->count[0]), cy = static_cast<std::size_t>(cells->count[1]);
+        cell_row = st.cell_histograms.data() + (cell_of[2][z] * cy + cell_of[1][y]) * cx * SourceStatistics::kCellBins;
       }
-      st.min = std::min(st.min, static_cast<double>(v));
-      st.max = std::max(st.max, static_cast<double>(v));
-      if (integer) ++st.histogram[static_cast<std::size_t>(v)];
+      for (std::size_t i = 0; i < width; ++i) {
+        const float v = block[r * width + i];
+        if (!std::isfinite(v)) {
+          fail_input(source.source, "holds a NaN/Inf voxel in pages " + std::to_string(box.lo[2]) + "..");
+        }
+        st.min = std::min(st.min, static_cast<double>(v));
+        st.max = std::max(st.max, static_cast<double>(v));
+        if (integer) ++st.histogram[static_cast<std::size_t>(v)];
+        if (cell_row != nullptr) {
+          ++cell_row[cell_of[0][static_cast<std::size_t>(box.lo[0]) + i] * SourceStatistics::kCellBins +
+                     bin_of[static_cast<std::size_t>(v)]];
+        }
+      }
     }
     st.voxels += static_cast<std::int64_t>(block.size());
   });
@@ -216,6 +266,7 @@ SourceStatistics scan_statistics(const VolumeSource& source, std::size_t slab_by
     st.max = extremes[1];
     sum_counts(share, std::span<std::int64_t>(&st.voxels, 1));
     sum_counts(share, st.histogram);
+    sum_counts(share, st.cell_histograms);
   }
   if (!integer && st.voxels > 0 && st.max > st.min) {
     // float32: a second pass into kFloatBins equal bins over [min, max]
@@ -264,6 +315,33 @@ Normalization normalization_from(const SourceStatistics& stats, const Normalizat
     }
   }
   return n;
+}
+
+std::vector<std::int64_t> cell_counts_above(const SourceStatistics& stats, const Normalization& map, double threshold) {
+  if (stats.cell_histograms.empty() || stats.bin_width != 0) {
+    throw std::logic_error("cell_counts_above: no cell histograms (scan_statistics was given no CellGrid)");
+  }
+  constexpr std::size_t kBins = SourceStatistics::kCellBins;
+  // Every stored value normalized once (as count_above); per coarse bin, the whole
+  // stack's share of its voxels above the threshold (0 or 1 but where it falls).
+  std::vector<float> values(stats.histogram.size());
+  std::iota(values.begin(), values.end(), 0.0f);
+  (void)apply_normalization(values, map);
+  std::vector<double> above(kBins, 0.0), in(kBins, 0.0);
+  for (std::size_t v = 0; v < values.size(); ++v) {
+    const std::size_t b = stats.cell_bin(v);
+    in[b] += static_cast<double>(stats.histogram[v]);
+    if (values[v] > threshold) above[b] += static_cast<double>(stats.histogram[v]);
+  }
+  std::vector<std::int64_t> out(stats.cell_histograms.size() / kBins);
+  for (std::size_t c = 0; c < out.size(); ++c) {
+    double n = 0;
+    for (std::size_t b = 0; b < kBins; ++b) {
+      if (in[b] > 0) n += static_cast<double>(stats.cell_histograms[c * kBins + b]) * (above[b] / in[b]);
+    }
+    out[c] = std::llround(n);
+  }
+  return out;
 }
 
 std::int64_t count_above(const VolumeSource& source, const SourceStatistics& stats, const Normalization& map,

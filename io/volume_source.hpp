@@ -66,6 +66,14 @@ struct SourceStatistics {
   std::vector<std::int64_t> histogram;
   double bin_width = 0.0;  // 0: one bin per integer value
   static constexpr std::size_t kFloatBins = std::size_t{1} << 20;
+  // When the scan was given a CellGrid (8/16-bit stacks only): each cell's counts of
+  // cell_bin(value), kCellBins per cell, cell after cell (z, then y, then x).
+  static constexpr std::size_t kCellBins = 256;
+  bool cell_log_bins = false;  // false: one bin per value (8-bit); true: 16 per octave (16-bit)
+  std::vector<std::int64_t> cell_histograms;
+  // The coarse bin of a stored value: the value itself (8-bit), or
+  // floor(16 log2(value + 1)) (16-bit: bins 4.4 % wide whatever range a stack uses).
+  [[nodiscard]] std::size_t cell_bin(std::size_t value) const;
   // The value at percentile p (0..100), interpolated between order statistics as
   // normalize() does: exact for 8/16-bit stacks; for float32 within one bin width
   // ((max - min) / 2^20) of normalize()'s value, each bin's ranks spread evenly
@@ -83,6 +91,16 @@ struct ScanShare {
   [[nodiscard]] bool shared() const { return parts > 1; }
 };
 
+// A regular grid of cells over the stack (a streamed fit's brick cores): cells of
+// `edge` voxels per axis (the last of an axis may be shorter), `count` per axis.
+struct CellGrid {
+  std::array<int, 3> edge{1, 1, 1};
+  std::array<int, 3> count{1, 1, 1};
+  [[nodiscard]] std::size_t cells() const {
+    return static_cast<std::size_t>(count[0]) * static_cast<std::size_t>(count[1]) * static_cast<std::size_t>(count[2]);
+  }
+};
+
 // Calls fn(box, values) for slabs of the stack in z order (of this part's pages
 // when shared): whole pages while a page is under slab_bytes of float32, else
 // bands of rows of one page. The pass every statistic here is made of.
@@ -91,8 +109,11 @@ void for_each_slab(const VolumeSource& source, std::size_t slab_bytes, const Sca
 
 // One streaming pass (two for float32): slabs of whole pages, or bands of rows of
 // one page, each at most slab_bytes of float32; this part's pages when shared.
+// With `cells` (an 8/16-bit stack), the same pass also takes each cell's coarse
+// histogram (SourceStatistics::cell_histograms): what cell_counts_above estimates
+// each cell's foreground from, without a pass of its own.
 [[nodiscard]] SourceStatistics scan_statistics(const VolumeSource& source, std::size_t slab_bytes = 256u << 20,
-                                               const ScanShare& share = {});
+                                               const ScanShare& share = {}, const CellGrid* cells = nullptr);
 
 // The map normalize() would apply to the whole stack, from its statistics (the same
 // errors: a constant stack, percentiles that coincide).
@@ -104,5 +125,13 @@ void for_each_slab(const VolumeSource& source, std::size_t slab_bytes, const Sca
 [[nodiscard]] std::int64_t count_above(const VolumeSource& source, const SourceStatistics& stats,
                                        const Normalization& map, double threshold,
                                        std::size_t slab_bytes = 256u << 20);
+
+// Each cell's voxels above `threshold` once normalized by `map`, from the cell
+// histograms of `stats`: exact for an 8-bit stack, and for a 16-bit one exact but
+// for the one coarse bin (4.4 % of values) the threshold falls in, whose voxels
+// count in the whole stack's proportion above it. Throws std::logic_error without cell
+// histograms.
+[[nodiscard]] std::vector<std::int64_t> cell_counts_above(const SourceStatistics& stats, const Normalization& map,
+                                                          double threshold);
 
 }  // namespace hisnegs::io

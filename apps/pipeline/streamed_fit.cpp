@@ -593,8 +593,11 @@ void take_plan_statistics(StreamContext& c, const nlohmann::json& plan) {
 // The normalization and foreground count: from plan.json when resuming (the same
 // fingerprint), else one streaming pass, each rank reading its share of the pages
 // (the counts and extremes are exact, so the same as one process's), recorded by
-// rank 0 in a new plan.json. On several ranks also each brick's foreground (one
-// more pass, shared alike), which shares the brick pass. Every rank calls it.
+// rank 0 in a new plan.json. On several ranks also each brick's foreground, which
+// shares the brick pass: of an 8/16-bit stack from the cores' coarse histograms
+// taken in the same pass (io::cell_counts_above; only the balance of the ranks
+// depends on it, not the fit), of a float32 one from one more pass, shared alike.
+// Every rank calls it.
 void load_or_scan_statistics(StreamContext& c, const Job& ranks, const Progress& progress) {
   const io::VolumeOptions& vo = c.config->get<&AppConfig::volume>();
   const std::optional<nlohmann::json> plan = existing_plan(c);
@@ -606,18 +609,26 @@ void load_or_scan_statistics(StreamContext& c, const Job& ranks, const Progress&
                  c.normalization.describe().c_str());
   } else {
     const io::ScanShare share = scan_share(ranks);
-    const io::SourceStatistics stats = io::scan_statistics(*c.source, slab, share);
+    const double threshold = c.config->get<&AppConfig::sparse_grid>().threshold;
+    const bool by_cell = ranks.distributed() && c.source->stored_as != io::SampleType::kFloat32;
+    const io::CellGrid cores{c.plan.core, c.plan.count};
+    const io::SourceStatistics stats = io::scan_statistics(*c.source, slab, share, by_cell ? &cores : nullptr);
     c.normalization = io::normalization_from(stats, vo.normalization, c.path);
-    if (ranks.distributed()) {
+    if (by_cell) {
+      c.core_foreground = io::cell_counts_above(stats, c.normalization, threshold);
+    } else if (ranks.distributed()) {
       c.core_foreground = count_core_foreground(c, slab, ranks);
-      c.foreground = std::accumulate(c.core_foreground.begin(), c.core_foreground.end(), std::int64_t{0});
-    } else {
-      c.foreground = io::count_above(*c.source, stats, c.normalization,
-                                     c.config->get<&AppConfig::sparse_grid>().threshold, slab);
     }
+    // exact: from the histogram (8/16-bit), or the cores' exact counts, or a pass (float32 alone)
+    c.foreground = ranks.distributed() && !by_cell
+                       ? std::accumulate(c.core_foreground.begin(), c.core_foreground.end(), std::int64_t{0})
+                       : io::count_above(*c.source, stats, c.normalization, threshold, slab);
     if (!plan && ranks.root()) write_plan(c, stats);
     progress.say("fit: statistics in one pass%s: %s, %lld foreground voxels, %s",
-                 ranks.distributed() ? strf(" (%d ranks, each its share of the pages)", ranks.size()).c_str() : "",
+                 ranks.distributed() ? strf(" (%d ranks, each its share of the pages%s)", ranks.size(),
+                                            by_cell ? "; each brick's foreground from its histogram" : "")
+                                           .c_str()
+                                     : "",
                  c.normalization.describe().c_str(), static_cast<long long>(c.foreground),
                  format_seconds(scan.elapsed()).c_str());
   }

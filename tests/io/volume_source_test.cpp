@@ -10,6 +10,7 @@
 #include <algorithm>
 #include <barrier>
 #include <cstdlib>
+#include <numeric>
 #include <random>
 #include <thread>
 
@@ -171,6 +172,61 @@ TEST(VolumeSource, Float32PercentilesAreWithinOneBinOfTheExactOnes) {
   }
 }
 
+// Cells' coarse histograms, taken in the statistics pass, give each cell's
+// foreground: exactly for 8-bit stacks; for 16-bit ones within the cell's voxels in
+// the coarse bin (16 per octave) the threshold splits, also for a 16-bit stack
+// whose values all lie below 256 (coarse bins of 256 values would see one bin). A pass of slabs of bands of
+// rows takes the same histograms as one of pages.
+TEST(VolumeSource, CellHistogramsGiveEachCellsForeground) {
+  const CellGrid cells{{16, 11, 5}, {3, 3, 3}};  // the last cell of each axis shorter
+  for (const auto& [type, narrow] : std::vector<std::pair<SampleType, bool>>{
+           {SampleType::kUint8, false}, {SampleType::kUint16, false}, {SampleType::kUint16, true}}) {
+    SCOPED_TRACE(::testing::Message() << to_string(type) << (narrow ? ", values below 256" : ""));
+    Volume v = stack(type, 13);
+    if (narrow) {
+      for (float& x : v.voxels) x = std::floor(x / 16.0f);  // a 16-bit stack using 0..249
+    }
+    const auto s = memory_source(v);
+    const SourceStatistics st = scan_statistics(*s, 4 * 45 * 31 * 3, {}, &cells);
+    EXPECT_EQ(scan_statistics(*s, 4 * 45 * 7, {}, &cells).cell_histograms, st.cell_histograms);
+    ASSERT_EQ(st.cell_histograms.size(), cells.cells() * SourceStatistics::kCellBins);
+    Volume whole = v;
+    normalize(whole, {});
+    // which coarse bins the threshold splits (some values above it, some not)
+    std::vector<float> values(st.histogram.size());
+    std::iota(values.begin(), values.end(), 0.0f);
+    (void)apply_normalization(values, whole.normalization);
+    for (const double threshold : {0.05, 0.2, 0.6}) {
+      std::vector<int> above(SourceStatistics::kCellBins, 0), below(SourceStatistics::kCellBins, 0);
+      for (std::size_t x = 0; x < values.size(); ++x) (values[x] > threshold ? above : below)[st.cell_bin(x)] = 1;
+      std::vector<std::int64_t> exact(cells.cells(), 0);
+      for (int z = 0; z < v.nz; ++z) {
+        for (int y = 0; y < v.ny; ++y) {
+          for (int x = 0; x < v.nx; ++x) {
+            const auto c = static_cast<std::size_t>((z / 5 * 3 + y / 11) * 3 + x / 16);
+            exact[c] += whole.voxels[v.index(x, y, z)] > threshold ? 1 : 0;
+          }
+        }
+      }
+      const std::vector<std::int64_t> got = cell_counts_above(st, whole.normalization, threshold);
+      ASSERT_EQ(got.size(), exact.size());
+      std::int64_t split_total = 0;  // voxels whose bin the threshold splits: few
+      for (std::size_t c = 0; c < got.size(); ++c) {
+        std::int64_t split = 0;  // the cell's voxels in split bins
+        for (std::size_t b = 0; b < SourceStatistics::kCellBins; ++b) {
+          split += above[b] != 0 && below[b] != 0 ? st.cell_histograms[c * SourceStatistics::kCellBins + b] : 0;
+        }
+        split_total += split;
+        if (type == SampleType::kUint8) EXPECT_EQ(split, 0);
+        EXPECT_LE(std::abs(got[c] - exact[c]), split) << "cell " << c << ", threshold " << threshold;
+      }
+      EXPECT_GT(std::accumulate(exact.begin(), exact.end(), std::int64_t{0}), 0);
+      EXPECT_LT(split_total, static_cast<std::int64_t>(v.size() / 20)) << "threshold " << threshold;
+    }
+  }
+  EXPECT_THROW((void)cell_counts_above(SourceStatistics{}, Normalization{}, 0.2), std::logic_error);
+}
+
 // The foreground count of a stack read by slabs equals the count over the whole
 // normalized stack: from the histogram (8/16-bit) and from a pass of slabs (float32,
 // whose histogram holds bins, not values).
@@ -230,7 +286,8 @@ TEST(VolumeSource, AScanSharedByPartsEqualsOneProcesssScan) {
     const Volume v = stack_of_any_type(type, 11);
     const auto s = memory_source(v);
     const std::size_t slab = 4 * 45 * 31 * 2;
-    const SourceStatistics one = scan_statistics(*s, slab);
+    const CellGrid cells{{20, 20, 4}, {3, 2, 4}};
+    const SourceStatistics one = scan_statistics(*s, slab, {}, &cells);
     const Normalization map = normalization_from(one, {}, "s");
     const std::int64_t above = count_above(*s, one, map, 0.2, slab);
     for (const int parts : {2, 3, 17}) {
@@ -240,7 +297,7 @@ TEST(VolumeSource, AScanSharedByPartsEqualsOneProcesssScan) {
       for (int p = 0; p < parts; ++p) {
         threads.emplace_back([&, p] {
           const ScanShare share = shares.share(p);
-          got[static_cast<std::size_t>(p)] = scan_statistics(*s, slab, share);
+          got[static_cast<std::size_t>(p)] = scan_statistics(*s, slab, share, &cells);
         });
       }
       for (auto& t : threads) t.join();
@@ -252,6 +309,7 @@ TEST(VolumeSource, AScanSharedByPartsEqualsOneProcesssScan) {
         EXPECT_EQ(st.voxels, one.voxels);
         EXPECT_EQ(st.bin_width, one.bin_width);
         EXPECT_EQ(st.histogram, one.histogram);
+        EXPECT_EQ(st.cell_histograms, one.cell_histograms);  // none for float32
         EXPECT_EQ(count_above(*s, st, normalization_from(st, {}, "s"), 0.2, slab), above);
       }
     }
