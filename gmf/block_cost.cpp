@@ -42,7 +42,6 @@ bool BlockCost::Evaluate(double const* const* parameters, double* residuals, dou
         std::fill(jacobians[g], jacobians[g] + static_cast<std::size_t>(count_) * kGaussianParamCount, 0.0);
     }
   }
-  const bool soft = model_.aggregation == Aggregation::kSoftmax;
   for (std::uint32_t j = 0; j < count_; ++j) {
     const std::size_t s = first_ + j;
     const double x[3] = {samples_.x[s], samples_.y[s], samples_.z[s]};
@@ -61,7 +60,7 @@ bool BlockCost::Evaluate(double const* const* parameters, double* residuals, dou
     residuals[j] = w * (f - samples_.value[s]);
     if (!jacobians) continue;
     for (std::size_t i = 0; i < n; ++i) {
-      const double df_dg = soft ? softmax_dvalue_dterm(terms[i], model_.beta, all.soft.m, all.soft.S, f) : 1.0;
+      const double df_dg = dvalue_dterm(terms[i], all, model_, f);
       const double* grad = &grads[i * kGaussianParamCount];
       double* J = jacobians[reach[i]];
       if (!J) continue;

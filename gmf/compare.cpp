@@ -131,6 +131,7 @@ Comparison compare_optimizers(const io::Volume& volume, const SampleSet& samples
         o.aggregation == Aggregation::kSoftmax && o.beta_start < o.beta_end;
     if (!continuation) o.beta_start = o.beta_end;
     o.report_beta = o.aggregation == Aggregation::kSoftmax ? o.beta_end : 0.0;
+    o.hard_share = 0.0;  // the same objective to the end (a run's hard share would change it midway)
     // The global solvers' rounds are index rebuilds: 25 iterations each, as before
     // (brick LM's sweeps take gmf.brick_iterations per brick).
     o.iterations_per_round = 25;

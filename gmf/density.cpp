@@ -22,7 +22,8 @@ struct Candidate {
 };
 
 // Each Gaussian's share of the squared residuals (g_k / f for a sum, its softmax
-// weight for a max-mixture: the dominant Gaussian owns the error), and the
+// weight for a softmax mixture, 1 for the largest term of a max: the dominant
+// Gaussian owns the error), and the
 // foreground samples whose model falls short by more than clone_residual.
 std::vector<double> error_shares(const GaussianMixture& mixture, const SampleSet& samples, const BlockIndex& index,
                                  const GmfOptions& options, const MixtureModel& model, std::vector<Candidate>& under) {
@@ -49,7 +50,9 @@ std::vector<double> error_shares(const GaussianMixture& mixture, const SampleSet
       }
       const double r = terms_value(all, model) - samples.value[s];
       for (std::size_t i : reach) {
-        const double share = soft ? std::exp(model.beta * g[i] - all.soft.m) / all.soft.S : g[i] / all.sum;
+        const double share = soft                                     ? std::exp(model.beta * g[i] - all.soft.m) / all.soft.S
+                             : model.aggregation == Aggregation::kMax ? dvalue_dterm(g[i], all, model, all.max)
+                                                                      : g[i] / all.sum;
         error[ids[i]] += share * r * r;
       }
       if (s < samples.foreground && -r > options.clone_residual && samples.value[s] > options.clone_floor) {
@@ -124,7 +127,7 @@ DensityChange adapt_density(GaussianMixture& mixture, const SampleSet& samples, 
   std::vector<GaussianParams> added;
   DensityChange change;
   change.split = split_worst(mixture, error, options, frame.voxel_size().maxCoeff(), per_call, room, added);
-  change.cloned = clone_under(std::move(under), samples, frame, model.aggregation == Aggregation::kSoftmax, per_call,
+  change.cloned = clone_under(std::move(under), samples, frame, model.aggregation != Aggregation::kSum, per_call,
                               room, added);
   for (const auto& p : added) mixture.push_back(p);
   return change;

@@ -102,9 +102,12 @@ void put_density_meta(FloatGrid& g, const Checkpoint& checkpoint, const VoxelLat
   g.insertMeta("cutoff", openvdb::DoubleMetadata(options.cutoff));
   g.insertMeta("tail", openvdb::DoubleMetadata(options.tail));
   const bool soft = checkpoint.meta.aggregation == Aggregation::kSoftmax;
-  g.insertMeta("aggregation", openvdb::StringMetadata(soft ? "softmax" : "sum"));
+  const Aggregation aggregation = checkpoint.meta.aggregation;
+  g.insertMeta("aggregation", openvdb::StringMetadata(soft                                  ? "softmax"
+                                                      : aggregation == Aggregation::kMax ? "max"
+                                                                                          : "sum"));
   if (soft) g.insertMeta("beta", openvdb::DoubleMetadata(checkpoint.meta.beta));
-  const bool untruncated = !soft && options.untruncated_sum;
+  const bool untruncated = aggregation == Aggregation::kSum && options.untruncated_sum;
   g.insertMeta("untruncated_sum", openvdb::BoolMetadata(untruncated));
   if (!untruncated) g.insertMeta("support", openvdb::DoubleMetadata(options.support));
   g.insertMeta("model", openvdb::StringMetadata(model_source));

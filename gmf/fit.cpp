@@ -455,8 +455,9 @@ class RoundLoop {
         result_.stop_reason = "time budget";
         break;
       }
-      model_ = options_.model(round);
-      report_ = options_.report_model(round);
+      const bool hard = options_.hard_round(round, clock_.now());
+      model_ = options_.model(round, hard);
+      report_ = options_.report_model(round, hard);
       const SampleSet& samples = sample(round);
       RoundProblem problem = index(samples);
       const RoundOutcome outcome = solve(problem, samples, round, left);
@@ -494,7 +495,7 @@ class RoundLoop {
       result_.rounds.push_back(stats);
       if (last) break;
       if (outcome.converged && round > 0 && stats.split == 0 && stats.cloned == 0 &&
-          options_.model(round + 1).beta == model_.beta) {
+          options_.model(round + 1).beta == model_.beta && hard == options_.hard_round(round + 1, clock_.now())) {
         result_.stop_reason = "converged: " + outcome.message;
         break;
       }

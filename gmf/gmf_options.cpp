@@ -32,6 +32,7 @@ void GmfOptions::validate() const {
   io::require_in_range(s, "beta_start", beta_start, 1e-6, 1e4);
   io::require_in_range(s, "beta_end", beta_end, beta_start, 1e4);
   io::require_in_range(s, "beta_growth", beta_growth, 1.0, 1e3);
+  io::require_in_range(s, "hard_share", hard_share, 0.0, 0.99);
   io::require_in_range(s, "report_beta", report_beta, 0.0, 1e4);
   const bool logs_at_report_beta = optimizer == Optimizer::kAdam || optimizer == Optimizer::kBrickLm;
   if (report_beta > 0 && aggregation == Aggregation::kSoftmax && !logs_at_report_beta &&
@@ -71,16 +72,26 @@ double GmfOptions::largest_scale(double min_voxel, double max_voxel) const {
 
 double GmfOptions::jitter() const { return sample_jitter.value_or(aggregation == Aggregation::kSum ? 0.0 : 1.0); }
 
-MixtureModel GmfOptions::model(int round) const {
+MixtureModel GmfOptions::model(int round, bool hard) const {
   MixtureModel m;
-  m.aggregation = aggregation;
+  m.aggregation = hard && aggregation == Aggregation::kSoftmax ? Aggregation::kMax : aggregation;
   m.cutoff = mahalanobis_cutoff;
   m.beta = std::min(beta_end, beta_start * std::pow(beta_growth, round));
   return m;
 }
 
-MixtureModel GmfOptions::report_model(int round) const {
-  MixtureModel m = model(round);
+bool GmfOptions::hard_round(int round, double seconds) const {
+  if (aggregation != Aggregation::kSoftmax || !(hard_share > 0)) return false;
+  const bool by_rounds = round >= static_cast<int>(std::ceil((1.0 - hard_share) * rounds));
+  return by_rounds || (time_budget_s > 0 && seconds >= (1.0 - hard_share) * time_budget_s);
+}
+
+Aggregation GmfOptions::final_aggregation() const {
+  return aggregation == Aggregation::kSoftmax && hard_share > 0 ? Aggregation::kMax : aggregation;
+}
+
+MixtureModel GmfOptions::report_model(int round, bool hard) const {
+  MixtureModel m = model(round, hard);
   if (report_beta > 0 && m.aggregation == Aggregation::kSoftmax) m.beta = report_beta;
   return m;
 }

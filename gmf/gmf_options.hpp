@@ -27,7 +27,8 @@ enum class FitInit { kGrid, kMaxima };
 struct GmfOptions {
   int gaussians = 20000;  // Gaussian budget K for init and density control, [1, 10^7]
   // What the mixture's value is: `softmax` fits f_β = Σ w_k g_k, w = softmax(β g)
-  // (report Eq. 8 in 3D), which tends to max_k g_k, the value every MIP splat shows;
+  // (report Eq. 8 in 3D), which tends to max_k g_k, the value every MIP splat shows,
+  // and ends on the max itself (hard_share); `max` fits the max from the start;
   // `sum` fits the report's Eq. 1 (density export). docs/user-guide.md says which to
   // use for what.
   Aggregation aggregation = Aggregation::kSoftmax;
@@ -35,6 +36,13 @@ struct GmfOptions {
   double beta_start = 8.0;   // > 0
   double beta_end = 64.0;    // >= beta_start
   double beta_growth = 2.0;  // >= 1
+  // softmax only: the share of the fit that ends on the max itself (the hard MIP's
+  // 3D counterpart, gmf/core/aggregation.hpp), [0, 1): the rounds that start after
+  // (1 − hard_share) of the time budget, or of gmf.rounds, whichever comes first,
+  // solve f = max_k g_k with its subgradient, and the checkpoint records `max`.
+  // At β alone a dim region's softmax is close to a mean, so halos that the max
+  // shows were never fitted away (docs/benchmarks.md "Hard MIP"). 0: β alone.
+  double hard_share = 0.25;
   // adam | brick-lm | lm | lm-cgnr | dogleg | lbfgs. brick-lm: exact LM on small
   // local problems (gmf/brick_solver.hpp), swept colour by colour; the others solve
   // one global problem per round. Adam is the default because it fits both
@@ -142,19 +150,26 @@ struct GmfOptions {
 
   // sample_jitter, or its automatic value for this aggregation.
   [[nodiscard]] double jitter() const;
-  // The mixture model of round `round` (its β from the schedule).
-  [[nodiscard]] MixtureModel model(int round) const;
+  // The mixture model of round `round` (its β from the schedule; the max when
+  // `hard`, the hard share, for a softmax fit).
+  [[nodiscard]] MixtureModel model(int round, bool hard = false) const;
+  // Whether round `round`, starting `seconds` into the fit, is in the hard share.
+  [[nodiscard]] bool hard_round(int round, double seconds) const;
+  // How the fitted mixture is evaluated: the max after a hard share, else aggregation.
+  [[nodiscard]] Aggregation final_aggregation() const;
   // The model every logged loss is measured with: model(round), at report_beta when set.
-  [[nodiscard]] MixtureModel report_model(int round) const;
+  [[nodiscard]] MixtureModel report_model(int round, bool hard = false) const;
   void validate() const;  // throws InputError("gmf.FIELD = VALUE: rule")
   template <class V>
   void visit(V&& v) {
     v("gaussians", gaussians);
     v("aggregation", aggregation,
-      io::EnumNames<Aggregation>{{"softmax", Aggregation::kSoftmax}, {"sum", Aggregation::kSum}});
+      io::EnumNames<Aggregation>{
+          {"softmax", Aggregation::kSoftmax}, {"sum", Aggregation::kSum}, {"max", Aggregation::kMax}});
     v("beta_start", beta_start);
     v("beta_end", beta_end);
     v("beta_growth", beta_growth);
+    v("hard_share", hard_share);
     v("optimizer", optimizer,
       io::EnumNames<Optimizer>{{"brick-lm", Optimizer::kBrickLm},
                                {"lm", Optimizer::kLevenbergMarquardt},

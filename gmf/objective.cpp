@@ -32,7 +32,7 @@ constexpr int kAccMean = 0, kAccScale = 3, kAccR = 6, kAccA = 15, kAccCount = 16
 struct Term {
   std::uint32_t k;
   double g, e, z[3];
-  double w;  // softmax only: e^{β (g − max g)}
+  double w;  // softmax: e^{β (g − max g)}; max: 1 for the first largest term, else 0
 };
 
 }  // namespace
@@ -128,9 +128,11 @@ void select_near(std::span<const std::uint32_t> candidates, const std::vector<do
 }
 
 // The model at sample x: s.terms (the near candidates within the support) and f,
-// the sum or the softmax-weighted mean Σ w_k g_k, w = softmax(β g), with
-// e^{β (g_k − max g)} computed once and kept for ∂f/∂g_k; `S` the softmax's Σ w.
-// `fixed` (or null): the held Gaussians' terms at x, which join the near ones.
+// the sum, the softmax-weighted mean Σ w_k g_k, w = softmax(β g), with
+// e^{β (g_k − max g)} computed once and kept for ∂f/∂g_k, `S` the softmax's Σ w,
+// or the max (w = 1 for the first free term that is the max, unless a held term
+// is larger; S = 1). `fixed` (or null): the held Gaussians' terms at x, which join
+// the near ones.
 double sample_value(const double x[3], const std::vector<GaussianFrame<double>>& frames, const MixtureModel& model,
                     const PointTerms<double>* fixed, ChunkScratch& s, double& S) {
   s.terms.clear();
@@ -149,6 +151,16 @@ double sample_value(const double x[3], const std::vector<GaussianFrame<double>>&
     s.terms.push_back(t);
   }
   S = 0;
+  if (model.aggregation == Aggregation::kMax) {
+    S = 1;
+    const double held = fixed != nullptr ? fixed->max : 0.0;
+    bool taken = !(top > held);  // a held term at least as large: no free term gets the gradient
+    for (Term& t : s.terms) {
+      t.w = !taken && t.g == top ? 1.0 : 0.0;
+      taken = taken || t.w > 0;
+    }
+    return s.terms.empty() ? held : std::max(top, held);
+  }
   if (model.aggregation != Aggregation::kSoftmax) return fixed ? fixed->sum + sum : sum;
   const bool held = fixed != nullptr && fixed->soft.S > 0;
   if (s.terms.empty()) return held ? softmax_value(fixed->soft) : 0.0;
@@ -175,8 +187,11 @@ double sample_value(const double x[3], const std::vector<GaussianFrame<double>>&
 void accumulate_sample(const double x[3], double dL_df, double f, double S, const MixtureModel& model,
                        const std::vector<Term>& terms, const std::vector<GaussianFrame<double>>& frames, double* acc) {
   const bool soft = model.aggregation == Aggregation::kSoftmax;
+  const bool max = model.aggregation == Aggregation::kMax;
   for (const Term& t : terms) {
-    const double df_dg = soft ? t.w / S * (1.0 + model.beta * (t.g - f)) : 1.0;  // w_k (1 + β (g_k − f))
+    // w_k (1 + β (g_k − f)), the max's subgradient, or 1
+    const double df_dg = soft ? t.w / S * (1.0 + model.beta * (t.g - f)) : max ? t.w : 1.0;
+    if (df_dg == 0.0) continue;
     const double dL_dg = dL_df * df_dg;
     const double dL_dm = -0.5 * t.g * dL_dg;
     const GaussianFrame<double>& fr = frames[t.k];

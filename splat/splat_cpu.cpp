@@ -63,6 +63,11 @@ class CpuSplatRenderer final : public SplatRenderer {
     for_each_tile_run(rows_[k], TileRect{t.x0, t.ty0, t.x1, t.ty1}, fn);
   }
   [[nodiscard]] detail::TileFrame tile_frame(int tile) const;
+  // backward's steps: the 2D gradient sums per Gaussian (gaussian_grads_) of a hard
+  // or a soft forward, then through the projection to the 11 parameters.
+  void hard_grads(std::span<const float> dL_dimage);
+  void soft_grads(std::span<const float> dL_dimage);
+  void project_grads(std::span<float> dL_dparams, std::span<float> screen_grad) const;
   [[nodiscard]] detail::TileGaussians tile_gaussians(int tile) const;
 
   // The last forward (all reused between frames: no allocation once sizes settle).
@@ -85,6 +90,7 @@ class CpuSplatRenderer final : public SplatRenderer {
   std::vector<std::uint32_t> entries_;       // Gaussian id per (tile, rank)
   std::vector<detail::PackedSplat> packed_;  // per Gaussian: its 2D parameters for the tile kernels
   std::vector<float> m_, S_, I_;             // per pixel
+  std::vector<std::int32_t> argmax_;         // per pixel, hard mode with keep_argmax: the largest term's Gaussian
   std::vector<std::uint8_t> floor_above_;    // per pixel, soft mode with a floor: the floor won the max
   std::vector<float> masked_dL_;             // backward scratch: dL/dI with floor_above_ pixels zeroed
   std::vector<float> entry_grads_;           // 6 per entry
@@ -154,11 +160,14 @@ void CpuSplatRenderer::forward(std::span<const float> params, const Intrinsics& 
   m_.resize(pixels);
   S_.resize(pixels);
   I_.resize(pixels);
+  const bool keep_argmax = !settings.soft() && settings.keep_argmax;
+  argmax_.resize(keep_argmax ? pixels : 0);
   const int tiles = tiles_x_ * tiles_y_;
   std::vector<std::int64_t> skipped(static_cast<std::size_t>(tiles), 0);
   tbb::parallel_for(tbb::blocked_range<int>(0, tiles, 1), [&](const auto& range) {
     for (int t = range.begin(); t != range.end(); ++t) {
-      detail::forward_tile(tile_frame(t), tile_gaussians(t), m_.data(), S_.data(), I_.data(), &skipped[t]);
+      detail::forward_tile(tile_frame(t), tile_gaussians(t), m_.data(), S_.data(), I_.data(),
+                           keep_argmax ? argmax_.data() : nullptr, &skipped[t]);
     }
   });
   stats_.skipped_terms = 0;
@@ -303,11 +312,41 @@ detail::TileGaussians CpuSplatRenderer::tile_gaussians(int tile) const {
 
 void CpuSplatRenderer::backward(std::span<const float> dL_dimage, std::span<float> dL_dparams,
                                 std::span<float> screen_grad) {
-  if (settings_.mode != MipMode::kSoft) throw std::logic_error("splat: backward needs a soft-MIP forward");
+  if (!settings_.soft() && argmax_.empty()) {
+    throw std::logic_error("splat: backward needs a soft-MIP forward, or a hard one with keep_argmax");
+  }
   if (dL_dimage.size() != I_.size() || dL_dparams.size() != params_.size() ||
       (!screen_grad.empty() && screen_grad.size() != splats_.size())) {
     throw std::invalid_argument("splat: backward spans do not match the last forward");
   }
+  if (!settings_.soft()) {
+    hard_grads(dL_dimage);
+  } else {
+    soft_grads(dL_dimage);
+  }
+  project_grads(dL_dparams, screen_grad);
+}
+
+// The hard MIP's subgradient: each pixel's dL/dI goes to its argmax Gaussian alone
+// (none where the floor or nothing won), summed per Gaussian in pixel order.
+void CpuSplatRenderer::hard_grads(std::span<const float> dL_dimage) {
+  gaussian_grads_.assign(6 * splats_.size(), 0.0);
+  const int width = intrinsics_.width;
+  for (std::size_t i = 0; i < argmax_.size(); ++i) {
+    const std::int32_t k = argmax_[i];
+    if (k < 0 || dL_dimage[i] == 0.0f) continue;
+    const Splat2D<float>& s = splats_[static_cast<std::size_t>(k)];
+    const Splat2D<double> sd{s.u, s.v, s.con_a, s.con_b, s.con_c, s.amplitude, 0, 0, 0, true};
+    Splat2DGrad<double> g;
+    const int r = static_cast<int>(i / width), c = static_cast<int>(i % width);
+    accumulate_pixel_grad(sd, c + 0.5, r + 0.5, static_cast<double>(dL_dimage[i]), g);
+    double* out = &gaussian_grads_[6 * static_cast<std::size_t>(k)];
+    out[0] += g.u, out[1] += g.v, out[2] += g.con_a, out[3] += g.con_b, out[4] += g.con_c, out[5] += g.amplitude;
+  }
+}
+
+// The soft-MIP gradient: per (tile, Gaussian) sums of the 2D gradients, then per Gaussian.
+void CpuSplatRenderer::soft_grads(std::span<const float> dL_dimage) {
   // Pixels where the floor was above the soft MIP pass no gradient on.
   if (!floor_above_.empty()) {
     masked_dL_.assign(dL_dimage.begin(), dL_dimage.end());
@@ -316,6 +355,7 @@ void CpuSplatRenderer::backward(std::span<const float> dL_dimage, std::span<floa
     }
     dL_dimage = masked_dL_;
   }
+
   // 1. Per (tile, Gaussian) sums of the 2D gradients.
   entry_grads_.resize(6 * entries_.size());
   const int tiles = tiles_x_ * tiles_y_;
@@ -328,13 +368,15 @@ void CpuSplatRenderer::backward(std::span<const float> dL_dimage, std::span<floa
   // 2. Combined per Gaussian in entry order (deterministic), in double, on one
   // thread: splitting by Gaussian id ranges over threads measured slower
   // (docs/benchmarks.md).
-  const std::size_t K = splats_.size();
-  gaussian_grads_.assign(6 * K, 0.0);
+  gaussian_grads_.assign(6 * splats_.size(), 0.0);
   for (std::size_t e = 0; e < entries_.size(); ++e) {
     double* g = &gaussian_grads_[6 * static_cast<std::size_t>(entries_[e])];
     for (int i = 0; i < 6; ++i) g[i] += entry_grads_[6 * e + i];
   }
-  // 3. Through the projection to the 11 parameters, in double (splat_math.hpp).
+}
+
+void CpuSplatRenderer::project_grads(std::span<float> dL_dparams, std::span<float> screen_grad) const {
+  const std::size_t K = splats_.size();
   const ViewParams<double> view = make_splat_view<double>(intrinsics_, view_);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, K, 512), [&](const auto& range) {
     for (std::size_t k = range.begin(); k != range.end(); ++k) {

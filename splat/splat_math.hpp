@@ -36,13 +36,16 @@ struct ViewParams {
 // Side of the square pixel tiles every rasterizer (CPU and CUDA) bins Gaussians into.
 inline constexpr int kTileSize = 16;
 
-enum class MipMode { kSoft, kHard };
+// How a pixel's terms combine: gmf::Aggregation, the one policy of the fit and the
+// splatting (gmf/core/aggregation.hpp): soft-MIP = kSoftmax (Eq. 8), hard MIP =
+// kMax; kSum is not a MIP and no renderer takes it (SplatOptions::validate).
+using MipMode = gmf::Aggregation;
 
 // What one frame is rendered with: the one settings struct that travels from
 // SplatOptions (config) through the renderer to the tile kernels of both back ends
 // (C++17, so nvcc can compile it). β changes during training.
 struct KernelSettings {
-  MipMode mode = MipMode::kSoft;  // soft-MIP (Eq. 8) or hard MIP (max)
+  MipMode mode = MipMode::kSoftmax;  // soft-MIP (Eq. 8) or hard MIP (max)
   float beta = 50.0f;             // β
   float cutoff = 16.0f;           // δ
   float low_pass = 0.0f;          // pixels², added to Σ2D's diagonal
@@ -51,7 +54,10 @@ struct KernelSettings {
   // Gaussian to the end of each tile's list instead of stopping early (the CPU takes
   // about 1.5x its soft-MIP time), so it is off by default.
   bool count_skipped = false;
-  HISNEGS_HD bool soft() const { return mode == MipMode::kSoft; }
+  HISNEGS_HD bool soft() const { return mode == MipMode::kSoftmax; }
+  // Hard mode: the forward keeps each pixel's argmax Gaussian, which the hard
+  // backward (the max's subgradient) needs; off for renders that only look.
+  bool keep_argmax = false;
 };
 
 // One Gaussian as the rasterizer sees it.

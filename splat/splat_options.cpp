@@ -61,6 +61,7 @@ void TrainOptions::validate() const {
   // A warm-up longer than the run is allowed (β then never reaches beta_end), so
   // `--epochs` can shorten a run without editing the schedule.
   io::require_in_range(s, "beta_warmup_epochs", beta_warmup_epochs, 0, 1e7);
+  io::require_in_range(s, "hard_share", hard_share, 0.0, 0.99);
   io::require_in_range(s, "foreground_weight", foreground_weight, 1.0, 1e6);
   for (auto [name, value] :
        {std::pair{"lambda_ssim", lambda_ssim}, std::pair{"lambda_edge", lambda_edge},

@@ -65,7 +65,7 @@ struct RaymarchOptions {
 
 // Soft/hard-MIP splatting (report Eq. 2-8, §9.3).
 struct SplatOptions {
-  MipMode mode = MipMode::kSoft;     // soft | hard
+  MipMode mode = MipMode::kSoftmax;     // soft | hard
   double beta = 50.0;                // soft-MIP sharpness β, (0, kMaxSoftMipBeta]
   double mahalanobis_cutoff = 16.0;  // δ: a Gaussian touches pixels with dᵀΣ⁻¹d <= δ, > 0
   double low_pass = 0.0;             // 2D dilation added to Σ_2D diagonal, pixels², >= 0 (report: none)
@@ -82,7 +82,7 @@ struct SplatOptions {
   void validate() const;
   template <class V>
   void visit(V&& v) {
-    v("mode", mode, io::EnumNames<MipMode>{{"soft", MipMode::kSoft}, {"hard", MipMode::kHard}});
+    v("mode", mode, io::EnumNames<MipMode>{{"soft", MipMode::kSoftmax}, {"hard", MipMode::kMax}});
     v("beta", beta);
     v("mahalanobis_cutoff", mahalanobis_cutoff);
     v("low_pass", low_pass);
@@ -105,6 +105,13 @@ struct TrainOptions {
   double beta_start = 10.0;        // β at epoch 0, (0, kMaxSoftMipBeta]
   double beta_end = 50.0;          // β after warm-up, [beta_start, kMaxSoftMipBeta]
   int beta_warmup_epochs = 500;    // linear β warm-up length, epochs, [0, 10^7] (may exceed epochs)
+  // The share of the epochs that ends on the hard MIP itself, [0, 1): from epoch
+  // ceil((1 − hard_share) × epochs) on, views are rendered as the viewer and the
+  // ground truth do (the max) and each pixel's gradient goes to its argmax Gaussian
+  // (the max's subgradient), and the 3D term uses the max too. At β = 50 a softmax
+  // of dim terms is close to their mean, so dim halos that every viewer shows were
+  // never trained away (docs/benchmarks.md "Hard MIP"). 0: soft-MIP only.
+  double hard_share = 0.25;
   double foreground_weight = 5.0;  // w_fg of the weighted MSE (Eq. 11), >= 1
   double lambda_ssim = 0.2;        // weight of 1 - SSIM (Eq. 12), >= 0
   double lambda_edge = 0.1;        // weight of the Sobel edge loss (Eq. 13), >= 0
@@ -157,6 +164,7 @@ struct TrainOptions {
     v("beta_start", beta_start);
     v("beta_end", beta_end);
     v("beta_warmup_epochs", beta_warmup_epochs);
+    v("hard_share", hard_share);
     v("foreground_weight", foreground_weight);
     v("lambda_ssim", lambda_ssim);
     v("lambda_edge", lambda_edge);

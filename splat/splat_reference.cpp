@@ -62,7 +62,7 @@ std::vector<double> render_reference(std::span<const double> params, const ViewP
       double g_max = -std::numeric_limits<double>::infinity();
       for (const auto& [k, g] : terms) g_max = std::max(g_max, g);
       double value = g_max;
-      if (settings.mode == MipMode::kSoft) {
+      if (settings.mode == MipMode::kSoftmax) {
         double S = 0, W = 0;
         for (const auto& [k, g] : terms) {
           const double e = std::exp(beta * (g - g_max));
@@ -92,6 +92,16 @@ std::vector<double> render_reference_backward(std::span<const double> params, co
       const double px = c + 0.5, py = r + 0.5;
       touching(p, px, py, settings.cutoff, terms);
       if (terms.empty()) continue;
+      if (!settings.soft()) {  // the max's subgradient: the first largest term, unless the floor is at least it
+        auto top = terms.begin();
+        for (auto t = terms.begin(); t != terms.end(); ++t) {
+          if (t->second > top->second) top = t;
+        }
+        if (floor_at(settings, view.width, r, c) < top->second) {
+          accumulate_pixel_grad(p.splats[top->first], px, py, dL_dI, grads[top->first]);
+        }
+        continue;
+      }
       double m = -std::numeric_limits<double>::infinity();
       for (const auto& [k, g] : terms) m = std::max(m, beta * g);
       double S = 0, W = 0;

@@ -16,7 +16,9 @@ namespace hisnegs::splat {
 std::vector<double> render_reference(std::span<const double> params, const ViewParams<double>& view,
                                      const SplatSettings& settings);
 
-// dL/dparams (11 K) for dL/dimage; soft mode. When `screen_grad` is not null it
+// dL/dparams (11 K) for dL/dimage: soft mode, or the hard mode's subgradient (the
+// first largest term of a pixel alone, none where the floor is at least it; the CPU
+// back end orders equal terms otherwise: ties, of measure zero, may differ). When `screen_grad` is not null it
 // receives |dL/dμ2D| per Gaussian.
 std::vector<double> render_reference_backward(std::span<const double> params, const ViewParams<double>& view,
                                               const SplatSettings& settings, std::span<const double> dL_dimage,

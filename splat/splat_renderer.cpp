@@ -31,6 +31,7 @@ class CudaSplatRenderer final : public SplatRenderer {
     count_ = params.size() / gmf::kGaussianParamCount;
     pixels_ = image.size();
     soft_ = settings.soft();
+    differentiable_ = soft_ || settings.keep_argmax;
     // Hard mode: the floor is a term of the kernels' max. Soft mode: max(soft MIP,
     // floor) here, and no gradient where the floor wins (as the CPU back end).
     const bool soft_floor = settings.soft() && !settings.floor.empty();
@@ -49,7 +50,9 @@ class CudaSplatRenderer final : public SplatRenderer {
     stats_.skipped_terms = splatter_.skipped_terms();
   }
   void backward(std::span<const float> dL_dimage, std::span<float> dL_dparams, std::span<float> screen_grad) override {
-    if (!soft_) throw std::logic_error("splat: backward needs a soft-MIP forward");
+    if (!differentiable_) {
+      throw std::logic_error("splat: backward needs a soft-MIP forward, or a hard one with keep_argmax");
+    }
     if (dL_dimage.size() != pixels_ || dL_dparams.size() != count_ * gmf::kGaussianParamCount ||
         (!screen_grad.empty() && screen_grad.size() != count_)) {
       throw std::invalid_argument("splat: backward spans do not match the last forward");
@@ -78,6 +81,7 @@ class CudaSplatRenderer final : public SplatRenderer {
   cuda::CudaSplatter splatter_;
   std::size_t count_ = 0, pixels_ = 0;
   bool soft_ = true;
+  bool differentiable_ = true;  // soft, or hard with keep_argmax
   SplatFrameStats stats_;
 };
 

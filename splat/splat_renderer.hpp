@@ -51,8 +51,9 @@ class SplatRenderer {
   // the next forward(). Hard mode is the max over the touching Gaussians.
   virtual void forward(std::span<const float> params, const Intrinsics& K, const CameraView& view,
                        const SplatSettings& settings, std::span<float> image) = 0;
-  // Soft mode only: adds dL/dparams (11 K) for the loss gradient `dL_dimage` (H x W)
-  // of the last forward. When `screen_grad` is not empty (K floats) it adds each
+  // Adds dL/dparams (11 K) for the loss gradient `dL_dimage` (H x W) of the last
+  // forward: soft mode, or hard mode with KernelSettings::keep_argmax, whose
+  // gradient is the max's subgradient (each pixel's argmax Gaussian alone). When `screen_grad` is not empty (K floats) it adds each
   // Gaussian's |dL/dμ2D| (pixels) for density control.
   virtual void backward(std::span<const float> dL_dimage, std::span<float> dL_dparams,
                         std::span<float> screen_grad = {}) = 0;

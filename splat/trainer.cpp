@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <limits>
 #include <numbers>
 #include <numeric>
 #include <stdexcept>
@@ -31,6 +32,10 @@ double soft_mip_beta(const TrainOptions& o, int epoch) {
   return o.beta_start + (o.beta_end - o.beta_start) * t;
 }
 
+bool hard_mip_epoch(const TrainOptions& o, int epoch) {
+  return o.hard_share > 0 && epoch >= static_cast<int>(std::ceil((1.0 - o.hard_share) * o.epochs));
+}
+
 Trainer::Trainer(const TrainOptions& options, const SplatSettings& splat, TrainingData data, std::vector<float> params,
                  std::unique_ptr<SplatRenderer> renderer, double scene_scale)
     : options_(options),
@@ -44,7 +49,7 @@ Trainer::Trainer(const TrainOptions& options, const SplatSettings& splat, Traini
   options_.validate();
   data_.check();
   if (!renderer_) throw std::invalid_argument("Trainer: no renderer");
-  if (splat_.mode != MipMode::kSoft) throw std::invalid_argument("Trainer: training needs splat.mode soft");
+  if (splat_.mode != MipMode::kSoftmax) throw std::invalid_argument("Trainer: training needs splat.mode soft");
   if (params_.size() % gmf::kGaussianParamCount != 0) {
     throw std::invalid_argument("Trainer: " + std::to_string(params_.size()) +
                                 " parameters are not a whole number of Gaussians");
@@ -157,7 +162,7 @@ void Trainer::add_regularizers(std::size_t views, StepSums& sums) {
     volume_batch_.resize(static_cast<std::size_t>(options_.volume_blocks));
     std::uniform_int_distribution<std::uint32_t> pick(0, static_cast<std::uint32_t>(volume_->blocks() - 1));
     for (std::uint32_t& b : volume_batch_) b = pick(rng_);
-    sums.loss_3d = volume_->add(params_, volume_batch_, options_.lambda_3d, grad_);
+    sums.loss_3d = volume_->add(params_, volume_batch_, options_.lambda_3d, grad_, hard_mip_epoch(options_, epoch_));
     sums.loss += static_cast<double>(views) * sums.loss_3d;
   }
 }
@@ -166,6 +171,11 @@ Trainer::StepSums Trainer::train_step(std::span<const int> view_indices) {
   if (view_indices.empty()) throw std::invalid_argument("Trainer::step: no views");
   SplatSettings settings = splat_;
   settings.beta = static_cast<float>(soft_mip_beta(options_, epoch_));
+  const bool hard = hard_mip_epoch(options_, epoch_);
+  if (hard) {
+    settings.mode = MipMode::kMax;
+    settings.keep_argmax = true;
+  }
   const std::size_t K = params_.size() / gmf::kGaussianParamCount;
   grad_.assign(params_.size(), 0.0f);
   view_screen_grad_.resize(K);
@@ -221,12 +231,13 @@ void Trainer::adam_update(std::span<const float> grad, double lr) {
 
 Trainer::Evaluation Trainer::evaluate() { return evaluate(params_, soft_mip_beta(options_, epoch_)); }
 
-Trainer::Evaluation Trainer::evaluate(std::span<const float> params, double beta) {
+Trainer::Evaluation Trainer::evaluate(std::span<const float> params, double beta, MipMode mode) {
   if (params.size() % gmf::kGaussianParamCount != 0) {
     throw std::invalid_argument("Trainer::evaluate: params is not a whole number of Gaussians");
   }
   SplatSettings settings = splat_;
   settings.beta = static_cast<float>(beta);
+  settings.mode = mode;
   const Intrinsics& intr = data_.intrinsics;
   image_.resize(static_cast<std::size_t>(intr.width) * intr.height);
   Evaluation e;
@@ -275,7 +286,8 @@ EpochReport Trainer::run_epoch() {
   io::Stopwatch watch;
   EpochReport report;
   report.lr = learning_rate(options_, epoch_);
-  report.beta = soft_mip_beta(options_, epoch_);
+  report.beta = hard_mip_epoch(options_, epoch_) ? std::numeric_limits<double>::infinity()
+                                                 : soft_mip_beta(options_, epoch_);
   std::vector<int> order(static_cast<std::size_t>(data_.count()));
   std::iota(order.begin(), order.end(), 0);
   std::shuffle(order.begin(), order.end(), rng_);

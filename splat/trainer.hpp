@@ -31,6 +31,9 @@ namespace hisnegs::splat {
 // Soft-MIP β of 0-based epoch `epoch` (Table 4): beta_start + (beta_end − beta_start)
 // × min(1, e / beta_warmup_epochs), beta_end when beta_warmup_epochs = 0.
 [[nodiscard]] double soft_mip_beta(const TrainOptions& options, int epoch);
+// Whether 0-based epoch `epoch` trains on the hard MIP (train.hard_share): from
+// ceil((1 − hard_share) × epochs) on.
+[[nodiscard]] bool hard_mip_epoch(const TrainOptions& options, int epoch);
 
 // What one epoch did (means over the training views seen in it).
 struct EpochReport {
@@ -38,7 +41,7 @@ struct EpochReport {
   double loss = 0;                        // mean per-view loss (Eq. 16 image terms + L_reg + the 3D term of its step)
   double loss_3d = 0;                     // mean per-step 3D term (0 without a volume)
   double psnr = 0;                        // mean per-view PSNR, dB (of the crop when crop_size > 0)
-  double beta = 0;                        // β it was trained at
+  double beta = 0;                        // β it was trained at (+∞: the hard MIP, train.hard_share)
   double lr = 0;                          // base learning rate it was trained at
   double seconds = 0;                     // wall time of the epoch incl. density control
   int gaussians = 0;                      // K after density control
@@ -132,8 +135,9 @@ class Trainer {
     double psnr = 0;
   };
   [[nodiscard]] Evaluation evaluate();
-  // The same for other parameters (any whole number of Gaussians) at soft-MIP `beta`.
-  [[nodiscard]] Evaluation evaluate(std::span<const float> params, double beta);
+  // The same for other parameters (any whole number of Gaussians) at soft-MIP `beta`,
+  // or their hard MIP.
+  [[nodiscard]] Evaluation evaluate(std::span<const float> params, double beta, MipMode mode = MipMode::kSoftmax);
 
   // Density control now (what run_epoch does on schedule). densify(): every Gaussian
   // seen in at least one view whose mean screen-gradient statistic (see

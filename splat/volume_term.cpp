@@ -79,7 +79,9 @@ VolumeTerm::VolumeTerm(VolumeSamples samples, const gmf::MixtureModel& model, Em
 }
 
 double VolumeTerm::add(std::span<const float> params, std::span<const std::uint32_t> blocks, double weight,
-                       std::span<float> grad) const {
+                       std::span<float> grad, bool max) const {
+  gmf::MixtureModel model = model_;
+  if (max) model.aggregation = gmf::Aggregation::kMax;
   if (params.size() % kP != 0 || grad.size() != params.size()) {
     throw std::invalid_argument("VolumeTerm::add: parameter and gradient sizes do not match");
   }
@@ -96,7 +98,7 @@ double VolumeTerm::add(std::span<const float> params, std::span<const std::uint3
     const float* p = params.data() + kP * k;
     const double s = std::exp(static_cast<double>(
         std::max({p[gmf::kLogScale0], p[gmf::kLogScale0 + 1], p[gmf::kLogScale0 + 2]})));
-    reach2[k] = model_.cutoff * s * s;
+    reach2[k] = model.cutoff * s * s;
   });
   const double scale = 2.0 * weight / static_cast<double>(n);  // ∂(weight Σ r² / n)/∂r = scale × r
   std::vector<BlockPart> parts(blocks.size());
@@ -124,12 +126,12 @@ double VolumeTerm::add(std::span<const float> params, std::span<const std::uint3
       gmf::PointTerms<double> t = gmf::no_terms<double>();
       for (std::size_t g = 0; g < m; ++g) {
         double z[3];
-        reaches[g] = gmf::mahalanobis(frames[g], x, z) <= model_.cutoff;
+        reaches[g] = gmf::mahalanobis(frames[g], x, z) <= model.cutoff;
         if (!reaches[g]) continue;
         term[g] = gmf::evaluate_gaussian<double>(frames[g], x, nullptr);
-        gmf::add_term(t, term[g], model_);
+        gmf::add_term(t, term[g], model);
       }
-      const double f = gmf::terms_value(t, model_);
+      const double f = gmf::terms_value(t, model);
       const double w = samples_.weight[j];
       const double r = w * (f - static_cast<double>(samples_.value[j]));
       part.squares += r * r;
@@ -137,9 +139,7 @@ double VolumeTerm::add(std::span<const float> params, std::span<const std::uint3
       if (dL_df == 0.0) continue;
       for (std::size_t g = 0; g < m; ++g) {
         if (!reaches[g]) continue;
-        const double df_dg = model_.aggregation == gmf::Aggregation::kSum
-                                 ? 1.0
-                                 : gmf::softmax_dvalue_dterm(term[g], model_.beta, t.soft.m, t.soft.S, f);
+        const double df_dg = gmf::dvalue_dterm(term[g], t, model, f);
         const double c = dL_df * df_dg;
         if (c == 0.0) continue;
         gmf::evaluate_gaussian<double>(frames[g], x, dg);

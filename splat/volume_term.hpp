@@ -44,8 +44,9 @@ class VolumeTerm {
   // `grad` (kGaussianParamCount × K, aligned with `params`) and returns L. A term
   // counts where its Mahalanobis distance is <= the model's cutoff. TBB-parallel
   // over the blocks, combined in block order: deterministic.
+  // `max`: the terms combine by their max (the hard share of training), not as the model says.
   double add(std::span<const float> params, std::span<const std::uint32_t> blocks, double weight,
-             std::span<float> grad) const;
+             std::span<float> grad, bool max = false) const;
 
   // Whether Gaussian `p` (kGaussianParamCount values) has its centre in empty space.
   [[nodiscard]] bool centre_in_empty_space(const float* p) const;

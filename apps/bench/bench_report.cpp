@@ -262,9 +262,9 @@ void write_bench_report(const BenchReportRequest& r, const Progress& progress) {
       r,  progress, Timer(r), io::load_volume(r.volume, io::VolumeOptions{}), splat::make_splat_renderer(r.backend), {},
       {}, {},       {}};
   load_model(b);
-  b.soft.mode = splat::MipMode::kSoft;
+  b.soft.mode = splat::MipMode::kSoftmax;
   b.soft.beta = 50.0f;
-  b.hard.mode = splat::MipMode::kHard;
+  b.hard.mode = splat::MipMode::kMax;
   std::string md = header_section(b);
   md += table7_resolution(b);
   md += table9_gaussians(b);

@@ -31,7 +31,7 @@ void register_case(const std::string& label, const std::shared_ptr<const gmf::Ga
                                  const splat::CameraSet eval = splat::evaluation_orbit(co);
                                  auto renderer = splat::make_splat_renderer(backend);
                                  splat::SplatSettings settings;
-                                 settings.mode = pass == Pass::kHard ? splat::MipMode::kHard : splat::MipMode::kSoft;
+                                 settings.mode = pass == Pass::kHard ? splat::MipMode::kMax : splat::MipMode::kSoftmax;
                                  settings.beta = beta;
                                  const auto params = splat::flat_params(*mixture);
                                  std::vector<float> image(static_cast<std::size_t>(size) * size);

@@ -73,7 +73,7 @@ EvalOutcome evaluate_model(const std::filesystem::path& model, const std::filesy
   meta["model"] = io::printable(model.string(), 500);
   meta["data"] = io::printable(set.string(), 500);
   meta["gaussians"] = checkpoint.mixture.size();
-  meta["mode"] = settings.mode == splat::MipMode::kSoft ? "soft" : "hard";
+  meta["mode"] = settings.mode == splat::MipMode::kSoftmax ? "soft" : "hard";
   meta["beta"] = settings.beta;
   meta["background"] = floors.none() ? "none" : "the model's floor";
   meta["backend"] = std::string(splat::to_string(backend));

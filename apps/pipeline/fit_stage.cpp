@@ -164,9 +164,14 @@ FittedModel fit_loaded(io::LoadedVolume loaded, const std::string& source, const
   FitSetup setup = prepare_fit(std::move(loaded), source, config, "fit", progress);
   const bool sum = gmf.aggregation == gmf::Aggregation::kSum;
   const std::string jitter_source =
-      gmf.sample_jitter ? "" : std::string(sum ? "auto for the sum: " : "auto for the softmax: ");
-  progress.say("fit: %s objective; samples %s (gmf.sample_jitter %s%g)",
-               sum ? "sum (report Eq. 1)" : strf("softmax (beta %g -> %g)", gmf.beta_start, gmf.beta_end).c_str(),
+      gmf.sample_jitter ? "" : strf("auto for the %s: ", gmf::describe_aggregation(gmf.aggregation));
+  const std::string objective =
+      sum                                                ? std::string("sum (report Eq. 1)")
+      : gmf.aggregation == gmf::Aggregation::kMax        ? std::string("max")
+      : gmf.final_aggregation() == gmf::Aggregation::kMax ? strf("softmax (beta %g -> %g), the last %g%% on the max",
+                                                                  gmf.beta_start, gmf.beta_end, 100 * gmf.hard_share)
+                                                          : strf("softmax (beta %g -> %g)", gmf.beta_start, gmf.beta_end);
+  progress.say("fit: %s objective; samples %s (gmf.sample_jitter %s%g)", objective.c_str(),
                gmf.jitter() > 0 ? "moved within their voxels each round" : "at the voxel centres",
                jitter_source.c_str(), gmf.jitter());
   // A raw stack's noise peaks are not structure: density control clones nothing that
@@ -185,7 +190,7 @@ FittedModel fit_loaded(io::LoadedVolume loaded, const std::string& source, const
                  r.cloned, r.gaussians);
   }
   gmf::CheckpointMeta meta = checkpoint_meta(setup.loaded, source);
-  meta.aggregation = gmf.aggregation;
+  meta.aggregation = gmf.final_aggregation();
   meta.beta = result.final_beta;
   if (!background.none()) record_background(setup.loaded.frame, config, background, meta, progress);
   return {{std::move(mixture), std::move(meta)}, result};

@@ -61,7 +61,7 @@ void render_model(const RenderRequest& request, const RenderConfig& config, cons
       splat::floors_of(checkpoint.meta, request.model.string(), config.get<&AppConfig::splat>().background);
   auto renderer = splat::make_splat_renderer(request.backend);
   const std::filesystem::path& dir = request.dir;
-  const char* mode = settings.mode == splat::MipMode::kSoft ? "soft" : "hard";
+  const char* mode = settings.mode == splat::MipMode::kSoftmax ? "soft" : "hard";
   const std::string backend(splat::to_string(request.backend));
   nlohmann::ordered_json meta;
   meta["model"] = io::printable(request.model.string(), 500);

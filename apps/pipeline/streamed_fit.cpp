@@ -1176,7 +1176,7 @@ std::size_t write_outputs(const StreamContext& c, const BrickTotals& totals,
   const FitConfig& config = *c.config;
   gmf::CheckpointMeta meta = checkpoint_meta(c.frame, c.source->spacing, c.normalization, c.path);
   meta.extra.emplace_back("bricks", c.plan.describe());
-  meta.aggregation = c.gmf.aggregation;
+  meta.aggregation = c.gmf.final_aggregation();
   meta.beta = totals.beta;
   if (config.get<&AppConfig::background>().estimate && totals.background.total > 0) {
     const io::BackgroundModel model =

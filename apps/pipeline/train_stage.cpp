@@ -54,7 +54,7 @@ struct TrainingSession {
 void check_training(const TrainRequest& request, const TrainConfig& config) {
   config.get<&AppConfig::train>().validate();
   config.get<&AppConfig::splat>().validate();
-  if (config.get<&AppConfig::splat>().mode != splat::MipMode::kSoft) {
+  if (config.get<&AppConfig::splat>().mode != splat::MipMode::kSoftmax) {
     throw io::InputError("train: splat.mode must be soft (training differentiates the soft MIP)");
   }
   if (!request.resume && fs::exists(request.run / "checkpoints" / "latest")) {
@@ -158,13 +158,16 @@ void run_epochs(TrainingSession& s, const fs::path& run, int epochs, const Progr
 }
 
 // Whether training made the training views worse than the initial model (both as
-// soft MIPs at beta_end, whole images), said in one line either way.
+// the MIP training ended on: hard after a hard share, else soft at beta_end; whole
+// images), said in one line either way.
 bool training_made_it_worse(TrainingSession& s, const splat::TrainOptions& train, const Progress& progress) {
-  const double before = s.trainer->evaluate(s.init_params, train.beta_end).psnr;
-  const double after = s.trainer->evaluate(s.trainer->params(), train.beta_end).psnr;
+  const splat::MipMode mode = train.hard_share > 0 ? splat::MipMode::kMax : splat::MipMode::kSoftmax;
+  const double before = s.trainer->evaluate(s.init_params, train.beta_end, mode).psnr;
+  const double after = s.trainer->evaluate(s.trainer->params(), train.beta_end, mode).psnr;
   const bool worse = after < before;
-  progress.say("train: the %d training views at beta %g: initial model %.2f dB, trained %.2f dB%s", s.views,
-               train.beta_end, before, after,
+  const std::string as = train.hard_share > 0 ? std::string("as hard MIPs") : strf("at beta %g", train.beta_end);
+  progress.say("train: the %d training views %s: initial model %.2f dB, trained %.2f dB%s", s.views, as.c_str(),
+               before, after,
                worse ? ": training made them worse, so final.ply is the initial model "
                        "(train.keep_better_init: false keeps the trained one)"
                      : "");
@@ -179,6 +182,11 @@ void finish_training(const TrainingSession& s, const fs::path& run, bool initial
                 [](const auto& kv) { return kv.first == "train_epoch" || kv.first == kKeptInit.first; });
   final_meta.extra.emplace_back("train_epoch", std::to_string(s.trainer->epoch()));
   if (initial) final_meta.extra.push_back(kKeptInit);
+  // Trained to the end on the hard MIP (train.hard_share): a max-mixture now.
+  if (!initial && s.trainer->options().hard_share > 0) {
+    final_meta.aggregation = gmf::Aggregation::kMax;
+    final_meta.beta = 0;
+  }
   gmf::save_checkpoint(run / "final.ply", gmf::mixture_from_flat(initial ? s.init_params : s.trainer->params()), final_meta);
   io::write_png(run / "training_curve.png", training_curve(s.rows));
 }

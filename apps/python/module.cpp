@@ -470,11 +470,13 @@ class Objective : public GradientCalls<Objective> {
             double beta) {
     const AppConfig config = config_of(config_text, "hisnegs.Objective() options");
     gmf::GmfOptions gmf = config.gmf;
-    if (aggregation != "softmax" && aggregation != "sum") {
-      throw io::InputError("hisnegs.Objective: aggregation '" + aggregation + "'; expected softmax | sum");
+    if (aggregation != "softmax" && aggregation != "sum" && aggregation != "max") {
+      throw io::InputError("hisnegs.Objective: aggregation '" + aggregation + "'; expected softmax | sum | max");
     }
     if (!(beta > 0) || !std::isfinite(beta)) throw io::InputError("hisnegs.Objective: beta must be > 0");
-    model_.aggregation = aggregation == "sum" ? gmf::Aggregation::kSum : gmf::Aggregation::kSoftmax;
+    model_.aggregation = aggregation == "sum"   ? gmf::Aggregation::kSum
+                         : aggregation == "max" ? gmf::Aggregation::kMax
+                                                : gmf::Aggregation::kSoftmax;
     model_.beta = beta;
     model_.cutoff = gmf.mahalanobis_cutoff;
     gaussians_ = model.checkpoint.mixture.size();
@@ -824,7 +826,7 @@ PYBIND11_MODULE(_hisnegs, m) {
       .def_property_readonly("params", &params_view)
       .def_property_readonly("aggregation",
                              [](const Model& model) {
-                               return model.checkpoint.meta.aggregation == gmf::Aggregation::kSum ? "sum" : "softmax";
+                               return std::string(gmf::describe_aggregation(model.checkpoint.meta.aggregation));
                              })
       .def_property_readonly("beta", [](const Model& model) { return model.checkpoint.meta.beta; })
       .def("_render", &render_model)

@@ -167,7 +167,7 @@ ViewerTruth ViewerSession::truth(const splat::CameraView& view) {
   out.image.assign(static_cast<std::size_t>(K.width) * K.height, 0.0f);
   marcher_->render(K, view, out.image);
   splat::SplatOptions hard;
-  hard.mode = splat::MipMode::kHard;
+  hard.mode = splat::MipMode::kMax;
   hard.mahalanobis_cutoff = options_.page.cutoff;
   hard.low_pass = options_.page.low_pass;
   std::vector<float> model(out.image.size(), 0.0f);

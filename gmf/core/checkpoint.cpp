@@ -138,6 +138,8 @@ std::vector<std::string> meta_comments(const CheckpointMeta& meta) {
                                   " is not a finite positive number");
     }
     out.push_back(comment(kAggregation, "softmax " + format_number(meta.beta)));
+  } else if (meta.aggregation == Aggregation::kMax) {
+    out.push_back(comment(kAggregation, "max"));
   }
   for (const auto& [key, value] : meta.extra) {
     if (!is_token(key) || is_known_key(key)) {
@@ -245,12 +247,14 @@ CheckpointMeta parse_meta(const std::vector<std::string>& comments, const fs::pa
       double beta = 0;
       if (tok.size() == 1 && tok[0] == "sum") {
         meta.aggregation = Aggregation::kSum;
+      } else if (tok.size() == 1 && tok[0] == "max") {
+        meta.aggregation = Aggregation::kMax;
       } else if (tok.size() == 2 && tok[0] == "softmax" && parse_number(tok[1], beta) && std::isfinite(beta) &&
                  beta > 0.0) {
         meta.aggregation = Aggregation::kSoftmax;
         meta.beta = beta;
       } else {
-        io::fail_input(source, "comment hisnegs aggregation: expected 'sum' or 'softmax BETA' (BETA > 0), got '" +
+        io::fail_input(source, "comment hisnegs aggregation: expected 'sum', 'max' or 'softmax BETA' (BETA > 0), got '" +
                                    io::printable(value, 80) + "'");
       }
     } else {
@@ -409,6 +413,7 @@ MixtureModel model_of(const CheckpointMeta& meta, double cutoff) {
 
 std::string describe(const MixtureModel& model) {
   if (model.aggregation == Aggregation::kSum) return "sum";
+  if (model.aggregation == Aggregation::kMax) return "max";
   return "softmax (beta " + io::number_text(model.beta) + ")";
 }
 

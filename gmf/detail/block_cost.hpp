@@ -85,7 +85,7 @@ struct BlockResiduals {
       const std::size_t s = first + j;
       const T x[3] = {T(samples->x[s]), T(samples->y[s]), T(samples->z[s])};
       const PointTerms<double> fx = fixed.empty() ? no_terms<double>() : fixed[j];
-      PointTerms<T> all{T(fx.sum), {T(fx.soft.m), T(fx.soft.S), T(fx.soft.W)}};
+      PointTerms<T> all{T(fx.sum), {T(fx.soft.m), T(fx.soft.S), T(fx.soft.W)}, T(fx.max)};
       for (std::size_t g = 0; g < gaussians; ++g) {
         T z[3];
         if (mahalanobis(frames[g], x, z) > T(model.cutoff)) continue;

@@ -118,6 +118,7 @@ struct CudaSplatter::Impl {
   const std::uint32_t* sorted_ids = nullptr;      // whichever of ids[] holds the sorted list
   DeviceBuffer<uint2> ranges;                     // tiles: [begin, end) into the sorted list
   DeviceBuffer<float> m, S, I;                    // pixels: softmax state kept for backward
+  DeviceBuffer<std::int32_t> argmax;              // pixels: hard mode with keep_argmax
   DeviceBuffer<float> floor;                      // pixels: the background term (forward only)
   bool has_floor = false;
   DeviceBuffer<kernels::FrameCounters> counters;  // 1
@@ -214,6 +215,8 @@ void CudaSplatter::forward(const float* params, std::size_t count, const ViewPar
   reserve(d.m, d.pixels);
   reserve(d.S, d.pixels);
   reserve(d.I, d.pixels);
+  const bool keep_argmax = !settings.soft() && settings.keep_argmax;
+  if (keep_argmax) reserve(d.argmax, d.pixels);
   reserve(d.counters, 1);
   d.has_floor = floor != nullptr;
   if (d.has_floor) {
@@ -251,10 +254,11 @@ void CudaSplatter::forward(const float* params, std::size_t count, const ViewPar
   const unsigned int grid = static_cast<unsigned int>(d.tiles);
   if (settings.soft()) {
     kernels::forward_kernel<true><<<grid, block>>>(d.ranges.data(), d.sorted_ids, d.splats.data(), d.tile_params(),
-                                                   d.m.data(), d.S.data(), d.I.data(), d.counters.data());
+                                                   d.m.data(), d.S.data(), d.I.data(), nullptr, d.counters.data());
   } else {
     kernels::forward_kernel<false><<<grid, block>>>(d.ranges.data(), d.sorted_ids, d.splats.data(), d.tile_params(),
-                                                    d.m.data(), d.S.data(), d.I.data(), d.counters.data());
+                                                    d.m.data(), d.S.data(), d.I.data(),
+                                                    keep_argmax ? d.argmax.data() : nullptr, d.counters.data());
   }
   HISNEGS_CUDA_CHECK_LAUNCH();
   d.stop.record();
@@ -271,8 +275,10 @@ void CudaSplatter::forward(const float* params, std::size_t count, const ViewPar
 
 void CudaSplatter::backward(const float* dL_dimage, float* dL_dparams, float* screen_grad) {
   Impl& d = *impl_;
-  if (!d.has_forward || !d.settings.soft()) {
-    throw std::logic_error("CudaSplatter::backward: needs a successful soft-MIP forward first");
+  const bool hard = !d.settings.soft();
+  if (!d.has_forward || (hard && !d.settings.keep_argmax)) {
+    throw std::logic_error(
+        "CudaSplatter::backward: needs a successful soft-MIP forward, or a hard one with keep_argmax, first");
   }
   if (dL_dimage == nullptr || (d.count > 0 && dL_dparams == nullptr)) {
     throw std::invalid_argument("CudaSplatter::backward: null gradient array");
@@ -287,7 +293,11 @@ void CudaSplatter::backward(const float* dL_dimage, float* dL_dparams, float* sc
   d.start.record();
   if (count > 0) HISNEGS_CUDA_CHECK(cudaMemset(d.grads2d.data(), 0, 6 * count * sizeof(float)));
   // 1. Per-Gaussian sums of the 2D gradients over every pixel it touches.
-  if (d.entries > 0) {
+  if (hard && d.pixels > 0) {
+    kernels::hard_backward_kernel<<<blocks_for(d.pixels, kGaussianThreads), kGaussianThreads>>>(
+        d.splats.data(), d.argmax.data(), d.dL_dI.data(), d.view.width, d.view.height, d.grads2d.data());
+    HISNEGS_CUDA_CHECK_LAUNCH();
+  } else if (d.entries > 0) {
     kernels::backward_kernel<<<static_cast<unsigned int>(d.tiles), dim3(kTileSize, kTileSize)>>>(
         d.ranges.data(), d.sorted_ids, d.splats.data(), d.tile_params(), d.m.data(), d.S.data(), d.I.data(),
         d.dL_dI.data(), d.grads2d.data());

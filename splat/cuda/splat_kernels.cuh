@@ -188,12 +188,15 @@ __device__ __forceinline__ unsigned long long warp_sum(unsigned long long x) {
 //     once that holds for every later Gaussian of every pixel.
 // Writes m, S, I per pixel (soft: m = M, I = W / S; hard: m = I = e^{lm}, S = 1
 // where touched; m = −∞ where nothing reaches the pixel). In hard mode a floor b > 0
-// (tp.floor) is one more term at its pixel, as in the CPU back end.
+// (tp.floor) is one more term at its pixel, as in the CPU back end, and `arg_out`
+// (null: not kept) gets the pixel's argmax Gaussian, the first in list order among
+// equals, −1 where none or the floor won (the CPU's LogMaxPass<true>).
 template <bool kSoft>
 __global__ void __launch_bounds__(kBlock)
     forward_kernel(const uint2* __restrict__ ranges, const std::uint32_t* __restrict__ ids,
                    const Splat2D<float>* __restrict__ splats, TileParams tp, float* __restrict__ m_out,
-                   float* __restrict__ S_out, float* __restrict__ I_out, FrameCounters* __restrict__ counters) {
+                   float* __restrict__ S_out, float* __restrict__ I_out, std::int32_t* __restrict__ arg_out,
+                   FrameCounters* __restrict__ counters) {
   __shared__ SharedBatch batch;
   const int tile = blockIdx.x;
   const int col = (tile % tp.tiles_x) * kTileSize + threadIdx.x;
@@ -208,6 +211,7 @@ __global__ void __launch_bounds__(kBlock)
                                                           : 0.0f;
   // Pass 1: the log max.
   float lm = b > 0.0f ? logf(b) : -INFINITY;
+  std::int32_t arg = -1;
   bool done = !inside;
   for_each_batch(batch, ids, splats, range, [&](int n) {
     if (!done) {
@@ -215,7 +219,10 @@ __global__ void __launch_bounds__(kBlock)
         const float ln_a = logf(batch.amplitude[j]);
         if (ln_a <= lm) break;  // neither it nor any later one can raise the max
         const float q = splat_distance(batch.splat(j), px, py);
-        if (q <= tp.k.cutoff) lm = fmaxf(lm, ln_a - 0.5f * q);
+        if (q <= tp.k.cutoff && ln_a - 0.5f * q > lm) {
+          lm = ln_a - 0.5f * q;
+          arg = static_cast<std::int32_t>(batch.id[j]);
+        }
       }
       done = lm >= logf(batch.amplitude[n - 1]);  // every later a_k <= this batch's last one
     }
@@ -230,6 +237,7 @@ __global__ void __launch_bounds__(kBlock)
       m_out[at] = touched ? g : -INFINITY;
       S_out[at] = touched ? 1.0f : 0.0f;
       I_out[at] = g;
+      if (arg_out != nullptr) arg_out[at] = arg;
     }
   } else {
     // Pass 2: the softmax sums against the final M (+∞ where untouched: nothing to add).
@@ -349,6 +357,28 @@ __global__ void __launch_bounds__(kBlock)
     }
     return false;  // every batch: the gradient needs every term
   });
+}
+
+// 5b. Hard backward, one thread per pixel: the max's subgradient, dL/dI to the
+// pixel's argmax Gaussian alone (splat_cpu.cpp's hard_grads), added to grads (6 per
+// Gaussian) by atomicAdd.
+__global__ void __launch_bounds__(256)
+    hard_backward_kernel(const Splat2D<float>* __restrict__ splats, const std::int32_t* __restrict__ argmax,
+                         const float* __restrict__ dL_dI, int width, int height, float* __restrict__ grads) {
+  const int i = blockIdx.x * blockDim.x + threadIdx.x;
+  if (i >= width * height) return;
+  const std::int32_t k = argmax[i];
+  const float dL = dL_dI[i];
+  if (k < 0 || dL == 0.0f) return;
+  Splat2DGrad<float> g;
+  accumulate_pixel_grad(splats[k], static_cast<float>(i % width) + 0.5f, static_cast<float>(i / width) + 0.5f, dL, g);
+  float* out = grads + 6 * static_cast<std::size_t>(k);
+  atomicAdd(out + 0, g.u);
+  atomicAdd(out + 1, g.v);
+  atomicAdd(out + 2, g.con_a);
+  atomicAdd(out + 3, g.con_b);
+  atomicAdd(out + 4, g.con_c);
+  atomicAdd(out + 5, g.amplitude);
 }
 
 // 6. One thread per Gaussian: the 2D gradient sums through the projection to the 11

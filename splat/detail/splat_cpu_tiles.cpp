@@ -305,9 +305,13 @@ HWY_INLINE void for_each_chunk(const TileFrame& f, const RowSpans& spans, const 
 
 // Pass 1, both modes: lm = ln of the largest g = a e^{-q/2} over the terms with
 // q <= δ at each pixel, exact, in the log domain (ln g = ln a − q/2: no exp).
-// Gaussians that cannot raise a pixel are culled by the running row floors.
-void LogMaxPass(const TileFrame& f, const TileGaussians& gs, float* lm) {
+// Gaussians that cannot raise a pixel are culled by the running row floors. With
+// kArgmax, arg (tile-local) gets the id of the Gaussian that raised each pixel
+// last: its argmax, the first in list order among equals (−1: none or the floor).
+template <bool kArgmax>
+void LogMaxPass(const TileFrame& f, const TileGaussians& gs, float* lm, std::int32_t* arg) {
   const hn::ScalableTag<float> d;
+  const hn::RebindToSigned<decltype(d)> di;
   const auto minus_half = hn::Set(d, -0.5f);
   RowFloors floors;
   RowSpans spans;
@@ -323,9 +327,17 @@ void LogMaxPass(const TileFrame& f, const TileGaussians& gs, float* lm) {
     if (!((hits >> (i % kRefreshEvery)) & 1u)) continue;  // most miss
     row_spans(f, floors, g, ln_amp, false, spans);
     const auto vln_amp = hn::Set(d, ln_amp);
+    [[maybe_unused]] const auto id = hn::Set(di, static_cast<std::int32_t>(gs.ids[i]));
     for_each_chunk(f, spans, g, [&](int at, auto, auto, auto q, auto mask) {
       const auto old = hn::Load(d, lm + at);
-      hn::Store(hn::IfThenElse(mask, hn::Max(old, hn::MulAdd(minus_half, q, vln_amp)), old), d, lm + at);
+      if constexpr (kArgmax) {
+        const auto value = hn::MulAdd(minus_half, q, vln_amp);
+        const auto raised = hn::And(mask, hn::Gt(value, old));
+        hn::Store(hn::IfThenElse(raised, value, old), d, lm + at);
+        hn::Store(hn::IfThenElse(hn::RebindMask(di, raised), id, hn::Load(di, arg + at)), di, arg + at);
+      } else {
+        hn::Store(hn::IfThenElse(mask, hn::Max(old, hn::MulAdd(minus_half, q, vln_amp)), old), d, lm + at);
+      }
     });
   }
 }
@@ -378,7 +390,7 @@ std::int64_t SoftPass(const TileFrame& f, const TileGaussians& gs, const float* 
 }
 
 void ForwardTile(const TileFrame& f, const TileGaussians& gs, float* m_out, float* S_out, float* I_out,
-                 std::int64_t* skipped_out) {
+                 std::int32_t* arg_out, std::int64_t* skipped_out) {
   const hn::ScalableTag<float> d;
   const int N = static_cast<int>(hn::Lanes(d));
   constexpr float kInf = std::numeric_limits<float>::infinity();
@@ -399,7 +411,13 @@ void ForwardTile(const TileFrame& f, const TileGaussians& gs, float* m_out, floa
       lm[r * kTileSize + c] = init;
     }
   }
-  LogMaxPass(f, gs, lm);
+  HWY_ALIGN std::int32_t arg[kTileSize * kTileSize];
+  if (arg_out != nullptr) {
+    std::fill(arg, arg + kTileSize * kTileSize, -1);
+    LogMaxPass<true>(f, gs, lm, arg);
+  } else {
+    LogMaxPass<false>(f, gs, lm, nullptr);
+  }
   // M = β e^{lm} (soft) or e^{lm} (hard): the largest (β) g; +∞ where nothing reaches
   // the pixel (lm = −∞), so such pixels never lower a soft row floor.
   const auto scale = hn::Set(d, f.k.soft() ? f.k.beta : 1.0f);
@@ -419,6 +437,7 @@ void ForwardTile(const TileFrame& f, const TileGaussians& gs, float* m_out, floa
       const int at = r * kTileSize + c;
       const bool touched = lm[at] > -kInf;
       m_out[row + c] = touched ? M[at] : -kInf;
+      if (arg_out != nullptr) arg_out[row + c] = arg[at];
       if (f.k.soft()) {
         S_out[row + c] = S[at];
         I_out[row + c] = S[at] > 0.0f ? W[at] / S[at] : 0.0f;
@@ -611,8 +630,8 @@ HWY_EXPORT(TileBands);
 void tile_bands(const BandJob* jobs, std::size_t count) { HWY_DYNAMIC_DISPATCH(TileBands)(jobs, count); }
 
 void forward_tile(const TileFrame& frame, const TileGaussians& gaussians, float* m, float* S, float* I,
-                  std::int64_t* skipped) {
-  HWY_DYNAMIC_DISPATCH(ForwardTile)(frame, gaussians, m, S, I, skipped);
+                  std::int32_t* argmax, std::int64_t* skipped) {
+  HWY_DYNAMIC_DISPATCH(ForwardTile)(frame, gaussians, m, S, I, argmax, skipped);
 }
 
 void backward_tile(const TileFrame& frame, const TileGaussians& gaussians, const float* m, const float* S,

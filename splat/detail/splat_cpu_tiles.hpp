@@ -65,9 +65,10 @@ void tile_bands(const BandJob* jobs, std::size_t count);
 // image value I (all image-sized, row-major, `stride`), and adds the soft-MIP terms
 // skipped to `*skipped`. Hard mode writes m = I = max g and S = 1 where touched, a
 // pixel's floor b > 0 (frame.floor) one more term g = b; soft mode ignores the floor
-// (the renderer takes the max with it after the tiles).
+// (the renderer takes the max with it after the tiles). `argmax` (image-sized, or
+// null): each pixel's largest term's Gaussian id, −1 where none or the floor is.
 void forward_tile(const TileFrame& frame, const TileGaussians& gaussians, float* m, float* S, float* I,
-                  std::int64_t* skipped);
+                  std::int32_t* argmax, std::int64_t* skipped);
 
 // For each of the tile's Gaussians i, writes its six gradient sums
 // (dL/du, dL/dv, dL/dcon_a, dL/dcon_b, dL/dcon_c, dL/damplitude) to grads[6 i ...].

@@ -112,5 +112,52 @@ TEST(Aggregation, DerivativeWithRespectToATermMatchesCentralDifferences) {
   }
 }
 
+// The one policy of the fit and the splatting: the value of every aggregation
+// (sum, softmax, max) from PointTerms, and its derivative dvalue_dterm against
+// central differences (the max's away from ties: the largest term gets 1, the
+// others 0, as max-pooling's gradient).
+TEST(Aggregation, EveryPolicyGivesItsValueAndDerivative) {
+  std::mt19937_64 rng(11);
+  const MixtureModel models[] = {MixtureModel{.aggregation = Aggregation::kSum},
+                                 MixtureModel{.aggregation = Aggregation::kSoftmax, .beta = 50.0},
+                                 MixtureModel{.aggregation = Aggregation::kMax}};
+  auto value = [](const std::vector<double>& g, const MixtureModel& model) {
+    PointTerms<double> t = no_terms<double>();
+    for (double v : g) add_term(t, v, model);
+    return terms_value(t, model);
+  };
+  for (int trial = 0; trial < 20; ++trial) {
+    const std::vector<double> g = random_terms(rng, 2 + trial % 4);
+    const double largest = *std::max_element(g.begin(), g.end());
+    double sum = 0;
+    for (double v : g) sum += v;
+    EXPECT_DOUBLE_EQ(value(g, models[0]), sum);
+    EXPECT_NEAR(value(g, models[1]), softmax_online(g, 50.0), 1e-15);
+    EXPECT_DOUBLE_EQ(value(g, models[2]), largest);
+    for (const MixtureModel& model : models) {
+      PointTerms<double> t = no_terms<double>();
+      for (double v : g) add_term(t, v, model);
+      const double f = terms_value(t, model);
+      for (std::size_t k = 0; k < g.size(); ++k) {
+        const double h = 1e-7;
+        std::vector<double> up = g, down = g;
+        up[k] += h;
+        down[k] -= h;
+        const double numeric = (value(up, model) - value(down, model)) / (2 * h);
+        EXPECT_NEAR(dvalue_dterm(g[k], t, model, f), numeric, 1e-6 * std::max(1.0, std::abs(numeric)))
+            << describe_aggregation(model.aggregation) << " term " << k;
+      }
+    }
+  }
+  // The max: exactly one term (the largest) carries the derivative.
+  const std::vector<double> g = {0.2, 0.7, 0.4};
+  PointTerms<double> t = no_terms<double>();
+  for (double v : g) add_term(t, v, models[2]);
+  EXPECT_EQ(dvalue_dterm(0.2, t, models[2], 0.7), 0.0);
+  EXPECT_EQ(dvalue_dterm(0.7, t, models[2], 0.7), 1.0);
+  EXPECT_EQ(dvalue_dterm(0.4, t, models[2], 0.7), 0.0);
+  EXPECT_EQ(terms_value(no_terms<double>(), models[2]), 0.0);  // no term: 0, as the others
+}
+
 }  // namespace
 }  // namespace hisnegs::gmf

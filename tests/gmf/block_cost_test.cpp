@@ -72,6 +72,7 @@ std::vector<PointTerms<double>> random_fixed_terms(std::mt19937_64& rng, int sam
       const double g = v(rng);
       t.sum += g;
       softmax_add(t.soft, g, beta);
+      t.max = std::max(t.max, g);
     }
     out.push_back(t);
   }
@@ -206,6 +207,10 @@ TEST(BlockCost, JacobianMatchesCeresAutomaticDifferentiation) {
   expect_matches_autodiff(s, m, MixtureModel{.aggregation = Aggregation::kSoftmax, .beta = 32.0}, {}, "softmax");
   expect_matches_autodiff(s, m, MixtureModel{.aggregation = Aggregation::kSoftmax, .beta = 32.0}, fixed,
                           "softmax with fixed terms");
+  // The max: automatic differentiation follows the branch the max takes, which is the
+  // subgradient BlockCost gives (1 for the largest term, 0 for the others).
+  expect_matches_autodiff(s, m, MixtureModel{.aggregation = Aggregation::kMax}, {}, "max");
+  expect_matches_autodiff(s, m, MixtureModel{.aggregation = Aggregation::kMax}, fixed, "max with fixed terms");
 }
 
 // Worst |analytic − central difference| over the Jacobian, relative to its largest

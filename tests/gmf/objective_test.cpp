@@ -52,10 +52,11 @@ GaussianMixture perturbed(const Scene& scene, std::mt19937_64& rng, bool widened
   return m;
 }
 
-// The sum, and the softmax at a low β and at a high β with a narrower support.
-const std::array<MixtureModel, 3> kBoundedModels = {
+// The sum, the softmax at a low β and at a high β with a narrower support, and the max.
+const std::array<MixtureModel, 4> kBoundedModels = {
     MixtureModel{.cutoff = 16.0}, MixtureModel{.aggregation = Aggregation::kSoftmax, .beta = 8.0, .cutoff = 16.0},
-    MixtureModel{.aggregation = Aggregation::kSoftmax, .beta = 64.0, .cutoff = 9.0}};
+    MixtureModel{.aggregation = Aggregation::kSoftmax, .beta = 64.0, .cutoff = 9.0},
+    MixtureModel{.aggregation = Aggregation::kMax, .cutoff = 16.0}};
 
 // The first-order objective's gradient is the derivative of its value.
 TEST(GmfObjective, GradientMatchesItsValue) {
@@ -86,6 +87,40 @@ TEST(GmfObjective, GradientMatchesItsValue) {
     const double fd = testing::ridders_derivative(f, x[i], h0);
     EXPECT_NEAR(grad[i], fd, 1e-6 * std::max({std::abs(grad[i]), std::abs(fd), 1e-3 * largest})) << "parameter " << i;
   }
+}
+
+// The max-mixture's objective (the fit's hard share): its gradient, the max's
+// subgradient, is the derivative of its value away from ties. Central differences
+// with a step of 1e-6 (no sample's two largest terms are that close), on Gaussians
+// widened so that several overlap at most samples.
+TEST(GmfObjective, MaxGradientMatchesItsValueAwayFromTies) {
+  const Scene scene = make_scene(13);
+  const io::SparseGrid grid = grid_of(scene, 0.05);
+  const SampleSet samples = extract_samples(grid, 1.0, 2);
+  std::mt19937_64 rng(14);
+  const GaussianMixture m = perturbed(scene, rng, true);
+  const MixtureModel model{.aggregation = Aggregation::kMax, .cutoff = 1e9};
+  const BlockIndex index = build_block_index(m, samples, scene.frame, model.cutoff);
+  const FitObjective objective(samples, index, m.size(), model);
+  const std::vector<double> x = flat_of(m);
+  std::vector<double> grad(x.size());
+  objective.evaluate(x.data(), grad.data());
+  double largest = 0;
+  for (double g : grad) largest = std::max(largest, std::abs(g));
+  ASSERT_GT(largest, 0.0);
+  int moved = 0;
+  for (std::size_t i = 0; i < x.size(); i += 3) {
+    auto f = [&](double v) {
+      std::vector<double> y = x;
+      y[i] = v;
+      return objective.evaluate(y.data(), nullptr);
+    };
+    const double h = 1e-6;
+    const double fd = (f(x[i] + h) - f(x[i] - h)) / (2 * h);
+    EXPECT_NEAR(grad[i], fd, 1e-4 * std::max({std::abs(grad[i]), std::abs(fd), 1e-3 * largest})) << "parameter " << i;
+    moved += grad[i] != 0.0 ? 1 : 0;
+  }
+  EXPECT_GT(moved, static_cast<int>(x.size() / 6)) << "most Gaussians are the max somewhere";
 }
 
 // sample_residuals: ½ Σ r² is the objective's value and Jᵀ r its gradient, for both

@@ -73,7 +73,7 @@ TEST(MaxMixture, HardMipSplatEqualsTheRayMarchedMipOfTheMaxMixture) {
   const RayMarcher march_max(f_max, frame, ro), march_sum(f_sum, frame, ro);
   const auto renderer = make_splat_renderer(Backend::kCpu);
   SplatSettings hard;
-  hard.mode = MipMode::kHard;
+  hard.mode = MipMode::kMax;
   const std::span<const float> params = flat_params(mixture);
   std::vector<float> truth_max(96 * 96), truth_sum(96 * 96), splat(96 * 96);
   for (const CameraView& view : cams.views) {

@@ -96,7 +96,7 @@ TEST_P(SplatBackend, HardForwardMatchesReference) {
     for (float beta : {8.0f, 50.0f}) {
       for (float skip : {0.0f, SplatSettings{}.skip_log_weight}) {
         SplatSettings s;
-        s.mode = MipMode::kHard;
+        s.mode = MipMode::kMax;
         s.beta = beta;
         s.cutoff = 1e6f;
         s.skip_log_weight = skip;
@@ -120,11 +120,11 @@ TEST_P(SplatBackend, ForwardMatchesReferenceAtDefaultCutoff) {
   for (std::uint64_t seed : {23u, 55u}) {
     const auto scene = make_splat_scene(40, seed, 64, 48);
     const ViewParams<double> view = make_splat_view<double>(scene.K, scene.view);
-    for (MipMode mode : {MipMode::kSoft, MipMode::kHard}) {
+    for (MipMode mode : {MipMode::kSoftmax, MipMode::kMax}) {
       SplatSettings s;
       s.mode = mode;
       s.skip_log_weight = 0.0f;
-      const std::string what = "seed " + std::to_string(seed) + " hard " + std::to_string(mode == MipMode::kHard);
+      const std::string what = "seed " + std::to_string(seed) + " hard " + std::to_string(mode == MipMode::kMax);
       const std::vector<double> ref = render_reference(scene.params, view, s);
       const std::vector<float> img = render(*renderer_, scene, s);
       EXPECT_LT(max_abs_diff(img, ref), boundary_flip_bound(s) + 1e-4) << what;
@@ -144,10 +144,10 @@ TEST_P(SplatBackend, ForwardMatchesReferenceAtDefaultCutoff) {
 TEST_P(SplatBackend, LargeGaussiansOverManyTilesMatchReference) {
   const auto scene = make_splat_scene(12, 31, 190, 160, 0.15, 0.35);
   const ViewParams<double> view = make_splat_view<double>(scene.K, scene.view);
-  for (MipMode mode : {MipMode::kSoft, MipMode::kHard}) {
+  for (MipMode mode : {MipMode::kSoftmax, MipMode::kMax}) {
     SplatSettings s;
     s.mode = mode;
-    const std::string what = "hard " + std::to_string(mode == MipMode::kHard);
+    const std::string what = "hard " + std::to_string(mode == MipMode::kMax);
     const std::vector<double> ref = render_reference(scene.params, view, s);
     const std::vector<float> img = render(*renderer_, scene, s);
     EXPECT_LT(max_abs_diff(img, ref), boundary_flip_bound(s) + 1e-4) << what;
@@ -234,7 +234,7 @@ TEST_P(SplatBackend, FloorIsOneMoreTermPerPixel) {
   const ViewParams<double> view = make_splat_view<double>(scene.K, scene.view);
   std::vector<float> floor(static_cast<std::size_t>(scene.K.width) * scene.K.height);
   for (std::size_t i = 0; i < floor.size(); ++i) floor[i] = i % 7 == 0 ? 0.0f : 0.02f + 0.3f * ((i * 37) % 101) / 101.0f;
-  for (const MipMode mode : {MipMode::kSoft, MipMode::kHard}) {
+  for (const MipMode mode : {MipMode::kSoftmax, MipMode::kMax}) {
     SplatSettings s;
     s.mode = mode;
     s.beta = 30.0f;
@@ -243,7 +243,7 @@ TEST_P(SplatBackend, FloorIsOneMoreTermPerPixel) {
     s.floor = floor;
     const std::vector<double> ref = render_reference(scene.params, view, s);
     const std::vector<float> img = render(*renderer_, scene, s);
-    EXPECT_LT(max_abs_diff(img, ref), 1e-4) << (mode == MipMode::kSoft ? "soft" : "hard");
+    EXPECT_LT(max_abs_diff(img, ref), 1e-4) << (mode == MipMode::kSoftmax ? "soft" : "hard");
   }
   SplatSettings s;
   s.beta = 30.0f;
@@ -361,13 +361,88 @@ TEST_P(SplatBackend, EmptyAndCulledScenesRenderBlack) {
   EXPECT_EQ(*std::max_element(none_img.begin(), none_img.end()), 0.0f);
 }
 
-TEST_P(SplatBackend, BackwardNeedsASoftForward) {
+// A hard forward that did not keep its argmax (a render that only looks) has no backward.
+TEST_P(SplatBackend, BackwardNeedsASoftForwardOrAKeptArgmax) {
   const auto scene = make_splat_scene(3, 77, 16, 16);
   SplatSettings hard;
-  hard.mode = MipMode::kHard;
+  hard.mode = MipMode::kMax;
   const std::vector<float> img = render(*renderer_, scene, hard);
   std::vector<float> grad(scene.params.size(), 0.0f);
   EXPECT_THROW(renderer_->backward(img, grad), std::logic_error);
+  hard.keep_argmax = true;
+  (void)render(*renderer_, scene, hard);
+  EXPECT_NO_THROW(renderer_->backward(img, grad));
+}
+
+// The hard MIP's backward (each pixel's gradient to its argmax Gaussian alone) matches
+// the reference's, with and without a floor (a term that takes no gradient), at the
+// default cutoff: the forward's image and the argmax it kept are the reference's.
+TEST_P(SplatBackend, HardBackwardMatchesReference) {
+  for (const SceneCase& c : {SceneCase{31, 25, 60, 40}, SceneCase{61, 20, 64, 48}, SceneCase{62, 40, 70, 45}}) {
+    for (const bool with_floor : {false, true}) {
+      const auto scene = make_splat_scene(c.count, c.seed, c.width, c.height);
+      const ViewParams<double> view = make_splat_view<double>(scene.K, scene.view);
+      const std::size_t pixels = static_cast<std::size_t>(scene.K.width) * scene.K.height;
+      SplatSettings s;
+      s.mode = MipMode::kMax;
+      s.keep_argmax = true;
+      std::vector<float> floor;
+      if (with_floor) {  // a floor under some pixels' max, over others'
+        floor.assign(pixels, 0.0f);
+        for (std::size_t i = 0; i < pixels; ++i) floor[i] = i % 3 == 0 ? 0.0f : 0.15f * static_cast<float>(i % 5);
+        s.floor = floor;
+      }
+      const std::vector<double> w = random_weights(pixels, c.seed);
+      std::vector<double> screen_ref;
+      const std::vector<double> ref = render_reference_backward(scene.params, view, s, w, &screen_ref);
+      const std::vector<float> img = render(*renderer_, scene, s);
+      const std::vector<double> ref_img = render_reference(scene.params, view, s);
+      EXPECT_LT(max_abs_diff(img, ref_img), 1e-4) << describe(c);
+      std::vector<float> grad(scene.params.size(), 0.0f), screen(scene.params.size() / 11, 0.0f);
+      renderer_->backward(to_float(w), grad, screen);
+      const std::vector<double> largest = largest_per_kind(ref);
+      ASSERT_GT(largest[gmf::kLogit], 0.0) << describe(c) << ": no Gaussian won a pixel";
+      for (std::size_t i = 0; i < ref.size(); ++i) {
+        EXPECT_LT(std::abs(grad[i] - ref[i]), 1e-3 * largest[i % 11] + 1e-9)
+            << describe(c) << (with_floor ? " with a floor" : "") << " param " << i << " (kind " << i % 11
+            << "): " << grad[i] << " ref " << ref[i];
+      }
+      for (std::size_t k = 0; k < screen.size(); ++k) {
+        EXPECT_NEAR(screen[k], screen_ref[k], 1e-3 * screen_ref[k] + 1e-6) << describe(c) << " Gaussian " << k;
+      }
+    }
+  }
+}
+
+// Two Gaussians over one pixel: the hard MIP's gradient reaches the brighter alone,
+// as max-pooling's does; the soft MIP's reaches both.
+TEST_P(SplatBackend, HardGradientReachesOnlyTheArgmax) {
+  auto scene = make_splat_scene(2, 5, 32, 32);
+  // Both centred on the middle of the view, the second dimmer and wider.
+  for (int a = 0; a < 3; ++a) scene.params[11 + a] = scene.params[a];
+  scene.params[10] = 2.0;                    // a = 0.88
+  scene.params[11 + 10] = 0.0;               // a = 0.5
+  for (int a = 3; a < 6; ++a) scene.params[11 + a] = scene.params[a] + 0.7;  // scales ×2
+  const std::size_t pixels = 32 * 32;
+  std::vector<float> img(pixels);
+  SplatSettings probe;
+  probe.mode = MipMode::kMax;
+  img = render(*renderer_, scene, probe);
+  const auto centre = static_cast<std::size_t>(std::max_element(img.begin(), img.end()) - img.begin());
+  std::vector<float> w(pixels, 0.0f);
+  w[centre] = 1.0f;  // dL/dI at the brightest pixel only, where the first Gaussian is the max
+  for (const MipMode mode : {MipMode::kMax, MipMode::kSoftmax}) {
+    SplatSettings s;
+    s.mode = mode;
+    s.keep_argmax = true;
+    s.beta = 5.0f;
+    (void)render(*renderer_, scene, s);
+    std::vector<float> grad(scene.params.size(), 0.0f);
+    renderer_->backward(w, grad);
+    EXPECT_GT(std::abs(grad[gmf::kLogit]), 0.0f);
+    const bool second_moved = std::any_of(grad.begin() + 11, grad.end(), [](float g) { return g != 0.0f; });
+    EXPECT_EQ(second_moved, mode == MipMode::kSoftmax) << (mode == MipMode::kMax ? "hard" : "soft");
+  }
 }
 
 // Buffers are kept and only grown between frames: a small frame after a large one and
@@ -408,19 +483,19 @@ TEST_P(SplatBackend, SharesOfAModelCombineIntoTheWholeRender) {
   const std::size_t half = 11 * 17;  // 17 of the 40 Gaussians in the first share
   const std::vector<float> first(all.begin(), all.begin() + half), second(all.begin() + half, all.end());
   const std::size_t pixels = static_cast<std::size_t>(scene.K.width) * scene.K.height;
-  for (const MipMode mode : {MipMode::kHard, MipMode::kSoft}) {
+  for (const MipMode mode : {MipMode::kMax, MipMode::kSoftmax}) {
     SplatSettings settings;
     settings.mode = mode;
     std::vector<float> whole(pixels), a(pixels), b(pixels), m(pixels), S(pixels);
     renderer_->forward(all, scene.K, scene.view, settings, whole);
     std::vector<SoftPixel> merged(pixels);
     renderer_->forward(first, scene.K, scene.view, settings, a);
-    if (mode == MipMode::kSoft) {
+    if (mode == MipMode::kSoftmax) {
       renderer_->soft_state(m, S);
       for (std::size_t i = 0; i < pixels; ++i) merged[i] = {m[i], S[i], a[i]};
     }
     renderer_->forward(second, scene.K, scene.view, settings, b);
-    if (mode == MipMode::kHard) {
+    if (mode == MipMode::kMax) {
       for (std::size_t i = 0; i < pixels; ++i) a[i] = std::max(a[i], b[i]);
       EXPECT_EQ(a, whole) << "hard MIP: the max of the shares is the whole render";
       EXPECT_THROW(renderer_->soft_state(m, S), std::logic_error);

@@ -112,10 +112,10 @@ TEST(SplatCpu, SoftMipAtTheLargestBetaStaysBetweenZeroAndTheHardMip) {
   const testing::SplatScene scene = testing::make_splat_scene(60, 17, 48, 40);
   auto renderer = make_splat_renderer(Backend::kCpu);
   SplatSettings soft;
-  soft.mode = MipMode::kSoft;
+  soft.mode = MipMode::kSoftmax;
   soft.beta = static_cast<float>(kMaxSoftMipBeta);
   SplatSettings hard = soft;
-  hard.mode = MipMode::kHard;
+  hard.mode = MipMode::kMax;
   const std::vector<float> s = testing::render(*renderer, scene, soft);
   const std::vector<float> h = testing::render(*renderer, scene, hard);
   const double bound = 59.0 / (std::exp(1.0) * kMaxSoftMipBeta) + 1e-5;

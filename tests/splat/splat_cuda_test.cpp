@@ -56,13 +56,13 @@ TEST_F(SplatCuda, ForwardMatchesCpuBackEnd) {
   auto cpu = make_splat_renderer(Backend::kCpu);
   const auto scene = large_scene();
   for (float cutoff : {1e6f, 16.0f}) {
-    for (MipMode mode : {MipMode::kSoft, MipMode::kHard}) {
+    for (MipMode mode : {MipMode::kSoftmax, MipMode::kMax}) {
       SplatSettings s;
       s.mode = mode;
       s.cutoff = cutoff;
       const std::vector<float> a = render(*cuda, scene, s);
       const std::vector<float> b = render(*cpu, scene, s);
-      const std::string what = "cutoff " + std::to_string(cutoff) + " hard " + std::to_string(mode == MipMode::kHard);
+      const std::string what = "cutoff " + std::to_string(cutoff) + " hard " + std::to_string(mode == MipMode::kMax);
       if (cutoff > 1e5f) {
         EXPECT_LT(max_abs_diff(a, b), 1e-4) << what;
       } else {

@@ -73,7 +73,7 @@ TEST(SplatReference, BackwardWithAFloorMatchesFiniteDifferences) {
   std::vector<float> floor(static_cast<std::size_t>(view.width) * view.height);
   for (float& b : floor) b = static_cast<float>(level(rng));
   floor[3] = 0.0f;  // no floor at this pixel
-  for (const MipMode mode : {MipMode::kSoft, MipMode::kHard}) {
+  for (const MipMode mode : {MipMode::kSoftmax, MipMode::kMax}) {
     SplatSettings settings;
     settings.mode = mode;
     settings.beta = 20.0f;
@@ -103,6 +103,67 @@ TEST(SplatReference, BackwardWithAFloorMatchesFiniteDifferences) {
   for (std::size_t i = 0; i < empty.size(); ++i) EXPECT_DOUBLE_EQ(empty[i], floor[i]) << i;
 }
 
+// The hard MIP's subgradient (each pixel's dL/dI to its largest term) against
+// central differences, away from ties: only pixels whose two largest terms, and
+// floor, differ by more than 0.05 carry a weight, and the step (1e-7) moves no term
+// by that much, so no step crosses the max's kink.
+TEST(SplatReference, HardBackwardMatchesFiniteDifferencesAwayFromTies) {
+  for (std::uint64_t seed : {4u, 5u, 6u}) {
+    const auto scene = make_splat_scene(6, seed);
+    const ViewParams<double> view = make_splat_view<double>(scene.K, scene.view);
+    const std::size_t pixels = static_cast<std::size_t>(view.width) * view.height;
+    SplatSettings settings;
+    settings.mode = MipMode::kMax;
+    settings.cutoff = 1e6f;
+    std::vector<float> floor(pixels, 0.0f);
+    for (std::size_t i = 0; i < pixels; i += 4) floor[i] = 0.2f;
+    settings.floor = floor;
+    // Each pixel's gap between its largest and second-largest term (the floor one of them).
+    std::vector<double> gap(pixels, 0.0);
+    const std::size_t K = scene.params.size() / 11;
+    std::vector<std::vector<double>> single(K);
+    SplatSettings one = settings;
+    one.floor = {};
+    for (std::size_t k = 0; k < K; ++k) {
+      single[k] = render_reference(std::span<const double>(scene.params).subspan(11 * k, 11), view, one);
+    }
+    std::mt19937_64 rng(seed + 200);
+    std::uniform_real_distribution<double> u(-1, 1);
+    std::vector<double> w(pixels, 0.0);
+    int weighted = 0;
+    for (std::size_t i = 0; i < pixels; ++i) {
+      double top = floor[i], second = 0;
+      for (std::size_t k = 0; k < K; ++k) {
+        const double g = single[k][i];
+        if (g > top) {
+          second = top;
+          top = g;
+        } else if (g > second) {
+          second = g;
+        }
+      }
+      if (top - second > 0.05) w[i] = u(rng), ++weighted;
+    }
+    ASSERT_GT(weighted, static_cast<int>(pixels / 4)) << "seed " << seed;
+    const std::vector<double> grad = render_reference_backward(scene.params, view, settings, w);
+    auto loss = [&](const std::vector<double>& p) {
+      const std::vector<double> img = render_reference(p, view, settings);
+      double l = 0;
+      for (std::size_t i = 0; i < img.size(); ++i) l += w[i] * img[i];
+      return l;
+    };
+    for (std::size_t i = 0; i < scene.params.size(); ++i) {
+      const double h = 1e-7;
+      std::vector<double> plus = scene.params, minus = scene.params;
+      plus[i] += h;
+      minus[i] -= h;
+      const double fd = (loss(plus) - loss(minus)) / (2 * h);
+      EXPECT_LT(std::abs(grad[i] - fd) / std::max(1e-3, std::abs(fd)), 1e-5)
+          << "seed " << seed << " param " << i << " (kind " << i % 11 << "): analytic " << grad[i] << " fd " << fd;
+    }
+  }
+}
+
 // One Gaussian's brightest pixel is the one its centre projects to, with value a.
 TEST(SplatReference, GaussianLandsWhereItsCentreProjects) {
   auto scene = make_splat_scene(1, 7, 41, 33);
@@ -113,7 +174,7 @@ TEST(SplatReference, GaussianLandsWhereItsCentreProjects) {
                               Eigen::Vector3d((12.5 - scene.K.cx) / scene.K.fx, (20.5 - scene.K.cy) / scene.K.fy, 1.0);
   const Eigen::Vector3d mu = C + 2.5 * dir;
   for (int a = 0; a < 3; ++a) scene.params[a] = mu[a];
-  for (MipMode mode : {MipMode::kSoft, MipMode::kHard}) {
+  for (MipMode mode : {MipMode::kSoftmax, MipMode::kMax}) {
     SplatSettings settings;
     settings.mode = mode;
     const std::vector<double> img = render_reference(scene.params, view, settings);
@@ -166,7 +227,7 @@ TEST(SplatReference, SoftMipConvergesToHardMip) {
   const auto scene = make_splat_scene(12, 9);
   const ViewParams<double> view = make_splat_view<double>(scene.K, scene.view);
   SplatSettings hard;
-  hard.mode = MipMode::kHard;
+  hard.mode = MipMode::kMax;
   const std::vector<double> target = render_reference(scene.params, view, hard);
   double previous = 1e300;
   for (float beta : {1.0f, 5.0f, 20.0f, 50.0f, 200.0f, 1000.0f, 5000.0f}) {

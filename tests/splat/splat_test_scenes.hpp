@@ -65,7 +65,7 @@ inline SplatScene make_splat_scene(int count, std::uint64_t seed, int width = 40
 // with x = g_max − g_b, |ΔI| <= x e^{−βx} <= 1 / (β e) (7.4e-3 at β = 50).
 inline double boundary_flip_bound(const SplatSettings& s) {
   const double g_b = std::exp(-0.5 * s.cutoff);
-  return s.mode == MipMode::kHard ? g_b : std::max(g_b, 1.0 / (s.beta * std::exp(1.0)));
+  return s.mode == MipMode::kMax ? g_b : std::max(g_b, 1.0 / (s.beta * std::exp(1.0)));
 }
 
 inline std::vector<float> to_float(const std::vector<double>& v) { return {v.begin(), v.end()}; }

@@ -59,7 +59,7 @@ std::vector<float> perturbed(std::vector<float> p) {
 
 SplatSettings soft_settings() {
   SplatSettings s;
-  s.mode = MipMode::kSoft;
+  s.mode = MipMode::kSoftmax;
   s.beta = 50.0f;
   return s;
 }

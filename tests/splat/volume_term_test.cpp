@@ -187,7 +187,7 @@ TEST(VolumeTerm, TrainerPrunesEmptySpaceAndFollowsTheVolume) {
   o.lambda_3d = 10.0;
   o.volume_blocks = 8;
   SplatSettings splat;
-  splat.mode = MipMode::kSoft;
+  splat.mode = MipMode::kSoftmax;
   Trainer trainer(o, splat, data, model_params(), make_splat_renderer(Backend::kCpu));
   auto term = std::make_shared<VolumeTerm>(lattice(2), softmax_model(64.0),
                                            [](const double w[3]) { return w[0] > 1.0; });

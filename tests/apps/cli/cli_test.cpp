@@ -155,8 +155,8 @@ TEST(CliFit, WritesCheckpointAndCsvLog) {
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_NE(r.out.find("3D PSNR"), std::string::npos) << r.out;
   // The objective and where its samples sit, with sample_jitter's automatic value.
-  EXPECT_NE(r.out.find("fit: softmax (beta 8 -> 64) objective; samples moved within their voxels each round "
-                       "(gmf.sample_jitter auto for the softmax: 1)"),
+  EXPECT_NE(r.out.find("fit: softmax (beta 8 -> 64), the last 25% on the max objective; samples moved within their "
+                       "voxels each round (gmf.sample_jitter auto for the softmax: 1)"),
             std::string::npos)
       << r.out;
   auto sum = run_hisnegs({"--config", dir / "c.yaml", "fit", dir / "s.tif", "-o", dir / "sum.ply", "--gaussians", "150",
