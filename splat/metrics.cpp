@@ -31,6 +31,33 @@ ViewMetrics image_metrics(std::span<const float> render, std::span<const float> 
   return m;
 }
 
+ForegroundSplit foreground_split(std::span<const float> render, std::span<const float> target, double level) {
+  if (render.size() != target.size()) {
+    throw std::invalid_argument("foreground_split: images of " + std::to_string(render.size()) + " and " +
+                                std::to_string(target.size()) + " pixels");
+  }
+  double se_fg = 0, se_bg = 0;
+  ForegroundSplit s;
+  for (std::size_t i = 0; i < render.size(); ++i) {
+    const double d = static_cast<double>(render[i]) - target[i];
+    if (target[i] >= level) {
+      se_fg += d * d;
+      ++s.foreground;
+    } else {
+      se_bg += d * d;
+    }
+  }
+  const std::size_t background = render.size() - s.foreground;
+  auto psnr_of = [](double se, std::size_t n) {
+    if (n == 0) return 0.0;
+    return se > 0 ? gmf::psnr_from_mse(se / static_cast<double>(n)) : std::numeric_limits<double>::infinity();
+  };
+  s.psnr_fg = psnr_of(se_fg, s.foreground);
+  s.psnr_bg = psnr_of(se_bg, background);
+  s.background_error_share = se_fg + se_bg > 0 ? se_bg / (se_fg + se_bg) : 0.0;
+  return s;
+}
+
 MetricSummary summarize(std::span<const double> values) {
   MetricSummary s;
   if (values.empty()) return s;

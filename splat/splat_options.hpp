@@ -146,7 +146,7 @@ struct TrainOptions {
   double lambda_3d = 0.1;  // >= 0
   int volume_blocks = 4;   // sample blocks (8^3 voxels) per step, [1, 10^6]
   // After the last epoch, the trained model and the initial one are measured on
-  // every training view (soft MIP at beta_end); when training made the training
+  // every training view (hard MIPs after a hard share, else soft at beta_end); when training made the training
   // views worse, `train` writes the initial model as final.ply and says so. False:
   // always the trained model. (Model selection on the training views only.)
   bool keep_better_init = true;

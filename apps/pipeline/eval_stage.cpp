@@ -7,6 +7,7 @@
 #include <sstream>
 
 #include "gmf/core/checkpoint.hpp"
+#include "gmf/core/psnr.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
 #include "io/png.hpp"
@@ -51,6 +52,29 @@ void measure_views(const splat::TrainingData& truth, const splat::RenderedViews&
   }
 }
 
+// One MIP mode's figures over every view: whole-image PSNR, the foreground's and
+// the background's (splat::foreground_split), and the background's error share.
+struct ModeFigures {
+  std::vector<double> psnr, psnr_fg, psnr_bg, bg_share;
+  Json json() const {
+    return Json{{"psnr", summary_json(splat::summarize(psnr))},
+                {"psnr_fg", summary_json(splat::summarize(psnr_fg))},
+                {"psnr_bg", summary_json(splat::summarize(psnr_bg))},
+                {"background_error_share", summary_json(splat::summarize(bg_share))}};
+  }
+};
+ModeFigures mode_figures(const splat::TrainingData& truth, const splat::RenderedViews& r) {
+  ModeFigures f;
+  for (int i = 0; i < truth.count(); ++i) {
+    const splat::ForegroundSplit s = splat::foreground_split(r.stack.view(i), truth.image(i));
+    f.psnr.push_back(gmf::psnr(r.stack.view(i), truth.image(i)));
+    f.psnr_fg.push_back(s.psnr_fg);
+    f.psnr_bg.push_back(s.psnr_bg);
+    f.bg_share.push_back(s.background_error_share);
+  }
+  return f;
+}
+
 }  // namespace
 
 EvalOutcome evaluate_model(const std::filesystem::path& model, const std::filesystem::path& set,
@@ -68,7 +92,19 @@ EvalOutcome evaluate_model(const std::filesystem::path& model, const std::filesy
       splat::render_views(*renderer, splat::flat_params(checkpoint.mixture), cameras, settings, {}, floors);
   ViewMeasurements m;
   measure_views(truth, r, dir, m);
-  const EvalOutcome outcome{truth.count(), splat::summarize(m.psnr), splat::summarize(m.mae), splat::summarize(m.ssim)};
+  EvalOutcome outcome{truth.count(), splat::summarize(m.psnr), splat::summarize(m.mae), splat::summarize(m.ssim)};
+  // What a viewer shows (the hard MIP) beside what training optimizes (the soft MIP
+  // at β): both, each whole, on the foreground and on the background.
+  splat::SplatSettings other = settings;
+  other.mode = settings.soft() ? splat::MipMode::kMax : splat::MipMode::kSoftmax;
+  const splat::RenderedViews r_other =
+      splat::render_views(*renderer, splat::flat_params(checkpoint.mixture), cameras, other, {}, floors);
+  const ModeFigures mine = mode_figures(truth, r), theirs = mode_figures(truth, r_other);
+  const ModeFigures& soft = settings.soft() ? mine : theirs;
+  const ModeFigures& hard = settings.soft() ? theirs : mine;
+  outcome.soft_psnr = splat::summarize(soft.psnr);
+  outcome.hard_psnr = splat::summarize(hard.psnr);
+  outcome.hard_psnr_fg = splat::summarize(hard.psnr_fg);
   Json meta;
   meta["model"] = io::printable(model.string(), 500);
   meta["data"] = io::printable(set.string(), 500);
@@ -82,6 +118,8 @@ EvalOutcome evaluate_model(const std::filesystem::path& model, const std::filesy
   meta["mae"] = summary_json(outcome.mae);
   meta["ssim"] = summary_json(outcome.ssim);
   meta["visible"] = summary_json(splat::summarize(m.visible));
+  meta["foreground_level"] = splat::kForegroundLevel;
+  meta["modes"] = Json{{"soft", soft.json()}, {"hard", hard.json()}};
   meta["per_view"] = m.views;
   const std::string json = meta.dump(2) + "\n", table = m.csv.str();
   io::write_file_atomic(dir / "metrics.csv", table.data(), table.size());
@@ -91,6 +129,11 @@ EvalOutcome evaluate_model(const std::filesystem::path& model, const std::filesy
                truth.count(), truth.intrinsics.width, truth.intrinsics.height, checkpoint.mixture.size(),
                meta["mode"].get<std::string>().c_str(), p.mean, p.std, p.min, a.mean, s.mean,
                (dir / "metrics.json").c_str());
+  auto mean = [](const std::vector<double>& v) { return splat::summarize(v).mean; };
+  progress.say("eval: soft MIP %.2f dB (foreground %.2f dB), hard MIP %.2f dB (foreground %.2f dB, background "
+               "%.2f dB, %.0f%% of its error in the background; foreground: truth >= %g)",
+               mean(soft.psnr), mean(soft.psnr_fg), mean(hard.psnr), mean(hard.psnr_fg), mean(hard.psnr_bg),
+               100 * mean(hard.bg_share), splat::kForegroundLevel);
   return outcome;
 }
 

@@ -20,7 +20,10 @@ using EvalConfig = ConfigSlice<&AppConfig::splat>;
 // and writes DIR/metrics.json, DIR/metrics.csv, DIR/compare/NNN.png; one "eval: ..." line.
 struct EvalOutcome {
   int views = 0;
-  splat::MetricSummary psnr, mae, ssim;
+  splat::MetricSummary psnr, mae, ssim;  // of the configured mode (splat.mode)
+  // Both modes, whatever is configured: the soft and hard MIPs' PSNR, and the hard
+  // MIP's on the foreground pixels (splat::foreground_split).
+  splat::MetricSummary soft_psnr, hard_psnr, hard_psnr_fg;
 };
 EvalOutcome evaluate_model(const std::filesystem::path& model, const std::filesystem::path& set,
                            const std::filesystem::path& dir, const EvalConfig& config, splat::Backend backend,

@@ -99,6 +99,15 @@ std::string summary_section(const RunFiles& f, const Json& run_state, const RunS
   s.add({"Evaluation PSNR", strf("%.2f +- %.2f dB (min %.2f, max %.2f) over %d views", psnr.at("mean").get<double>(),
                                  psnr.at("std").get<double>(), psnr.at("min").get<double>(),
                                  psnr.at("max").get<double>(), metrics.at("views").get<int>())});
+  if (metrics.contains("modes")) {  // the viewer's hard MIP beside the trained soft MIP
+    const Json& modes = metrics.at("modes");
+    auto at = [&](const char* mode, const char* what) { return modes.at(mode).at(what).at("mean").get<double>(); };
+    s.add({"Hard MIP (what viewers show) / soft MIP",
+           strf("%.2f / %.2f dB; foreground %.2f / %.2f dB (truth >= %g); %.0f%% of the hard MIP's error in the "
+                "background",
+                at("hard", "psnr"), at("soft", "psnr"), at("hard", "psnr_fg"), at("soft", "psnr_fg"),
+                metrics.value("foreground_level", 0.2), 100 * at("hard", "background_error_share"))});
+  }
   s.add({"Evaluation MAE / SSIM",
          strf("%.5f / %.4f", metrics.at("mae").at("mean").get<double>(), metrics.at("ssim").at("mean").get<double>())});
   s.add({"Rendering",

@@ -94,7 +94,7 @@ def test_fit_matches_the_cli_and_params_are_a_view(work):
     assert np.array_equal(p, cli.params), "the same fit as `hisnegs fit` with the same options"
     p[0, 0] += 0.25
     assert model.params[0, 0] == p[0, 0], "params must be a writable view of the model"
-    assert model.aggregation in ("sum", "softmax")
+    assert model.aggregation in ("sum", "softmax", "max")  # max: the fit ended on its hard share
 
 
 def test_model_save_and_load_round_trip(work, tmp_path):

@@ -126,7 +126,8 @@ with a .hgs name the compact checkpoint (``export_compact``'s defaults; ``export
 ``params``: a (K, 11) float32 view of the parameters in the checkpoint's order:
 x, y, z (world), log σ0, log σ1, log σ2, quaternion w, x, y, z (unnormalized),
 intensity logit; writing it changes the model. ``aggregation`` and ``beta``: how
-the model's terms combine in 3D."""
+the model's terms combine in 3D ("max" after a default fit, which ends on the max;
+``beta`` is then 0)."""
 
 
 def ground_truth(volume, cameras, backend="auto", **raymarch_options):
@@ -140,7 +141,7 @@ class Objective:
     """The stage-1 least-squares problem of the fit on ``volume``: its samples and
     weights (the sparse grid with ``gmf.background_fraction``, at the voxel centres),
     ½ Σ w² (f(x) − V)² with f the mixture under ``aggregation`` ("softmax" at
-    ``beta``, or "sum"), for a flat float64 ``x`` of 11 K values in the order of
+    ``beta``, "max" (its subgradient), or "sum"), for a flat float64 ``x`` of 11 K values in the order of
     ``Model.params`` (K = the model's Gaussians). ``value(x)``, ``gradient(x)`` and
     ``value_and_gradient(x)`` (for scipy.optimize(jac=True)), ``residuals(x)`` and
     ``jacobian(x)`` (scipy.sparse CSR; for least-squares solvers). Each call with a new x
