@@ -122,6 +122,40 @@ TEST(TrainerSchedule, CosineLearningRateAndLinearBetaWarmup) {
   EXPECT_DOUBLE_EQ(soft_mip_beta(o, 0), 50.0);
 }
 
+// train.hard_share: the last share of the epochs, rounded up to whole epochs.
+TEST(TrainerSchedule, TheHardShareIsTheLastEpochs) {
+  TrainOptions o;
+  o.epochs = 10;
+  o.hard_share = 0.25;  // epochs 8 and 9 (0-based): ceil(0.75 × 10) = 8
+  for (int e = 0; e < 10; ++e) EXPECT_EQ(hard_mip_epoch(o, e), e >= 8) << e;
+  o.hard_share = 0.0;
+  for (int e = 0; e < 10; ++e) EXPECT_FALSE(hard_mip_epoch(o, e)) << e;
+}
+
+// Epochs in the hard share train the hard MIP itself (its subgradient): they report
+// β = ∞, and they raise the hard MIP's PSNR against a hard-MIP truth.
+TEST(Trainer, TheHardShareTrainsTheHardMip) {
+  TrainOptions o = quiet_options(6);
+  o.lr_initial = 3e-3;
+  o.hard_share = 0.9;  // epochs 1..5 hard
+  std::vector<float> truth = true_params();
+  TrainingData data = render_truth(truth);
+  SplatSettings hard = soft_settings();
+  hard.mode = MipMode::kMax;
+  auto renderer = make_splat_renderer(Backend::kCpu);
+  const std::size_t n = 32 * 32;
+  for (std::size_t i = 0; i < data.views.size(); ++i) {
+    renderer->forward(truth, data.intrinsics, data.views[i], hard, std::span<float>(data.images).subspan(i * n, n));
+  }
+  Trainer trainer(o, soft_settings(), data, perturbed(truth), make_splat_renderer(Backend::kCpu));
+  const double before = trainer.evaluate(trainer.params(), 50.0, MipMode::kMax).psnr;
+  const EpochReport first = trainer.run_epoch();
+  EXPECT_EQ(first.beta, 50.0);
+  for (int e = 1; e < 6; ++e) EXPECT_TRUE(std::isinf(trainer.run_epoch().beta)) << e;
+  const double after = trainer.evaluate(trainer.params(), 50.0, MipMode::kMax).psnr;
+  EXPECT_GT(after, before + 1.0) << "hard-MIP PSNR " << before << " -> " << after;
+}
+
 TEST(Trainer, OneFullBatchStepLowersTheLoss) {
   TrainOptions o = quiet_options(10);
   o.lr_initial = 1e-3;  // small enough for a first Adam step (≈ lr per parameter) to descend
