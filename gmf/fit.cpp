@@ -222,7 +222,8 @@ RoundOutcome solve_lbfgs(RoundProblem& r, const RoundContext& c) {
 // One round of Adam (the report's PyTorch baseline, gmf/core/adam.hpp): β1 0.9, β2 0.999,
 // ε 1e-8, step gmf.adam_learning_rate, times the smallest voxel size for means
 // (world units); each step is projected onto the round's box. The moments carry over
-// from the previous round when K did not change (a restart spikes the loss). A step
+// from the previous round, following its pruning and density control (a restart
+// spiked the loss: its first step moves every parameter by the full rate). A step
 // is not started when it would end past the time left. The logged loss is measured
 // at the report model's β when that differs from the solved one.
 RoundOutcome solve_adam(RoundProblem& r, const RoundContext& c, Adam<double>& adam) {
@@ -389,13 +390,15 @@ RoundProblem prepare_round(const GaussianMixture& mixture, const SampleSet& samp
   return r;
 }
 
-// Back to float, pruning a < prune_intensity; returns how many were pruned.
-int take_round_result(RoundProblem& r, const GmfOptions& options, GaussianMixture& mixture) {
+// Back to float, pruning a < prune_intensity; returns how many were pruned. Adam's
+// moments, when they are this round's, follow the survivors.
+int take_round_result(RoundProblem& r, const GmfOptions& options, GaussianMixture& mixture, Adam<double>& adam) {
   // Every optimizer's result within the axis ratio (Adam keeps it at each step).
   (void)bound_axis_ratio(std::span<double>(r.x(), r.params.size() * kGaussianParamCount), options.max_axis_ratio);
   for (std::size_t k = 0; k < r.params.size(); ++k) mixture[k] = to_float(r.params[k]);
   const std::vector<std::uint32_t> kept = bright_gaussians(flat_params(mixture), options.prune_intensity);
   const int pruned = static_cast<int>(mixture.size() - kept.size());
+  if (pruned > 0 && adam.gaussians() == mixture.size()) adam.keep(kept);
   keep_gaussians(mixture, kept);
   return pruned;
 }
@@ -466,7 +469,7 @@ class RoundLoop {
       result_.stop_reason = outcome.message;
       FitRound stats;
       stats.round = round;
-      stats.pruned = take_round_result(problem, options_, mixture_);
+      stats.pruned = take_round_result(problem, options_, mixture_, adam_);
       problem = RoundProblem{};  // its padded index is the largest allocation: gone before the next index is built
       result_.pruned += stats.pruned;
       // The round's result's block index: for its measurement and its density
@@ -561,7 +564,10 @@ class RoundLoop {
 
   // density: split and clone for the next round.
   void density(const SampleSet& samples, const BlockIndex& current, FitRound& stats) {
+    const std::size_t before = mixture_.size();
     const DensityChange change = adapt_density(mixture_, samples, current, frame_, options_, model_);
+    // New Gaussians (appended) start with zero moments; the others keep theirs.
+    if (adam_.gaussians() == before) adam_.resize(mixture_.size());
     stats.split = change.split;
     stats.cloned = change.cloned;
   }
@@ -595,7 +601,7 @@ class RoundLoop {
   const double jitter_;  // 0: every round samples the voxel centres
   SampleSet moved_;      // this round's samples when jittered
   detail::GaussianManifold manifold_;
-  Adam<double> adam_;  // the moments, kept while K does not change
+  Adam<double> adam_;  // the moments, following pruning and density control
   int iterations_ = 0;
   MixtureModel model_ = options_.model(0);
   MixtureModel report_ = options_.report_model(0);  // what the log measures

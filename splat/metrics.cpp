@@ -21,6 +21,15 @@ ViewMetrics image_metrics(std::span<const float> render, std::span<const float> 
                                 std::to_string(target.size()) + " pixels for " + std::to_string(width) + "x" +
                                 std::to_string(height));
   }
+  // A non-finite pixel has no error to measure: PSNR came out +∞ for one NaN.
+  for (const auto& [image, name] : {std::pair{render, "render"}, std::pair{target, "target"}}) {
+    const auto bad = std::find_if(image.begin(), image.end(), [](float v) { return !std::isfinite(v); });
+    if (bad != image.end()) {
+      throw std::invalid_argument("image_metrics: " + std::string(name) + " pixel " +
+                                  std::to_string(bad - image.begin()) + " is " + std::to_string(*bad) +
+                                  ", not a finite value");
+    }
+  }
   double ae = 0;
   for (std::size_t i = 0; i < n; ++i) ae += std::abs(static_cast<double>(render[i]) - target[i]);
   ViewMetrics m;

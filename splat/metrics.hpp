@@ -21,6 +21,7 @@ struct MetricSummary {
 
 // Metrics of `render` against `target` (H x W each, row-major, values in [0, 1]).
 // SSIM needs images of at least 11 x 11. Throws std::invalid_argument for a size mismatch.
+// Throws std::invalid_argument for a non-finite pixel, naming it.
 ViewMetrics image_metrics(std::span<const float> render, std::span<const float> target, int width, int height);
 
 MetricSummary summarize(std::span<const double> values);

@@ -160,6 +160,10 @@ def test_metrics_and_rasterize(work):
     assert 10 < hisnegs.metrics(images, truth)["psnr"] < 80
     with pytest.raises(ValueError, match="shapes differ"):
         hisnegs.metrics(images, images[:2])
+    spoiled = images.copy()
+    spoiled[1, 2, 3] = np.nan  # one NaN pixel: an error, not PSNR inf
+    with pytest.raises(ValueError, match="not a finite value"):
+        hisnegs.metrics(spoiled, truth)
     voxels = model.rasterize()
     assert voxels.shape == (16, 48, 56) and voxels.dtype == np.float32
     assert model.rasterize((8, 24, 28)).shape == (8, 24, 28)

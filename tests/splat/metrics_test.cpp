@@ -7,6 +7,8 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <stdexcept>
+#include <string>
 #include <vector>
 
 namespace hisnegs::splat {
@@ -22,6 +24,34 @@ TEST(Metrics, PsnrAndMaeOfAKnownPair) {
   EXPECT_NEAR(m.psnr, 10 * std::log10(1 / mse), 1e-4);
   EXPECT_NEAR(m.mae, 0.025, 1e-7);
   EXPECT_LT(m.ssim, 1.0);
+}
+
+// A non-finite pixel is an error naming it (a NaN used to give PSNR +∞).
+TEST(Metrics, ANonFinitePixelIsAnErrorNamingIt) {
+  const int W = 16, H = 12;
+  std::vector<float> target(W * H, 0.5f), render = target;
+  render[7] = std::nanf("");
+  try {
+    (void)image_metrics(render, target, W, H);
+    FAIL() << "a NaN pixel was measured";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("render pixel 7"), std::string::npos) << e.what();
+  }
+  render[7] = 0.5f;
+  target[3] = INFINITY;
+  EXPECT_THROW((void)image_metrics(render, target, W, H), std::invalid_argument);
+}
+
+// foreground_split: PSNR over the truth's foreground and background pixels and the
+// background's share of the squared error, by hand.
+TEST(Metrics, ForegroundSplitSeparatesTheErrorByTheTruth) {
+  std::vector<float> target = {0.0f, 0.1f, 0.5f, 0.9f}, render = {0.1f, 0.1f, 0.5f, 0.7f};
+  const ForegroundSplit s = foreground_split(render, target, 0.2);
+  EXPECT_EQ(s.foreground, 2u);
+  EXPECT_NEAR(s.psnr_fg, 10 * std::log10(1 / (0.04 / 2)), 1e-4);   // one pixel off by 0.2 of two
+  EXPECT_NEAR(s.psnr_bg, 10 * std::log10(1 / (0.01 / 2)), 1e-4);   // one off by 0.1 of two
+  EXPECT_NEAR(s.background_error_share, 0.01 / 0.05, 1e-6);
+  EXPECT_TRUE(std::isinf(foreground_split(target, target, 0.2).psnr_fg));
 }
 
 TEST(Metrics, IdenticalImagesAreInfinitePsnrAndUnitSsim) {
