@@ -4,11 +4,12 @@
 docs/benchmarks.md "The hard MIP" shows (ground truth and models' hard MIPs of one
 view at 3x gain, where dim halos show).
 
-  /usr/bin/python3 scripts/hard_mip_figure.py OUT.png VIEW GAIN A.tif B.tif ...
+  /usr/bin/python3 scripts/hard_mip_figure.py OUT.png VIEW GAIN [--crop R0,R1,C0,C1] [--zoom N] A.tif B.tif ...
 
 Each TIFF is a float32 stack of `hisnegs gt` (mips.tif) or `hisnegs render`
-(render.tif); page VIEW of each is drawn at value x GAIN, clipped to [0, 1], with
-a 4-pixel white gap between panels. Needs numpy and tifffile (Debian's
+(render.tif); page VIEW of each (rows R0..R1-1, columns C0..C1-1 of it with
+--crop) is drawn at value x GAIN, clipped to [0, 1], each pixel N x N with --zoom,
+with a 4-pixel white gap between panels. Needs numpy and tifffile (Debian's
 python3-numpy, python3-tifffile); the PNG is written with zlib alone."""
 import struct
 import sys
@@ -35,7 +36,15 @@ def write_png(path, grey):
 def main(argv):
     if len(argv) < 5:
         sys.exit(__doc__)
-    out, view, gain, stacks = argv[1], int(argv[2]), float(argv[3]), argv[4:]
+    out, view, gain, rest = argv[1], int(argv[2]), float(argv[3]), argv[4:]
+    crop, zoom = None, 1
+    while rest and rest[0] in ("--crop", "--zoom"):
+        if rest[0] == "--crop":
+            crop = [int(v) for v in rest[1].split(",")]
+        else:
+            zoom = int(rest[1])
+        rest = rest[2:]
+    stacks = rest
     panels = []
     for path in stacks:
         pages = tifffile.imread(path)
@@ -43,7 +52,11 @@ def main(argv):
             pages = pages[None]
         if not 0 <= view < pages.shape[0]:
             sys.exit(f"{path}: no view {view} (it holds {pages.shape[0]})")
-        panels.append(np.clip(pages[view].astype(np.float64) * gain, 0.0, 1.0))
+        page = pages[view].astype(np.float64)
+        if crop:
+            page = page[crop[0]:crop[1], crop[2]:crop[3]]
+        page = np.kron(page, np.ones((zoom, zoom)))
+        panels.append(np.clip(page * gain, 0.0, 1.0))
     h = max(p.shape[0] for p in panels)
     gap = np.ones((h, 4))
     row = []

@@ -445,14 +445,31 @@ class GradientCalls {
   }
 
  protected:
-  // x's values, once it is a flat array of size() values.
+  // x's values, once it is a flat array of size() finite values whose quaternions
+  // are not zero (scipy's line searches try such points; they crashed the index).
   const double* checked(const DoubleArray& x) const {
     const std::size_t n = static_cast<const Derived&>(*this).size();
     if (x.ndim() != 1 || static_cast<std::size_t>(x.size()) != n) {
       throw io::InputError(std::string(Derived::kName) + ": x must be a flat array of 11 K = " + std::to_string(n) +
                            " values (got " + std::to_string(x.size()) + ")");
     }
-    return x.data();
+    const double* p = x.data();
+    constexpr std::size_t kP = gmf::kGaussianParamCount;
+    for (std::size_t i = 0; i < n; ++i) {
+      if (!std::isfinite(p[i])) {
+        throw io::InputError(std::string(Derived::kName) + ": x[" + std::to_string(i) + "] (Gaussian " +
+                             std::to_string(i / kP) + ", parameter " + std::to_string(i % kP) + ") is " +
+                             std::to_string(p[i]) + ", not a finite value");
+      }
+    }
+    for (std::size_t k = 0; k < n / kP; ++k) {
+      const double* q = p + kP * k + gmf::kRotW;
+      if (q[0] == 0.0 && q[1] == 0.0 && q[2] == 0.0 && q[3] == 0.0) {
+        throw io::InputError(std::string(Derived::kName) + ": Gaussian " + std::to_string(k) +
+                             "'s quaternion (x[" + std::to_string(kP * k + gmf::kRotW) + "..]) is zero");
+      }
+    }
+    return p;
   }
 
  private:
@@ -481,6 +498,10 @@ class Objective : public GradientCalls<Objective> {
     model_.cutoff = gmf.mahalanobis_cutoff;
     gaussians_ = model.checkpoint.mixture.size();
     if (gaussians_ == 0) throw io::InputError("hisnegs.Objective: the model has no Gaussians");
+    const std::span<const float> params = gmf::flat_params(model.checkpoint.mixture);
+    if (const std::string bad = gmf::describe_non_finite<float>(params, "value"); !bad.empty()) {
+      throw io::InputError("hisnegs.Objective: the model's " + bad + " is not finite");
+    }
     frame_ = volume.loaded.frame;
     py::gil_scoped_release release;
     io::SparseGridOptions sparse = config.sparse_grid;

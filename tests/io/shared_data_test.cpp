@@ -59,6 +59,17 @@ TEST(SharedData, Op2Neuron) {
          SpacingSource::kImageJSpacing});
 }
 
+// The raw stack: as acquired, its background not zeroed (README: 47.8 % of the voxels non-zero).
+TEST(SharedData, Op3Raw) {
+  check({"op3_raw.tif", 62, 512, 512, 0, 254, 0.3296, 0.3296, 0.9988, SpacingSource::kImageJResolution,
+         SpacingSource::kImageJSpacing});
+  const auto path = hisnegs::testing::shared_data("op3_raw.tif");
+  if (!path) return;
+  const Volume v = read_tiff_stack(*path);
+  const auto nonzero = std::count_if(v.voxels.begin(), v.voxels.end(), [](float x) { return x != 0.0f; });
+  EXPECT_NEAR(static_cast<double>(nonzero) / static_cast<double>(v.size()), 0.478, 0.005);
+}
+
 TEST(SharedData, RivuletTestNeuron) {
   check({"rivulet_test_neuron.tif", 119, 415, 409, 0, 255, 1, 1, 1, SpacingSource::kDefault, SpacingSource::kDefault});
 }

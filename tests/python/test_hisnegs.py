@@ -190,6 +190,23 @@ def test_objective_gradient_matches_finite_differences(work):
         assert numeric == pytest.approx(gradient[i], rel=2e-3, abs=1e-6 * abs(value)), i
     with pytest.raises(ValueError, match="flat array of 11 K"):
         objective.value(x[:-1])
+    # Points scipy's line searches try: a NaN, a zero quaternion (these crashed the
+    # block index, exit 139), and a model holding a NaN. Each a ValueError naming it.
+    bad = x.copy()
+    bad[14] = np.nan
+    for call in (objective.value, objective.gradient, objective.residuals, objective.jacobian):
+        with pytest.raises(ValueError, match=r"x\[14\] \(Gaussian 1, parameter 3\) is nan"):
+            call(bad)
+    bad = x.copy()
+    bad[11 + 6:11 + 10] = 0.0
+    with pytest.raises(ValueError, match="Gaussian 1's quaternion .* is zero"):
+        objective.gradient(bad)
+    spoiled = hisnegs.Model.load(work / "m.ply")
+    spoiled.params[2, 0] = np.nan
+    with pytest.raises(ValueError, match="not finite"):
+        hisnegs.Objective(volume, spoiled, aggregation="softmax", beta=20)
+    # The max (the fit's hard share) is an aggregation of the objective too.
+    assert hisnegs.Objective(volume, model, aggregation="max").value(x) > 0
     # The least-squares view of the same problem: ½ Σ r² is the value, Jᵀ r the gradient.
     r = objective.residuals(x)
     assert r.shape == (objective.samples,)
