@@ -60,6 +60,21 @@ void check_bench_args(BenchArgs& a) {
     throw io::InputError("bench: unknown suite '" + a.suite + "'; expected io|gt|gmf|render|report");
   }
   if (report && a.out.empty()) throw io::InputError("bench report: give the output folder with -o DIR");
+  // Checked before any table is measured (a 0 here used to fail after three tables).
+  if (report) {
+    const bench::BenchReportRequest& r = a.report;
+    if (r.quality_views < 1) throw io::InputError("--views: " + std::to_string(r.quality_views) + " must be >= 1");
+    if (r.orbit_frames < 1) {
+      throw io::InputError("--orbit-frames: " + std::to_string(r.orbit_frames) + " must be >= 1");
+    }
+    if (r.min_frames < 1 || r.max_frames < r.min_frames) {
+      throw io::InputError("--min-frames " + std::to_string(r.min_frames) + ", --max-frames " +
+                           std::to_string(r.max_frames) + ": need 1 <= min <= max");
+    }
+    if (!(r.seconds_per_case > 0)) {
+      throw io::InputError("--seconds-per-case: " + std::to_string(r.seconds_per_case) + " must be > 0");
+    }
+  }
   if (a.sizes.empty()) {
     a.sizes = a.suite == "render" || report ? std::vector<int>{128, 256, 512, 1024} : std::vector<int>{256};
   }

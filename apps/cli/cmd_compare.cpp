@@ -15,18 +15,19 @@ void add_compare_command(CLI::App& app, GlobalOptions& global) {
   struct Args {
     std::string volume, out, optimizers, continuation = "brick-lm";
     std::optional<int> gaussians;
+    std::optional<double> time_budget;
     gmf::CompareOptions compare;
     VolumeOverrides overrides;
   };
   auto args = std::make_shared<Args>();
-  args->compare.time_budget_s = -1;  // default: gmf.time_budget_s
   cmd->add_option("VOLUME", args->volume, "stack: TIFF/BigTIFF, HDF5 (.h5), BigDataViewer (.xml), Imaris (.ims)")->required();
   cmd->add_option("-o,--output", args->out, "output folder")->required();
   cmd->add_option("--optimizers", args->optimizers,
                   "comma-separated subset of adam,brick-lm,lm-cgnr,lbfgs,lm,dogleg (default the first four) and of "
                   "the registered optimizers (gmf/optimizers.def: " + gmf::registered_optimizer_names() + ")");
   cmd->add_option("--gaussians", args->gaussians, "Gaussian budget (gmf.gaussians)");
-  cmd->add_option("--time-budget", args->compare.time_budget_s, "seconds per optimizer (default gmf.time_budget_s)");
+  cmd->add_option("--time-budget", args->time_budget, "seconds per optimizer, > 0 (default gmf.time_budget_s)")
+      ->check(CLI::PositiveNumber);
   cmd->add_option("--adam-steps", args->compare.adam_steps, "Adam steps that define the target loss")
       ->capture_default_str();
   cmd->add_option("--continuation", args->continuation,
@@ -41,7 +42,7 @@ void add_compare_command(CLI::App& app, GlobalOptions& global) {
     if (args->gaussians) config.gmf.gaussians = *args->gaussians;
     config.gmf.validate();
     gmf::CompareOptions compare = args->compare;
-    if (compare.time_budget_s < 0) compare.time_budget_s = config.gmf.time_budget_s;
+    compare.time_budget_s = args->time_budget.value_or(config.gmf.time_budget_s);
     const auto names = [](const std::string& text) {
       std::vector<std::string> out;
       std::stringstream list(text);

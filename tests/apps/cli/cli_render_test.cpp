@@ -58,6 +58,28 @@ TEST(CliCompare, WritesTableCurvesSummaryAndPlot) {
   const auto bad = run_hisnegs({"compare-optimizers", dir / "s.tif", "-o", dir / "bad", "--optimizers", "adam,sgd"});
   EXPECT_EQ(bad.exit_code, 2);
   EXPECT_NE(bad.err.find("'sgd'"), std::string::npos) << bad.err;
+  // A negative budget is an error before any work (it meant gmf.time_budget_s: 290 s each).
+  for (const char* budget : {"-1", "0"}) {
+    const auto neg = run_hisnegs({"compare-optimizers", dir / "s.tif", "-o", dir / "neg", "--time-budget", budget});
+    EXPECT_EQ(neg.exit_code, 2) << budget;
+    EXPECT_NE(neg.err.find("--time-budget"), std::string::npos) << neg.err;
+    EXPECT_FALSE(fs::exists(dir / "neg")) << budget;
+  }
+}
+
+// `bench report` options are checked before any table is measured: --views 0 wrote
+// three tables, then failed with an internal error and no report.md.
+TEST(CliRender, BenchReportOptionsAreCheckedFirst) {
+  testing::ScratchDir dir;
+  for (const std::vector<std::string>& extra : std::vector<std::vector<std::string>>{
+           {"--views", "0"}, {"--orbit-frames", "0"}, {"--min-frames", "5", "--max-frames", "2"}}) {
+    std::vector<std::string> args = {"bench", "report", "-o", (dir / "b").string()};
+    args.insert(args.end(), extra.begin(), extra.end());
+    const auto r = run_hisnegs(args);
+    EXPECT_EQ(r.exit_code, 2) << extra[0];
+    EXPECT_NE(r.err.find(extra[0]), std::string::npos) << r.err;
+    EXPECT_FALSE(fs::exists(dir / "b")) << extra[0];
+  }
 }
 
 TEST(CliRender, WritesStackPreviewsMetaAndOrbit) {
