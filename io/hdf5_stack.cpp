@@ -538,6 +538,10 @@ std::string Hdf5StackInfo::describe() const {
 }
 
 bool is_hdf5_stack(const fs::path& path) {
+  // Not opened unless it is a regular file: opening a FIFO for its signature blocked
+  // every command that reads a stack (the TIFF reader then refuses it by name).
+  std::error_code ec;
+  if (!fs::is_regular_file(path, ec)) return false;
   if (is_bdv_xml(path)) return true;
   std::ifstream in(path, std::ios::binary);
   if (!in) return false;

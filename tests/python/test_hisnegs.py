@@ -83,6 +83,13 @@ def test_errors_are_value_errors_with_the_cli_messages(work):
         hisnegs.fit(hisnegs.load_volume(work / "s.tif"), gaussians=-3)
 
 
+def test_a_fifo_is_refused_not_waited_on(tmp_path):
+    fifo = tmp_path / "f.tif"
+    os.mkfifo(fifo)  # opening it for reading would block until a writer came
+    with pytest.raises(ValueError, match="not a regular file"):
+        hisnegs.load_volume(fifo)
+
+
 def test_fit_matches_the_cli_and_params_are_a_view(work):
     lines = []
     model = hisnegs.fit(hisnegs.load_volume(work / "s.tif"), progress=lines.append, **FIT)

@@ -127,6 +127,21 @@ TEST_F(Reliability, ARunFolderHasOneWriter) {
   EXPECT_FALSE(fs::exists(dir_ / "t" / "log.csv"));
 }
 
+// A FIFO given as a stack is refused at once by every command that reads one (they
+// blocked opening it for its HDF5 signature), as `info` and `run` refused it.
+TEST_F(Reliability, AFifoAsTheStackIsRefusedAtOnce) {
+  ASSERT_EQ(::mkfifo((dir_ / "f.tif").c_str(), 0644), 0);
+  expect_refused(run_hisnegs({"fit", dir_ / "f.tif", "-o", dir_ / "x.ply"}), 2, "not a regular file");
+  expect_refused(run_hisnegs({"vdb", dir_ / "f.tif", "-o", dir_ / "x.vdb"}), 2, "not a regular file");
+  expect_refused(run_hisnegs({"gt", dir_ / "f.tif", "-o", dir_ / "g"}), 2, "not a regular file");
+  expect_refused(run_hisnegs({"export", "volume", "--model", dir_ / "m.ply", "--match-volume", dir_ / "f.tif", "-o",
+                              dir_ / "x.tif"}),
+                 2, "not a regular file");
+  EXPECT_FALSE(fs::exists(dir_ / "x.ply"));
+  EXPECT_FALSE(fs::exists(dir_ / "x.vdb"));
+  EXPECT_FALSE(fs::exists(dir_ / "x.tif"));
+}
+
 TEST_F(Reliability, OutputsNeverReplaceSpecialFilesOrInputs) {
   const std::string model = testing::read_bytes(dir_ / "m.ply");
   ASSERT_EQ(::mkfifo((dir_ / "fifo").c_str(), 0644), 0);
