@@ -98,8 +98,25 @@ class CpuSplatRenderer final : public SplatRenderer {
   SplatFrameStats stats_;
 };
 
-void CpuSplatRenderer::forward(std::span<const float> params, const Intrinsics& K, const CameraView& view,
-                               const SplatSettings& settings, std::span<float> image) {
+// The rasterizer's copy of a projected Gaussian (its inverse terms precomputed).
+detail::PackedSplat pack_splat(const Splat2D<float>& s) {
+  detail::PackedSplat p;
+  p.u = s.u;
+  p.v = s.v;
+  p.A = s.con_a;
+  p.B = s.con_b;
+  p.C = s.con_c;
+  p.amp = s.amplitude;
+  p.ln_amp = std::log(std::max(s.amplitude, 1e-30f));  // finite
+  p.inv_A = s.visible ? 1.0f / s.con_a : 0.0f;
+  p.inv_C = s.visible ? 1.0f / s.con_c : 0.0f;
+  p.det = s.con_a * s.con_c - s.con_b * s.con_b;
+  return p;
+}
+
+// forward()'s argument checks; returns the pixel count.
+std::size_t check_forward_arguments(std::span<const float> params, const Intrinsics& K,
+                                    const SplatSettings& settings, std::span<float> image) {
   if (params.size() % kGaussianParamCount != 0) {
     throw std::invalid_argument("splat: parameter array of " + std::to_string(params.size()) +
                                 " floats is not a whole number of Gaussians");
@@ -109,6 +126,12 @@ void CpuSplatRenderer::forward(std::span<const float> params, const Intrinsics& 
   if (!settings.floor.empty() && settings.floor.size() != pixels) {
     throw std::invalid_argument("splat: floor span does not match the intrinsics");
   }
+  return pixels;
+}
+
+void CpuSplatRenderer::forward(std::span<const float> params, const Intrinsics& K, const CameraView& view,
+                               const SplatSettings& settings, std::span<float> image) {
+  const std::size_t pixels = check_forward_arguments(params, K, settings, image);
   params_.assign(params.begin(), params.end());
   intrinsics_ = K;
   view_ = view;
@@ -140,17 +163,7 @@ void CpuSplatRenderer::forward(std::span<const float> params, const Intrinsics& 
                                                                     0, kAmplitudeBuckets - 1))
                              : std::int16_t{-1};
       splats_[k] = s;
-      detail::PackedSplat& p = packed_[k];
-      p.u = s.u;
-      p.v = s.v;
-      p.A = s.con_a;
-      p.B = s.con_b;
-      p.C = s.con_c;
-      p.amp = s.amplitude;
-      p.ln_amp = std::log(std::max(s.amplitude, 1e-30f));  // finite
-      p.inv_A = s.visible ? 1.0f / s.con_a : 0.0f;
-      p.inv_C = s.visible ? 1.0f / s.con_c : 0.0f;
-      p.det = s.con_a * s.con_c - s.con_b * s.con_b;
+      packed_[k] = pack_splat(s);
     }
     detail::tile_bands(jobs.data(), pending);
   });

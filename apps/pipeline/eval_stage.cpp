@@ -92,7 +92,11 @@ EvalOutcome evaluate_model(const std::filesystem::path& model, const std::filesy
       splat::render_views(*renderer, splat::flat_params(checkpoint.mixture), cameras, settings, {}, floors);
   ViewMeasurements m;
   measure_views(truth, r, dir, m);
-  EvalOutcome outcome{truth.count(), splat::summarize(m.psnr), splat::summarize(m.mae), splat::summarize(m.ssim)};
+  EvalOutcome outcome;
+  outcome.views = truth.count();
+  outcome.psnr = splat::summarize(m.psnr);
+  outcome.mae = splat::summarize(m.mae);
+  outcome.ssim = splat::summarize(m.ssim);
   // What a viewer shows (the hard MIP) beside what training optimizes (the soft MIP
   // at β): both, each whole, on the foreground and on the background.
   splat::SplatSettings other = settings;

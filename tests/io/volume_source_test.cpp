@@ -217,7 +217,9 @@ TEST(VolumeSource, CellHistogramsGiveEachCellsForeground) {
           split += above[b] != 0 && below[b] != 0 ? st.cell_histograms[c * SourceStatistics::kCellBins + b] : 0;
         }
         split_total += split;
-        if (type == SampleType::kUint8) EXPECT_EQ(split, 0);
+        if (type == SampleType::kUint8) {
+          EXPECT_EQ(split, 0);
+        }
         EXPECT_LE(std::abs(got[c] - exact[c]), split) << "cell " << c << ", threshold " << threshold;
       }
       EXPECT_GT(std::accumulate(exact.begin(), exact.end(), std::int64_t{0}), 0);
