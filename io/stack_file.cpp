@@ -52,4 +52,12 @@ Volume read_stack(const std::filesystem::path& path, const StackReadOptions& opt
   return read_tiff_stack(path, options.tiff);
 }
 
+std::vector<std::filesystem::path> stack_files(const std::filesystem::path& path) {
+  try {
+    if (is_hdf5_stack(path)) return hdf5_stack_files(path);
+  } catch (const std::exception&) {  // a malformed .xml: its reader reports it
+  }
+  return {path};
+}
+
 }  // namespace hisnegs::io

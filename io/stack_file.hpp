@@ -6,6 +6,7 @@
 
 #include <filesystem>
 #include <string>
+#include <vector>
 
 #include "io/hdf5_stack.hpp"
 #include "io/tiff_stack.hpp"
@@ -36,5 +37,12 @@ struct StackHeader {
 // The whole stack (raw values, normalization kNone). A TIFF refuses --dataset and
 // --timepoint (one line naming them).
 [[nodiscard]] Volume read_stack(const std::filesystem::path& path, const StackReadOptions& options = {});
+
+// Every file behind a stack, the one named first: a BigDataViewer stack's .xml and
+// the .h5 it names (or an .h5 and the .xml beside it that gives its voxel size);
+// any other stack is its one file. What an input is, for output guards and
+// fingerprints. Never throws: a malformed BigDataViewer .xml is its one file (its
+// reader says what is wrong with it).
+[[nodiscard]] std::vector<std::filesystem::path> stack_files(const std::filesystem::path& path);
 
 }  // namespace hisnegs::io

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
 #include <iostream>
 #include <sstream>
 
@@ -12,6 +13,7 @@
 #include "apps/pipeline/distributed.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
+#include "io/stack_file.hpp"
 
 namespace hisnegs::apps {
 
@@ -26,9 +28,11 @@ Progress GlobalOptions::progress() const { return console_progress(quiet); }
 
 void VolumeOverrides::add_to(CLI::App* command) {
   command->add_option("--spacing", spacing_um, "voxel size x,y,z in um (overrides the file)")->delimiter(',');
-  command->add_option("--channel", channel, "channel of a multi-channel stack (0-based; BigDataViewer: the setup)");
+  command->add_option("--channel", channel, "channel of a multi-channel stack (0-based; BigDataViewer: the setup)")
+      ->check(CLI::NonNegativeNumber);
   command->add_option("--dataset", dataset, "HDF5: the dataset holding the stack, e.g. /data (default: the only one)");
-  command->add_option("--timepoint", timepoint, "HDF5 time series: the time point (0-based)");
+  command->add_option("--timepoint", timepoint, "HDF5 time series: the time point (0-based)")
+      ->check(CLI::NonNegativeNumber);
   command->add_option("--normalization", normalization, "minmax | percentile (default from config)");
   command->add_option("--aspect", aspect, "physical | shape (report Eq. 9)");
 }
@@ -124,14 +128,19 @@ void guard_outputs(const CLI::App& cmd) {
   for (const CLI::Option* opt : values) {
     if (std::find(outputs.begin(), outputs.end(), opt) != outputs.end()) continue;
     for (const std::string& value : opt->results()) {
-      for (const CLI::Option* out : outputs) {
-        for (const std::string& o : out->results()) {
-          if (io::same_file(value, o)) {
-            io::fail_input(o, "is also an input (" + opt->get_name() + "); refusing to overwrite it");
+      // Every file behind the value: a BigDataViewer .xml reads the .h5 it names.
+      for (const std::filesystem::path& file : io::stack_files(value)) {
+        for (const CLI::Option* out : outputs) {
+          for (const std::string& o : out->results()) {
+            if (io::same_file(file, o)) {
+              io::fail_input(o, "is also an input (" + opt->get_name() +
+                                    (file == value ? std::string() : " " + value + " reads it") +
+                                    "); refusing to overwrite it");
+            }
           }
         }
+        io::protect_input(file);
       }
-      io::protect_input(value);
     }
   }
 }

@@ -40,8 +40,13 @@ io::WorldFrame native_frame(const gmf::Checkpoint& checkpoint, const std::string
 // `out` must not be the stack an export reads (`match_volume`): the CLI refuses that
 // before any work; a library caller (the Python module) is refused here.
 void refuse_to_overwrite(const std::filesystem::path& out, const std::filesystem::path& match_volume) {
-  if (!match_volume.empty() && io::same_file(match_volume, out)) {
-    io::fail_input(out, "is also the volume to match; refusing to overwrite it (choose another output)");
+  if (match_volume.empty()) return;
+  for (const std::filesystem::path& file : io::stack_files(match_volume)) {  // a BigDataViewer .xml: its .h5 too
+    if (io::same_file(file, out)) {
+      io::fail_input(out, "is also the volume to match" +
+                              (file == match_volume ? std::string() : " (" + match_volume.string() + " reads it)") +
+                              "; refusing to overwrite it (choose another output)");
+    }
   }
 }
 

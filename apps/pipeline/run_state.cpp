@@ -11,7 +11,7 @@
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
 #include "io/hash.hpp"
-#include "io/hdf5_stack.hpp"
+#include "io/stack_file.hpp"
 
 namespace hisnegs::apps {
 
@@ -75,12 +75,10 @@ std::string stat_identity(const fs::path& path) {
 
 std::string file_content_identity(const fs::path& path) {
   std::string identity = stat_identity(path);
-  if (io::is_hdf5_stack(path)) {  // BigDataViewer: an .xml and the .h5 it names
-    const std::vector<fs::path> files = io::hdf5_stack_files(path);
-    std::error_code ec;
-    for (std::size_t i = 1; i < files.size(); ++i) {
-      identity += "|" + (fs::exists(files[i], ec) ? stat_identity(files[i]) : std::string("missing"));
-    }
+  const std::vector<fs::path> files = io::stack_files(path);  // BigDataViewer: an .xml and the .h5 it names
+  std::error_code ec;
+  for (std::size_t i = 1; i < files.size(); ++i) {
+    identity += "|" + (fs::exists(files[i], ec) ? stat_identity(files[i]) : std::string("missing"));
   }
   return identity;
 }

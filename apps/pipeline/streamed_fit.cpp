@@ -23,6 +23,7 @@
 #include "apps/pipeline/distributed.hpp"
 #include "apps/pipeline/format.hpp"
 #include "apps/pipeline/stack_reading.hpp"
+#include "apps/pipeline/stage_folder.hpp"
 #include "gmf/core/density_ops.hpp"
 #include "gmf/fit.hpp"
 #include "gmf/init.hpp"
@@ -35,6 +36,7 @@
 #include "io/folder_lock.hpp"
 #include "io/hash.hpp"
 #include "io/memory_limit.hpp"
+#include "io/stack_file.hpp"
 #include "io/timer.hpp"
 #include "io/volume_source.hpp"
 
@@ -97,6 +99,13 @@ FitPlanChoice choose_fit_plan(const std::array<int, 3>& shape, const io::WorldFr
                          std::to_string(core) + " voxels with its halo (" + std::to_string(halo[0]) + " x " +
                          std::to_string(halo[1]) + " x " + std::to_string(halo[2]) + ") and a model of K " +
                          std::to_string(K) + " need " + io::gib_text(c.brick_need) + "; allow at least that");
+  }
+  double bricks = 1.0;  // counted before they are planned
+  for (int a = 0; a < 3; ++a) bricks *= std::ceil(static_cast<double>(shape[a]) / core);
+  if (bricks > gmf::GmfOptions::kMostStreamBricks) {
+    throw io::InputError("gmf.stream_brick_voxels = " + std::to_string(core) + ": " + io::number_text(bricks) +
+                         " bricks of core " + std::to_string(core) + " voxels for this stack, more than the limit of " +
+                         std::to_string(gmf::GmfOptions::kMostStreamBricks) + "; use larger bricks (--brick-voxels)");
   }
   c.plan = gmf::plan_bricks(shape, {core, core, core}, halo);
   return c;
@@ -258,12 +267,14 @@ std::string fingerprint_of(const std::string& path, const io::VolumeSource& sour
   slice.background = config.get<&AppConfig::background>();
   slice.sparse_grid = config.get<&AppConfig::sparse_grid>();
   slice.gmf = config.get<&AppConfig::gmf>();
-  std::error_code ec;
-  const auto size = std::filesystem::file_size(path, ec);
-  const auto time = std::filesystem::last_write_time(path, ec).time_since_epoch().count();
   std::ostringstream s;
-  s << std::filesystem::absolute(path).lexically_normal().string() << "\n" << size << " " << time << "\n"
-    << source.nx << " " << source.ny << " " << source.nz << "\n"
+  s << std::filesystem::absolute(path).lexically_normal().string() << "\n";
+  for (const std::filesystem::path& file : io::stack_files(path)) {  // a BigDataViewer .xml: its .h5 too
+    std::error_code ec;
+    s << std::filesystem::file_size(file, ec) << " "
+      << std::filesystem::last_write_time(file, ec).time_since_epoch().count() << "\n";
+  }
+  s << source.nx << " " << source.ny << " " << source.nz << "\n"
     << plan.describe() << "\n"
     << dump_app_config(slice);
   char hex[17];
@@ -1212,7 +1223,7 @@ FitOutcome run_streamed(const std::string& volume, const FitConfig& config, cons
   const double total_budget = c.gmf.budget_seconds();
   // Rank 0 (the only one alone) holds the folder; the ranks make the statistics pass
   // together (or read plan.json when resuming), and none fits before rank 0 wrote it.
-  std::optional<io::FolderLock> lock;
+  std::optional<OutputFolderLock> lock;  // and the run folder's, for a run's fit
   if (ranks.root()) lock.emplace(c.folder);
   ranks.barrier();
   load_or_scan_statistics(c, ranks, ranks.root() ? progress : Progress{});

@@ -83,6 +83,16 @@ def test_errors_are_value_errors_with_the_cli_messages(work):
         hisnegs.fit(hisnegs.load_volume(work / "s.tif"), gaussians=-3)
 
 
+def test_objects_made_with_new_alone_are_refused():
+    # pybind11 would hand uninitialised memory to the call (a segfault, or a garbage len).
+    for cls in (hisnegs.Model, hisnegs.Cameras, hisnegs.Volume):
+        obj = cls.__new__(cls)
+        with pytest.raises(TypeError, match="never initialised"):
+            len(obj) if cls is not hisnegs.Volume else obj.shape
+    with pytest.raises(TypeError, match="never initialised"):
+        hisnegs.Model.__new__(hisnegs.Model).render(hisnegs.Cameras.orbit("eval"))
+
+
 def test_a_fifo_is_refused_not_waited_on(tmp_path):
     fifo = tmp_path / "f.tif"
     os.mkfifo(fifo)  # opening it for reading would block until a writer came
@@ -357,6 +367,17 @@ def test_exports_equal_the_cli(work, tmp_path):
         with pytest.raises(ValueError, match="is also the volume to match"):
             export(model, stack, match_volume=stack)
     assert stack.read_bytes() == (work / "s.tif").read_bytes()
+    # Nor a file behind it: the .h5 a BigDataViewer .xml names (checked before it is read).
+    h5 = tmp_path / "g.h5"
+    h5.write_bytes(b"stands for the stack's data")
+    (tmp_path / "g.xml").write_text('<?xml version="1.0"?><SpimData version="0.2"><SequenceDescription>'
+                                    '<ImageLoader format="bdv.hdf5"><hdf5 type="relative">g.h5</hdf5></ImageLoader>'
+                                    '<ViewSetups><ViewSetup><id>0</id></ViewSetup></ViewSetups>'
+                                    '</SequenceDescription></SpimData>')
+    for export in (hisnegs.export_volume, hisnegs.export_vdb):
+        with pytest.raises(ValueError, match="is also the volume to match"):
+            export(model, h5, match_volume=tmp_path / "g.xml")
+    assert h5.read_bytes() == b"stands for the stack's data"
 
 
 def test_info_prints_what_the_cli_prints(work):

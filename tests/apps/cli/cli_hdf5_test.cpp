@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <filesystem>
 #include <string>
+#include <vector>
 
 #include "io/hdf5_stack.hpp"
 #include "io/tiff_stack.hpp"
@@ -64,12 +65,48 @@ TEST(CliHdf5, BadHdf5InputIsOneLineAndWritesNothing) {
   EXPECT_EQ(on_tiff.exit_code, 2);
   EXPECT_NE(on_tiff.err.find("--dataset is for HDF5 files"), std::string::npos) << on_tiff.err;
   EXPECT_FALSE(fs::exists(dir / "m.ply"));
+  for (const char* flag : {"--channel", "--timepoint"}) {  // a negative index: said so, not "choose one"
+    const auto negative = run_hisnegs({"gt", dir / "s.h5", "-o", dir / "g2", flag, "-1"});
+    EXPECT_EQ(negative.exit_code, 2);
+    EXPECT_NE(negative.err.find(std::string(flag) + ": Value -1 not in range"), std::string::npos) << negative.err;
+    EXPECT_FALSE(fs::exists(dir / "g2"));
+  }
   fs::resize_file(dir / "s.h5", fs::file_size(dir / "s.h5") / 2);
   const auto truncated = run_hisnegs({"vdb", dir / "s.h5", "-o", dir / "s.vdb"});
   EXPECT_EQ(truncated.exit_code, 2);
   EXPECT_NE(truncated.err.find((dir / "s.h5").string() + ": "), std::string::npos) << truncated.err;
   EXPECT_EQ(std::count(truncated.err.begin(), truncated.err.end(), '\n'), 1) << truncated.err;
   EXPECT_FALSE(fs::exists(dir / "s.vdb"));
+}
+
+// The .h5 a BigDataViewer .xml names is an input as much as the .xml: no command
+// writes over it (nor over the .xml beside an .h5 it reads), and nothing is written.
+TEST(CliHdf5, FilesBehindABigDataViewerXmlAreInputsToo) {
+  testing::ScratchDir dir;
+  ASSERT_EQ(run_hisnegs({"-q", "synth", "-o", dir / "s.tif", "--shape", "16,40,48"}).exit_code, 0);
+  io::write_hdf5_stack(dir / "g.h5", io::read_tiff_stack(dir / "s.tif"), {});
+  testing::write_text(dir / "g.xml",
+                      "<?xml version=\"1.0\"?><SpimData version=\"0.2\"><SequenceDescription>"
+                      "<ImageLoader format=\"bdv.hdf5\"><hdf5 type=\"relative\">g.h5</hdf5></ImageLoader>"
+                      "<ViewSetups><ViewSetup><id>0</id></ViewSetup></ViewSetups></SequenceDescription></SpimData>");
+  testing::write_text(dir / "fixed.yaml", "gmf: {gaussians: 20, rounds: 1, iterations_per_round: 2}\n");
+  ASSERT_EQ(run_hisnegs({"-q", "--config", dir / "fixed.yaml", "fit", dir / "s.tif", "-o", dir / "m.ply"}).exit_code,
+            0);
+  const std::string h5 = testing::read_bytes(dir / "g.h5"), xml = testing::read_bytes(dir / "g.xml");
+  const std::vector<std::vector<std::string>> commands = {
+      {"fit", dir / "g.xml", "-o", dir / "g.h5"},
+      {"vdb", dir / "g.xml", "-o", dir / "g.h5"},
+      {"vdb", dir / "g.h5", "-o", dir / "g.xml"},
+      {"export", "volume", "--model", dir / "m.ply", "--match-volume", dir / "g.xml", "-o", dir / "g.h5"},
+  };
+  for (const auto& args : commands) {
+    const auto r = run_hisnegs(args);
+    EXPECT_EQ(r.exit_code, 2) << args[0] << " " << args[1];
+    EXPECT_NE(r.err.find("is also an input"), std::string::npos) << r.err;
+    EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
+  }
+  EXPECT_EQ(testing::read_bytes(dir / "g.h5"), h5);
+  EXPECT_EQ(testing::read_bytes(dir / "g.xml"), xml);
 }
 
 }  // namespace
