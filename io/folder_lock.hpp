@@ -2,10 +2,15 @@
 // One writer per output folder: an advisory lock (flock) on DIR/.hisnegs.lock held
 // for as long as the FolderLock lives, with the holder's pid in the file so a second
 // writer can name it. The kernel drops the lock when the holder exits or is killed,
-// so a crash never leaves a folder locked. Knows no run folder layout.
+// so a crash never leaves a folder locked. Within one process the lock is shared:
+// a second FolderLock on a folder this process holds succeeds (a run's stage may
+// lock the run folder its driver holds). Knows no run folder layout.
 #pragma once
 
+#include <sys/types.h>
+
 #include <filesystem>
+#include <utility>
 
 namespace hisnegs::io {
 
@@ -24,7 +29,7 @@ class FolderLock {
 
  private:
   std::filesystem::path path_;
-  int fd_ = -1;
+  std::pair<dev_t, ino_t> key_{};  // the lock file's identity in this process's table
 };
 
 }  // namespace hisnegs::io

@@ -98,4 +98,15 @@ void clear_stage_folder(const fs::path& dir, const StageFolder& folder, const fs
   fs::remove(root, ec);
 }
 
+namespace {
+std::optional<io::FolderLock> run_folder_lock(const std::filesystem::path& dir) {
+  const std::filesystem::path run = dir.lexically_normal().parent_path();
+  std::error_code ec;
+  if (run.empty() || !std::filesystem::is_regular_file(run / "run.json", ec)) return std::nullopt;
+  return std::optional<io::FolderLock>(std::in_place, run);
+}
+}  // namespace
+
+OutputFolderLock::OutputFolderLock(const std::filesystem::path& dir) : run_(run_folder_lock(dir)), own_(dir) {}
+
 }  // namespace hisnegs::apps

@@ -1,12 +1,15 @@
 // SPDX-License-Identifier: Apache-2.0
 // The folders a run stage starts over (DIR/train, DIR/eval): the names a run
 // writes there, the check that nothing else is there, and the removal of exactly
-// those files. Knows no stage and writes nothing.
+// those files; the lock an output folder takes with its run folder's. Knows no stage.
 #pragma once
 
 #include <filesystem>
+#include <optional>
 #include <span>
 #include <string_view>
+
+#include "io/folder_lock.hpp"
 
 namespace hisnegs::apps {
 
@@ -31,5 +34,18 @@ void check_stage_folder(const std::filesystem::path& dir, const StageFolder& fol
 // left empty (DIR/folder.name itself included). Never removes anything the check refuses.
 void clear_stage_folder(const std::filesystem::path& dir, const StageFolder& folder,
                         const std::filesystem::path& input);
+
+// One writer per output folder and per run folder: the lock of `dir` and, when
+// `dir` is a stage folder of a run (its parent holds run.json), first the run
+// folder's lock, so that `train -o R/train` and `run -o R` exclude each other.
+// Throws io::InputError naming the folder in use and its holder's pid.
+class OutputFolderLock {
+ public:
+  explicit OutputFolderLock(const std::filesystem::path& dir);
+
+ private:
+  std::optional<io::FolderLock> run_;
+  io::FolderLock own_;
+};
 
 }  // namespace hisnegs::apps

@@ -10,6 +10,7 @@
 #include "apps/pipeline/distributed.hpp"
 #include "apps/pipeline/format.hpp"
 #include "apps/pipeline/ground_truth_stage.hpp"
+#include "apps/pipeline/stage_folder.hpp"
 #include "apps/pipeline/training_log.hpp"
 #include "apps/pipeline/training_volume.hpp"
 #include "gmf/core/checkpoint.hpp"
@@ -231,7 +232,7 @@ TrainOutcome train_model(const TrainRequest& request, const TrainConfig& config,
   // One training per folder, before anything is written there (by rank 0 alone on
   // several ranks; the others wait until it holds the folder).
   const Job& ranks = job();
-  std::optional<io::FolderLock> lock;
+  std::optional<OutputFolderLock> lock;  // and the run folder's, for a stage of one
   if (ranks.root()) {
     lock.emplace(request.run);
     check_training(request, config);  // again, now that no other process can start one here

@@ -3,7 +3,9 @@
 // and leaves nothing, a run folder has one writer, outputs never replace special
 // files or inputs, a signal removes unfinished outputs, and a folder another
 // process wrote into is not reused.
+#include <fcntl.h>
 #include <gtest/gtest.h>
+#include <sys/file.h>
 #include <sys/mount.h>
 #include <sys/stat.h>
 #include <sys/sysmacros.h>
@@ -15,6 +17,7 @@
 #include <fstream>
 #include <sstream>
 
+#include "apps/pipeline/stage_folder.hpp"
 #include "gmf/core/checkpoint.hpp"
 #include "io/atomic_file.hpp"
 #include "io/folder_lock.hpp"
@@ -125,6 +128,42 @@ TEST_F(Reliability, ARunFolderHasOneWriter) {
                               "--backend", "cpu", "--epochs", "1"}),
                  2, "in use by another hisnegs " + pid);
   EXPECT_FALSE(fs::exists(dir_ / "t" / "log.csv"));
+}
+
+// A stage folder of a run and the run folder have one writer together: `train -o
+// R/train` while `run -o R` holds R is refused, and `run -o R` while a training
+// holds R/train (and so R) too. Within one process a held folder may be locked again.
+TEST_F(Reliability, AStageFolderAndItsRunFolderHaveOneWriter) {
+  {
+    const io::FolderLock once(dir_ / "same");
+    const io::FolderLock again(dir_ / "same");  // shared, not a conflict
+    const int fd = ::open((dir_ / "same" / ".hisnegs.lock").c_str(), O_RDWR);
+    ASSERT_GE(fd, 0);
+    EXPECT_NE(::flock(fd, LOCK_EX | LOCK_NB), 0) << "held while either lives";
+    ::close(fd);
+  }
+  const int fd = ::open((dir_ / "same" / ".hisnegs.lock").c_str(), O_RDWR);
+  ASSERT_GE(fd, 0);
+  EXPECT_EQ(::flock(fd, LOCK_EX | LOCK_NB), 0) << "released with the last";
+  ::close(fd);
+
+  ASSERT_EQ(run_hisnegs({"-q", "gt", dir_ / "v.tif", "-o", dir_ / "gt", "--orbit", "both", "--size", "16"}).exit_code,
+            0);
+  fs::create_directories(dir_ / "R");
+  testing::write_text(dir_ / "R" / "run.json", "{}");
+  const std::string pid = "in use by another hisnegs (pid " + std::to_string(::getpid()) + ")";
+  const std::vector<std::string> train = {"train", "--init", dir_ / "m.ply", "--data", dir_ / "gt", "-o",
+                                          dir_ / "R" / "train", "--backend", "cpu", "--epochs", "1"};
+  {
+    const io::FolderLock run(dir_ / "R");  // as `run -o R` holds it
+    expect_refused(run_hisnegs(train), 2, pid);
+    EXPECT_FALSE(fs::exists(dir_ / "R" / "train" / "log.csv"));
+  }
+  {
+    const apps::OutputFolderLock training(dir_ / "R" / "train");  // as `train -o R/train` holds it
+    expect_refused(run_hisnegs({"run", dir_ / "v.tif", "-o", dir_ / "R", "--backend", "cpu", "--force"}), 2, pid);
+  }
+  EXPECT_EQ(testing::read_bytes(dir_ / "R" / "run.json"), "{}");
 }
 
 // A FIFO given as a stack is refused at once by every command that reads one (they
