@@ -48,6 +48,11 @@ void GmfOptions::validate() const {
   io::require_in_range(s, "brick_iterations", brick_iterations, 1, 1000);
   io::require_in_range(s, "outside_voxels", outside_voxels, 0, 8);
   io::require_in_range(s, "stream_brick_voxels", stream_brick_voxels, 0, 65536);
+  if (stream_brick_voxels > 0 && stream_brick_voxels < kSmallestStreamBrick) {
+    io::fail_option(s, "stream_brick_voxels", std::to_string(stream_brick_voxels),
+                    "must be 0 (planned from max_memory) or at least " + std::to_string(kSmallestStreamBrick) +
+                        " voxels (--brick-voxels)");
+  }
   io::require_in_range(s, "stream_scale_voxels", stream_scale_voxels, 0.5, 64.0);
   io::require_in_range(s, "seam_iterations", seam_iterations, 0, 100000);
   (void)io::parse_memory_size(max_memory, "gmf.max_memory");

@@ -118,9 +118,12 @@ struct GmfOptions {
   // ("1GiB", "512MiB", "2GB", "1.5G"; K/M/G/T without B are binary). A stack whose
   // in-memory fit fits under it is fitted whole, as always; a larger one in bricks.
   std::string max_memory = "auto";
-  // Edge of a brick's core in voxels, [0, 65536]: 0 = planned from max_memory (one
-  // brick when the stack fits); > 0 = bricks of this core even when it fits.
+  // Edge of a brick's core in voxels, 0 or [kSmallestStreamBrick, 65536]: 0 = planned
+  // from max_memory (one brick when the stack fits); > 0 = bricks of this core even
+  // when it fits. A fit of more than kMostStreamBricks bricks is refused.
   int stream_brick_voxels = 0;
+  static constexpr int kSmallestStreamBrick = 8;
+  static constexpr int kMostStreamBricks = 20000;
   // The largest Gaussian scale of a bricked fit, in smallest voxels, [0.5, 64]: it
   // bounds a Gaussian's reach (sqrt(mahalanobis_cutoff) scales) and so the halo.
   double stream_scale_voxels = 6.0;

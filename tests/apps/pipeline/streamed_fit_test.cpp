@@ -9,10 +9,39 @@
 #include <cmath>
 #include <random>
 #include <span>
+#include <string>
 #include <vector>
+
+#include "io/error.hpp"
 
 namespace hisnegs::apps {
 namespace {
+
+// --brick-voxels is bounded: below the smallest core the options refuse it; a plan
+// of more bricks than the limit is refused before it is made, naming the limit.
+TEST(FitPlan, BrickCoresAndCountsAreBounded) {
+  gmf::GmfOptions gmf;
+  gmf.stream_brick_voxels = 1;
+  try {
+    gmf.validate();
+    ADD_FAILURE() << "a core of 1 voxel was accepted";
+  } catch (const io::InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("stream_brick_voxels = 1: must be 0 (planned from max_memory) or at least 8"),
+              std::string::npos)
+        << e.what();
+  }
+  gmf.stream_brick_voxels = 8;
+  EXPECT_NO_THROW(gmf.validate());
+  const io::WorldFrame small(32, 64, 64, Eigen::Vector3d::Ones());
+  EXPECT_EQ(choose_fit_plan({32, 64, 64}, small, gmf).plan.bricks.size(), 4u * 8u * 8u);
+  const io::WorldFrame large(4096, 4096, 64, Eigen::Vector3d::Ones());
+  try {
+    (void)choose_fit_plan({4096, 4096, 64}, large, gmf);
+    ADD_FAILURE() << "2,097,152 bricks were planned";
+  } catch (const io::InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("more than the limit of 20000"), std::string::npos) << e.what();
+  }
+}
 
 TEST(BrickRanks, HeaviestFirstToTheLeastLoadedRank) {
   const std::vector<int> ids{3, 5, 8, 9, 12};
