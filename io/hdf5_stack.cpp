@@ -416,7 +416,8 @@ void resolve_bdv(const fs::path& shown, const fs::path& h5, hid_t file, const Bd
   info.layout = Hdf5Layout::kBigDataViewer;
   const std::vector<std::string> members = group_members(file, "/");
   const int setups = static_cast<int>(std::count_if(members.begin(), members.end(), [](const std::string& n) {
-    return n.size() == 3 && n[0] == 's' && std::isdigit(static_cast<unsigned char>(n[1]));
+    return n.size() == 3 && n[0] == 's' && std::isdigit(static_cast<unsigned char>(n[1])) &&
+           std::isdigit(static_cast<unsigned char>(n[2]));
   }));
   info.timepoints = static_cast<int>(std::count_if(members.begin(), members.end(), [](const std::string& n) {
     return n.size() == 6 && n[0] == 't' && std::all_of(n.begin() + 1, n.end(), [](char c) { return std::isdigit(static_cast<unsigned char>(c)); });
@@ -574,7 +575,11 @@ Hdf5StackInfo inspect_hdf5_stack(const fs::path& path, const Hdf5ReadOptions& op
     xml = parse_bdv_xml(path);
     h5 = xml->h5;
     std::error_code ec;
-    if (!fs::is_regular_file(h5, ec)) fail_input(path, "names " + printable(h5.string(), 200) + ", which does not exist");
+    if (!fs::exists(h5, ec)) fail_input(path, "names " + printable(h5.string(), 200) + ", which does not exist");
+    if (!fs::is_regular_file(h5, ec)) {
+      fail_input(path, "names " + printable(h5.string(), 200) +
+                           ", which is not a regular file (a folder, device, FIFO or socket)");
+    }
   } else {
     require_regular_file(path);
   }
@@ -599,9 +604,16 @@ Hdf5StackInfo inspect_hdf5_stack(const fs::path& path, const Hdf5ReadOptions& op
     info.ny = static_cast<int>(info.dims[r - 2]);
     info.nx = static_cast<int>(info.dims[r - 1]);
     for (std::size_t a = r - 3; a < r; ++a) {
-      if (info.dims[a] < 1 || info.dims[a] > (1 << 30)) {
+      if (info.dims[a] < 1) {
+        fail_input(path, "dataset " + printable(info.dataset, 120) + " is " + join_dims(info.dims) + ": an empty axis");
+      }
+      if (info.dims[a] > (1 << 30)) {
         fail_input(path, "dataset " + printable(info.dataset, 120) + " is " + join_dims(info.dims) + ": too large an axis");
       }
+    }
+    if (info.nz == 1) {  // as a one-page TIFF is
+      fail_input(path, "dataset " + printable(info.dataset, 120) + " is " + join_dims(info.dims) +
+                           ": a single 2D image (1 plane); expected a 3D stack");
     }
   }
   apply_user_spacing(options, info);

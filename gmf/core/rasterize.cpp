@@ -61,6 +61,13 @@ std::string size_text(const Eigen::Vector3d& v) {
              : io::number_text(v.x()) + "," + io::number_text(v.y()) + "," + io::number_text(v.z());
 }
 
+bool frame_is_finite(const GaussianFrame<double>& f) {
+  bool finite = std::isfinite(f.a);
+  for (int d = 0; d < 3; ++d) finite = finite && std::isfinite(f.mean[d]) && std::isfinite(f.scale[d]);
+  for (const double r : f.R) finite = finite && std::isfinite(r);
+  return finite;
+}
+
 // The index box of support `s` on the lattice; false when a bound passes the
 // packable range.
 bool place_support(Support& s, const VoxelLattice& lattice) {
@@ -100,11 +107,20 @@ double BlockRasterizer::Impl::build_supports(const GaussianMixture& mixture, con
                                              const std::string& model) {
   supports.resize(mixture.size());
   std::atomic<bool> out_of_range{false};
+  std::atomic<std::size_t> non_finite{mixture.size()};  // the first Gaussian with a NaN or Inf, if any
   tbb::combinable<double> total(0.0);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, mixture.size(), 1024), [&](const auto& r) {
     for (std::size_t k = r.begin(); k != r.end(); ++k) {
       Support& s = supports[k];
       s.f = frame_of(mixture[k]);
+      if (!frame_is_finite(s.f)) {
+        std::size_t first = non_finite.load();
+        while (k < first && !non_finite.compare_exchange_weak(first, k)) {
+        }
+        s.lo = {1, 1, 1};
+        s.hi = {0, 0, 0};
+        continue;
+      }
       s.m_max = options.cutoff;
       if (options.tail > 0.0) {
         if (!(s.f.a > options.tail)) continue;  // never reaches `tail` anywhere: left out entirely
@@ -122,6 +138,10 @@ double BlockRasterizer::Impl::build_supports(const GaussianMixture& mixture, con
       total.local() += blocks;
     }
   });
+  if (non_finite.load() < mixture.size()) {
+    io::fail_input(model, "Gaussian " + std::to_string(non_finite.load()) +
+                              " has a non-finite parameter (NaN or Inf); nothing can be rasterized from it");
+  }
   if (out_of_range) {
     io::fail_input(model, "at voxel size " + size_text(lattice.voxel_size_world) +
                               " the Gaussians reach past voxel index ±" + io::number_text(kRasterMaxIndex) +

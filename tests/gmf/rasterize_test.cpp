@@ -10,6 +10,7 @@
 #include <tbb/global_control.h>
 
 #include <cmath>
+#include <limits>
 #include <random>
 #include <set>
 #include <span>
@@ -282,6 +283,24 @@ TEST(GmfRasterize, TinyVoxelsOnAnUnclippedLatticeAreRefusedNamingTheModel) {
   // The same Gaussian at 0.01 world units per voxel is fine.
   const BlockRasterizer ok(GaussianMixture({g}), VoxelLattice::aligned(0.01), {.cutoff = 16.0}, "small");
   EXPECT_GT(ok.blocks(), 0u);
+}
+
+// A Gaussian with a NaN or Inf parameter is named as such, not reported as one that
+// reaches past the lattice.
+TEST(GmfRasterize, NonFiniteParametersAreNamed) {
+  GaussianParams fine;
+  fine.log_scale = {std::log(0.1f), std::log(0.1f), std::log(0.1f)};
+  for (const float bad : {std::nanf(""), std::numeric_limits<float>::infinity()}) {
+    GaussianParams g = fine;
+    g.mean[1] = bad;
+    try {
+      const BlockRasterizer raster(GaussianMixture({fine, g}), VoxelLattice::aligned(0.01), {.cutoff = 16.0}, "m.ply");
+      ADD_FAILURE() << "no error for " << raster.blocks() << " blocks";
+    } catch (const io::InputError& e) {
+      EXPECT_EQ(std::string(e.what()), "m.ply: Gaussian 1 has a non-finite parameter (NaN or Inf); nothing can be "
+                                       "rasterized from it");
+    }
+  }
 }
 
 // A zero, negative or non-finite voxel size is refused.

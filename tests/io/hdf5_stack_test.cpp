@@ -161,6 +161,7 @@ with h5py.File('bdv.h5', 'w') as f:
             d = values(12, 20, 24).view(np.int16)
             f.create_dataset('t%05d/s%02d/0/cells' % (t, s), data=d, chunks=(8, 16, 16), compression='gzip')
             f.create_dataset('t%05d/s%02d/1/cells' % (t, s), data=d[::2, ::2, ::2], chunks=(4, 8, 8))
+    f.create_group('s0x')  # not a setup
 open('bdv.xml', 'w').write('''<?xml version="1.0" encoding="UTF-8"?>
 <SpimData version="0.2"><BasePath type="relative">.</BasePath><SequenceDescription>
 <ImageLoader format="bdv.hdf5"><hdf5 type="relative">bdv.h5</hdf5></ImageLoader>
@@ -194,6 +195,15 @@ open('bdv.xml', 'w').write('''<?xml version="1.0" encoding="UTF-8"?>
   // Both files count for caches, from either (the run's statistics and stage reuse).
   EXPECT_EQ(hdf5_stack_files(xml), (std::vector<fs::path>{xml, dir / "bdv.h5"}));
   EXPECT_EQ(hdf5_stack_files(dir / "bdv.h5"), (std::vector<fs::path>{dir / "bdv.h5", xml}));
+  EXPECT_EQ(stack_files(xml), hdf5_stack_files(xml));
+  EXPECT_EQ(stack_files(dir / "nothing.tif"), (std::vector<fs::path>{dir / "nothing.tif"}));
+  // An .xml naming a folder: said so, not "does not exist".
+  std::string text = testing::read_bytes(xml);
+  text.replace(text.find(">bdv.h5<"), 8, ">.<");
+  testing::write_text(dir / "folder.xml", text);
+  EXPECT_NE(error_of([&] { (void)read_stack(dir / "folder.xml", o); }).find("which is not a regular file"),
+            std::string::npos)
+      << error_of([&] { (void)read_stack(dir / "folder.xml", o); });
 }
 
 TEST(Hdf5Stack, ImarisWithPaddedDataAndExtents) {
@@ -247,6 +257,8 @@ with h5py.File('ranks.h5', 'w') as f:
     f['tczyx'] = np.zeros((3, 2, 4, 5, 6), dtype=np.uint8)
     f['flat'] = np.zeros((5, 6), dtype=np.uint8)
     f['f64'] = np.zeros((4, 5, 6), dtype='f8')
+    f['plane'] = np.zeros((1, 5, 6), dtype=np.uint8)
+    f['empty'] = np.zeros((0, 5, 6), dtype=np.uint8)
 with h5py.File('missing.h5', 'w') as f:
     d = f.create_dataset('data', shape=(8, 16, 16), dtype=np.uint16, chunks=(4, 8, 8))
     d[:4] = 7  # the chunks of z 4..7 are never written
@@ -275,6 +287,11 @@ with h5py.File('filter.h5', 'w') as f:
   EXPECT_NE(error_of([&] { (void)read_stack(ranks, o); }).find("is 5x6 (rank 2)"), std::string::npos);
   o.dataset = "/f64";
   EXPECT_NE(error_of([&] { (void)read_stack(ranks, o); }).find("holds float64 samples"), std::string::npos);
+  o.dataset = "/plane";  // as a one-page TIFF is refused
+  EXPECT_NE(error_of([&] { (void)read_stack(ranks, o); }).find("is 1x5x6: a single 2D image (1 plane)"),
+            std::string::npos);
+  o.dataset = "/empty";
+  EXPECT_NE(error_of([&] { (void)read_stack(ranks, o); }).find("is 0x5x6: an empty axis"), std::string::npos);
   EXPECT_NE(error_of([&] { (void)read_stack(ranks); }).find("datasets that could be the stack"), std::string::npos);
   EXPECT_EQ(error_of([&] { (void)read_stack(dir / "missing.h5"); }),
             (dir / "missing.h5").string() +
