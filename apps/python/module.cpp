@@ -781,6 +781,38 @@ py::dict compare_optimizers(const Volume& volume, const std::vector<std::string>
 }  // namespace
 }  // namespace hisnegs::python
 
+namespace pybind11::detail {
+
+// An object made with T.__new__ whose __init__ never ran holds no value: pybind11
+// would hand uninitialised memory to the call. Such an argument (self included) is
+// refused with TypeError instead.
+template <class T>
+struct initialised_caster : type_caster_base<T> {
+  bool load(handle src, bool convert) {
+    if (src && isinstance<T>(src)) {
+      auto* inst = reinterpret_cast<instance*>(src.ptr());
+      if (!inst->get_value_and_holder(get_type_info(typeid(T))).holder_constructed()) {
+        const std::string name = str(src.get_type().attr("__name__"));
+        throw type_error("hisnegs." + name + " made with " + name +
+                         ".__new__ and never initialised: make one with its constructor or loader");
+      }
+    }
+    return type_caster_base<T>::load(src, convert);
+  }
+};
+template <>
+struct type_caster<hisnegs::python::Volume> : initialised_caster<hisnegs::python::Volume> {};
+template <>
+struct type_caster<hisnegs::python::Model> : initialised_caster<hisnegs::python::Model> {};
+template <>
+struct type_caster<hisnegs::python::RoundProblem> : initialised_caster<hisnegs::python::RoundProblem> {};
+template <>
+struct type_caster<hisnegs::python::Objective> : initialised_caster<hisnegs::python::Objective> {};
+template <>
+struct type_caster<hisnegs::splat::CameraSet> : initialised_caster<hisnegs::splat::CameraSet> {};
+
+}  // namespace pybind11::detail
+
 PYBIND11_MODULE(_hisnegs, m) {
   using namespace hisnegs;
   using namespace hisnegs::python;

@@ -20,7 +20,35 @@ Ctrl-C raises ``KeyboardInterrupt`` at the next line.
 
 import json as _json
 
-from . import _hisnegs
+
+def _why_not_importable(error):
+    """One line saying why the compiled module cannot be used from this interpreter."""
+    import glob as _glob
+    import os as _os
+    import sys as _sys
+    try:
+        from ._build_info import PYTHON as built_for, VERSION as built_version
+    except ImportError:
+        built_for, built_version = "the Python CMake found", "?"
+    here = "%s (Python %d.%d)" % (_sys.executable, _sys.version_info[0], _sys.version_info[1])
+    if not _glob.glob(_os.path.join(_os.path.dirname(__file__), "_hisnegs*.so")):
+        return ("hisnegs: the compiled module _hisnegs is not built: run `cmake --build --preset release --target "
+                "hisnegs_python` (it needs Python 3 with NumPy and pybind11: Debian python3-dev python3-numpy "
+                "pybind11-dev)")
+    if isinstance(error, ModuleNotFoundError) and error.name == "numpy":
+        return ("hisnegs: this interpreter, %s, has no NumPy; the module was built for %s (Python %s): run that "
+                "one (or install NumPy here)" % (here, built_for, built_version))
+    if "%d.%d" % _sys.version_info[:2] != built_version:
+        return ("hisnegs: the module was built for %s (Python %s), not for this interpreter, %s: run that one"
+                % (built_for, built_version, here))
+    return "hisnegs: the compiled module _hisnegs does not load in %s: %s" % (here, error)
+
+
+try:
+    import numpy as _numpy  # noqa: F401  (the module's arrays are numpy arrays)
+    from . import _hisnegs
+except ImportError as _error:
+    raise ImportError(_why_not_importable(_error)) from None
 from ._hisnegs import Cameras, Model, RoundProblem, StopRound, Volume, metrics
 
 __all__ = ["Volume", "Model", "Cameras", "Objective", "RoundProblem", "StopRound", "load_volume", "fit", "train",
