@@ -12,7 +12,7 @@ void add_eval_command(CLI::App& app, GlobalOptions& global) {
   auto* cmd = app.add_subcommand(
       "eval", "measure a model on the evaluation views: PSNR, MAE, SSIM per view (metrics.json/csv)");
   struct Args {
-    std::string model, data, out, mode, backend = "auto";
+    std::string model, data, out, mode, backend = "auto", volume;
     std::optional<double> beta;
     BackgroundOverride background;
   };
@@ -23,6 +23,9 @@ void add_eval_command(CLI::App& app, GlobalOptions& global) {
   cmd->add_option("--mode", args->mode, "soft | hard (default splat.mode)");
   cmd->add_option("--beta", args->beta, "soft-MIP beta (default splat.beta)");
   cmd->add_option("--backend", args->backend, "auto | cpu | cuda");
+  cmd->add_option("--volume", args->volume,
+                  "the model's stack: also count its halos, the Gaussians brighter than the stack at their centre by "
+                  "more than its noise");
   args->background.add_to(cmd);
   cmd->callback([args, &global] {
     AppConfig config = global.config();
@@ -31,7 +34,8 @@ void add_eval_command(CLI::App& app, GlobalOptions& global) {
     args->background.apply(config.splat);
     config.splat.validate();
     evaluate_model(args->model, ground_truth_set_dir(args->data, "eval"), args->out, EvalConfig(config),
-                   splat::resolve_backend(splat::parse_backend_request(args->backend)), global.progress());
+                   splat::resolve_backend(splat::parse_backend_request(args->backend)), global.progress(),
+                   args->volume);
   });
 }
 

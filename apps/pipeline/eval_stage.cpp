@@ -4,12 +4,16 @@
 
 #include <cstdio>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <sstream>
 
+#include "apps/pipeline/halo_measure.hpp"
 #include "gmf/core/checkpoint.hpp"
 #include "gmf/core/psnr.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
+#include "io/memory_limit.hpp"
+#include "io/stack_file.hpp"
 #include "io/png.hpp"
 #include "splat/render_views.hpp"
 #include "splat/trainer.hpp"
@@ -79,7 +83,7 @@ ModeFigures mode_figures(const splat::TrainingData& truth, const splat::Rendered
 
 EvalOutcome evaluate_model(const std::filesystem::path& model, const std::filesystem::path& set,
                            const std::filesystem::path& dir, const EvalConfig& config, splat::Backend backend,
-                           const Progress& progress) {
+                           const Progress& progress, const std::filesystem::path& stack) {
   config.get<&AppConfig::splat>().validate();
   const splat::TrainingData truth = splat::load_training_data(set);
   const gmf::Checkpoint checkpoint = gmf::load_checkpoint(model.string());
@@ -124,6 +128,12 @@ EvalOutcome evaluate_model(const std::filesystem::path& model, const std::filesy
   meta["visible"] = summary_json(splat::summarize(m.visible));
   meta["foreground_level"] = splat::kForegroundLevel;
   meta["modes"] = Json{{"soft", soft.json()}, {"hard", hard.json()}};
+  std::optional<gmf::HaloCount> halos;
+  if (!stack.empty()) {
+    halos = count_model_halos(checkpoint, stack, config.get<&AppConfig::volume>());
+    meta["halos"] = Json{{"count", halos->halos}, {"share", halos->share()}, {"noise", halos->noise},
+                         {"stack", io::printable(stack.string(), 500)}};
+  }
   meta["per_view"] = m.views;
   const std::string json = meta.dump(2) + "\n", table = m.csv.str();
   io::write_file_atomic(dir / "metrics.csv", table.data(), table.size());
@@ -138,14 +148,27 @@ EvalOutcome evaluate_model(const std::filesystem::path& model, const std::filesy
                "%.2f dB, %.0f%% of its error in the background; foreground: truth >= %g)",
                mean(soft.psnr), mean(soft.psnr_fg), mean(hard.psnr), mean(hard.psnr_fg), mean(hard.psnr_bg),
                100 * mean(hard.bg_share), splat::kForegroundLevel);
+  if (halos) {
+    progress.say("eval: halos: %zu of %zu Gaussians (%.2f%%) with a peak above the stack at their centre by more "
+                 "than its noise (%.3g)",
+                 halos->halos, halos->gaussians, 100 * halos->share(), halos->noise);
+  }
   return outcome;
 }
 
 nlohmann::ordered_json EvalStage::run(const RunRequest& request, const Config& config, bool, const Progress& progress) {
   const std::filesystem::path dir = request.dir / "eval";
   clear_stage_folder(request.dir, kFolder, request.volume);
+  // The halos against the stack, when the stack is read whole without trouble.
+  const io::StackHeader header =
+      io::inspect_stack(request.volume, io::stack_read_options(config.get<&AppConfig::volume>()));
+  const double bytes = 4.0 * header.nx * header.ny * static_cast<double>(header.nz);
+  if (bytes > kHaloStackBytes) {
+    progress.say("eval: halos not counted: the stack is %s as float32 (counted up to %s)", io::gib_text(bytes).c_str(),
+                 io::gib_text(kHaloStackBytes).c_str());
+  }
   evaluate_model(request.dir / "train" / "final.ply", request.dir / "gt" / "eval", dir, config, request.backend,
-                 progress);
+                 progress, bytes <= kHaloStackBytes ? request.volume : std::filesystem::path());
   return nullptr;
 }
 

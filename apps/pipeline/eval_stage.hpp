@@ -14,10 +14,12 @@
 
 namespace hisnegs::apps {
 
-using EvalConfig = ConfigSlice<&AppConfig::splat>;
+using EvalConfig = ConfigSlice<&AppConfig::splat, &AppConfig::volume>;
 
 // Renders `model` at the views of the ground-truth set `set` (cameras.json + mips.tif)
 // and writes DIR/metrics.json, DIR/metrics.csv, DIR/compare/NNN.png; one "eval: ..." line.
+// With `stack` (the model's own stack, read with the volume options) also the
+// model's halos (apps/pipeline/halo_measure.hpp), "halos" in metrics.json.
 struct EvalOutcome {
   int views = 0;
   splat::MetricSummary psnr, mae, ssim;  // of the configured mode (splat.mode)
@@ -27,7 +29,7 @@ struct EvalOutcome {
 };
 EvalOutcome evaluate_model(const std::filesystem::path& model, const std::filesystem::path& set,
                            const std::filesystem::path& dir, const EvalConfig& config, splat::Backend backend,
-                           const Progress& progress);
+                           const Progress& progress, const std::filesystem::path& stack = {});
 
 // In a run folder: DIR/eval from DIR/train/final.ply on DIR/gt/eval (DIR/eval cleared first).
 struct EvalStage {

@@ -9,6 +9,7 @@
 #include <string_view>
 
 #include "apps/pipeline/format.hpp"
+#include "apps/pipeline/halo_measure.hpp"
 #include "gmf/core/checkpoint.hpp"
 #include "gmf/core/compact_checkpoint.hpp"
 #include "io/atomic_file.hpp"
@@ -132,7 +133,19 @@ void info_vdb(const std::filesystem::path& path, Sheet& sheet) {
   }
 }
 
-void info_checkpoint(const std::filesystem::path& path, bool compact, Sheet& sheet) {
+// The halos row: the Gaussians brighter than `stack` at their centre by more than
+// its noise (gmf/core/halo.hpp), in the model's own frame.
+void halo_row(const gmf::Checkpoint& ckpt, const std::filesystem::path& stack, const io::VolumeOptions& options,
+              Sheet& sheet) {
+  const gmf::HaloCount c = count_model_halos(ckpt, stack, options);
+  char line[240];
+  std::snprintf(line, sizeof line, "%zu (%.2f %% of K) with a peak above the stack at their centre by more than its "
+                "noise (%.3g)", c.halos, 100.0 * c.share(), c.noise);
+  sheet.row("halos", line);
+}
+
+void info_checkpoint(const std::filesystem::path& path, bool compact, const std::filesystem::path& stack,
+                     const io::VolumeOptions& options, Sheet& sheet) {
   const gmf::Checkpoint ckpt = gmf::load_checkpoint(path);
   const gmf::MixtureStats st = gmf::compute_stats(ckpt.mixture);
   sheet.row("file", path.string());
@@ -181,6 +194,7 @@ void info_checkpoint(const std::filesystem::path& path, bool compact, Sheet& she
                 st.needles, st.count ? 100.0 * static_cast<double>(st.needles) / static_cast<double>(st.count) : 0.0,
                 gmf::kNeedleAxisRatio, st.largest_axis_ratio);
   sheet.row("needles", needles);
+  if (!stack.empty()) halo_row(ckpt, stack, options, sheet);
   const io::BackgroundModel background = gmf::background_of(ckpt.meta, path.string());
   if (background.none()) {
     sheet.row("background", "none recorded (renders draw no floor)");
@@ -219,10 +233,15 @@ std::string FileInfo::text() const {
   return out;
 }
 
-FileInfo describe_file(const std::filesystem::path& path, const io::VolumeOptions& volume) {
+FileInfo describe_file(const std::filesystem::path& path, const io::VolumeOptions& volume,
+                       const std::filesystem::path& stack) {
   FileInfo info;
   Sheet sheet(info);
-  switch (detect_kind(path)) {
+  const FileKind kind = detect_kind(path);
+  if (!stack.empty() && kind != FileKind::kPly && kind != FileKind::kCompact) {
+    io::fail_input(path, "is not a checkpoint: --volume (the stack to count halos against) is for a .ply or .hgs");
+  }
+  switch (kind) {
     case FileKind::kStack:
       info.kind = "stack";
       info_stack(path, volume, sheet);
@@ -233,11 +252,11 @@ FileInfo describe_file(const std::filesystem::path& path, const io::VolumeOption
       break;
     case FileKind::kPly:
       info.kind = "checkpoint";
-      info_checkpoint(path, false, sheet);
+      info_checkpoint(path, false, stack, volume, sheet);
       break;
     case FileKind::kCompact:
       info.kind = "compact checkpoint";
-      info_checkpoint(path, true, sheet);
+      info_checkpoint(path, true, stack, volume, sheet);
       break;
   }
   return info;

@@ -2,7 +2,8 @@
 // What a file holds, as `hisnegs info` prints it and the Python module's
 // hisnegs.info returns it: a TIFF/HDF5/BigDataViewer/Imaris stack (shape, spacing,
 // intensity statistics, normalization), an OpenVDB file (its grids) or a .ply / .hgs
-// checkpoint (metadata, background, parameter ranges).
+// checkpoint (metadata, background, parameter ranges, and against its stack the
+// halos).
 #pragma once
 
 #include <filesystem>
@@ -25,7 +26,11 @@ struct FileInfo {
 };
 
 // Reads `path` (a stack with `volume`'s channel, dataset, spacing and normalization)
-// and describes it; io::InputError for a file of no known kind.
-FileInfo describe_file(const std::filesystem::path& path, const io::VolumeOptions& volume);
+// and describes it; io::InputError for a file of no known kind. With `stack` (a
+// checkpoint's own stack, read with `volume`'s options), a checkpoint's row
+// "halos" counts its Gaussians brighter than the stack at their centre
+// (gmf/core/halo.hpp); `stack` with another kind of file is an InputError.
+FileInfo describe_file(const std::filesystem::path& path, const io::VolumeOptions& volume,
+                       const std::filesystem::path& stack = {});
 
 }  // namespace hisnegs::apps

@@ -108,6 +108,12 @@ std::string summary_section(const RunFiles& f, const Json& run_state, const RunS
                 at("hard", "psnr"), at("soft", "psnr"), at("hard", "psnr_fg"), at("soft", "psnr_fg"),
                 metrics.value("foreground_level", 0.2), 100 * at("hard", "background_error_share"))});
   }
+  if (metrics.contains("halos")) {  // gmf/core/halo.hpp
+    const Json& h = metrics.at("halos");
+    s.add({"Halos (Gaussians brighter than the stack at their centre)",
+           strf("%lld (%.2f%% of K; margin: the stack's noise, %.3g)", h.at("count").get<long long>(),
+                100 * h.at("share").get<double>(), h.at("noise").get<double>())});
+  }
   s.add({"Evaluation MAE / SSIM",
          strf("%.5f / %.4f", metrics.at("mae").at("mean").get<double>(), metrics.at("ssim").at("mean").get<double>())});
   s.add({"Rendering",

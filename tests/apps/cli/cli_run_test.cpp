@@ -94,10 +94,15 @@ TEST_F(CliRun, WritesEveryOutputThenReusesFinishedStages) {
   EXPECT_GT(psnr, 18.0);
   EXPECT_GT(metrics["ssim"]["mean"].get<double>(), 0.3);
   EXPECT_EQ(read_json(out / "orbit.json")["seconds_per_frame"].size(), 6u);
+  // The halos against the run's stack (a small one: counted).
+  ASSERT_TRUE(metrics.contains("halos")) << metrics.dump();
+  EXPECT_LE(metrics["halos"]["count"].get<long long>(), metrics["gaussians"].get<long long>());
+  EXPECT_GE(metrics["halos"]["noise"].get<double>(), 0.02);
   std::ifstream in(out / "report.md");
   const std::string report{std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
   for (const char* section : {"## Summary", "## Stages", "report Table 8", "report Table 3", "report Table 12",
-                              "report Table 10", "train/training_curve.png", "orbit.gif"}) {
+                              "report Table 10", "train/training_curve.png", "orbit.gif",
+                              "Halos (Gaussians brighter than the stack at their centre)"}) {
     EXPECT_NE(report.find(section), std::string::npos) << section;
   }
 

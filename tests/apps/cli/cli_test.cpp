@@ -169,6 +169,21 @@ TEST(CliFit, WritesCheckpointAndCsvLog) {
   r = run_hisnegs({"info", dir / "m.ply"});
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_NE(r.out.find("volume       Z=16 Y=48 X=48"), std::string::npos) << r.out;
+  EXPECT_EQ(r.out.find("halos"), std::string::npos) << "without --volume there is no stack to compare with";
+  // Against its stack: the halo count (gmf/core/halo.hpp); --volume with a stack, or
+  // a stack of another shape, is one line naming the file.
+  r = run_hisnegs({"info", dir / "m.ply", "--volume", dir / "s.tif"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("% of K) with a peak above the stack at their centre by more than its noise (0.02)"),
+            std::string::npos)
+      << r.out;
+  r = run_hisnegs({"info", dir / "s.tif", "--volume", dir / "s.tif"});
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("is not a checkpoint: --volume"), std::string::npos) << r.err;
+  ASSERT_EQ(run_hisnegs({"-q", "synth", "-o", dir / "other.tif", "--shape", "16,40,48"}).exit_code, 0);
+  r = run_hisnegs({"info", dir / "m.ply", "--volume", dir / "other.tif"});
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("the model was fitted to a 48x48x16 stack"), std::string::npos) << r.err;
   std::ifstream csv(dir / "fit.csv");
   std::string header;
   std::getline(csv, header);
