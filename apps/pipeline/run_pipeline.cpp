@@ -3,8 +3,10 @@
 // rules), write the report. What a stage reads and writes is declared by the stage.
 #include "apps/pipeline/run_pipeline.hpp"
 
+#include <algorithm>
 #include <filesystem>
 #include <iterator>
+#include <string_view>
 
 #include "apps/pipeline/format.hpp"
 #include "apps/pipeline/run_report.hpp"
@@ -22,12 +24,36 @@ namespace fs = std::filesystem;
 using Json = nlohmann::ordered_json;
 
 // Everything is checked before the run folder is touched.
+// A stack (or a file behind it) that is one of the run's own outputs, or inside a
+// folder a stage writes (gt, train, eval), is refused before any stage runs: the
+// stage before it would rewrite it (R/gt/train/mips.tif as the stack of R).
+void refuse_stack_among_outputs(const RunRequest& request) {
+  std::error_code ec;
+  const fs::path dir = fs::weakly_canonical(request.dir, ec);
+  if (ec) return;  // the folder's own checks report it
+  static constexpr std::string_view kWritten[] = {"gt",          "train",     "eval",       "volume.vdb",
+                                                  "volume.json", "gmf.ply",   "fit_log.csv", "orbit.gif",
+                                                  "orbit.json",  "report.md", "run.json",   "config.yaml"};
+  for (const fs::path& file : io::stack_files(request.volume)) {
+    const fs::path stack = fs::weakly_canonical(file, ec);
+    if (ec) continue;
+    const fs::path inside = stack.lexically_relative(dir);
+    if (inside.empty() || *inside.begin() == "..") continue;
+    const std::string first = inside.begin()->string();
+    if (std::find(std::begin(kWritten), std::end(kWritten), first) != std::end(kWritten)) {
+      io::fail_input(file, "is a file of the run folder " + request.dir.string() + " that the run writes (" + first +
+                               "); copy it out of the folder or use another -o");
+    }
+  }
+}
+
 void check_request(const RunRequest& request, const AppConfig& config) {
   config.validate();
   io::require_regular_file(request.volume);
   if (request.orbit_frames < 1 || request.orbit_frames > 3600) {
     throw io::InputError("--orbit-frames: " + std::to_string(request.orbit_frames) + " is outside [1, 3600]");
   }
+  refuse_stack_among_outputs(request);
   // The folders a stage starts over hold only what a run wrote (never an input):
   // refused now, before four stages of work, not when that stage comes.
   check_stage_folder(request.dir, TrainStage::kFolder, request.volume);

@@ -237,6 +237,17 @@ TEST_F(CliRun, BadInputGetsOneLineErrors) {
   EXPECT_EQ(r.exit_code, 2);
   EXPECT_NE(r.err.find("run.json"), std::string::npos) << r.err;
   EXPECT_EQ(testing::count_lines(r.err), 1) << r.err;
+  // A stack the run itself writes (its ground truth) is refused before any stage.
+  fs::create_directories(dir_ / "R" / "gt" / "train");
+  fs::copy_file(dir_ / "s.tif", dir_ / "R" / "gt" / "train" / "mips.tif");
+  r = run_hisnegs({"--config", dir_ / "tiny.yaml", "run", dir_ / "R" / "gt" / "train" / "mips.tif", "-o", dir_ / "R",
+                   "--backend", "cpu"});
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("is a file of the run folder " + (dir_ / "R").string() + " that the run writes (gt)"),
+            std::string::npos)
+      << r.err;
+  EXPECT_FALSE(fs::exists(dir_ / "R" / "volume.vdb"));
+  EXPECT_FALSE(fs::exists(dir_ / "R" / "run.json"));
 }
 
 TEST(CliDemo, RunsThePipelineOnTheSyntheticNeuron) {
