@@ -17,6 +17,7 @@
 #include <exception>
 #include <memory>
 #include <optional>
+#include <span>
 #include <string>
 #include <utility>
 #include <vector>
@@ -37,6 +38,7 @@
 #include "gmf/round_solver.hpp"
 #include "io/error.hpp"
 #include "io/load_volume.hpp"
+#include "io/memory_limit.hpp"
 #include "splat/background_floor.hpp"
 #include "splat/backend.hpp"
 #include "splat/camera.hpp"
@@ -102,7 +104,17 @@ std::shared_ptr<Volume> volume_from_array(const py::array& array, const std::str
                          " dimensions; expected 3 (z, y, x)");
   }
   const FloatArray values = FloatArray::ensure(array);
-  if (!values) throw io::InputError("hisnegs.Volume.from_array: the array does not convert to float32");
+  if (!values) {  // say why: numpy's own error (a MemoryError for a huge array, a ValueError for objects)
+    std::string why = "unknown reason";
+    try {
+      (void)py::module_::import("numpy").attr("ascontiguousarray")(array, "float32");
+    } catch (py::error_already_set& e) {
+      why = e.what();
+    }
+    throw io::InputError("hisnegs.Volume.from_array: the array of " + std::to_string(array.size()) + " values (" +
+                         io::gib_text(4.0 * static_cast<double>(array.size())) +
+                         " as float32) does not convert to float32: " + io::printable(why, 200));
+  }
   io::Volume raw;
   raw.nz = static_cast<int>(values.shape(0));
   raw.ny = static_cast<int>(values.shape(1));
@@ -141,6 +153,15 @@ struct Model {
   gmf::Checkpoint checkpoint;
 };
 
+// Model.params is a writable view: a call that renders, trains or writes a model
+// refuses one holding NaN or Inf (ValueError naming the call and the first value).
+void require_finite(const Model& m, const char* call) {
+  const std::span<const float> params = gmf::flat_params(m.checkpoint.mixture);
+  if (const std::string bad = gmf::describe_non_finite<float>(params, "value"); !bad.empty()) {
+    throw io::InputError(std::string(call) + ": " + bad + " is not finite");
+  }
+}
+
 py::array params_view(const std::shared_ptr<Model>& m) {
   gmf::GaussianMixture& g = m->checkpoint.mixture;
   const auto s = static_cast<py::ssize_t>(sizeof(float));
@@ -167,6 +188,7 @@ splat::Backend backend_of(const std::string& backend) {
 
 py::array render_model(const Model& m, const splat::CameraSet& cameras, const std::string& config_text,
                        const std::string& backend) {
+  require_finite(m, "hisnegs.Model.render");
   const AppConfig config = config_of(config_text, "hisnegs.Model.render() options");
   const splat::Backend b = backend_of(backend);
   splat::MipStack stack;
@@ -224,6 +246,7 @@ std::shared_ptr<Model> fit(const Volume& volume, const std::string& config_text,
 std::shared_ptr<Model> train(const Model& init, const FloatArray& images, const splat::CameraSet& cameras,
                              const std::string& config_text, const std::string& backend,
                              const std::optional<py::function>& progress) {
+  require_finite(init, "hisnegs.train");
   AppConfig config = config_of(config_text, "hisnegs.train() options");
   const splat::Backend b = backend_of(backend);
   const splat::Intrinsics& K = cameras.intrinsics;
@@ -285,6 +308,7 @@ py::dict file_info(const std::filesystem::path& path, const std::string& config_
 py::dict export_vdb(const Model& m, const std::filesystem::path& out, std::optional<double> voxel_size,
                     const std::string& match_volume, double cutoff, double tail, bool points, bool untruncated_sum,
                     const std::string& config_text) {
+  require_finite(m, "hisnegs.export_vdb");
   const AppConfig config = config_of(config_text, "hisnegs.export_vdb() options");
   apps::VdbExportRequest request;
   request.voxel_size = voxel_size;
@@ -313,6 +337,7 @@ py::dict export_vdb(const Model& m, const std::filesystem::path& out, std::optio
 
 py::dict export_volume(const Model& m, const std::filesystem::path& out, const std::string& match_volume, double tail,
                        bool untruncated_sum, const std::string& config_text) {
+  require_finite(m, "hisnegs.export_volume");
   const AppConfig config = config_of(config_text, "hisnegs.export_volume() options");
   apps::VolumeExportRequest request;
   request.match_volume = match_volume;
@@ -336,6 +361,7 @@ py::dict export_volume(const Model& m, const std::filesystem::path& out, const s
 
 py::dict export_compact(const Model& m, const std::filesystem::path& out, int position_bits, int scale_bits,
                         int rotation_bits, int intensity_bits, int level) {
+  require_finite(m, "hisnegs.export_compact");
   gmf::CompactOptions options;
   options.position_bits = position_bits;
   options.scale_bits = scale_bits;
@@ -360,6 +386,7 @@ py::dict export_compact(const Model& m, const std::filesystem::path& out, int po
 
 py::dict export_html(const Model& m, const std::filesystem::path& out, const std::optional<splat::CameraSet>& cameras,
                      bool float32, const std::string& config_text) {
+  require_finite(m, "hisnegs.export_html");
   const AppConfig config = config_of(config_text, "hisnegs.export_html() options");
   const splat::CameraSet views = cameras ? *cameras : splat::evaluation_orbit(config.camera);
   apps::HtmlExportDone done;
@@ -867,6 +894,7 @@ PYBIND11_MODULE(_hisnegs, m) {
                   })
       .def("save",
            [](const Model& model, const std::filesystem::path& p) {
+             require_finite(model, "hisnegs.Model.save");
              // .hgs: the compact checkpoint with export compact's defaults; anything else: the .ply
              py::gil_scoped_release release;
              if (p.extension() == ".hgs") {

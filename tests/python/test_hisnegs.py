@@ -66,6 +66,11 @@ def test_volume_from_array_normalizes_like_a_file(work):
     bad[3, 2, 1] = np.nan
     with pytest.raises(ValueError, match=r"numpy array: voxel \(x=1, y=2, z=3\) is nan; expected finite values"):
         hisnegs.Volume.from_array(bad)
+    # An array numpy cannot convert: numpy's reason, not only "does not convert".
+    strings = np.full((2, 3, 4), "x", dtype=object)
+    with pytest.raises(ValueError, match=r"the array of 24 values \(.* as float32\) does not convert to float32: "
+                                         r".*could not convert string to float"):
+        hisnegs.Volume.from_array(strings)
 
 
 def test_errors_are_value_errors_with_the_cli_messages(work):
@@ -81,6 +86,22 @@ def test_errors_are_value_errors_with_the_cli_messages(work):
     assert "volume.normalization" + rule in cli.stderr, (str(python_error.value), cli.stderr)
     with pytest.raises(ValueError, match="gmf.gaussians"):
         hisnegs.fit(hisnegs.load_volume(work / "s.tif"), gaussians=-3)
+
+
+def test_a_model_written_to_nan_is_refused_by_what_renders_or_writes_it(work, tmp_path):
+    model = hisnegs.Model.load(work / "m.ply")
+    model.params[3, 0] = np.nan  # params is a writable view
+    cameras = hisnegs.Cameras.load(work / "cameras.json")
+    calls = [("hisnegs.Model.render", lambda: model.render(cameras)),
+             ("hisnegs.Model.save", lambda: model.save(tmp_path / "m.ply")),
+             ("hisnegs.export_html", lambda: hisnegs.export_html(model, tmp_path / "m.html", float32=True)),
+             ("hisnegs.export_compact", lambda: hisnegs.export_compact(model, tmp_path / "m.hgs")),
+             ("hisnegs.export_vdb", lambda: hisnegs.export_vdb(model, tmp_path / "m.vdb"))]
+    for name, call in calls:
+        pattern = name.replace(".", r"\.") + r": the .* of Gaussian 3 \(nan\) is not finite"
+        with pytest.raises(ValueError, match=pattern):
+            call()
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_objects_made_with_new_alone_are_refused():
