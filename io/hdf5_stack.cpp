@@ -74,6 +74,62 @@ Handle open_file(const fs::path& path) {
   return f;
 }
 
+// The stack's dataset `name` in `file` (the file `path`), with the files an external
+// or virtual dataset names resolved in the stack's own folder (not the working
+// directory); check_outside_storage has checked them.
+Handle open_dataset(const fs::path& path, hid_t file, const std::string& name) {
+  const std::string folder = fs::absolute(path).parent_path().string();
+  Handle dapl(H5Pcreate(H5P_DATASET_ACCESS), H5Pclose);
+  if (dapl.ok()) {
+    H5Pset_efile_prefix(dapl, folder.c_str());
+    H5Pset_virtual_prefix(dapl, folder.c_str());
+  }
+  Handle d(H5Dopen2(file, name.c_str(), dapl.ok() ? hid_t(dapl) : H5P_DEFAULT), H5Dclose);
+  if (!d.ok()) fail_input(path, "dataset " + printable(name, 120) + " cannot be opened" + hdf5_error());
+  return d;
+}
+
+// External raw storage and virtual datasets read other files: a missing virtual
+// source reads as the fill value, an external file may name any file
+// (/etc/passwd as voxels). Each must be a regular file in the stack's own folder.
+void check_outside_storage(const fs::path& path, hid_t dcpl, const std::string& dataset) {
+  std::error_code ec;
+  const fs::path folder = fs::weakly_canonical(fs::absolute(path).parent_path(), ec);
+  const auto require_beside = [&](const std::string& name, const char* what) {
+    const fs::path named = fs::path(name).is_absolute() ? fs::path(name) : folder / name;
+    const std::string said = "dataset " + printable(dataset, 120) + " reads " + what + " '" + printable(name, 200) + "'";
+    std::error_code e;
+    if (!fs::is_regular_file(named, e)) fail_input(path, said + ", which is not a regular file (missing, a folder or a device)");
+    if (fs::weakly_canonical(named, e).parent_path() != folder || e) {
+      fail_input(path, said + ", which is not in the stack's own folder; hisnegs reads only files beside the stack");
+    }
+  };
+  const int external = H5Pget_external_count(dcpl);
+  for (int i = 0; i < external; ++i) {
+    char name[4096] = {0};
+    off_t offset = 0;
+    hsize_t size = 0;
+    if (H5Pget_external(dcpl, static_cast<unsigned>(i), sizeof name, name, &offset, &size) < 0) {
+      fail_input(path, "dataset " + printable(dataset, 120) + ": its external storage cannot be read" + hdf5_error());
+    }
+    require_beside(name, "external raw storage");
+  }
+  if (H5Pget_layout(dcpl) != H5D_VIRTUAL) return;
+  std::size_t sources = 0;
+  if (H5Pget_virtual_count(dcpl, &sources) < 0) {
+    fail_input(path, "dataset " + printable(dataset, 120) + ": its virtual sources cannot be read" + hdf5_error());
+  }
+  for (std::size_t i = 0; i < sources; ++i) {
+    const ssize_t n = H5Pget_virtual_filename(dcpl, i, nullptr, 0);
+    if (n < 0 || n > 4096) fail_input(path, "dataset " + printable(dataset, 120) + ": a virtual source without a file name");
+    std::string name(static_cast<std::size_t>(n) + 1, '\0');
+    H5Pget_virtual_filename(dcpl, i, name.data(), name.size());
+    name.resize(static_cast<std::size_t>(n));
+    if (name == ".") continue;  // the stack's own file
+    require_beside(name, "the virtual source");
+  }
+}
+
 bool link_exists(hid_t file, const std::string& path) {
   // Each component must exist before the next may be asked about.
   std::size_t pos = 0;
@@ -265,8 +321,7 @@ BdvXml parse_bdv_xml(const fs::path& path) {
 // Fills type, dims, chunk and filters of `info` from the dataset; refuses what
 // hisnegs cannot read.
 void describe_dataset(const fs::path& path, hid_t file, Hdf5StackInfo& info) {
-  Handle d(H5Dopen2(file, info.dataset.c_str(), H5P_DEFAULT), H5Dclose);
-  if (!d.ok()) fail_input(path, "dataset " + printable(info.dataset, 120) + " cannot be opened" + hdf5_error());
+  const Handle d = open_dataset(path, file, info.dataset);
   Handle space(H5Dget_space(d), H5Sclose);
   const int rank = H5Sget_simple_extent_ndims(space);
   if (rank < 1 || rank > 8) fail_input(path, "dataset " + printable(info.dataset, 120) + " has no simple extent");
@@ -293,6 +348,7 @@ void describe_dataset(const fs::path& path, hid_t file, Hdf5StackInfo& info) {
                          " samples; hisnegs reads 8/16-bit unsigned integers and float32");
   }
   Handle dcpl(H5Dget_create_plist(d), H5Pclose);
+  check_outside_storage(path, dcpl, info.dataset);
   info.chunk.clear();
   if (H5Pget_layout(dcpl) == H5D_CHUNKED) {
     std::vector<hsize_t> chunk(static_cast<std::size_t>(rank));
@@ -631,8 +687,7 @@ void read_hdf5_region(const Hdf5StackInfo& info, const std::array<int, 3>& lo, c
   std::lock_guard<std::mutex> lock(hdf5_mutex());
   silence_hdf5();
   const Handle file = open_file(info.file);
-  Handle d(H5Dopen2(file, info.dataset.c_str(), H5P_DEFAULT), H5Dclose);
-  if (!d.ok()) fail_input(info.file, "dataset " + printable(info.dataset, 120) + " cannot be opened" + hdf5_error());
+  const Handle d = open_dataset(info.file, file, info.dataset);
   const std::size_t rank = info.dims.size();
   std::vector<hsize_t> start(rank, 0), count(rank, 1);
   if (rank >= 4) start[rank - 4] = static_cast<hsize_t>(info.channel_index);

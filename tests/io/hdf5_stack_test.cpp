@@ -300,5 +300,39 @@ with h5py.File('filter.h5', 'w') as f:
   EXPECT_NE(filter.find("is compressed with filter 32001"), std::string::npos) << filter;
 }
 
+// External raw storage and virtual datasets read other files: read when each is a
+// regular file beside the stack; refused when one is missing (a missing virtual
+// source reads as zeros) or elsewhere (/etc/passwd as voxels).
+TEST(Hdf5Stack, ExternalAndVirtualStorageOnlyFromFilesBesideTheStack) {
+  REQUIRE_H5PY();
+  ScratchDir dir;
+  ASSERT_NO_FATAL_FAILURE(run_python(dir.path(), std::string(kValues) + R"(
+import os
+open('raw.bin', 'wb').write(bytes(range(120)))
+with h5py.File('external.h5', 'w') as f:
+    f.create_dataset('data', shape=(4, 5, 6), dtype='u1', external=[('raw.bin', 0, 120)])
+with h5py.File('elsewhere.h5', 'w') as f:
+    f.create_dataset('data', shape=(4, 5, 6), dtype='u1', external=[('/etc/passwd', 0, 120)])
+with h5py.File('src.h5', 'w') as f:
+    f['data'] = (np.arange(120) % 251).astype(np.uint8).reshape(4, 5, 6)
+for name, source in (('virtual.h5', 'src.h5'), ('dangling.h5', 'gone.h5')):
+    layout = h5py.VirtualLayout(shape=(4, 5, 6), dtype='u1')
+    layout[:] = h5py.VirtualSource(source, 'data', shape=(4, 5, 6))
+    with h5py.File(name, 'w') as f:
+        f.create_virtual_dataset('data', layout, fillvalue=0)
+)"));
+  const Volume external = read_stack(dir / "external.h5");
+  EXPECT_EQ(external.voxels[7], 7.0f);
+  EXPECT_EQ(read_stack(dir / "virtual.h5").voxels[119], 119.0f);
+  EXPECT_NE(error_of([&] { (void)read_stack(dir / "elsewhere.h5"); })
+                .find("reads external raw storage '/etc/passwd', which is not in the stack's own folder"),
+            std::string::npos)
+      << error_of([&] { (void)read_stack(dir / "elsewhere.h5"); });
+  EXPECT_NE(error_of([&] { (void)read_stack(dir / "dangling.h5"); })
+                .find("reads the virtual source 'gone.h5', which is not a regular file"),
+            std::string::npos)
+      << error_of([&] { (void)read_stack(dir / "dangling.h5"); });
+}
+
 }  // namespace
 }  // namespace hisnegs::io
