@@ -1,5 +1,5 @@
 // SPDX-License-Identifier: Apache-2.0
-// Optimizer comparison (issue: compare optimizers honestly): every optimizer from
+// Optimizer comparison, done honestly: every optimizer from
 // the same initial mixture, samples, loss and time budget, with density control
 // off so K is the same for all; the target is the loss Adam reaches after N steps.
 #pragma once

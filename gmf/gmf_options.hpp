@@ -46,8 +46,8 @@ struct GmfOptions {
   // adam | brick-lm | lm | lm-cgnr | dogleg | lbfgs. brick-lm: exact LM on small
   // local problems (gmf/brick_solver.hpp), swept colour by colour; the others solve
   // one global problem per round. Adam is the default because it fits both
-  // objectives best of all of them on the shared stacks (docs/benchmarks.md, issue
-  // 17: the brick LM beats the global Ceres solvers, but not Adam).
+  // objectives best of all of them on the shared stacks (docs/benchmarks.md: the
+  // brick LM beats the global Ceres solvers, but not Adam).
   Optimizer optimizer = Optimizer::kAdam;
   FitInit init = FitInit::kGrid;  // grid | maxima
   // Wall-clock limit of the whole fit, seconds, >= 0: the fit stops before it.
@@ -109,7 +109,7 @@ struct GmfOptions {
   double adam_learning_rate = 0.01;  // Adam baseline step size, > 0
   // Largest axis ratio of a Gaussian (longest / shortest scale), kept by a projection
   // after every step and round (gmf::bound_axis_ratio): no needles fitted on noise
-  // (issue 33; a needle is a ratio above 20). [1.5, 1e6].
+  // (a needle is a ratio above kNeedleAxisRatio, 20). [1.5, 1e6].
   double max_axis_ratio = 16.0;
   std::uint64_t seed = 0;            // init jitter and sampling seed
   // Stacks larger than memory: the streamed brick fit (apps/pipeline/streamed_fit.hpp,

@@ -9,7 +9,7 @@
 // gmf/CMakeLists.txt, and add the line
 //   HISNEGS_OPTIMIZER("mine", solve_mine, "one line saying what it is")
 // to gmf/optimizers.def. `compare-optimizers --optimizers adam,mine` then runs it
-// from the same init, samples, loss and budget; gmf/optimizers/gradient_descent.cpp
+// from the same init, samples, loss and budget; gmf/optimizers/spectral_gradient.cpp
 // is a complete example. Python callables take the same problem
 // (hisnegs.compare_optimizers, docs/python.md).
 #pragma once

@@ -14,7 +14,7 @@ namespace hisnegs::io {
 // counts' = clip(round(offset + gain · Poisson(photons) + Normal(0, read_noise²))),
 // photons = background_photons (+ counts / gain with shot_noise): the Poisson–Gaussian
 // model of fluorescence detectors (e.g. Foi et al. 2008, "Practical Poissonian-
-// Gaussian noise modeling"). The defaults are issue 33's recipe for op1: Poisson
+// Gaussian noise modeling"). The defaults are the noisy-op1 recipe of docs/benchmarks.md: Poisson
 // noise of mean 0.6 counts added to its uint8 voxels (55 % of the background stays
 // 0, mean 0.0024 and p99 0.0118 after min-max normalization, like a raw confocal
 // stack of the same family).

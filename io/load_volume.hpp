@@ -1,6 +1,7 @@
 // SPDX-License-Identifier: Apache-2.0
-// From a TIFF path to a normalized, aspect-corrected volume in one call, driven
-// by the `volume` config section. Composes tiff_stack and volume; adds no math.
+// From a stack's path (TIFF or HDF5, io/stack_file.hpp) to a normalized,
+// aspect-corrected volume in one call, driven by the `volume` config section.
+// Composes stack_file and volume; adds no math.
 #pragma once
 
 #include <filesystem>

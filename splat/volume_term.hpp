@@ -1,5 +1,5 @@
 // SPDX-License-Identifier: Apache-2.0
-// Stage 2's 3D term (issue 17 §3): unlike the report's setting, training here
+// Stage 2's 3D term: unlike the report's setting, training here
 // always has the volume, so the loss can include the stage-1 residual of the
 // model's own 3D value f (sum or softmax, gmf/core/aggregation.hpp) on a fresh batch of
 // volume samples each step, and density control can drop Gaussians whose centre

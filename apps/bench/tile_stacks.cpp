@@ -1,7 +1,7 @@
 // SPDX-License-Identifier: Apache-2.0
 // tile_stacks: a large test stack made of real ones, for the memory and time
-// benchmarks of docs/benchmarks.md (issue 17: "a 1024 × 1024 × 100 stack made by
-// tiling the shared volumes").
+// benchmarks of docs/benchmarks.md (a 1024 × 1024 × 100 stack made by tiling
+// the shared volumes).
 //
 //   tile_stacks OUT.tif Z,Y,X IN.tif [IN.tif ...]
 //

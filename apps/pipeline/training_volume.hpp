@@ -1,5 +1,5 @@
 // SPDX-License-Identifier: Apache-2.0
-// The volume side of stage 2 (issue 17 §3): the fit's samples of the stack (its
+// The volume side of stage 2: the fit's samples of the stack (its
 // sparse grid with gmf.background_fraction, weights from gmf.background_weight)
 // and the empty-space test (outside the foreground and its band), as the
 // trainer's VolumeTerm. Knows no trainer loop.

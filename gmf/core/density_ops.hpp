@@ -18,8 +18,8 @@ namespace hisnegs::gmf {
 // axis ratio: where the largest scale is more than max_ratio times the smallest, the
 // two are moved towards each other by the same factor (in log-scale, the nearest
 // point with max − min = ln max_ratio; a middle axis outside that range is moved to
-// its end), so that no Gaussian becomes a needle (issue 33: long thin shapes fitted
-// on noise). Returns how many Gaussians were changed. max_ratio > 1.
+// its end), so that no Gaussian becomes a needle (a long thin shape fitted on
+// noise). Returns how many Gaussians were changed. max_ratio > 1.
 template <class T>
 std::size_t bound_axis_ratio(std::span<T> params, double max_ratio);
 

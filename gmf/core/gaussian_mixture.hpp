@@ -160,7 +160,7 @@ struct MixtureStats {
   double intensity_min = 0.0;          // min of a = sigmoid(intensity_logit)
   double intensity_max = 0.0;
   double intensity_mean = 0.0;
-  // Needles (issue 33): Gaussians whose longest axis is more than kNeedleAxisRatio
+  // Needles: Gaussians whose longest axis is more than kNeedleAxisRatio
   // times their shortest (long thin shapes radiating from a neuron fitted on noise).
   std::size_t needles = 0;
   double largest_axis_ratio = 0.0;
