@@ -91,6 +91,22 @@ CameraSet evaluation_orbit(const CameraOptions& options) {
   return set;
 }
 
+CameraSet close_views(const CameraOptions& options) {
+  CameraSet set{make_intrinsics(options), {}};
+  constexpr int kPerRing = CameraOptions::kCloseViewsPerRadius / 4;
+  for (const double f : options.close_radii) {
+    int ring = 0;
+    for (const double e : {-30.0, 0.0, 30.0, 60.0}) {
+      for (int j = 0; j < kPerRing; ++j) {
+        const double phi = 360.0 * (j + 0.25 + 0.5 * (ring % 2)) / kPerRing;
+        set.views.push_back(orbit_view(e, phi, f * options.orbit_radius, indexed_name("close", set.views.size())));
+      }
+      ++ring;
+    }
+  }
+  return set;
+}
+
 CameraSet custom_orbit(const CameraOptions& options, const std::vector<double>& elevations_deg,
                        const std::vector<double>& azimuths_deg) {
   CameraSet set{make_intrinsics(options), {}};

@@ -51,6 +51,11 @@ struct CameraSet {
 [[nodiscard]] CameraSet training_orbit(const CameraOptions& options);
 // Evaluation views: rings e = -15, 15, 45, 10 views each, φ_j = 360 j / 10 + 18. Names eval_000..eval_029.
 [[nodiscard]] CameraSet evaluation_orbit(const CameraOptions& options);
+// Close training views (CameraOptions::close_radii): per fraction f, rings e = -30,
+// 0, 30, 60 of 8 views at r = f × orbit_radius, φ_j = 360 (j + 0.25 + 0.5 (ring mod
+// 2)) / 8 (between the training orbit's azimuths). Names close_000, ...; the
+// intrinsics of `options`.
+[[nodiscard]] CameraSet close_views(const CameraOptions& options);
 // Every combination of `elevations_deg` × `azimuths_deg` (elevation-major), names view_000...
 [[nodiscard]] CameraSet custom_orbit(const CameraOptions& options, const std::vector<double>& elevations_deg,
                                      const std::vector<double>& azimuths_deg);

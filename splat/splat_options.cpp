@@ -14,6 +14,15 @@ void CameraOptions::validate() const {
   io::require_positive(s, "near", near);
   if (!(far > near)) io::fail_option(s, "far", std::to_string(far), "must be greater than camera.near");
   io::require_positive(s, "orbit_radius", orbit_radius);
+  std::string radii = "[";
+  for (const double f : close_radii) radii += (radii.size() > 1 ? ", " : "") + io::number_text(f);
+  radii += "]";
+  if (close_radii.size() > 8) io::fail_option(s, "close_radii", radii, "at most 8 radii");
+  for (const double f : close_radii) {
+    if (!(f >= 0.3 && f < 1.0)) {
+      io::fail_option(s, "close_radii", radii, "each must be a fraction of camera.orbit_radius in [0.3, 1)");
+    }
+  }
 }
 
 void RaymarchOptions::validate() const {

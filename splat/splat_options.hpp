@@ -6,6 +6,7 @@
 
 #include <cstdint>
 #include <string>
+#include <vector>
 
 #include "io/config.hpp"
 #include "splat/splat_math.hpp"
@@ -29,6 +30,12 @@ struct CameraOptions {
   double near = 0.01;         // near clipping distance, world units, > 0
   double far = 10.0;          // far clipping distance, world units, > near
   double orbit_radius = 2.5;  // orbit camera distance from the origin, world units, > 0
+  // `run`'s training views closer than the orbit (users zoom in a viewer): per
+  // fraction f of orbit_radius, in [0.3, 1), 32 views at radius f × orbit_radius
+  // (splat::close_views) beside the 106 of the training orbit; empty: the orbit
+  // alone (the report). The evaluation orbit never changes.
+  std::vector<double> close_radii{0.7};
+  static constexpr int kCloseViewsPerRadius = 32;
 
   void validate() const;
   template <class V>
@@ -39,6 +46,7 @@ struct CameraOptions {
     v("near", near);
     v("far", far);
     v("orbit_radius", orbit_radius);
+    v("close_radii", close_radii);
   }
 };
 

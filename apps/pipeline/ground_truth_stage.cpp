@@ -205,8 +205,10 @@ std::string ground_truth_set_label(const std::filesystem::path& dir) {
 nlohmann::ordered_json GroundTruthStage::run(const RunRequest& request, const Config& config, bool,
                                              const Progress& progress) {
   const splat::CameraOptions& camera = config.get<&AppConfig::camera>();
-  const std::vector<GroundTruthSet> sets{{"train", splat::training_orbit(camera)},
-                                         {"eval", splat::evaluation_orbit(camera)}};
+  // Training: the orbit and the close views (camera.close_radii) in one set.
+  splat::CameraSet train = splat::training_orbit(camera);
+  for (splat::CameraView& view : splat::close_views(camera).views) train.views.push_back(std::move(view));
+  const std::vector<GroundTruthSet> sets{{"train", std::move(train)}, {"eval", splat::evaluation_orbit(camera)}};
   const io::VolumeOptions& vo = config.get<&AppConfig::volume>();
   vo.validate();
   const io::StackHeader header = io::inspect_stack(request.volume, io::stack_read_options(vo));

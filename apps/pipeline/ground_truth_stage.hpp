@@ -70,7 +70,8 @@ void write_ground_truth_sets(const std::filesystem::path& dir, const std::filesy
 struct GroundTruthStage {
   using Config = ConfigSlice<&AppConfig::volume, &AppConfig::camera, &AppConfig::raymarch>;
   static constexpr const char* kName = "ground_truth";
-  static constexpr const char* kTitle = "ground truth: ray-marched MIPs of the training and evaluation orbits";
+  static constexpr const char* kTitle =
+      "ground truth: ray-marched MIPs of the training views (the orbit and camera.close_radii) and the evaluation orbit";
   static constexpr std::array<const char*, 1> kUpstream{"volume"};  // the volume file's identity
   static constexpr std::array<const char*, 2> kOutputs{"gt/train/mips.tif", "gt/eval/mips.tif"};
   static constexpr const char* kResumeMarker = "";

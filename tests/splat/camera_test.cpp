@@ -81,6 +81,35 @@ TEST(Camera, TrainingAndEvaluationOrbits) {
   EXPECT_NEAR(std::atan2(e29.y(), e29.x()) * 180 / std::numbers::pi, 360.0 * 9 / 10 + 18 - 360, 1e-9);
 }
 
+// run's close training views: 32 per fraction of the orbit radius, between the
+// training orbit's azimuths, with the set's intrinsics; none by default of [].
+TEST(Camera, CloseViewsPerFractionOfTheOrbitRadius) {
+  CameraOptions options;
+  options.close_radii = {0.7, 0.5};
+  const CameraSet close = close_views(options);
+  ASSERT_EQ(close.views.size(), 64u);
+  EXPECT_EQ(close.views.front().name, "close_000");
+  EXPECT_EQ(close.views.back().name, "close_063");
+  EXPECT_EQ(close.intrinsics.width, options.width);
+  for (std::size_t i = 0; i < close.views.size(); ++i) {
+    EXPECT_NEAR(close.views[i].center_world().norm(), (i < 32 ? 0.7 : 0.5) * 2.5, 1e-9) << i;
+  }
+  const Eigen::Vector3d c0 = close.views[0].center_world();
+  EXPECT_NEAR(std::asin(c0.z() / 1.75) * 180 / std::numbers::pi, -30.0, 1e-9);
+  EXPECT_NEAR(std::atan2(c0.y(), c0.x()) * 180 / std::numbers::pi, 360.0 * 0.25 / 8, 1e-9);
+  options.close_radii = {};
+  EXPECT_TRUE(close_views(options).views.empty());
+  for (const double bad : {0.2, 1.0, std::nan("")}) {
+    options.close_radii = {0.7, bad};
+    try {
+      options.validate();
+      ADD_FAILURE() << bad << " was accepted";
+    } catch (const io::InputError& e) {
+      EXPECT_NE(std::string(e.what()).find("camera.close_radii = [0.7, "), std::string::npos) << e.what();
+    }
+  }
+}
+
 TEST(Camera, ProjectionInvertsRayDirection) {
   const Intrinsics K = make_intrinsics(CameraOptions{});
   const CameraView v = orbit_view(-30, 200, 2.5, "v");
