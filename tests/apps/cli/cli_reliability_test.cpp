@@ -270,7 +270,7 @@ TEST_F(Reliability, RunNeverRemovesFilesItDidNotWrite) {
   fs::copy_file(dir_ / "v.tif", p / "train" / "vol.tif");
   const std::string stack = testing::read_bytes(dir_ / "v.tif");
   expect_refused(run_hisnegs({"run", p / "train" / "vol.tif", "-o", p, "--backend", "cpu"}), 2,
-                 "vol.tif: is an input of this run");
+                 "vol.tif: is a file of the run folder " + p.string() + " that the run writes (train)");
   EXPECT_EQ(testing::read_bytes(p / "train" / "vol.tif"), stack);
   EXPECT_FALSE(fs::exists(p / "run.json"));  // refused before any stage
 

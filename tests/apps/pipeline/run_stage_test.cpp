@@ -152,7 +152,8 @@ TEST(StageDeclarations, SectionsUpstreamAndOutputs) {
   EXPECT_EQ(sections.at("fit"), (V{"volume", "background", "sparse_grid", "raymarch", "gmf"}));
   // The 3D term samples the volume as the fit does (volume, sparse_grid, gmf).
   EXPECT_EQ(sections.at("train"), (V{"volume", "sparse_grid", "splat", "train", "gmf"}));
-  EXPECT_EQ(sections.at("eval"), (V{"splat"}));
+  // The volume's options read the stack the halos are counted against.
+  EXPECT_EQ(sections.at("eval"), (V{"volume", "splat"}));
   EXPECT_EQ(sections.at("orbit"), (V{"camera", "splat"}));
   EXPECT_EQ(PipelineStages::kCount, 6);
   EXPECT_STREQ(TrainStage::kResumeMarker, "train/checkpoints/latest");
