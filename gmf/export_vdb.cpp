@@ -274,23 +274,31 @@ PointDataGrid::Ptr read_points_grid(const fs::path& path) {
   const io::VdbFileCheck check = io::check_vdb_structure(path);
   const io::VdbGridCheck* points = io::find_grid(check, kPointsGrid);
   if (!points) io::fail_input(path, "has no grid named 'gaussians' (export it with hisnegs export vdb --points)");
-  // Point attributes state their own sizes, which no walk can check before OpenVDB
-  // allocates them (a damaged file can even trip an assert inside OpenVDB): their
-  // bytes must be what hisnegs wrote.
-  if (!io::values_checked(check, kPointsGrid)) {
+  // Integrity: the bytes hisnegs wrote (attribute values the walk cannot judge).
+  // The checksum is unkeyed, so it is no licence to read: that is the walk's alone.
+  if (!points->checksum_match.value_or(false)) {
     io::fail_input(path, points->checksum_match
                              ? "grid 'gaussians' does not match the checksum hisnegs wrote for it: the file was "
                                "changed or damaged after export"
                              : "grid 'gaussians' carries no hisnegs checksum (written by another tool or an older "
                                "hisnegs): export it again with hisnegs export vdb --points");
   }
-  const io::VdbReadGuard guard(path);
+  // Point attributes state their own sizes (descriptor, array lengths, pages): OpenVDB
+  // allocates and asserts by them as found, so every one must have passed the walk.
+  if (!io::values_checked(check, kPointsGrid)) {
+    io::fail_input(path, "grid 'gaussians' is stored in a layout hisnegs cannot check (" +
+                             io::printable(points->grid_type, 64) +
+                             "): export it again with hisnegs export vdb --points");
+  }
+  io::VdbReadGuard guard(path);
   PointDataGrid::Ptr grid;
   try {
-    openvdb::io::File file(path.string());
-    file.open(false);
-    grid = openvdb::gridPtrCast<PointDataGrid>(file.readGrid(kPointsGrid));
-    file.close();
+    guard.run([&] {
+      openvdb::io::File file(path.string());
+      file.open(false);
+      grid = openvdb::gridPtrCast<PointDataGrid>(file.readGrid(kPointsGrid));
+      file.close();
+    });
   } catch (const openvdb::Exception& e) {
     io::fail_input(path, "not a readable OpenVDB file: " + io::printable(e.what()));  // OpenVDB messages can span lines
   } catch (const std::bad_alloc&) {
@@ -299,6 +307,35 @@ PointDataGrid::Ptr read_points_grid(const fs::path& path) {
   }
   if (!grid) io::fail_input(path, "grid 'gaussians' is not a PointDataGrid");
   return grid;
+}
+
+// The number of points, each leaf's voxel offsets checked first against its
+// attribute arrays (PointDataLeafNode::validateOffsets: non-decreasing, the last
+// one the arrays' common length). OpenVDB reads the offsets as found, so an index
+// past an array would trip its assert (or read past it). K then counts values really
+// read: a leaf's 'id' array must exist, and be uniform (one stored value) for one
+// point at most, before K sizes anything.
+std::size_t validated_point_count(const PointDataGrid& grid, const fs::path& path) {
+  std::size_t K = 0;
+  try {
+    for (auto leaf = grid.tree().cbeginLeaf(); leaf; ++leaf) {
+      leaf->validateOffsets();
+      const auto n = static_cast<std::size_t>(leaf->pointCount());
+      if (n == 0) continue;
+      const std::size_t pos = leaf->attributeSet().find(kIdAttr);
+      if (pos == openvdb::points::AttributeSet::INVALID_POS) {
+        io::fail_input(path,
+                       "grid 'gaussians' lacks point attribute 'id' (int32, written by hisnegs export vdb "
+                       "--points)");
+      }
+      if (n > 1 && leaf->constAttributeArray(pos).isUniform())
+        io::fail_input(path, "point attribute 'id' holds one value for " + std::to_string(n) + " points");
+      K += n;
+    }
+  } catch (const openvdb::Exception& e) {
+    io::fail_input(path, "cannot read grid 'gaussians': " + io::printable(e.what()));
+  }
+  return K;
 }
 
 // The K Gaussians of the grid's points, placed by their 'id' attribute (each of
@@ -352,7 +389,7 @@ Checkpoint import_vdb_points(const fs::path& path) {
     io::fail_input(
         path, "grid 'gaussians' lacks metadata '" + std::string(kCheckpointMetaKey) + "' (not written by hisnegs?)");
   }
-  const auto K = static_cast<std::size_t>(openvdb::points::pointCount(grid->tree()));
+  const std::size_t K = validated_point_count(*grid, path);
   if (const auto count = grid->getMetadata<openvdb::Int64Metadata>("gaussians");
       count && count->value() != static_cast<openvdb::Int64>(K)) {
     io::fail_input(path, "grid 'gaussians' holds " + std::to_string(K) + " points but its metadata 'gaussians' says " +

@@ -62,6 +62,7 @@ VdbFileCheck check_vdb_structure(const std::filesystem::path& path) {
 #endif
 
 VdbReadGuard::VdbReadGuard(const std::filesystem::path& path) {
+  arena_.initialize();  // its allocations made before the cap, not under it
   std::error_code ec;
   const double file_bytes = static_cast<double>(std::filesystem::file_size(path, ec));
   cap_ = std::min(allocation_limit_bytes(), std::max(double(1u << 30), 64.0 * (ec ? 0.0 : file_bytes)));
@@ -535,14 +536,17 @@ SparseGrid read_vdb(const std::filesystem::path& path) {
     if (g && (g->grid_type != "Tree_float_5_4_3" || !values_checked(check, name)))
       fail_input(path, "grid '" + std::string(name) + "' is " + printable(g->grid_type, 64) + ", not a float grid");
   }
-  const VdbReadGuard guard(path);
+  VdbReadGuard guard(path);
   try {
-    openvdb::io::File file(path.string());
-    file.open(false);
-    impl->volume = openvdb::gridPtrCast<FloatGrid>(file.readGrid("volume"));
-    if (!impl->volume) fail_input(path, "grid 'volume' is not a float grid");
-    if (find_grid(check, "background")) impl->background = openvdb::gridPtrCast<FloatGrid>(file.readGrid("background"));
-    file.close();
+    guard.run([&] {
+      openvdb::io::File file(path.string());
+      file.open(false);
+      impl->volume = openvdb::gridPtrCast<FloatGrid>(file.readGrid("volume"));
+      if (!impl->volume) fail_input(path, "grid 'volume' is not a float grid");
+      if (find_grid(check, "background"))
+        impl->background = openvdb::gridPtrCast<FloatGrid>(file.readGrid("background"));
+      file.close();
+    });
   } catch (const openvdb::Exception& e) {
     fail_input(path, "not a readable OpenVDB file: " + printable(e.what()));  // OpenVDB messages can span lines
   } catch (const std::bad_alloc&) {
@@ -579,45 +583,47 @@ std::vector<VdbGridSummary> inspect_vdb(const std::filesystem::path& path) {
   ensure_openvdb_initialized();
   std::vector<VdbGridSummary> out;
   const VdbFileCheck check = check_vdb_structure(path);
-  const VdbReadGuard guard(path);
+  VdbReadGuard guard(path);
   try {
-    openvdb::io::File file(path.string());
-    file.open(false);
-    for (auto it = file.beginName(); it != file.endName(); ++it) {
-      VdbGridSummary s;
-      s.values_read = values_checked(check, *it);
-      const openvdb::GridBase::Ptr grid = s.values_read ? file.readGrid(*it) : file.readGridMetadata(*it);
-      s.name = grid->getName();
-      s.value_type = grid->valueType();
-      s.grid_class = openvdb::GridBase::gridClassToString(grid->getGridClass());
-      const openvdb::Vec3d vs = grid->voxelSize();
-      s.voxel_size = {vs.x(), vs.y(), vs.z()};
-      if (s.values_read) {
-        s.active_voxels = static_cast<std::int64_t>(grid->activeVoxelCount());
-        s.memory_bytes = static_cast<std::int64_t>(grid->memUsage());
-        const openvdb::CoordBBox bbox = grid->evalActiveVoxelBoundingBox();
-        s.bbox_min = {bbox.min().x(), bbox.min().y(), bbox.min().z()};
-        s.bbox_max = {bbox.max().x(), bbox.max().y(), bbox.max().z()};
-        s.leaf_count = static_cast<std::int64_t>(grid->baseTreePtr()->leafCount());
-      } else {
-        // What the writer recorded (io::File writes these statistics by default).
-        if (const auto n = grid->getMetadata<openvdb::Int64Metadata>(openvdb::GridBase::META_FILE_VOXEL_COUNT))
-          s.active_voxels = std::max<std::int64_t>(n->value(), -1);
-        if (const auto n = grid->getMetadata<openvdb::Int64Metadata>(openvdb::GridBase::META_FILE_MEM_BYTES))
-          s.memory_bytes = std::max<std::int64_t>(n->value(), -1);
-        const auto lo = grid->getMetadata<openvdb::Vec3IMetadata>(openvdb::GridBase::META_FILE_BBOX_MIN);
-        const auto hi = grid->getMetadata<openvdb::Vec3IMetadata>(openvdb::GridBase::META_FILE_BBOX_MAX);
-        if (lo && hi) {
-          s.bbox_min = {lo->value().x(), lo->value().y(), lo->value().z()};
-          s.bbox_max = {hi->value().x(), hi->value().y(), hi->value().z()};
+    guard.run([&] {
+      openvdb::io::File file(path.string());
+      file.open(false);
+      for (auto it = file.beginName(); it != file.endName(); ++it) {
+        VdbGridSummary s;
+        s.values_read = values_checked(check, *it);
+        const openvdb::GridBase::Ptr grid = s.values_read ? file.readGrid(*it) : file.readGridMetadata(*it);
+        s.name = grid->getName();
+        s.value_type = grid->valueType();
+        s.grid_class = openvdb::GridBase::gridClassToString(grid->getGridClass());
+        const openvdb::Vec3d vs = grid->voxelSize();
+        s.voxel_size = {vs.x(), vs.y(), vs.z()};
+        if (s.values_read) {
+          s.active_voxels = static_cast<std::int64_t>(grid->activeVoxelCount());
+          s.memory_bytes = static_cast<std::int64_t>(grid->memUsage());
+          const openvdb::CoordBBox bbox = grid->evalActiveVoxelBoundingBox();
+          s.bbox_min = {bbox.min().x(), bbox.min().y(), bbox.min().z()};
+          s.bbox_max = {bbox.max().x(), bbox.max().y(), bbox.max().z()};
+          s.leaf_count = static_cast<std::int64_t>(grid->baseTreePtr()->leafCount());
+        } else {
+          // What the writer recorded (io::File writes these statistics by default).
+          if (const auto n = grid->getMetadata<openvdb::Int64Metadata>(openvdb::GridBase::META_FILE_VOXEL_COUNT))
+            s.active_voxels = std::max<std::int64_t>(n->value(), -1);
+          if (const auto n = grid->getMetadata<openvdb::Int64Metadata>(openvdb::GridBase::META_FILE_MEM_BYTES))
+            s.memory_bytes = std::max<std::int64_t>(n->value(), -1);
+          const auto lo = grid->getMetadata<openvdb::Vec3IMetadata>(openvdb::GridBase::META_FILE_BBOX_MIN);
+          const auto hi = grid->getMetadata<openvdb::Vec3IMetadata>(openvdb::GridBase::META_FILE_BBOX_MAX);
+          if (lo && hi) {
+            s.bbox_min = {lo->value().x(), lo->value().y(), lo->value().z()};
+            s.bbox_max = {hi->value().x(), hi->value().y(), hi->value().z()};
+          }
+          if (const VdbGridCheck* g = find_grid(check, *it); g && g->depth != VdbGridCheck::Depth::kHeader)
+            s.leaf_count = g->leaves;
         }
-        if (const VdbGridCheck* g = find_grid(check, *it); g && g->depth != VdbGridCheck::Depth::kHeader)
-          s.leaf_count = g->leaves;
+        for (auto m = grid->beginMeta(); m != grid->endMeta(); ++m) s.metadata[m->first] = m->second->str();
+        out.push_back(std::move(s));
       }
-      for (auto m = grid->beginMeta(); m != grid->endMeta(); ++m) s.metadata[m->first] = m->second->str();
-      out.push_back(std::move(s));
-    }
-    file.close();
+      file.close();
+    });
   } catch (const openvdb::Exception& e) {
     fail_input(path, "not a readable OpenVDB file: " + printable(e.what()));  // OpenVDB messages can span lines
   } catch (const std::bad_alloc&) {

@@ -6,6 +6,7 @@
 #pragma once
 
 #include <openvdb/openvdb.h>
+#include <tbb/task_arena.h>
 
 #include <Eigen/Core>
 #include <filesystem>
@@ -35,6 +36,11 @@ VdbFileCheck check_vdb_structure(const std::filesystem::path& path);
 // (std::bad_alloc, reported by the readers as a damaged file) instead of taking
 // gigabytes. Restores the previous limit on destruction. No-op under
 // AddressSanitizer (its shadow memory needs the address space).
+// Run OpenVDB's reads through run(): a read that fails unwinds through Tree::clear,
+// whose tbb::parallel_for would start worker threads (stacks, arenas) under the cap
+// and std::terminate ("pthread_create has failed") from a destructor when none
+// fits. run() executes in a one-thread task_arena made before the cap is set, so
+// OpenVDB's parallel loops run on the calling thread and start no thread.
 class VdbReadGuard {
  public:
   explicit VdbReadGuard(const std::filesystem::path& path);
@@ -42,8 +48,14 @@ class VdbReadGuard {
   VdbReadGuard(const VdbReadGuard&) = delete;
   VdbReadGuard& operator=(const VdbReadGuard&) = delete;
   [[nodiscard]] double cap_bytes() const { return cap_; }
+  // f() on this thread alone (exceptions pass through).
+  template <class F>
+  void run(F&& f) {
+    arena_.execute(std::forward<F>(f));
+  }
 
  private:
+  tbb::task_arena arena_{1};
   bool active_ = false;
   unsigned long long previous_soft_ = 0;
   double cap_ = 0;

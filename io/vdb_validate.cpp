@@ -24,7 +24,9 @@ constexpr std::uint32_t kMinVersion = 222;   // NODE_MASK_COMPRESSION: per-grid 
 constexpr std::uint32_t kMaxVersion = 224;   // MULTIPASS_IO, written by OpenVDB 6 to 11
 constexpr std::int64_t kMagic = 0x56444220;  // "VDB " little-endian
 constexpr std::uint32_t kCompressZip = 0x1, kCompressActiveMask = 0x2, kCompressBlosc = 0x4;
-constexpr int kMaxMapNesting = 4;  // a frustum map holds a second map; nothing nests deeper
+constexpr int kMaxMapNesting = 4;                 // a frustum map holds a second map; nothing nests deeper
+constexpr std::uint32_t kMultiPassVersion = 224;  // OPENVDB_FILE_VERSION_MULTIPASS_IO: point data grids
+constexpr const char* kPointDataTree = "Tree_ptdataidx32_5_4_3";  // points::PointDataTree
 
 // The 64-bit FNV-1a of bytes [from, to) of `in` (nullopt if they cannot be read).
 std::optional<std::uint64_t> range_fnv1a64(std::istream& in, std::int64_t from, std::int64_t to) {
@@ -265,6 +267,7 @@ struct TreeLayout {
   std::vector<int> log2dims;          // root's child first, leaf last
   bool standard_leaf = false;         // LeafNode<T>: buffers walked chunk by chunk
   int bit_leaf_masks = 0;             // LeafNode<bool> (2) / <ValueMask> (1): masks per leaf buffer
+  bool point_data = false;            // PointDataLeafNode: its background must be 0
 };
 
 std::optional<TreeLayout> tree_layout(const std::string& grid_type) {
@@ -285,6 +288,7 @@ std::optional<TreeLayout> tree_layout(const std::string& grid_type) {
   TreeLayout t;
   std::tie(t.value_bytes, t.half_value_bytes, t.standard_leaf) = it->second;
   t.bit_leaf_masks = parts.front() == "bool" ? 2 : parts.front() == "mask" ? 1 : 0;
+  t.point_data = parts.front().rfind("ptdataidx", 0) == 0;
   for (std::size_t i = 1; i < parts.size(); ++i) {
     if (parts[i].size() != 1 || parts[i][0] < '1' || parts[i][0] > '7') return std::nullopt;
     t.log2dims.push_back(parts[i][0] - '0');
@@ -394,7 +398,16 @@ void walk_node_topology(Walker& w, GridWalk& g, std::size_t level) {
 void walk_topology(Walker& w, GridWalk& g) {
   const auto buffer_count = w.read<std::int32_t>("buffer count");
   if (buffer_count != 1) w.fail("buffer count " + std::to_string(buffer_count) + " (must be 1)");
-  w.skip(g.tree.value_bytes, "background value");
+  if (g.tree.point_data) {
+    // PointDataLeafNode asserts when made with a value other than zero, and
+    // readTopology makes every leaf with the background.
+    std::array<std::uint8_t, 8> background{};
+    w.read_bytes(background.data(), g.tree.value_bytes, "background value");
+    if (std::any_of(background.begin(), background.end(), [](std::uint8_t b) { return b != 0; }))
+      w.fail("a point data tree's background is not 0");
+  } else {
+    w.skip(g.tree.value_bytes, "background value");
+  }
   const auto tiles = static_cast<std::int64_t>(w.read<std::uint32_t>("root tile count"));
   const auto children = static_cast<std::int64_t>(w.read<std::uint32_t>("root child count"));
   const std::int64_t tile_bytes = 12 + g.tree.value_bytes + 1;
@@ -448,8 +461,223 @@ void walk_buffers(Walker& w, const GridWalk& g) {
   }
 }
 
-void walk_grid(Walker& w, VdbGridCheck& grid, std::int64_t grid_pos, std::int64_t block_pos, std::int64_t end_pos,
-               const std::function<bool(const std::string&)>& is_registered) {
+// ---- PointDataGrid buffers (OpenVDB 6-11, format 224: Grid::readBuffers with
+// multi-pass IO over PointDataLeafNode<PointDataIndex32, 3>::readBuffers). Every
+// count and size OpenVDB sizes an allocation, a loop or an assert by is bounded
+// here by the bytes the file holds; a layout this walk does not know (codecs other
+// than "null", group attributes) is left unread (false).
+
+// AttributeArray flags and serialization flags (points/AttributeArray.h).
+constexpr std::uint8_t kAttrConstantStride = 0x8, kAttrPartialRead = 0x20;
+constexpr std::uint8_t kWriteStrided = 0x1, kWriteUniform = 0x2, kWritePaged = 0x8;
+constexpr std::int64_t kPageSize = 1 << 20;  // compression::PageSize
+// compression::bloscCompress pads inputs of 49..127 bytes with zeros to 128: such a
+// chunk states 128 bytes, which bloscDecompress accepts for any expected size <= 128.
+constexpr std::int64_t kBloscPadBytes = 128;
+std::int64_t blosc_max_bytes(std::int64_t expected) { return std::max(expected, kBloscPadBytes); }
+
+// sizeof(ValueType) of an attribute stored with the "null" codec.
+std::optional<std::int64_t> attribute_value_bytes(const std::string& type, const std::string& codec) {
+  static const std::map<std::string, std::int64_t> sizes = {
+      {"bool", 1},   {"int8", 1},   {"int16", 2},  {"int32", 4},  {"int64", 8},  {"float", 4},
+      {"double", 8}, {"vec3i", 12}, {"vec3s", 12}, {"vec3d", 24}, {"quats", 16}, {"quatd", 32},
+      {"mat3s", 36}, {"mat3d", 72}, {"mat4s", 64}, {"mat4d", 128}};
+  if (codec != "null") return std::nullopt;
+  const auto it = sizes.find(type);
+  return it == sizes.end() ? std::nullopt : std::optional<std::int64_t>(it->second);
+}
+
+// AttributeSet::Descriptor::validName.
+bool valid_attribute_name(const std::string& name) {
+  return !name.empty() && std::all_of(name.begin(), name.end(), [](char c) {
+    return std::isalnum(static_cast<unsigned char>(c)) || c == '_' || c == '|' || c == ':';
+  });
+}
+
+// AttributeSet::Descriptor::read: the attributes' value sizes, or nullopt for a
+// layout this walk does not know.
+std::optional<std::vector<std::int64_t>> walk_descriptor(Walker& w,
+                                                         const std::function<bool(const std::string&)>& is_registered) {
+  const auto count = w.read<std::uint64_t>("attribute count");
+  // OpenVDB makes a vector of `count` name pairs before reading them: each takes at
+  // least three string lengths and a position (20 bytes); the pass count is 16-bit.
+  if (count > static_cast<std::uint64_t>(w.left() / 20) || count > 32765)
+    w.fail("the point descriptor claims " + std::to_string(count) + " attributes");
+  std::vector<std::int64_t> value_bytes;
+  bool known = true;
+  for (std::uint64_t i = 0; i < count; ++i) {
+    const std::string type = w.read_string("attribute type");
+    const std::string codec = w.read_string("attribute codec");
+    const std::optional<std::int64_t> bytes = attribute_value_bytes(type, codec);
+    known = known && bytes.has_value();
+    value_bytes.push_back(bytes.value_or(0));
+  }
+  std::vector<char> seen(count, 0);
+  for (std::uint64_t i = 0; i < count; ++i) {
+    const std::string name = w.read_string("attribute name");
+    const auto pos = w.read<std::uint64_t>("attribute position");
+    if (!valid_attribute_name(name)) w.fail("attribute name '" + printable(name, 64) + "'");
+    // Positions index the attribute arrays: each of 0..count-1 once.
+    if (pos >= count || seen[pos]) w.fail("attribute '" + name + "' at position " + std::to_string(pos));
+    seen[pos] = 1;
+  }
+  const auto groups = w.read<std::uint64_t>("group count");
+  if (groups > static_cast<std::uint64_t>(w.left() / 12))
+    w.fail("the point descriptor claims " + std::to_string(groups) + " groups");
+  for (std::uint64_t i = 0; i < groups; ++i) {
+    (void)w.read_string("group name");
+    w.skip(8, "group offset");
+  }
+  (void)walk_metadata(w, is_registered, "attribute metadata");
+  if (!known || groups > 0) return std::nullopt;
+  return value_bytes;
+}
+
+// One attribute array of one leaf, as AttributeArray::readMetadata states it.
+struct PointArray {
+  std::int64_t bytes = 0;  // mCompressedBytes: what its buffer pass reads
+  std::int64_t data = 0;   // the bytes its values take once read
+  bool uniform = false, paged = false;
+};
+
+// compression::PagedInputStream: the size pass reads a page header whenever the
+// previous page is used up; handles must fill pages exactly, or OpenVDB asserts
+// (or reads a page it never loaded).
+struct PageStream {
+  std::int64_t index = 0, size = 0;                          // mByteIndex, mUncompressedBytes
+  std::vector<std::pair<std::int32_t, std::int64_t>> pages;  // (compressed bytes, uncompressed bytes)
+};
+
+bool walk_point_buffers(Walker& w, GridWalk& g, const std::function<bool(const std::string&)>& is_registered) {
+  const auto leaves = static_cast<std::int64_t>(g.leaf_active.size());
+  const auto passes = w.read<std::uint16_t>("point pass count");
+  w.skip(2 * leaves, "voxel buffer sizes");  // pass 0
+  // Pass 1: the first leaf's descriptor, shared by the leaves after it when its
+  // header says so (OpenVDB's writer always does); then every leaf's array metadata.
+  std::optional<std::vector<std::int64_t>> attrs;
+  std::vector<std::vector<PointArray>> arrays;
+  bool shared = false, known = true;
+  // OpenVDB allocates each paged page (twice when decompressing) and each array:
+  // their sum is held to what a file of this size can plausibly expand to.
+  const std::int64_t budget = std::max<std::int64_t>(std::int64_t{64} << 20, 16 * w.size());
+  std::int64_t total = 0;
+  for (std::int64_t leaf = 0; leaf < leaves; ++leaf) {
+    if (!shared) {
+      const auto header = w.read<std::uint8_t>("point leaf header");
+      if (header > 3) w.fail("point leaf header " + std::to_string(header));
+      const std::optional<std::vector<std::int64_t>> these = walk_descriptor(w, is_registered);
+      if (header & 2)
+        w.skip(static_cast<std::int64_t>(
+                   std::min<std::uint64_t>(w.read<std::uint64_t>("point header skip"), std::uint64_t{1} << 62)),
+               "point header skip");
+      if (!these) known = false;
+      if (attrs && these && *these != *attrs) w.fail("point leaves disagree on their attributes");
+      if (!attrs) attrs = these.value_or(std::vector<std::int64_t>());
+      shared = header & 1;
+    }
+    if (!known) return false;
+    std::vector<PointArray> per;
+    for (const std::int64_t value_bytes : *attrs) {
+      const auto bytes = w.read<std::uint64_t>("attribute bytes");
+      const auto flags = w.read<std::uint8_t>("attribute flags");
+      const auto serialization = w.read<std::uint8_t>("attribute serialization flags");
+      const auto size = static_cast<std::int64_t>(w.read<std::uint32_t>("attribute size"));
+      const std::int64_t stride =
+          (serialization & kWriteStrided) ? static_cast<std::int64_t>(w.read<std::uint32_t>("attribute stride")) : 1;
+      if ((flags & kAttrPartialRead) || serialization >= 0x10)
+        w.fail("attribute flags " + std::to_string(flags) + "/" + std::to_string(serialization));
+      PointArray a;
+      a.uniform = serialization & kWriteUniform;
+      a.paged = serialization & kWritePaged;
+      // dataSize(), in 32 bits as OpenVDB computes it: no wrap-around allowed.
+      const std::int64_t elements = (flags & kAttrConstantStride) ? size * stride : stride;
+      if (elements <= 0 || elements > std::int64_t{0xFFFFFFFF})
+        w.fail("an attribute of " + std::to_string(size) + " x " + std::to_string(stride) + " values");
+      a.data = value_bytes * (a.uniform ? 1 : elements);
+      if (bytes < 6 || bytes - 6 > std::uint64_t{0x7FFFFFFF}) w.fail("attribute bytes " + std::to_string(bytes));
+      a.bytes = static_cast<std::int64_t>(bytes - 6);  // less the flags and size fields
+      // Paged and uncompressed arrays hold exactly their values; a Blosc chunk is
+      // checked against them where it is read.
+      if ((a.paged || a.uniform) && a.bytes != a.data)
+        w.fail("an attribute stating " + std::to_string(a.bytes) + " bytes for " + std::to_string(a.data));
+      total += a.data;
+      if (total > budget) w.fail("point attributes claim more than " + std::to_string(budget) + " bytes");
+      per.push_back(a);
+    }
+    arrays.push_back(std::move(per));
+  }
+  const std::size_t n = attrs ? attrs->size() : 0;
+  // A tree without leaves reads nothing in any pass (OpenVDB writes 0 passes for it).
+  if (leaves > 0 && passes != 4 + 2 * n)
+    w.fail("point pass count " + std::to_string(passes) + " for " + std::to_string(n) + " attributes");
+  // Passes 2..n+1: each paged array takes a handle in its attribute's page stream.
+  std::vector<PageStream> streams(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    PageStream& s = streams[i];
+    for (const std::vector<PointArray>& per : arrays) {
+      const PointArray& a = per[i];
+      if (!a.paged) continue;
+      if (s.index == s.size) {
+        const auto compressed = w.read<std::int32_t>("page size");
+        const std::int64_t uncompressed =
+            compressed > 0 ? std::int64_t{w.read<std::int32_t>("page uncompressed size")} : -std::int64_t{compressed};
+        if (compressed == 0 || compressed == INT32_MIN || uncompressed <= 0 ||
+            uncompressed > std::max<std::int64_t>(kPageSize, a.bytes))
+          w.fail("a page of " + std::to_string(compressed) + " / " + std::to_string(uncompressed) + " bytes");
+        total += 2 * blosc_max_bytes(uncompressed);  // Page::decompress holds twice the page
+        if (total > budget) w.fail("point pages claim more than " + std::to_string(budget) + " bytes");
+        s.pages.emplace_back(compressed, uncompressed);
+        s.size = uncompressed;
+        s.index = 0;
+      }
+      s.index += a.bytes;
+      if (s.index > s.size) w.fail("an attribute crosses the end of its page");
+    }
+    if (s.index != s.size) w.fail("an attribute page is not used up");
+  }
+  // Pass n+2: each leaf's voxel offsets (16-bit chunk sizes, 512 32-bit values).
+  for (std::int64_t leaf = 0; leaf < leaves; ++leaf) {
+    w.skip(64, "point leaf value mask");
+    const auto bytes16 = w.read<std::uint16_t>("point offsets size");
+    if (bytes16 == 0xFFFF)
+      w.skip(512 * 4, "point offsets");
+    else
+      check_blosc_header(w, bytes16, 512 * 4, 512 * 4, "point offsets");
+  }
+  // Passes n+3..2n+2: the arrays' values, page by page.
+  for (std::size_t i = 0; i < n; ++i) {
+    std::size_t page = 0;
+    std::int64_t index = 0, size = 0;
+    for (const std::vector<PointArray>& per : arrays) {
+      const PointArray& a = per[i];
+      if (a.paged) {
+        if (index == size) {
+          const auto [compressed, uncompressed] = streams[i].pages.at(page++);
+          if (compressed > 0)
+            check_blosc_header(w, compressed, uncompressed, blosc_max_bytes(uncompressed), "attribute page");
+          else
+            w.skip(-std::int64_t{compressed}, "attribute page");
+          index = 0;
+          size = uncompressed;
+        }
+        index += a.bytes;
+        continue;
+      }
+      // TypedAttributeArray::readBuffers: a Blosc flag unless uniform, then the bytes.
+      const std::uint8_t blosc = a.uniform ? 0 : w.read<std::uint8_t>("attribute compression");
+      if (blosc == 1)
+        check_blosc_header(w, a.bytes, a.data, blosc_max_bytes(a.data), "attribute");
+      else if (a.bytes != a.data)
+        w.fail("an attribute of " + std::to_string(a.bytes) + " bytes for " + std::to_string(a.data));
+      else
+        w.skip(a.bytes, "attribute");
+    }
+  }
+  return true;
+}
+
+void walk_grid(Walker& w, VdbGridCheck& grid, std::uint32_t version, std::int64_t grid_pos, std::int64_t block_pos,
+               std::int64_t end_pos, const std::function<bool(const std::string&)>& is_registered) {
   w.seek(grid_pos, "grid position");
   const auto compression = w.read<std::uint32_t>("grid compression");
   if (compression & ~(kCompressZip | kCompressActiveMask | kCompressBlosc))
@@ -470,6 +698,16 @@ void walk_grid(Walker& w, VdbGridCheck& grid, std::int64_t grid_pos, std::int64_
   if (w.pos() != block_pos)
     w.fail("grid '" + printable(grid.name, 64) + "' topology ends at byte " + std::to_string(w.pos()) +
            ", its descriptor says " + std::to_string(block_pos));
+  if (grid.grid_type == kPointDataTree && version >= kMultiPassVersion) {  // (fromHalf does not apply to points)
+    // PointDataGrid: every size its multi-pass buffers state, checked (or a layout
+    // this walk does not know, left unread).
+    if (!walk_point_buffers(w, g, is_registered)) return;
+    grid.depth = VdbGridCheck::Depth::kBuffers;
+    if (w.pos() != end_pos)
+      w.fail("grid '" + printable(grid.name, 64) + "' point data ends at byte " + std::to_string(w.pos()) +
+             ", its descriptor says " + std::to_string(end_pos));
+    return;
+  }
   if (!g.buffers) return;
   walk_buffers(w, g);
   grid.depth = VdbGridCheck::Depth::kBuffers;
@@ -526,14 +764,17 @@ VdbFileCheck validate_vdb_file(const std::filesystem::path& path,
              std::to_string(block_pos) + ", " + std::to_string(end_pos) + " outside its place in the file");
     grid.grid_pos = grid_pos;
     grid.end_pos = end_pos;
-    walk_grid(w, grid, grid_pos, block_pos, end_pos, is_registered_metadata);
+    walk_grid(w, grid, out.file_version, grid_pos, block_pos, end_pos, is_registered_metadata);
     w.seek(end_pos, "end position");  // the next descriptor follows this grid
     out.grids.push_back(std::move(grid));
   }
   const bool have_checksums = out.checksums.size() == 16 * out.grids.size();
   for (std::size_t i = 0; i < out.grids.size(); ++i) {
     VdbGridCheck& g = out.grids[i];
-    if (!have_checksums || g.instance || g.depth == VdbGridCheck::Depth::kBuffers) continue;
+    // Grids whose every value the walk checked need no checksum, except point data,
+    // whose attribute values (not sizes) only the checksum covers.
+    if (!have_checksums || g.instance || (g.depth == VdbGridCheck::Depth::kBuffers && g.grid_type != kPointDataTree))
+      continue;
     g.checksum_match = out.checksums.compare(16 * i, 16, vdb_checksum_hex(w.hash(g.grid_pos, g.end_pos))) == 0;
   }
   return out;
@@ -565,7 +806,8 @@ const VdbGridCheck* find_grid(const VdbFileCheck& check, const std::string& uniq
 bool values_checked(const VdbFileCheck& check, const std::string& unique_name) {
   const VdbGridCheck* g = find_grid(check, unique_name);
   if (g && g->instance) g = g->instance_parent == unique_name ? nullptr : find_grid(check, g->instance_parent);
-  return g && !g->instance && (g->depth == VdbGridCheck::Depth::kBuffers || g->checksum_match.value_or(false));
+  // Only the walk decides: a checksum anyone can recompute proves no size bounded.
+  return g && !g->instance && g->depth == VdbGridCheck::Depth::kBuffers;
 }
 
 }  // namespace hisnegs::io

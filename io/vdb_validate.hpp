@@ -25,20 +25,25 @@ struct VdbGridCheck {
   bool half_float = false;      // values stored as halves: its "is_saved_as_half_float" metadata
   bool instance = false;        // shares another grid's tree (no topology of its own)
   std::string instance_parent;  // that grid's unique name (empty unless `instance`)
-  // kBuffers: topology and every leaf buffer's chunk sizes; kTopology: topology only
-  // (point data and point index grids, whose leaves state their own sizes);
-  // kHeader: metadata and transform only (a tree configuration this walk does not know).
+  // kBuffers: topology and every leaf buffer's chunk sizes (for a point data grid of
+  // format 224, every count and size of its multi-pass buffers: descriptor, array
+  // metadata, pages, voxel offsets); kTopology: topology only (point index grids,
+  // point data with codecs or groups this walk does not know); kHeader: metadata and
+  // transform only (a tree configuration this walk does not know).
   enum class Depth { kHeader, kTopology, kBuffers } depth = Depth::kHeader;
   std::int64_t leaves = 0;                 // leaf nodes in the topology (0 below kTopology)
   std::int64_t grid_pos = 0, end_pos = 0;  // its bytes: [grid_pos, end_pos)
-  // Below kBuffers (and not an instance): whether its bytes match the checksum
-  // hisnegs wrote for it (kVdbChecksumKey); nullopt when the file carries none.
+  // Below kBuffers, or point data (and not an instance): whether its bytes match the
+  // checksum hisnegs wrote for it (kVdbChecksumKey); nullopt when the file carries
+  // none or the grid needs none. Integrity only: anyone can recompute it.
   std::optional<bool> checksum_match;
 };
 
 // File metadata hisnegs' .vdb writer adds: a string of 16 lowercase hex digits per
 // grid, in file order, the 64-bit FNV-1a of that grid's bytes [grid_pos, end_pos).
-// It lets hisnegs read back what the walk cannot check (its own point grids).
+// An unkeyed hash: it tells a file damaged or edited after export (point attribute
+// values the walk cannot judge), never that its sizes are safe to read: an edited
+// file can carry a recomputed checksum. Only the walk decides what OpenVDB reads.
 inline constexpr const char* kVdbChecksumKey = "hisnegs_grid_fnv1a64";
 
 struct VdbFileCheck {
@@ -69,10 +74,9 @@ std::optional<std::string> vdb_grid_checksums(const std::filesystem::path& path,
 const VdbGridCheck* find_grid(const VdbFileCheck& check, const std::string& unique_name);
 
 // Whether OpenVDB may read the values of the grid named `unique_name`: the walk
-// checked every leaf buffer of it (kBuffers) or its bytes match hisnegs' checksum,
-// or the same holds for the grid it is an instance of.
-// Anything else (point data, whose attribute arrays state their own sizes; tree
-// configurations the walk does not know) is read as metadata and transform only.
+// checked every size in its buffers (kBuffers), or in those of the grid it is an
+// instance of. Anything else (tree configurations or point layouts the walk does not
+// know) is read as metadata and transform only, whatever checksum the file carries.
 bool values_checked(const VdbFileCheck& check, const std::string& unique_name);
 
 }  // namespace hisnegs::io
