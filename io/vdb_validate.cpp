@@ -548,19 +548,53 @@ struct PageStream {
   std::vector<std::pair<std::int32_t, std::int64_t>> pages;  // (compressed bytes, uncompressed bytes)
 };
 
-bool walk_point_buffers(Walker& w, GridWalk& g, const std::function<bool(const std::string&)>& is_registered) {
-  const auto leaves = static_cast<std::int64_t>(g.leaf_active.size());
-  const auto passes = w.read<std::uint16_t>("point pass count");
-  w.skip(2 * leaves, "voxel buffer sizes");  // pass 0
-  // Pass 1: the first leaf's descriptor, shared by the leaves after it when its
-  // header says so (OpenVDB's writer always does); then every leaf's array metadata.
+// What a file of this size may plausibly make OpenVDB allocate for its point
+// arrays and pages (each paged page twice when decompressing, each array once).
+struct PointBudget {
+  std::int64_t limit = 0, total = 0;
+  void add(Walker& w, std::int64_t bytes, const char* what) {
+    total += bytes;
+    if (total > limit) w.fail(std::string("point ") + what + " claim more than " + std::to_string(limit) + " bytes");
+  }
+};
+
+// AttributeArray::readMetadata of one array whose values take `value_bytes` each.
+PointArray read_point_array(Walker& w, std::int64_t value_bytes, PointBudget& budget) {
+  const auto bytes = w.read<std::uint64_t>("attribute bytes");
+  const auto flags = w.read<std::uint8_t>("attribute flags");
+  const auto serialization = w.read<std::uint8_t>("attribute serialization flags");
+  const auto size = static_cast<std::int64_t>(w.read<std::uint32_t>("attribute size"));
+  const std::int64_t stride =
+      (serialization & kWriteStrided) ? static_cast<std::int64_t>(w.read<std::uint32_t>("attribute stride")) : 1;
+  if ((flags & kAttrPartialRead) || serialization >= 0x10)
+    w.fail("attribute flags " + std::to_string(flags) + "/" + std::to_string(serialization));
+  PointArray a;
+  a.uniform = serialization & kWriteUniform;
+  a.paged = serialization & kWritePaged;
+  // dataSize(), in 32 bits as OpenVDB computes it: no wrap-around allowed.
+  const std::int64_t elements = (flags & kAttrConstantStride) ? size * stride : stride;
+  if (elements <= 0 || elements > std::int64_t{0xFFFFFFFF})
+    w.fail("an attribute of " + std::to_string(size) + " x " + std::to_string(stride) + " values");
+  a.data = value_bytes * (a.uniform ? 1 : elements);
+  if (bytes < 6 || bytes - 6 > std::uint64_t{0x7FFFFFFF}) w.fail("attribute bytes " + std::to_string(bytes));
+  a.bytes = static_cast<std::int64_t>(bytes - 6);  // less the flags and size fields
+  // Paged and uncompressed arrays hold exactly their values; a Blosc chunk is
+  // checked against them where it is read.
+  if ((a.paged || a.uniform) && a.bytes != a.data)
+    w.fail("an attribute stating " + std::to_string(a.bytes) + " bytes for " + std::to_string(a.data));
+  budget.add(w, a.data, "attributes");
+  return a;
+}
+
+// Pass 1: the first leaf's descriptor, shared by the leaves after it when its
+// header says so (OpenVDB's writer always does); then every leaf's array metadata.
+// nullopt for a layout this walk does not know; `n` is set to the attribute count.
+std::optional<std::vector<std::vector<PointArray>>> walk_point_metadata(
+    Walker& w, std::int64_t leaves, const std::function<bool(const std::string&)>& is_registered, PointBudget& budget,
+    std::size_t& n) {
   std::optional<std::vector<std::int64_t>> attrs;
   std::vector<std::vector<PointArray>> arrays;
   bool shared = false, known = true;
-  // OpenVDB allocates each paged page (twice when decompressing) and each array:
-  // their sum is held to what a file of this size can plausibly expand to.
-  const std::int64_t budget = std::max<std::int64_t>(std::int64_t{64} << 20, 16 * w.size());
-  std::int64_t total = 0;
   for (std::int64_t leaf = 0; leaf < leaves; ++leaf) {
     if (!shared) {
       const auto header = w.read<std::uint8_t>("point leaf header");
@@ -575,42 +609,18 @@ bool walk_point_buffers(Walker& w, GridWalk& g, const std::function<bool(const s
       if (!attrs) attrs = these.value_or(std::vector<std::int64_t>());
       shared = header & 1;
     }
-    if (!known) return false;
+    if (!known) return std::nullopt;
     std::vector<PointArray> per;
-    for (const std::int64_t value_bytes : *attrs) {
-      const auto bytes = w.read<std::uint64_t>("attribute bytes");
-      const auto flags = w.read<std::uint8_t>("attribute flags");
-      const auto serialization = w.read<std::uint8_t>("attribute serialization flags");
-      const auto size = static_cast<std::int64_t>(w.read<std::uint32_t>("attribute size"));
-      const std::int64_t stride =
-          (serialization & kWriteStrided) ? static_cast<std::int64_t>(w.read<std::uint32_t>("attribute stride")) : 1;
-      if ((flags & kAttrPartialRead) || serialization >= 0x10)
-        w.fail("attribute flags " + std::to_string(flags) + "/" + std::to_string(serialization));
-      PointArray a;
-      a.uniform = serialization & kWriteUniform;
-      a.paged = serialization & kWritePaged;
-      // dataSize(), in 32 bits as OpenVDB computes it: no wrap-around allowed.
-      const std::int64_t elements = (flags & kAttrConstantStride) ? size * stride : stride;
-      if (elements <= 0 || elements > std::int64_t{0xFFFFFFFF})
-        w.fail("an attribute of " + std::to_string(size) + " x " + std::to_string(stride) + " values");
-      a.data = value_bytes * (a.uniform ? 1 : elements);
-      if (bytes < 6 || bytes - 6 > std::uint64_t{0x7FFFFFFF}) w.fail("attribute bytes " + std::to_string(bytes));
-      a.bytes = static_cast<std::int64_t>(bytes - 6);  // less the flags and size fields
-      // Paged and uncompressed arrays hold exactly their values; a Blosc chunk is
-      // checked against them where it is read.
-      if ((a.paged || a.uniform) && a.bytes != a.data)
-        w.fail("an attribute stating " + std::to_string(a.bytes) + " bytes for " + std::to_string(a.data));
-      total += a.data;
-      if (total > budget) w.fail("point attributes claim more than " + std::to_string(budget) + " bytes");
-      per.push_back(a);
-    }
+    for (const std::int64_t value_bytes : *attrs) per.push_back(read_point_array(w, value_bytes, budget));
     arrays.push_back(std::move(per));
   }
-  const std::size_t n = attrs ? attrs->size() : 0;
-  // A tree without leaves reads nothing in any pass (OpenVDB writes 0 passes for it).
-  if (leaves > 0 && passes != 4 + 2 * n)
-    w.fail("point pass count " + std::to_string(passes) + " for " + std::to_string(n) + " attributes");
-  // Passes 2..n+1: each paged array takes a handle in its attribute's page stream.
+  n = attrs ? attrs->size() : 0;
+  return arrays;
+}
+
+// Passes 2..n+1: each paged array takes a handle in its attribute's page stream.
+std::vector<PageStream> walk_page_sizes(Walker& w, const std::vector<std::vector<PointArray>>& arrays, std::size_t n,
+                                        PointBudget& budget) {
   std::vector<PageStream> streams(n);
   for (std::size_t i = 0; i < n; ++i) {
     PageStream& s = streams[i];
@@ -624,8 +634,7 @@ bool walk_point_buffers(Walker& w, GridWalk& g, const std::function<bool(const s
         if (compressed == 0 || compressed == INT32_MIN || uncompressed <= 0 ||
             uncompressed > std::max<std::int64_t>(kPageSize, a.bytes))
           w.fail("a page of " + std::to_string(compressed) + " / " + std::to_string(uncompressed) + " bytes");
-        total += 2 * blosc_max_bytes(uncompressed);  // Page::decompress holds twice the page
-        if (total > budget) w.fail("point pages claim more than " + std::to_string(budget) + " bytes");
+        budget.add(w, 2 * blosc_max_bytes(uncompressed), "pages");  // Page::decompress holds twice the page
         s.pages.emplace_back(compressed, uncompressed);
         s.size = uncompressed;
         s.index = 0;
@@ -635,17 +644,13 @@ bool walk_point_buffers(Walker& w, GridWalk& g, const std::function<bool(const s
     }
     if (s.index != s.size) w.fail("an attribute page is not used up");
   }
-  // Pass n+2: each leaf's voxel offsets (16-bit chunk sizes, 512 32-bit values).
-  for (std::int64_t leaf = 0; leaf < leaves; ++leaf) {
-    w.skip(64, "point leaf value mask");
-    const auto bytes16 = w.read<std::uint16_t>("point offsets size");
-    if (bytes16 == 0xFFFF)
-      w.skip(512 * 4, "point offsets");
-    else
-      check_blosc_header(w, bytes16, 512 * 4, 512 * 4, "point offsets");
-  }
-  // Passes n+3..2n+2: the arrays' values, page by page.
-  for (std::size_t i = 0; i < n; ++i) {
+  return streams;
+}
+
+// Passes n+3..2n+2: the arrays' values, page by page.
+void walk_point_values(Walker& w, const std::vector<std::vector<PointArray>>& arrays,
+                       const std::vector<PageStream>& streams) {
+  for (std::size_t i = 0; i < streams.size(); ++i) {
     std::size_t page = 0;
     std::int64_t index = 0, size = 0;
     for (const std::vector<PointArray>& per : arrays) {
@@ -673,6 +678,31 @@ bool walk_point_buffers(Walker& w, GridWalk& g, const std::function<bool(const s
         w.skip(a.bytes, "attribute");
     }
   }
+}
+
+bool walk_point_buffers(Walker& w, GridWalk& g, const std::function<bool(const std::string&)>& is_registered) {
+  const auto leaves = static_cast<std::int64_t>(g.leaf_active.size());
+  const auto passes = w.read<std::uint16_t>("point pass count");
+  w.skip(2 * leaves, "voxel buffer sizes");  // pass 0
+  PointBudget budget{std::max<std::int64_t>(std::int64_t{64} << 20, 16 * w.size()), 0};
+  std::size_t n = 0;
+  const std::optional<std::vector<std::vector<PointArray>>> arrays =
+      walk_point_metadata(w, leaves, is_registered, budget, n);
+  if (!arrays) return false;
+  // A tree without leaves reads nothing in any pass (OpenVDB writes 0 passes for it).
+  if (leaves > 0 && passes != 4 + 2 * n)
+    w.fail("point pass count " + std::to_string(passes) + " for " + std::to_string(n) + " attributes");
+  const std::vector<PageStream> streams = walk_page_sizes(w, *arrays, n, budget);
+  // Pass n+2: each leaf's voxel offsets (16-bit chunk sizes, 512 32-bit values).
+  for (std::int64_t leaf = 0; leaf < leaves; ++leaf) {
+    w.skip(64, "point leaf value mask");
+    const auto bytes16 = w.read<std::uint16_t>("point offsets size");
+    if (bytes16 == 0xFFFF)
+      w.skip(512 * 4, "point offsets");
+    else
+      check_blosc_header(w, bytes16, 512 * 4, 512 * 4, "point offsets");
+  }
+  walk_point_values(w, *arrays, streams);
   return true;
 }
 
