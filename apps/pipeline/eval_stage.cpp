@@ -149,9 +149,7 @@ EvalOutcome evaluate_model(const std::filesystem::path& model, const std::filesy
                mean(soft.psnr), mean(soft.psnr_fg), mean(hard.psnr), mean(hard.psnr_fg), mean(hard.psnr_bg),
                100 * mean(hard.bg_share), splat::kForegroundLevel);
   if (halos) {
-    progress.say("eval: halos: %zu of %zu Gaussians (%.2f%%) with a peak above the stack at their centre by more "
-                 "than its noise (%.3g)",
-                 halos->halos, halos->gaussians, 100 * halos->share(), halos->noise);
+    progress.say("eval: halos: %s", halo_text(*halos).c_str());
   }
   return outcome;
 }

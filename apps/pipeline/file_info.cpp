@@ -133,17 +133,6 @@ void info_vdb(const std::filesystem::path& path, Sheet& sheet) {
   }
 }
 
-// The halos row: the Gaussians brighter than `stack` at their centre by more than
-// its noise (gmf/core/halo.hpp), in the model's own frame.
-void halo_row(const gmf::Checkpoint& ckpt, const std::filesystem::path& stack, const io::VolumeOptions& options,
-              Sheet& sheet) {
-  const gmf::HaloCount c = count_model_halos(ckpt, stack, options);
-  char line[240];
-  std::snprintf(line, sizeof line, "%zu (%.2f %% of K) with a peak above the stack at their centre by more than its "
-                "noise (%.3g)", c.halos, 100.0 * c.share(), c.noise);
-  sheet.row("halos", line);
-}
-
 void info_checkpoint(const std::filesystem::path& path, bool compact, const std::filesystem::path& stack,
                      const io::VolumeOptions& options, Sheet& sheet) {
   const gmf::Checkpoint ckpt = gmf::load_checkpoint(path);
@@ -194,7 +183,7 @@ void info_checkpoint(const std::filesystem::path& path, bool compact, const std:
                 st.needles, st.count ? 100.0 * static_cast<double>(st.needles) / static_cast<double>(st.count) : 0.0,
                 gmf::kNeedleAxisRatio, st.largest_axis_ratio);
   sheet.row("needles", needles);
-  if (!stack.empty()) halo_row(ckpt, stack, options, sheet);
+  if (!stack.empty()) sheet.row("halos", halo_text(count_model_halos(ckpt, stack, options)));
   const io::BackgroundModel background = gmf::background_of(ckpt.meta, path.string());
   if (background.none()) {
     sheet.row("background", "none recorded (renders draw no floor)");

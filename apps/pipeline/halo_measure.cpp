@@ -2,6 +2,7 @@
 // count_model_halos (apps/pipeline/halo_measure.hpp).
 #include "apps/pipeline/halo_measure.hpp"
 
+#include <cstdio>
 #include <optional>
 #include <string>
 
@@ -24,6 +25,14 @@ gmf::HaloCount count_model_halos(const gmf::Checkpoint& checkpoint, const std::f
     frame = *own;
   }
   return gmf::count_halos(checkpoint.mixture, v.volume, frame, gmf::stack_noise(v.volume));
+}
+
+std::string halo_text(const gmf::HaloCount& count) {
+  char line[200];
+  std::snprintf(line, sizeof line,
+                "%zu (%.2f %% of K) with a peak above the stack at their centre by more than its noise (%.3g)",
+                count.halos, 100.0 * count.share(), count.noise);
+  return line;
 }
 
 }  // namespace hisnegs::apps

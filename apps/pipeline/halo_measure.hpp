@@ -5,6 +5,7 @@
 #pragma once
 
 #include <filesystem>
+#include <string>
 
 #include "gmf/core/checkpoint.hpp"
 #include "gmf/core/halo.hpp"
@@ -16,6 +17,10 @@ namespace hisnegs::apps {
 // records (a model of another stack).
 [[nodiscard]] gmf::HaloCount count_model_halos(const gmf::Checkpoint& checkpoint, const std::filesystem::path& stack,
                                                const io::VolumeOptions& options);
+
+// "N (x.xx % of K) with a peak above the stack at their centre by more than its
+// noise (m)": what `info` and `eval` say of a count.
+[[nodiscard]] std::string halo_text(const gmf::HaloCount& count);
 
 // The stacks `run` measures halos against: those whose float32 copy is at most this
 // (the evaluation reads the whole stack; a larger one is bricked in the fit).

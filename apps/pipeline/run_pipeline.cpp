@@ -6,7 +6,9 @@
 #include <algorithm>
 #include <filesystem>
 #include <iterator>
+#include <string>
 #include <string_view>
+#include <vector>
 
 #include "apps/pipeline/format.hpp"
 #include "apps/pipeline/run_report.hpp"
@@ -23,7 +25,17 @@ namespace {
 namespace fs = std::filesystem;
 using Json = nlohmann::ordered_json;
 
-// Everything is checked before the run folder is touched.
+// What a run writes at the top of its folder: the first component of every output
+// a stage declares (gt, gmf.ply, train, ...) and the run's own record files.
+template <RunStage... Stages>
+std::vector<std::string> run_written_names(StageList<Stages...>) {
+  std::vector<std::string> names{"report.md", "run.json", "config.yaml"};
+  (..., [&] {
+    for (const char* output : Stages::kOutputs) names.push_back(fs::path(output).begin()->string());
+  }());
+  return names;
+}
+
 // A stack (or a file behind it) that is one of the run's own outputs, or inside a
 // folder a stage writes (gt, train, eval), is refused before any stage runs: the
 // stage before it would rewrite it (R/gt/train/mips.tif as the stack of R).
@@ -31,22 +43,21 @@ void refuse_stack_among_outputs(const RunRequest& request) {
   std::error_code ec;
   const fs::path dir = fs::weakly_canonical(request.dir, ec);
   if (ec) return;  // the folder's own checks report it
-  static constexpr std::string_view kWritten[] = {"gt",          "train",     "eval",       "volume.vdb",
-                                                  "volume.json", "gmf.ply",   "fit_log.csv", "orbit.gif",
-                                                  "orbit.json",  "report.md", "run.json",   "config.yaml"};
+  const std::vector<std::string> written = run_written_names(PipelineStages{});
   for (const fs::path& file : io::stack_files(request.volume)) {
     const fs::path stack = fs::weakly_canonical(file, ec);
     if (ec) continue;
     const fs::path inside = stack.lexically_relative(dir);
     if (inside.empty() || *inside.begin() == "..") continue;
     const std::string first = inside.begin()->string();
-    if (std::find(std::begin(kWritten), std::end(kWritten), first) != std::end(kWritten)) {
+    if (std::find(written.begin(), written.end(), first) != written.end()) {
       io::fail_input(file, "is a file of the run folder " + request.dir.string() + " that the run writes (" + first +
                                "); copy it out of the folder or use another -o");
     }
   }
 }
 
+// Everything is checked before the run folder is touched.
 void check_request(const RunRequest& request, const AppConfig& config) {
   config.validate();
   io::require_regular_file(request.volume);

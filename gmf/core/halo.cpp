@@ -9,7 +9,6 @@
 #include <cmath>
 #include <stdexcept>
 
-
 namespace hisnegs::gmf {
 namespace {
 
