@@ -8,6 +8,7 @@
 #include <cmath>
 #include <map>
 #include <sstream>
+#include <stdexcept>
 
 #include "io/error.hpp"
 
@@ -62,6 +63,10 @@ void BackgroundOptions::validate() const {
   if (!(subtracted_zero_fraction > 0.0 && subtracted_zero_fraction <= 1.0)) {
     throw InputError("background.subtracted_zero_fraction = " + number_text(subtracted_zero_fraction) +
                      ": must be in (0, 1]");
+  }
+  if (region_voxels != 0 && (region_voxels < 16 || region_voxels > 65536)) {
+    throw InputError("background.region_voxels = " + std::to_string(region_voxels) +
+                     ": must be 0 (one region) or in [16, 65536]");
   }
 }
 
@@ -118,8 +123,8 @@ BackgroundModel BackgroundModel::parse(std::string_view text, const std::string&
   BackgroundModel m;
   std::size_t count = 0;
   if (!(in >> m.samples_per_voxel >> count) || count > 4096) {
-    fail_input(source, "background: expected 'SAMPLES_PER_VOXEL N v_1 F_1 ... v_N F_N', got '" +
-                           printable(text, 60) + "'");
+    fail_input(source,
+               "background: expected 'SAMPLES_PER_VOXEL N v_1 F_1 ... v_N F_N', got '" + printable(text, 60) + "'");
   }
   m.values.resize(count);
   m.cdf.resize(count);
@@ -161,8 +166,10 @@ void BackgroundCounts::merge(const BackgroundCounts& other) {
   for (const auto& [value, count] : other.values) add(value, count);
 }
 
-BackgroundCounts count_background(const Volume& volume, const BackgroundOptions& options, const VoxelBox& box) {
-  options.validate();
+namespace {
+
+// 1 where a voxel is foreground or within guard_voxels of it (not background).
+std::vector<std::uint8_t> not_background(const Volume& volume, const BackgroundOptions& options) {
   const std::size_t n = volume.size();
   std::vector<std::uint8_t> mask(n);
   bool any = false;
@@ -173,7 +180,11 @@ BackgroundCounts count_background(const Volume& volume, const BackgroundOptions&
   if (options.guard_voxels > 0 && any) {  // (an empty brick of a large stack has nothing to dilate)
     for (int axis = 0; axis < 3; ++axis) dilate_axis(mask, volume.nx, volume.ny, volume.nz, axis, options.guard_voxels);
   }
-  BackgroundCounts counts;
+  return mask;
+}
+
+void count_box(const Volume& volume, const std::vector<std::uint8_t>& mask, const VoxelBox& box,
+               BackgroundCounts& counts) {
   for (int z = box.lo[2]; z < box.hi[2]; ++z) {
     for (int y = box.lo[1]; y < box.hi[1]; ++y) {
       for (int x = box.lo[0]; x < box.hi[0]; ++x) {
@@ -182,7 +193,94 @@ BackgroundCounts count_background(const Volume& volume, const BackgroundOptions&
       }
     }
   }
+}
+
+}  // namespace
+
+BackgroundCounts count_background(const Volume& volume, const BackgroundOptions& options, const VoxelBox& box) {
+  options.validate();
+  BackgroundCounts counts;
+  count_box(volume, not_background(volume, options), box, counts);
   return counts;
+}
+
+BackgroundRegions BackgroundRegions::of(const std::array<int, 3>& shape, int region_voxels) {
+  BackgroundRegions r;
+  r.shape = shape;
+  for (int a = 0; a < 3; ++a) {
+    r.cells[a] = region_voxels <= 0 ? 1 : std::clamp((shape[a] + region_voxels - 1) / region_voxels, 1, kMaxPerAxis);
+    r.cells[a] = std::min(r.cells[a], std::max(1, shape[a]));
+  }
+  return r;
+}
+
+VoxelBox BackgroundRegions::box(int region) const {
+  const int k[3] = {region % cells[0], (region / cells[0]) % cells[1], region / (cells[0] * cells[1])};
+  VoxelBox b;
+  for (int a = 0; a < 3; ++a) {
+    b.lo[a] = edge(a, k[a]);
+    b.hi[a] = edge(a, k[a] + 1);
+  }
+  return b;
+}
+
+int BackgroundRegions::cell_of(int axis, int voxel) const {
+  int k = static_cast<int>(static_cast<std::int64_t>(voxel) * cells[axis] / std::max(1, shape[axis]));
+  k = std::clamp(k, 0, cells[axis] - 1);
+  while (k > 0 && voxel < edge(axis, k)) --k;
+  while (k + 1 < cells[axis] && voxel >= edge(axis, k + 1)) ++k;
+  return k;
+}
+
+bool BackgroundField::none() const {
+  if (!regional()) return merged.none();
+  return std::all_of(models.begin(), models.end(), [](const BackgroundModel& m) { return m.none(); });
+}
+
+std::vector<BackgroundCounts> count_background_regions(const Volume& volume, const BackgroundOptions& options,
+                                                       const VoxelBox& box, const BackgroundRegions& regions,
+                                                       const std::array<int, 3>& origin) {
+  options.validate();
+  std::vector<BackgroundCounts> out(static_cast<std::size_t>(regions.count()));
+  const std::vector<std::uint8_t> mask = not_background(volume, options);
+  for (int r = 0; r < regions.count(); ++r) {
+    const VoxelBox region = regions.box(r);
+    VoxelBox part;  // the region in `volume`'s index space, clipped to `box`
+    bool empty = false;
+    for (int a = 0; a < 3; ++a) {
+      part.lo[a] = std::max(box.lo[a], region.lo[a] - origin[a]);
+      part.hi[a] = std::min(box.hi[a], region.hi[a] - origin[a]);
+      empty = empty || part.hi[a] <= part.lo[a];
+    }
+    if (!empty) count_box(volume, mask, part, out[static_cast<std::size_t>(r)]);
+  }
+  return out;
+}
+
+BackgroundField background_field(const std::vector<BackgroundCounts>& counts, const BackgroundRegions& regions,
+                                 const BackgroundOptions& options, const std::string& source) {
+  if (counts.size() != static_cast<std::size_t>(regions.count())) {
+    throw std::invalid_argument("background_field: " + std::to_string(counts.size()) + " counts for " +
+                                std::to_string(regions.count()) + " regions");
+  }
+  BackgroundCounts all;
+  for (const BackgroundCounts& c : counts) all.merge(c);
+  BackgroundField field;
+  field.regions = regions;
+  field.merged = background_from_counts(all, options, source);
+  if (regions.count() == 1) return field;
+  for (const BackgroundCounts& c : counts) {
+    field.models.push_back(c.total < BackgroundField::kMinVoxels ? field.merged
+                                                                 : background_from_counts(c, options, source));
+  }
+  return field;
+}
+
+BackgroundField estimate_background_field(const Volume& volume, const BackgroundOptions& options) {
+  const BackgroundRegions regions = BackgroundRegions::of({volume.nx, volume.ny, volume.nz}, options.region_voxels);
+  const VoxelBox all{{0, 0, 0}, {volume.nx, volume.ny, volume.nz}};
+  return background_field(count_background_regions(volume, options, all, regions, {0, 0, 0}), regions, options,
+                          volume.source);
 }
 
 BackgroundModel background_from_counts(const BackgroundCounts& counts, const BackgroundOptions& options,

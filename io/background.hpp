@@ -6,6 +6,7 @@
 // and no ray marcher (splat/background_floor.hpp turns this into per-pixel floors).
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <filesystem>
 #include <map>
@@ -39,6 +40,12 @@ struct BackgroundOptions {
   // remnants of structure, not a noise floor, so the model is none. Raw stacks are
   // far below (op1 with the noise recipe: 55 %). (0, 1].
   double subtracted_zero_fraction = 0.99;
+  // The background is estimated per region: the stack's index box split into equal
+  // parts of about this many voxels a side (at most kMaxRegionsPerAxis a side), each
+  // with its own distribution, so tiles, raw and subtracted parts, and regions of a
+  // brain each draw their own floor. 0: one distribution for the whole stack.
+  // 0 or [16, 65536].
+  int region_voxels = 128;
   void validate() const;  // throws InputError naming the field
   template <class V>
   void visit(V&& v) {
@@ -47,6 +54,7 @@ struct BackgroundOptions {
     v("guard_voxels", guard_voxels);
     v("max_atoms", max_atoms);
     v("subtracted_zero_fraction", subtracted_zero_fraction);
+    v("region_voxels", region_voxels);
   }
 };
 
@@ -55,8 +63,8 @@ struct BackgroundOptions {
 // stack gathers per voxel of path (index-space length; calibrated against the ray
 // marcher by splat::calibrate_background). No atoms: no background (the floor is 0).
 struct BackgroundModel {
-  std::vector<double> values;  // increasing, >= 0
-  std::vector<double> cdf;     // P(X <= values[i]), increasing, last = 1
+  std::vector<double> values;      // increasing, >= 0
+  std::vector<double> cdf;         // P(X <= values[i]), increasing, last = 1
   double samples_per_voxel = 1.0;  // c > 0: a ray crossing L voxels gathers c L samples
   std::int64_t voxels = 0;         // how many background voxels the estimate rests on
 
@@ -106,5 +114,59 @@ struct BackgroundCounts {
 // InputError naming `source` when nothing was counted.
 [[nodiscard]] BackgroundModel background_from_counts(const BackgroundCounts& counts, const BackgroundOptions& options,
                                                      const std::string& source);
+
+// How the background's regions split a stack of `shape` (nx, ny, nz) voxels: `cells`
+// parts per axis, part k of an axis of n voxels covering [n k / cells, n (k + 1) / cells).
+// Regions are numbered x fastest.
+struct BackgroundRegions {
+  static constexpr int kMaxPerAxis = 8;
+  std::array<int, 3> shape{1, 1, 1};
+  std::array<int, 3> cells{1, 1, 1};
+  // The split of `shape` into parts of about region_voxels a side (ceil(n /
+  // region_voxels) per axis, at most kMaxPerAxis); one region when region_voxels is 0.
+  [[nodiscard]] static BackgroundRegions of(const std::array<int, 3>& shape, int region_voxels);
+  [[nodiscard]] int count() const { return cells[0] * cells[1] * cells[2]; }
+  [[nodiscard]] int edge(int axis, int k) const {
+    return static_cast<int>(static_cast<std::int64_t>(shape[axis]) * k / cells[axis]);
+  }
+  [[nodiscard]] VoxelBox box(int region) const;
+  [[nodiscard]] int cell_of(int axis, int voxel) const;  // the part of that axis holding voxel
+  friend bool operator==(const BackgroundRegions&, const BackgroundRegions&) = default;
+};
+
+// The background of a stack by region: the distribution of the whole stack
+// (`merged`, what one region would give) and, when there are several regions, one
+// per region. A region resting on fewer than kMinVoxels background voxels (the
+// neuron fills it) takes `merged`.
+struct BackgroundField {
+  static constexpr std::int64_t kMinVoxels = 4096;
+  BackgroundRegions regions;
+  BackgroundModel merged;
+  std::vector<BackgroundModel> models;  // regions.count() of them, or empty: `merged` everywhere
+  [[nodiscard]] bool regional() const { return !models.empty(); }
+  // Nothing to draw anywhere.
+  [[nodiscard]] bool none() const;
+  // The model of region r (merged when not regional()).
+  [[nodiscard]] const BackgroundModel& at(int r) const {
+    return regional() ? models[static_cast<std::size_t>(r)] : merged;
+  }
+};
+
+// The background counts of `volume`'s voxels inside `box` (index space of `volume`,
+// as count_background), split by the region of `regions` each lies in; `volume`'s
+// voxel (0, 0, 0) is the stack's voxel `origin`. One entry per region (empty for
+// the regions `box` does not reach).
+[[nodiscard]] std::vector<BackgroundCounts> count_background_regions(const Volume& volume,
+                                                                     const BackgroundOptions& options,
+                                                                     const VoxelBox& box,
+                                                                     const BackgroundRegions& regions,
+                                                                     const std::array<int, 3>& origin);
+// The field of per-region counts (as count_background_regions, merged over the
+// bricks of a stack). Throws InputError naming `source` when nothing was counted.
+[[nodiscard]] BackgroundField background_field(const std::vector<BackgroundCounts>& counts,
+                                               const BackgroundRegions& regions, const BackgroundOptions& options,
+                                               const std::string& source);
+// estimate_background by region (options.region_voxels).
+[[nodiscard]] BackgroundField estimate_background_field(const Volume& volume, const BackgroundOptions& options = {});
 
 }  // namespace hisnegs::io

@@ -111,20 +111,120 @@ std::vector<float> background_floor(const FloorTable& table, const io::WorldFram
   return floor;
 }
 
+namespace {
+
+// P(X <= v) of `model` (0 below its first atom).
+double cdf_at(const io::BackgroundModel& model, double v) {
+  const auto it = std::upper_bound(model.values.begin(), model.values.end(), v);
+  return it == model.values.begin() ? 0.0 : model.cdf[static_cast<std::size_t>(it - model.values.begin() - 1)];
+}
+
+}  // namespace
+
+RegionFloor::RegionFloor(const io::BackgroundField& field, const io::WorldFrame& frame)
+    : regions_(field.regions), frame_(frame) {
+  if (field.none()) return;
+  double top = 0.0;
+  for (int r = 0; r < regions_.count(); ++r) {
+    const io::BackgroundModel& m = field.at(r);
+    if (!m.none()) {
+      top = std::max(top, m.values.back());
+      samples_per_voxel_ = m.samples_per_voxel;
+    }
+  }
+  levels_.resize(kLevels);
+  std::vector<double> edges(kLevels);
+  for (int i = 0; i < kLevels; ++i) {
+    edges[static_cast<std::size_t>(i)] = top * i / (kLevels - 1);
+    levels_[static_cast<std::size_t>(i)] = i == 0 ? 0.0 : top * (i - 0.5) / (kLevels - 1);
+  }
+  edges.back() = top;  // every atom at or below the last edge: F = 1 there
+  log_cdf_.resize(static_cast<std::size_t>(regions_.count()) * kLevels);
+  for (int r = 0; r < regions_.count(); ++r) {
+    const io::BackgroundModel& m = field.at(r);
+    for (int i = 0; i < kLevels; ++i) {
+      const double F = m.none() ? 1.0 : cdf_at(m, edges[static_cast<std::size_t>(i)]);
+      log_cdf_[static_cast<std::size_t>(r) * kLevels + i] = F > 0.0 ? static_cast<float>(std::log(F)) : -1e30f;
+    }
+  }
+}
+
+double RegionFloor::at(const Eigen::Vector3d& origin, const Eigen::Vector3d& dir) const {
+  double t_in = 0, t_out = 0;
+  if (none() || !ray_box_segment(frame_, origin, dir, t_in, t_out)) return 0.0;
+  // Continuous index coordinates with the box at [0, N]: region edges are integers.
+  const Eigen::Vector3d u0 = frame_.index_from_world(origin + t_in * dir).array() + 0.5;
+  const Eigen::Vector3d u1 = frame_.index_from_world(origin + t_out * dir).array() + 0.5;
+  const double length = (u1 - u0).norm();
+  std::vector<double> cuts = {0.0, 1.0};
+  for (int a = 0; a < 3; ++a) {
+    for (int k = 1; k < regions_.cells[a]; ++k) {
+      const double e = regions_.edge(a, k);
+      if ((u0[a] - e) * (u1[a] - e) < 0.0) cuts.push_back((e - u0[a]) / (u1[a] - u0[a]));
+    }
+  }
+  std::sort(cuts.begin(), cuts.end());
+  std::vector<std::pair<int, double>> samples;  // (region, c L_j)
+  double total = 0.0;
+  for (std::size_t i = 0; i + 1 < cuts.size(); ++i) {
+    const double n = samples_per_voxel_ * (cuts[i + 1] - cuts[i]) * length;
+    if (!(n > 0.0)) continue;
+    const Eigen::Vector3d mid = u0 + 0.5 * (cuts[i] + cuts[i + 1]) * (u1 - u0);
+    int cell[3];
+    for (int a = 0; a < 3; ++a) {
+      cell[a] = regions_.cell_of(a, std::clamp(static_cast<int>(std::floor(mid[a])), 0, regions_.shape[a] - 1));
+    }
+    samples.emplace_back(cell[0] + regions_.cells[0] * (cell[1] + regions_.cells[1] * cell[2]), n);
+    total += n;
+  }
+  if (!(total > 0.0)) return 0.0;
+  const double scale = total < 1.0 ? 1.0 / total : 1.0;  // at least one sample, as E[max of n < 1] is E[max of 1]
+  // E[max] = Σ_i m_i (P_i − P_(i−1)) = m_top − Σ_(i < top) (m_(i+1) − m_i) P_i, P_i = Π_j F_j(v_i)^(n_j),
+  // summed from the top down until P_i is negligible.
+  double mean = levels_.back();
+  for (int i = kLevels - 2; i >= 0; --i) {
+    double log_p = 0.0;
+    for (const auto& [region, n] : samples)
+      log_p += scale * n * log_cdf_[static_cast<std::size_t>(region) * kLevels + i];
+    if (log_p < -40.0) break;
+    mean -= (levels_[static_cast<std::size_t>(i) + 1] - levels_[static_cast<std::size_t>(i)]) * std::exp(log_p);
+  }
+  return mean;
+}
+
 BackgroundFloors::BackgroundFloors(const io::BackgroundModel& model, const io::WorldFrame& frame)
     : table_(model), frame_(frame) {}
 
+BackgroundFloors::BackgroundFloors(const io::BackgroundField& field, const io::WorldFrame& frame) : frame_(frame) {
+  if (field.regional()) {
+    regional_ = RegionFloor(field, frame);
+  } else {
+    table_ = FloorTable(field.merged);
+  }
+}
+
 std::vector<float> BackgroundFloors::operator()(const Intrinsics& K, const CameraView& view) const {
   if (none()) return {};
-  return background_floor(table_, frame_, K, view);
+  if (!regional()) return background_floor(table_, frame_, K, view);
+  std::vector<float> floor(static_cast<std::size_t>(K.width) * K.height, 0.0f);
+  const Eigen::Vector3d origin = view.center_world();
+  tbb::parallel_for(tbb::blocked_range<int>(0, K.height), [&](const auto& rows) {
+    for (int r = rows.begin(); r != rows.end(); ++r) {
+      for (int c = 0; c < K.width; ++c) {
+        floor[static_cast<std::size_t>(r) * K.width + c] =
+            static_cast<float>(regional_.at(origin, ray_direction(K, view, c + 0.5, r + 0.5)));
+      }
+    }
+  });
+  return floor;
 }
 
 BackgroundFloors floors_of(const gmf::CheckpointMeta& meta, const std::string& source, bool draw) {
   if (!draw) return {};
-  const io::BackgroundModel model = gmf::background_of(meta, source);
+  const io::BackgroundField field = gmf::background_field_of(meta, source);
   const std::optional<io::WorldFrame> frame = gmf::model_frame(meta);
-  if (model.none() || !frame) return {};
-  return BackgroundFloors(model, *frame);
+  if (field.none() || !frame) return {};
+  return BackgroundFloors(field, *frame);
 }
 
 namespace {
@@ -152,8 +252,8 @@ struct ChordBin {
 // (chord, MIP) pairs of 24 orbit views of 64 x 64 pixels of the block (chords of
 // under 4 voxels left out: too few samples to say anything), binned by chord
 // length; bins of fewer than 40 rays are left out. `rays` counts the pairs.
-std::vector<ChordBin> chord_bins(const RayMarcher& marcher, const io::WorldFrame& box, const Eigen::Vector3d& unit_aspect,
-                                 int& rays) {
+std::vector<ChordBin> chord_bins(const RayMarcher& marcher, const io::WorldFrame& box,
+                                 const Eigen::Vector3d& unit_aspect, int& rays) {
   CameraOptions camera;
   camera.width = camera.height = 64;
   camera.fov_deg = 40.0;
@@ -177,7 +277,8 @@ std::vector<ChordBin> chord_bins(const RayMarcher& marcher, const io::WorldFrame
   rays = static_cast<int>(chord.size());
   std::vector<std::vector<std::size_t>> members(64);
   for (std::size_t i = 0; i < chord.size(); ++i) {
-    members[std::min<std::size_t>(63, static_cast<std::size_t>(std::log(chord[i] / 4.0) / std::log(1.25)))].push_back(i);
+    members[std::min<std::size_t>(63, static_cast<std::size_t>(std::log(chord[i] / 4.0) / std::log(1.25)))].push_back(
+        i);
   }
   std::vector<ChordBin> bins;
   for (const auto& m : members) {
@@ -243,8 +344,7 @@ FloorCalibration calibrate_background(io::BackgroundModel& model, const io::Worl
   if (model.none()) return out;
   std::mt19937_64 rng(seed);
   const io::Volume noise = noise_block(model, frame, rng);
-  const Eigen::Vector3d aspect =
-      0.5 * frame.voxel_size().cwiseProduct(Eigen::Vector3d(noise.nx, noise.ny, noise.nz));
+  const Eigen::Vector3d aspect = 0.5 * frame.voxel_size().cwiseProduct(Eigen::Vector3d(noise.nx, noise.ny, noise.nz));
   const Eigen::Vector3d unit_aspect = aspect / aspect.maxCoeff();  // the marcher's world: max half-extent 1
   const io::WorldFrame box(noise.nx, noise.ny, noise.nz, unit_aspect);
   const RayMarcher marcher(noise, box, options);
@@ -256,6 +356,32 @@ FloorCalibration calibrate_background(io::BackgroundModel& model, const io::Worl
   if (bins.empty()) return out;
   out.samples_per_voxel = fit_samples_per_voxel(model, bins, out.worst_relative_error);
   model.samples_per_voxel = out.samples_per_voxel;
+  return out;
+}
+
+FloorCalibration calibrate_background(io::BackgroundField& field, const io::WorldFrame& frame,
+                                      const RaymarchOptions& options, std::uint64_t seed) {
+  io::BackgroundModel* basis = &field.merged;
+  if (field.merged.none()) {
+    for (io::BackgroundModel& m : field.models) {
+      if (!m.none() && (basis->none() || m.voxels > basis->voxels)) basis = &m;
+    }
+  }
+  const io::BackgroundModel before = *basis;
+  const FloorCalibration out = calibrate_background(*basis, frame, options, seed);
+  std::mt19937_64 rng(seed + 1);
+  for (io::BackgroundModel& m : field.models) {
+    if (&m == basis || m.none()) continue;
+    if (m == before) {
+      m = *basis;  // a region that took the merged model
+      continue;
+    }
+    const io::Volume noise = noise_block(m, frame, rng);
+    const std::int64_t voxels = m.voxels;
+    m = interpolated_distribution(noise, rng, static_cast<int>(m.values.size()));
+    m.voxels = voxels;
+    m.samples_per_voxel = out.samples_per_voxel;
+  }
   return out;
 }
 

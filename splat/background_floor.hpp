@@ -50,20 +50,56 @@ class FloorTable {
 [[nodiscard]] std::vector<float> background_floor(const FloorTable& table, const io::WorldFrame& frame,
                                                   const Intrinsics& K, const CameraView& view);
 
-// The floors of one model: its background's FloorTable in its stack's frame. Empty
-// (none()) when there is nothing to draw; then every call gives an empty image.
+// The floor of a background that varies by region (io::BackgroundField): a ray
+// gathers c L_j samples in each region j it crosses (L_j its index-space chord
+// there), so its maximum has the CDF Π_j F_j(v)^(c L_j), and the floor is its
+// mean. The regions' CDFs are tabled on one grid of kLevels values over [0, the
+// largest atom]; the mean takes each grid interval's midpoint (within half an
+// interval, top / 1022, of the exact sum).
+class RegionFloor {
+ public:
+  static constexpr int kLevels = 512;
+  RegionFloor() = default;
+  RegionFloor(const io::BackgroundField& field, const io::WorldFrame& frame);
+  [[nodiscard]] bool none() const { return log_cdf_.empty(); }
+  // The floor of the ray origin + t dir (t >= 0, dir a unit world vector); 0 when it
+  // misses the box.
+  [[nodiscard]] double at(const Eigen::Vector3d& origin, const Eigen::Vector3d& dir) const;
+  // What the viewer page evaluates the same way: the regions, c, the values m_i the
+  // mean gives each interval (m_0 = 0, m_i the midpoint of [v_(i-1), v_i]) and, per
+  // region (x fastest), ln F_j(v_i) for i = 0 .. kLevels-1 (-1e30 for F = 0).
+  [[nodiscard]] const io::BackgroundRegions& regions() const { return regions_; }
+  [[nodiscard]] double samples_per_voxel() const { return samples_per_voxel_; }
+  [[nodiscard]] const std::vector<double>& levels() const { return levels_; }
+  [[nodiscard]] const std::vector<float>& log_cdf() const { return log_cdf_; }
+
+ private:
+  io::BackgroundRegions regions_;
+  io::WorldFrame frame_;
+  double samples_per_voxel_ = 1.0;
+  std::vector<double> levels_;
+  std::vector<float> log_cdf_;  // regions_.count() rows of kLevels
+};
+
+// The floors of one model: its background's FloorTable in its stack's frame, or a
+// RegionFloor when its background varies by region. Empty (none()) when there is
+// nothing to draw; then every call gives an empty image.
 class BackgroundFloors {
  public:
   BackgroundFloors() = default;
   BackgroundFloors(const io::BackgroundModel& model, const io::WorldFrame& frame);
-  [[nodiscard]] bool none() const { return table_.none(); }
+  BackgroundFloors(const io::BackgroundField& field, const io::WorldFrame& frame);
+  [[nodiscard]] bool none() const { return table_.none() && regional_.none(); }
+  [[nodiscard]] bool regional() const { return !regional_.none(); }
   // background_floor of this camera, or empty when none().
   [[nodiscard]] std::vector<float> operator()(const Intrinsics& K, const CameraView& view) const;
-  [[nodiscard]] const FloorTable& table() const { return table_; }
+  [[nodiscard]] const FloorTable& table() const { return table_; }               // when !regional()
+  [[nodiscard]] const RegionFloor& regional_floor() const { return regional_; }  // when regional()
   [[nodiscard]] const io::WorldFrame& frame() const { return frame_; }
 
  private:
   FloorTable table_;
+  RegionFloor regional_;
   io::WorldFrame frame_;
 };
 
@@ -91,6 +127,12 @@ struct FloorCalibration {
 // chord-length bin (relative least squares). Deterministic for a seed. A none()
 // model is left as it is.
 FloorCalibration calibrate_background(io::BackgroundModel& model, const io::WorldFrame& frame,
+                                      const RaymarchOptions& options, std::uint64_t seed = 1);
+// The same for a field: c is calibrated on the merged model (or, when that is
+// none(), on the region resting on the most voxels) and shared by every region;
+// each region's model becomes the distribution of trilinear samples of noise drawn
+// from it, as above.
+FloorCalibration calibrate_background(io::BackgroundField& field, const io::WorldFrame& frame,
                                       const RaymarchOptions& options, std::uint64_t seed = 1);
 
 }  // namespace hisnegs::splat

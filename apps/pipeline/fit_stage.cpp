@@ -8,11 +8,11 @@
 #include "apps/pipeline/distributed.hpp"
 #include "apps/pipeline/format.hpp"
 #include "apps/pipeline/streamed_fit.hpp"
-#include "io/stack_file.hpp"
 #include "gmf/fit.hpp"
 #include "gmf/init.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
+#include "io/stack_file.hpp"
 #include "io/timer.hpp"
 #include "splat/background_floor.hpp"
 
@@ -34,31 +34,60 @@ void report_iteration(const gmf::FitIteration& it, const Progress& progress) {
 
 }  // namespace
 
-io::BackgroundModel stack_background(const io::LoadedVolume& loaded, const FitConfig& config, const Progress& progress) {
+io::BackgroundField stack_background(const io::LoadedVolume& loaded, const FitConfig& config,
+                                     const Progress& progress) {
   const io::BackgroundOptions& options = config.get<&AppConfig::background>();
   if (!options.estimate) {
     progress.say("fit: background: not estimated (background.estimate: false): renders draw no floor");
     return {};
   }
-  io::BackgroundModel model = io::estimate_background(loaded.volume, options);
-  if (model.none()) {
+  io::BackgroundField field = io::estimate_background_field(loaded.volume, options);
+  if (field.none()) {
     progress.say("fit: background: exactly 0 outside the neuron (%lld voxels): no floor to draw",
-                 static_cast<long long>(model.voxels));
+                 static_cast<long long>(field.merged.voxels));
   }
-  return model;
+  return field;
 }
 
-void record_background(const io::WorldFrame& frame, const FitConfig& config, io::BackgroundModel model,
+namespace {
+
+// "; 16 regions (4 x 4 x 1), each its own floor, 5 subtracted (floor 0), 2 on the
+// whole stack's (under 4096 background voxels), p99 0.02 to 0.09", or "" for one region.
+std::string regions_text(const io::BackgroundField& field) {
+  if (!field.regional()) return "";
+  int subtracted = 0, merged = 0;
+  double lo = 1.0, hi = 0.0;
+  for (const io::BackgroundModel& m : field.models) {
+    subtracted += m.none() ? 1 : 0;
+    merged += m == field.merged ? 1 : 0;
+    if (m.none()) continue;
+    lo = std::min(lo, m.quantile(0.99));
+    hi = std::max(hi, m.quantile(0.99));
+  }
+  const auto& c = field.regions.cells;
+  std::string text = strf("; %d regions (%d x %d x %d), each its own floor", field.regions.count(), c[0], c[1], c[2]);
+  if (subtracted > 0) text += strf(", %d subtracted (floor 0)", subtracted);
+  if (merged > 0)
+    text += strf(", %d on the whole stack's (under %lld background voxels)", merged,
+                 static_cast<long long>(io::BackgroundField::kMinVoxels));
+  if (hi > 0.0) text += strf(", p99 %.4g to %.4g", lo, hi);
+  return text;
+}
+
+}  // namespace
+
+void record_background(const io::WorldFrame& frame, const FitConfig& config, io::BackgroundField field,
                        gmf::CheckpointMeta& meta, const Progress& progress) {
   io::Stopwatch watch;
-  const double mean = model.mean(), p99 = model.quantile(0.99);
-  const long long voxels = model.voxels;
-  const splat::FloorCalibration c = splat::calibrate_background(model, frame, config.get<&AppConfig::raymarch>());
-  gmf::set_background(meta, model);
+  const double mean = field.merged.mean(), p99 = field.merged.quantile(0.99);
+  const long long voxels = field.merged.voxels;
+  const std::string regions = regions_text(field);
+  const splat::FloorCalibration c = splat::calibrate_background(field, frame, config.get<&AppConfig::raymarch>());
+  gmf::set_background(meta, field);
   progress.say(
-      "fit: background: %lld voxels, mean %.4g, p99 %.4g; a ray gathers %.2f samples per voxel (fits the ray "
+      "fit: background: %lld voxels, mean %.4g, p99 %.4g%s; a ray gathers %.2f samples per voxel (fits the ray "
       "marcher's MIP of noise to %.1f %% on %d rays); renders draw its MIP floor, %s",
-      voxels, mean, p99, c.samples_per_voxel, 100.0 * c.worst_relative_error, c.rays,
+      voxels, mean, p99, regions.c_str(), c.samples_per_voxel, 100.0 * c.worst_relative_error, c.rays,
       format_seconds(watch.elapsed()).c_str());
 }
 
@@ -99,10 +128,9 @@ FitSetup prepare_fit(io::LoadedVolume loaded, const std::string& name, const Fit
   gmf::InitReport init_report;
   setup.mixture =
       gmf::initialize_mixture(setup.loaded.volume, setup.loaded.frame, sparse_grid.threshold, gmf, &init_report);
-  progress.say("%s: %s: %lld samples (%lld active voxels), %zu Gaussians %s %.4g (budget %d), %s", label,
-               name.c_str(), static_cast<long long>(setup.samples.size()),
-               static_cast<long long>(setup.active_voxels), setup.mixture.size(),
-               gmf.init == gmf::FitInit::kGrid ? "on a grid of step" : "at local maxima, spacing",
+  progress.say("%s: %s: %lld samples (%lld active voxels), %zu Gaussians %s %.4g (budget %d), %s", label, name.c_str(),
+               static_cast<long long>(setup.samples.size()), static_cast<long long>(setup.active_voxels),
+               setup.mixture.size(), gmf.init == gmf::FitInit::kGrid ? "on a grid of step" : "at local maxima, spacing",
                init_report.cell_world, gmf.gaussians, format_seconds(watch.elapsed()).c_str());
   return setup;
 }
@@ -165,26 +193,26 @@ FittedModel fit_loaded(io::LoadedVolume loaded, const std::string& source, const
   const bool sum = gmf.aggregation == gmf::Aggregation::kSum;
   const std::string jitter_source =
       gmf.sample_jitter ? "" : strf("auto for the %s: ", gmf::describe_aggregation(gmf.aggregation));
-  const std::string objective =
-      sum                                                ? std::string("sum (report Eq. 1)")
-      : gmf.aggregation == gmf::Aggregation::kMax        ? std::string("max")
-      : gmf.final_aggregation() == gmf::Aggregation::kMax ? strf("softmax (beta %g -> %g), the last %g%% on the max",
-                                                                  gmf.beta_start, gmf.beta_end, 100 * gmf.hard_share)
-                                                          : strf("softmax (beta %g -> %g)", gmf.beta_start, gmf.beta_end);
+  const std::string objective = sum                                         ? std::string("sum (report Eq. 1)")
+                                : gmf.aggregation == gmf::Aggregation::kMax ? std::string("max")
+                                : gmf.final_aggregation() == gmf::Aggregation::kMax
+                                    ? strf("softmax (beta %g -> %g), the last %g%% on the max", gmf.beta_start,
+                                           gmf.beta_end, 100 * gmf.hard_share)
+                                    : strf("softmax (beta %g -> %g)", gmf.beta_start, gmf.beta_end);
   progress.say("fit: %s objective; samples %s (gmf.sample_jitter %s%g)", objective.c_str(),
                gmf.jitter() > 0 ? "moved within their voxels each round" : "at the voxel centres",
                jitter_source.c_str(), gmf.jitter());
   // A raw stack's noise peaks are not structure: density control clones nothing that
   // the background's 99.9th percentile could explain.
-  const io::BackgroundModel background = stack_background(setup.loaded, config, progress);
+  const io::BackgroundField background = stack_background(setup.loaded, config, progress);
   gmf::GmfOptions fit_options = gmf;
-  fit_options.clone_floor = background.none() ? 0.0 : background.quantile(0.999);
+  fit_options.clone_floor = background.merged.none() ? 0.0 : background.merged.quantile(0.999);
   // gmf.time_budget_s bounds the command: loading, sampling, init and the background
   // are spent (the checkpoint's writing afterwards takes milliseconds).
   if (gmf.time_budget_s > 0) fit_options.time_budget_s = std::max(1e-3, gmf.time_budget_s - since.elapsed());
   gmf::GaussianMixture& mixture = setup.mixture;
   gmf::FitResult result = gmf::fit_mixture(setup.loaded.volume, setup.samples, setup.loaded.frame, mixture, fit_options,
-                                                 [&](const gmf::FitIteration& it) { report_iteration(it, progress); });
+                                           [&](const gmf::FitIteration& it) { report_iteration(it, progress); });
   for (const gmf::FitRound& r : result.rounds) {
     progress.say("fit: round %d density control: %d pruned, %d split, %d cloned -> K %d", r.round, r.pruned, r.split,
                  r.cloned, r.gaussians);

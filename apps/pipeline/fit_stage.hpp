@@ -12,8 +12,8 @@
 #include "apps/pipeline/progress.hpp"
 #include "apps/pipeline/run_stage.hpp"
 #include "gmf/core/checkpoint.hpp"
-#include "gmf/fit.hpp"
 #include "gmf/core/gaussian_mixture.hpp"
+#include "gmf/fit.hpp"
 #include "io/load_volume.hpp"
 #include "io/sparse_grid.hpp"
 #include "io/timer.hpp"
@@ -53,17 +53,17 @@ gmf::CheckpointMeta checkpoint_meta(const io::LoadedVolume& loaded, const std::s
 gmf::CheckpointMeta checkpoint_meta(const io::WorldFrame& frame, const io::VoxelSpacing& spacing,
                                     const io::Normalization& normalization, const std::string& source);
 
-// The background of `loaded` (config section `background`); none, with one line
-// saying why, when background.estimate is false or the background is 0.
-io::BackgroundModel stack_background(const io::LoadedVolume& loaded, const FitConfig& config, const Progress& progress);
-// Calibrates `model` (not none) against the ray marcher (`raymarch`) and records it
+// The background of `loaded` by region (config section `background`); none, with
+// one line saying why, when background.estimate is false or the background is 0.
+io::BackgroundField stack_background(const io::LoadedVolume& loaded, const FitConfig& config, const Progress& progress);
+// Calibrates `field` (not none) against the ray marcher (`raymarch`) and records it
 // in `meta`, with one line.
-void record_background(const io::WorldFrame& frame, const FitConfig& config, io::BackgroundModel model,
+void record_background(const io::WorldFrame& frame, const FitConfig& config, io::BackgroundField field,
                        gmf::CheckpointMeta& meta, const Progress& progress);
 
 // prepare_fit(), the fit, the checkpoint `out` (with the stack's background,
-// record_background; density control clones nothing below its 99.9th percentile) and, unless empty, the iteration log `log_csv`; a line per
-// iteration report and density-control round, one at the end.
+// record_background; density control clones nothing below its 99.9th percentile) and, unless empty, the iteration log
+// `log_csv`; a line per iteration report and density-control round, one at the end.
 struct FitOutcome {
   std::size_t gaussians = 0;
   double psnr_3d = 0;  // of the final mixture against the normalized volume

@@ -13,11 +13,11 @@
 #include <cmath>
 #include <cstring>
 #include <fstream>
+#include <nlohmann/json.hpp>
 #include <numeric>
 #include <optional>
-#include <stdexcept>
-#include <nlohmann/json.hpp>
 #include <sstream>
+#include <stdexcept>
 
 #include "apps/pipeline/app_config.hpp"
 #include "apps/pipeline/distributed.hpp"
@@ -25,10 +25,10 @@
 #include "apps/pipeline/stack_reading.hpp"
 #include "apps/pipeline/stage_folder.hpp"
 #include "gmf/core/density_ops.hpp"
-#include "gmf/fit.hpp"
-#include "gmf/init.hpp"
 #include "gmf/core/psnr.hpp"
 #include "gmf/core/rasterize.hpp"
+#include "gmf/fit.hpp"
+#include "gmf/init.hpp"
 #include "io/atomic_file.hpp"
 #include "io/background.hpp"
 #include "io/error.hpp"
@@ -64,15 +64,14 @@ std::filesystem::path brick_folder(const std::filesystem::path& out) {
   return dir;
 }
 
-int largest_core(const std::array<int, 3>& shape, int smallest, double bytes,
-                 const std::function<double(int)>& need) {
+int largest_core(const std::array<int, 3>& shape, int smallest, double bytes, const std::function<double(int)>& need) {
   int core = *std::max_element(shape.begin(), shape.end());
   while (core > smallest && need(core) > bytes) core = std::max(smallest, (core * 3 / 4) / 16 * 16);
   return core;
 }
 
-FitPlanChoice choose_fit_plan(const std::array<int, 3>& shape, const io::WorldFrame& frame,
-                              const gmf::GmfOptions& gmf, const FitMemoryModel& memory, int ranks) {
+FitPlanChoice choose_fit_plan(const std::array<int, 3>& shape, const io::WorldFrame& frame, const gmf::GmfOptions& gmf,
+                              const FitMemoryModel& memory, int ranks) {
   FitPlanChoice c;
   const io::MemoryLimit limit = io::resolve_memory_limit(gmf.max_memory, "gmf.max_memory");
   c.max_memory = limit.bytes;
@@ -85,10 +84,10 @@ FitPlanChoice choose_fit_plan(const std::array<int, 3>& shape, const io::WorldFr
   c.bricked = true;
   const std::array<int, 3> halo = gmf::halo_voxels(frame, gmf.mahalanobis_cutoff, brick_max_scale(frame, gmf));
   const int smallest = std::max(16, 2 * *std::max_element(halo.begin(), halo.end()));
-  int core = gmf.stream_brick_voxels > 0
-                 ? gmf.stream_brick_voxels
-                 : largest_core(shape, smallest, c.max_memory,
-                                [&](int edge) { return memory.need(region_voxels(shape, edge, halo), K); });
+  int core = gmf.stream_brick_voxels > 0 ? gmf.stream_brick_voxels
+                                         : largest_core(shape, smallest, c.max_memory, [&](int edge) {
+                                             return memory.need(region_voxels(shape, edge, halo), K);
+                                           });
   if (gmf.stream_brick_voxels == 0 && ranks > 1) {  // no brick size asked for: two or more per rank
     core = core_for_ranks(shape, ranks, core, smallest);
     c.for_ranks = true;
@@ -122,11 +121,12 @@ struct StreamContext {
   io::Normalization normalization;
   io::WorldFrame frame;
   gmf::BrickPlan plan;
-  std::int64_t foreground = 0;  // voxels above sparse_grid.threshold, whole stack
+  std::int64_t foreground = 0;                // voxels above sparse_grid.threshold, whole stack
   std::vector<std::int64_t> core_foreground;  // per brick (its core); counted on several ranks only
-  double max_memory = 0;        // bytes (FitPlanChoice)
+  double max_memory = 0;                      // bytes (FitPlanChoice)
   std::string fingerprint;
   std::filesystem::path folder;
+  io::BackgroundRegions regions;  // of the stack's background (background.region_voxels)
 };
 
 // Raw values of `box`, normalized as the whole stack is.
@@ -232,7 +232,8 @@ gmf::GaussianMixture within_any(const StreamContext& c, const gmf::GaussianMixtu
   gmf::GaussianMixture near;
   for (const gmf::GaussianParams& g : m) {
     const Eigen::Vector3d ijk = index_of(c, g);
-    if (std::any_of(boxes.begin(), boxes.end(), [&](const io::VoxelBox* box) { return within(ijk, *box, c.plan.halo); })) {
+    if (std::any_of(boxes.begin(), boxes.end(),
+                    [&](const io::VoxelBox* box) { return within(ijk, *box, c.plan.halo); })) {
       near.push_back(g);
     }
   }
@@ -274,9 +275,7 @@ std::string fingerprint_of(const std::string& path, const io::VolumeSource& sour
     s << std::filesystem::file_size(file, ec) << " "
       << std::filesystem::last_write_time(file, ec).time_since_epoch().count() << "\n";
   }
-  s << source.nx << " " << source.ny << " " << source.nz << "\n"
-    << plan.describe() << "\n"
-    << dump_app_config(slice);
+  s << source.nx << " " << source.ny << " " << source.nz << "\n" << plan.describe() << "\n" << dump_app_config(slice);
   char hex[17];
   std::snprintf(hex, sizeof hex, "%016llx", static_cast<unsigned long long>(io::fnv1a64(s.str())));
   return hex;
@@ -326,7 +325,7 @@ struct BrickResult {
   gmf::GaussianMixture kept;  // empty once saved: the bricks stay in the folder, not in memory
   std::size_t count = 0;      // Gaussians kept
   CentreBox centres;
-  io::BackgroundCounts background;
+  std::vector<io::BackgroundCounts> background;  // per region of the stack's BackgroundRegions, or empty
   std::vector<gmf::FitIteration> log;
   std::int64_t foreground_core = 0;
   std::int64_t samples = 0;
@@ -338,6 +337,27 @@ nlohmann::json counts_json(const io::BackgroundCounts& b) {
   nlohmann::json values = nlohmann::json::array();
   for (const auto& [v, n] : b.values) values.push_back({v, n});
   return {{"total", b.total}, {"zeros", b.zeros}, {"rounded", b.rounded}, {"values", values}};
+}
+
+// Per-region counts as [[region, counts], ...] for the regions with any.
+nlohmann::json region_counts_json(const std::vector<io::BackgroundCounts>& regions) {
+  nlohmann::json out = nlohmann::json::array();
+  for (std::size_t r = 0; r < regions.size(); ++r) {
+    if (regions[r].total > 0) out.push_back({r, counts_json(regions[r])});
+  }
+  return out;
+}
+
+io::BackgroundCounts counts_from(const nlohmann::json& j);
+
+std::vector<io::BackgroundCounts> region_counts_from(const nlohmann::json& j, int regions) {
+  std::vector<io::BackgroundCounts> out(static_cast<std::size_t>(regions));
+  for (const auto& pair : j) {
+    const auto r = pair.at(0).get<std::size_t>();
+    if (r >= out.size()) throw std::out_of_range("background region " + std::to_string(r));
+    out[r] = counts_from(pair.at(1));
+  }
+  return out;
 }
 
 io::BackgroundCounts counts_from(const nlohmann::json& j) {
@@ -358,9 +378,15 @@ void save_brick(const StreamContext& c, int id, const BrickResult& r) {
   for (const gmf::FitIteration& it : r.log) {
     log.push_back({it.round, it.iteration, it.seconds, it.loss, it.psnr_fg, it.psnr_3d, it.gaussians, it.beta});
   }
-  nlohmann::json j = {{"fingerprint", c.fingerprint}, {"brick", id},          {"kept", r.count},
-                      {"foreground_core", r.foreground_core}, {"samples", r.samples}, {"seconds", r.seconds},
-                      {"final_beta", r.final_beta}, {"background", counts_json(r.background)}, {"log", log}};
+  nlohmann::json j = {{"fingerprint", c.fingerprint},
+                      {"brick", id},
+                      {"kept", r.count},
+                      {"foreground_core", r.foreground_core},
+                      {"samples", r.samples},
+                      {"seconds", r.seconds},
+                      {"final_beta", r.final_beta},
+                      {"background", region_counts_json(r.background)},
+                      {"log", log}};
   if (!r.centres.empty) j["centres"] = {r.centres.lo, r.centres.hi};
   const std::string text = j.dump() + "\n";
   io::write_file_atomic(brick_path(c, id, "json"), text.data(), text.size());
@@ -371,8 +397,8 @@ void save_brick(const StreamContext& c, int id, const BrickResult& r) {
 gmf::GaussianMixture load_gaussians(const StreamContext& c, int id, const char* kind, std::size_t count) {
   gmf::GaussianMixture m = gmf::load_checkpoint(brick_path(c, id, kind)).mixture;
   if (m.size() != count) {
-    io::fail_input(brick_path(c, id, kind), "holds " + std::to_string(m.size()) + " Gaussians, its brick record " +
-                                                std::to_string(count));
+    io::fail_input(brick_path(c, id, kind),
+                   "holds " + std::to_string(m.size()) + " Gaussians, its brick record " + std::to_string(count));
   }
   return m;
 }
@@ -392,7 +418,7 @@ std::optional<BrickResult> load_brick(const StreamContext& c, int id) {
     r.samples = j.at("samples").get<std::int64_t>();
     r.seconds = j.at("seconds").get<double>();
     r.final_beta = j.at("final_beta").get<double>();
-    r.background = counts_from(j.at("background"));
+    r.background = region_counts_from(j.at("background"), c.regions.count());
     for (const auto& row : j.at("log")) {
       gmf::FitIteration it;
       it.round = row.at(0).get<int>();
@@ -455,7 +481,7 @@ BrickResult fit_brick(const StreamContext& c, const gmf::StreamBrick& b, double 
   const double threshold = config.get<&AppConfig::sparse_grid>().threshold;
   const io::BackgroundOptions& bg = config.get<&AppConfig::background>();
   BrickResult r;
-  if (bg.estimate) r.background = io::count_background(v, bg, core);
+  if (bg.estimate) r.background = io::count_background_regions(v, bg, core, c.regions, b.region.lo);
   r.foreground_core = count_above(v, core, threshold);
   const std::int64_t foreground_region = count_above(v.voxels, threshold);
   if (foreground_region == 0 || c.foreground == 0) {
@@ -469,13 +495,15 @@ BrickResult fit_brick(const StreamContext& c, const gmf::StreamBrick& b, double 
           ? 0.0  // no limit: the schedule alone
           : std::max(1e-3, left * std::min(1.0, static_cast<double>(r.foreground_core) /
                                                     static_cast<double>(std::max<std::int64_t>(1, rest))));
-  options.gaussians = static_cast<int>(std::clamp<double>(
-      std::llround(static_cast<double>(c.gmf.gaussians) * static_cast<double>(foreground_region) /
-                   static_cast<double>(c.foreground)),
-      1.0, 1e7));
+  options.gaussians = static_cast<int>(
+      std::clamp<double>(std::llround(static_cast<double>(c.gmf.gaussians) * static_cast<double>(foreground_region) /
+                                      static_cast<double>(c.foreground)),
+                         1.0, 1e7));
   // The brick's own background's 99.9th percentile (fit_to_checkpoint uses the stack's).
-  if (r.background.total > 0) {
-    const io::BackgroundModel local = io::background_from_counts(r.background, bg, c.path);
+  io::BackgroundCounts own;
+  for (const io::BackgroundCounts& region : r.background) own.merge(region);
+  if (own.total > 0) {
+    const io::BackgroundModel local = io::background_from_counts(own, bg, c.path);
     options.clone_floor = local.none() ? 0.0 : local.quantile(0.999);
   }
   const gmf::SampleSet samples = region_samples(c, v, rf, options);
@@ -679,10 +707,10 @@ void note_for_interrupt(const StreamContext& c, const Job& ranks, const std::str
 // rank says if this one dies holding the brick (io::set_interrupt_watch).
 void hold_brick(const StreamContext& c, const Job& ranks, const gmf::StreamBrick& b) {
   const std::string brick = brick_text(c, b);
-  const std::string text = std::to_string(b.id) + " " + std::to_string(ranks.size()) + "\n" +
-                           strf("rank %d of %d died (killed, crashed or out of memory) while fitting ", ranks.rank(),
-                                ranks.size()) +
-                           brick + "\n";
+  const std::string text =
+      std::to_string(b.id) + " " + std::to_string(ranks.size()) + "\n" +
+      strf("rank %d of %d died (killed, crashed or out of memory) while fitting ", ranks.rank(), ranks.size()) + brick +
+      "\n";
   io::write_file_atomic(held_path(c, ranks.rank()), text.data(), text.size());
   note_for_interrupt(c, ranks, "fitting " + brick);
 }
@@ -868,9 +896,8 @@ std::vector<int> seam_ranks(const StreamContext& c, const BrickState& state, int
     for (const gmf::StreamBrick& b : c.plan.bricks) {
       if (b.colour() == colour) of_colour.push_back(b.id);
     }
-    const std::vector<int> r = brick_ranks(of_colour, ranks, [&](int id) {
-      return 1.0 + static_cast<double>(state.count[static_cast<std::size_t>(id)]);
-    });
+    const std::vector<int> r = brick_ranks(
+        of_colour, ranks, [&](int id) { return 1.0 + static_cast<double>(state.count[static_cast<std::size_t>(id)]); });
     for (std::size_t i = 0; i < of_colour.size(); ++i) rank_of[static_cast<std::size_t>(of_colour[i])] = r[i];
   }
   return rank_of;
@@ -902,8 +929,8 @@ void send_to_later_neighbours(const StreamContext& c, std::size_t id, const gmf:
 void publish_seam_results(const StreamContext& c, const std::vector<gmf::GaussianMixture>& held,
                           const std::vector<bool>& mine, const Job& ranks, BrickState& state, SeamOutcome& out) {
   const std::size_t n = held.size();
-  std::vector<double> boxes(6 * n, 0.0), totals = {out.exchanged, static_cast<double>(out.stats.refitted),
-                                                  static_cast<double>(out.stats.held)};
+  std::vector<double> boxes(6 * n, 0.0),
+      totals = {out.exchanged, static_cast<double>(out.stats.refitted), static_cast<double>(out.stats.held)};
   for (std::size_t id = 0; id < n; ++id) {
     if (!mine[id]) continue;
     gmf::CheckpointMeta meta;
@@ -981,11 +1008,10 @@ double measure_pass(const StreamContext& c, const BrickState& state, const Job& 
   const std::size_t n = c.plan.bricks.size();
   std::vector<int> ids(n);
   for (std::size_t id = 0; id < n; ++id) ids[id] = static_cast<int>(id);
-  const std::vector<int> rank_of =
-      brick_ranks(ids, ranks.size(), [&](int id) {
-        const auto b = static_cast<std::size_t>(id);
-        return measure_work(static_cast<double>(c.plan.bricks[b].region.voxels()), static_cast<double>(state.count[b]));
-      });
+  const std::vector<int> rank_of = brick_ranks(ids, ranks.size(), [&](int id) {
+    const auto b = static_cast<std::size_t>(id);
+    return measure_work(static_cast<double>(c.plan.bricks[b].region.voxels()), static_cast<double>(state.count[b]));
+  });
   std::vector<double> sse(n, 0.0);
   for (std::size_t id = 0; id < n; ++id) {
     if (rank_of[id] != ranks.rank()) continue;
@@ -1032,19 +1058,23 @@ StreamContext open_stream(const std::string& volume, const FitConfig& config, co
   c.max_memory = choice.max_memory;
   c.folder = brick_folder(out);
   c.fingerprint = fingerprint_of(volume, *c.source, config, c.plan);
+  c.regions = io::BackgroundRegions::of({c.source->nx, c.source->ny, c.source->nz},
+                                        config.get<&AppConfig::background>().region_voxels);
   progress.say("fit: %s: %d x %d x %d %s (%s as float32), %s; in-memory fit would need %s of %s: bricked: %s",
                volume.c_str(), c.source->nx, c.source->ny, c.source->nz,
                std::string(io::to_string(c.source->stored_as)).c_str(),
                io::gib_text(4.0 * static_cast<double>(c.source->whole().voxels())).c_str(), c.source->format.c_str(),
                io::gib_text(choice.whole_need).c_str(), choice.memory_source.c_str(), c.plan.describe().c_str());
   if (choice.for_ranks) {
-    progress.say("fit: %d MPI ranks: bricks of core %d voxels, two or more per rank (the same fit as "
-                 "--brick-voxels %d in one process)",
-                 job().size(), c.plan.core[0], c.plan.core[0]);
+    progress.say(
+        "fit: %d MPI ranks: bricks of core %d voxels, two or more per rank (the same fit as "
+        "--brick-voxels %d in one process)",
+        job().size(), c.plan.core[0], c.plan.core[0]);
   }
-  progress.say("fit: each brick keeps the Gaussians centred in its core; scales <= %g voxels (gmf.stream_scale_voxels) "
-               "reach at most sqrt(%g) x that, inside the halo; planned peak %s",
-               c.gmf.stream_scale_voxels, c.gmf.mahalanobis_cutoff, io::gib_text(choice.brick_need).c_str());
+  progress.say(
+      "fit: each brick keeps the Gaussians centred in its core; scales <= %g voxels (gmf.stream_scale_voxels) "
+      "reach at most sqrt(%g) x that, inside the halo; planned peak %s",
+      c.gmf.stream_scale_voxels, c.gmf.mahalanobis_cutoff, io::gib_text(choice.brick_need).c_str());
   return c;
 }
 
@@ -1067,9 +1097,10 @@ std::pair<std::vector<int>, std::int64_t> share_for_rank(const StreamContext& c,
   for (int id : todo) all += weight(id);
   std::int64_t held = 0;
   for (int id : mine) held += foreground[static_cast<std::size_t>(id)];
-  progress.say("fit: %d ranks share %zu bricks to fit, balanced by the foreground of their cores; "
-               "rank 0 fits %zu of them, %.0f%% of the work",
-               ranks.size(), todo.size(), mine.size(), all > 0 ? 100.0 * own / all : 0.0);
+  progress.say(
+      "fit: %d ranks share %zu bricks to fit, balanced by the foreground of their cores; "
+      "rank 0 fits %zu of them, %.0f%% of the work",
+      ranks.size(), todo.size(), mine.size(), all > 0 ? 100.0 * own / all : 0.0);
   return {std::move(mine), held};
 }
 
@@ -1140,17 +1171,20 @@ BrickPass brick_pass(const StreamContext& c, const io::Stopwatch& watch, double 
 // counts and the β of the model.
 struct BrickTotals {
   BrickState state;
-  io::BackgroundCounts background;
-  double beta = 0;  // 0 for a sum
+  std::vector<io::BackgroundCounts> background;  // per region
+  double beta = 0;                               // 0 for a sum
 };
 
 BrickTotals brick_totals(const StreamContext& c, const std::vector<std::optional<BrickResult>>& results) {
   BrickTotals t;
+  t.background.resize(static_cast<std::size_t>(c.regions.count()));
   bool any_beta = false;
   for (const std::optional<BrickResult>& r : results) {
     t.state.count.push_back(r->count);
     t.state.centres.push_back(r->centres);
-    t.background.merge(r->background);
+    for (std::size_t i = 0; i < r->background.size() && i < t.background.size(); ++i) {
+      t.background[i].merge(r->background[i]);
+    }
     if (r->count > 0 && r->final_beta > 0) {
       // the highest β any brick reached: a brick given little time (little foreground)
       // stops earlier in the schedule, and its few, separate Gaussians change least with β
@@ -1167,15 +1201,16 @@ BrickTotals brick_totals(const StreamContext& c, const std::vector<std::optional
 void say_seam_pass(const StreamContext& c, const SeamOutcome& s, double seconds, const Progress& progress) {
   const Job& ranks = job();
   if (ranks.distributed()) {
-    progress.say("fit: seam pass on %d ranks: %zu Gaussians reaching a shared face refitted with %zu neighbours held "
-                 "fixed; %.2f MiB exchanged (each refitted brick's Gaussians near a later brick, to that brick's "
-                 "rank), %s",
-                 ranks.size(), s.stats.refitted, s.stats.held, s.exchanged / 1048576.0,
-                 format_seconds(seconds).c_str());
+    progress.say(
+        "fit: seam pass on %d ranks: %zu Gaussians reaching a shared face refitted with %zu neighbours held "
+        "fixed; %.2f MiB exchanged (each refitted brick's Gaussians near a later brick, to that brick's "
+        "rank), %s",
+        ranks.size(), s.stats.refitted, s.stats.held, s.exchanged / 1048576.0, format_seconds(seconds).c_str());
   } else {
-    progress.say("fit: seam pass: %zu Gaussians reaching a shared face refitted (%d Adam steps each brick) with %zu "
-                 "neighbours held fixed, %s",
-                 s.stats.refitted, c.gmf.seam_iterations, s.stats.held, format_seconds(seconds).c_str());
+    progress.say(
+        "fit: seam pass: %zu Gaussians reaching a shared face refitted (%d Adam steps each brick) with %zu "
+        "neighbours held fixed, %s",
+        s.stats.refitted, c.gmf.seam_iterations, s.stats.held, format_seconds(seconds).c_str());
   }
 }
 
@@ -1189,14 +1224,16 @@ std::size_t write_outputs(const StreamContext& c, const BrickTotals& totals,
   meta.extra.emplace_back("bricks", c.plan.describe());
   meta.aggregation = c.gmf.final_aggregation();
   meta.beta = totals.beta;
-  if (config.get<&AppConfig::background>().estimate && totals.background.total > 0) {
-    const io::BackgroundModel model =
-        io::background_from_counts(totals.background, config.get<&AppConfig::background>(), c.path);
-    if (model.none()) {
+  const bool counted = std::any_of(totals.background.begin(), totals.background.end(),
+                                   [](const io::BackgroundCounts& b) { return b.total > 0; });
+  if (config.get<&AppConfig::background>().estimate && counted) {
+    const io::BackgroundField field =
+        io::background_field(totals.background, c.regions, config.get<&AppConfig::background>(), c.path);
+    if (field.none()) {
       progress.say("fit: background: exactly 0 outside the neuron (%lld voxels): no floor to draw",
-                   static_cast<long long>(model.voxels));
+                   static_cast<long long>(field.merged.voxels));
     } else {
-      record_background(c.frame, config, model, meta, progress);
+      record_background(c.frame, config, field, meta, progress);
     }
   }
   write_checkpoint(c, totals.state, out, meta);
@@ -1256,8 +1293,8 @@ FitOutcome run_streamed(const std::string& volume, const FitConfig& config, cons
   FitOutcome outcome{total, psnr_3d, watch.elapsed(),
                      std::string("bricks: ") + std::to_string(n) + (seam ? " + seam pass" : "")};
   progress.say("fit: wrote %s: K %zu from %zu bricks, 3D PSNR %.2f dB (measured in %s), %s (fit %s)", out.c_str(),
-               total, n, psnr_3d, format_seconds(measuring.elapsed()).c_str(),
-               format_seconds(outcome.seconds).c_str(), format_seconds(fit_seconds).c_str());
+               total, n, psnr_3d, format_seconds(measuring.elapsed()).c_str(), format_seconds(outcome.seconds).c_str(),
+               format_seconds(fit_seconds).c_str());
   return outcome;
 }
 

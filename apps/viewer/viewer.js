@@ -281,6 +281,83 @@ void main() {
   float a = texelFetch(table, ivec2(i, 0), 0).r, b = texelFetch(table, ivec2(min(i + 1, last), 0), 0).r;
   value = vec4(mix(a, b, x - float(i)), 0.0, 0.0, 1.0);
 }`;
+  // A background that varies by region (meta.floor.regions; splat::RegionFloor): the
+  // ray's chord split at the region edges, c L_j samples in region j, and the mean of
+  // their maximum, whose CDF is the product of F_j^(c L_j), from the regions' ln F on
+  // one grid of values (logCdf, one row per region), summed from the top down.
+  const regionFloorFS = `#version 300 es
+precision highp float;
+precision highp int;
+uniform vec3 r0, r1, r2, t;
+uniform vec4 K;
+uniform float height;
+uniform vec3 aspect, voxel;
+uniform float perVoxel;
+uniform ivec3 cells;                     // regions per axis
+uniform highp sampler2D edges;           // 9 x 3: region edges (voxels) of x, y, z
+uniform highp sampler2D levels;          // L x 1: the value m_i of grid interval i
+uniform highp sampler2D logCdf;          // L x regions: ln F_j(v_i)
+out vec4 value;
+float edge(int axis, int k) { return texelFetch(edges, ivec2(k, axis), 0).r; }
+void main() {
+  vec2 px = vec2(gl_FragCoord.x, height - gl_FragCoord.y);
+  vec3 dc = vec3((px.x - K.z) / K.x, (px.y - K.w) / K.y, 1.0);
+  vec3 d = normalize(r0 * dc.x + r1 * dc.y + r2 * dc.z);
+  vec3 C = -(r0 * t.x + r1 * t.y + r2 * t.z);
+  vec3 safe = mix(d, vec3(1e-20), equal(d, vec3(0.0)));
+  vec3 t0 = (-aspect - C) / safe, t1 = (aspect - C) / safe;
+  vec3 lo = min(t0, t1), hi = max(t0, t1);
+  float tin = max(max(lo.x, lo.y), max(lo.z, 0.0)), tout = min(min(hi.x, hi.y), hi.z);
+  if (!(tout > tin)) discard;
+  vec3 u0 = (C + tin * d + aspect) / voxel, u1 = (C + tout * d + aspect) / voxel;
+  float len = length(u1 - u0);
+  float cuts[26];
+  int nc = 0;
+  cuts[nc++] = 0.0;
+  cuts[nc++] = 1.0;
+  for (int a = 0; a < 3; ++a) {
+    for (int k = 1; k < cells[a]; ++k) {
+      float e = edge(a, k);
+      if ((u0[a] - e) * (u1[a] - e) < 0.0) cuts[nc++] = (e - u0[a]) / (u1[a] - u0[a]);
+    }
+  }
+  for (int i = 1; i < nc; ++i) {  // insertion sort of at most 26
+    float x = cuts[i];
+    int j = i - 1;
+    while (j >= 0 && cuts[j] > x) { cuts[j + 1] = cuts[j]; --j; }
+    cuts[j + 1] = x;
+  }
+  int region[25];
+  float n[25];
+  int ns = 0;
+  float total = 0.0;
+  for (int i = 0; i + 1 < nc; ++i) {
+    float m = perVoxel * (cuts[i + 1] - cuts[i]) * len;
+    if (!(m > 0.0)) continue;
+    vec3 mid = u0 + 0.5 * (cuts[i] + cuts[i + 1]) * (u1 - u0);
+    ivec3 cell = ivec3(0);
+    for (int a = 0; a < 3; ++a) {
+      for (int k = 1; k < cells[a]; ++k) cell[a] += mid[a] >= edge(a, k) ? 1 : 0;
+    }
+    region[ns] = cell.x + cells.x * (cell.y + cells.y * cell.z);
+    n[ns++] = m;
+    total += m;
+  }
+  if (!(total > 0.0)) discard;
+  float scale = total < 1.0 ? 1.0 / total : 1.0;
+  int L = textureSize(levels, 0).x;
+  float mean = texelFetch(levels, ivec2(L - 1, 0), 0).r;
+  float above = mean;
+  for (int i = L - 2; i >= 0; --i) {
+    float lp = 0.0;
+    for (int k = 0; k < ns; ++k) lp += scale * n[k] * texelFetch(logCdf, ivec2(i, region[k]), 0).r;
+    if (lp < -40.0) break;
+    float here = texelFetch(levels, ivec2(i, 0), 0).r;
+    mean -= (above - here) * exp(lp);
+    above = here;
+  }
+  value = vec4(mean, 0.0, 0.0, 1.0);
+}`;
   const displayVS = `#version 300 es
 void main() {
   vec2 p = vec2(float((gl_VertexID & 1) << 2) - 1.0, float((gl_VertexID & 2) << 1) - 1.0);
@@ -340,16 +417,23 @@ void main() {
   }
   const splat = program(splatVS, splatFS, "splat");
   const display = program(displayVS, displayFS, "display");
-  const floorPass = meta.floor ? program(displayVS, floorFS, "floor") : null;
-  const floorTable = meta.floor ? (function () {
-    const values = new Float32Array(meta.floor.values);
+  const regional = !!(meta.floor && meta.floor.regions);
+  const floorPass = meta.floor ? program(displayVS, regional ? regionFloorFS : floorFS, "floor") : null;
+  function floatTexture(data, w, h) {  // an R32F texture, nearest
     const tex = gl.createTexture();
     gl.bindTexture(gl.TEXTURE_2D, tex);
-    gl.texStorage2D(gl.TEXTURE_2D, 1, gl.R32F, values.length, 1);
-    gl.texSubImage2D(gl.TEXTURE_2D, 0, 0, 0, values.length, 1, gl.RED, gl.FLOAT, values);
+    gl.texStorage2D(gl.TEXTURE_2D, 1, gl.R32F, w, h);
+    gl.texSubImage2D(gl.TEXTURE_2D, 0, 0, 0, w, h, gl.RED, gl.FLOAT, new Float32Array(data));
     gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.NEAREST);
     gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, gl.NEAREST);
     return tex;
+  }
+  const floorTable = meta.floor && !regional ? floatTexture(meta.floor.values, meta.floor.values.length, 1) : null;
+  const regionTextures = regional ? (function () {
+    const g = meta.floor.regions, L = meta.floor.levels.length, edges = new Array(27).fill(0);
+    for (let a = 0; a < 3; ++a) g.edges[a].forEach((e, k) => { edges[a * 9 + k] = e; });
+    return { edges: floatTexture(edges, 9, 3), levels: floatTexture(meta.floor.levels, L, 1),
+             logCdf: floatTexture(meta.floor.log_cdf, L, g.cells[0] * g.cells[1] * g.cells[2]) };
   })() : null;
   let showFloor = !!meta.floor;  // the "background" check box
 
@@ -437,10 +521,21 @@ void main() {
       gl.uniform3fv(f.aspect, meta.floor.aspect);
       gl.uniform3fv(f.voxel, meta.floor.voxel);
       gl.uniform1f(f.perVoxel, meta.floor.samples_per_voxel);
-      gl.uniform1f(f.perOctave, meta.floor.per_octave);
-      gl.activeTexture(gl.TEXTURE0);
-      gl.bindTexture(gl.TEXTURE_2D, floorTable);
-      gl.uniform1i(f.table, 0);
+      if (regional) {
+        gl.uniform3iv(f.cells, meta.floor.regions.cells);
+        [["edges", regionTextures.edges], ["levels", regionTextures.levels], ["logCdf", regionTextures.logCdf]]
+          .forEach(([name, tex], unit) => {
+            gl.activeTexture(gl.TEXTURE0 + unit);
+            gl.bindTexture(gl.TEXTURE_2D, tex);
+            gl.uniform1i(f[name], unit);
+          });
+        gl.activeTexture(gl.TEXTURE0);
+      } else {
+        gl.uniform1f(f.perOctave, meta.floor.per_octave);
+        gl.activeTexture(gl.TEXTURE0);
+        gl.bindTexture(gl.TEXTURE_2D, floorTable);
+        gl.uniform1i(f.table, 0);
+      }
       gl.drawArrays(gl.TRIANGLES, 0, 3);
     }
     gl.useProgram(splat.p);

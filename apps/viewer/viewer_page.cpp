@@ -23,6 +23,35 @@ std::string script_safe(std::string json) {
   return json;
 }
 
+// The page's meta.floor: the box, and either the table of E[max of n] (one
+// background for the stack) or the regions' CDFs (splat::RegionFloor), which the
+// page's floor shaders evaluate as the renderer does.
+nlohmann::ordered_json floor_json(const splat::BackgroundFloors& floor) {
+  const io::WorldFrame& frame = floor.frame();
+  const Eigen::Vector3d& a = frame.aspect();
+  const Eigen::Vector3d& v = frame.voxel_size();
+  nlohmann::ordered_json j = {{"aspect", {a.x(), a.y(), a.z()}}, {"voxel", {v.x(), v.y(), v.z()}}};
+  if (!floor.regional()) {
+    const splat::FloorTable& table = floor.table();
+    j["samples_per_voxel"] = table.samples_per_voxel();
+    j["per_octave"] = splat::FloorTable::points_per_octave();
+    j["values"] = table.values();
+    return j;
+  }
+  const splat::RegionFloor& r = floor.regional_floor();
+  const io::BackgroundRegions& g = r.regions();
+  j["samples_per_voxel"] = r.samples_per_voxel();
+  j["regions"] = {{"shape", g.shape}, {"cells", g.cells}};
+  std::vector<std::vector<int>> edges(3);
+  for (int axis = 0; axis < 3; ++axis) {
+    for (int k = 0; k <= g.cells[axis]; ++k) edges[static_cast<std::size_t>(axis)].push_back(g.edge(axis, k));
+  }
+  j["regions"]["edges"] = edges;
+  j["levels"] = r.levels();
+  j["log_cdf"] = r.log_cdf();
+  return j;
+}
+
 }  // namespace
 
 std::string_view viewer_page_template() {
@@ -105,20 +134,13 @@ std::string viewer_html(const gmf::GaussianMixture& mixture, const splat::Camera
   meta["floats_per_gaussian"] = kViewerFloatsPerGaussian;
   meta["cutoff"] = settings.cutoff;
   meta["low_pass"] = settings.low_pass;
-  meta["um_per_world"] = settings.um_per_world ? nlohmann::ordered_json(*settings.um_per_world) : nlohmann::ordered_json();
+  meta["um_per_world"] =
+      settings.um_per_world ? nlohmann::ordered_json(*settings.um_per_world) : nlohmann::ordered_json();
   meta["truth"] = settings.truth;
   if (settings.floor.none()) {
     meta["floor"] = nullptr;
   } else {
-    const splat::FloorTable& table = settings.floor.table();
-    const io::WorldFrame& frame = settings.floor.frame();
-    const Eigen::Vector3d& a = frame.aspect();
-    const Eigen::Vector3d& v = frame.voxel_size();
-    meta["floor"] = {{"samples_per_voxel", table.samples_per_voxel()},
-                     {"per_octave", splat::FloorTable::points_per_octave()},
-                     {"aspect", {a.x(), a.y(), a.z()}},
-                     {"voxel", {v.x(), v.y(), v.z()}},
-                     {"values", table.values()}};
+    meta["floor"] = floor_json(settings.floor);
   }
   meta["cameras"] = nlohmann::ordered_json::parse(splat::cameras_json_text(cameras));
 

@@ -254,8 +254,9 @@ CheckpointMeta parse_meta(const std::vector<std::string>& comments, const fs::pa
         meta.aggregation = Aggregation::kSoftmax;
         meta.beta = beta;
       } else {
-        io::fail_input(source, "comment hisnegs aggregation: expected 'sum', 'max' or 'softmax BETA' (BETA > 0), got '" +
-                                   io::printable(value, 80) + "'");
+        io::fail_input(source,
+                       "comment hisnegs aggregation: expected 'sum', 'max' or 'softmax BETA' (BETA > 0), got '" +
+                           io::printable(value, 80) + "'");
       }
     } else {
       meta.extra.emplace_back(std::string(key), std::string(value));
@@ -394,8 +395,8 @@ CheckpointWriter::CheckpointWriter(const fs::path& path, const CheckpointMeta& m
 
 void CheckpointWriter::append(std::span<const GaussianParams> gaussians) {
   if (const std::optional<Invalid> bad = first_invalid(gaussians)) {
-    throw std::invalid_argument(io::describe(path_, "cannot save checkpoint: gaussian " +
-                                                        std::to_string(appended_ + bad->index) + ": " + bad->problem));
+    throw std::invalid_argument(io::describe(
+        path_, "cannot save checkpoint: gaussian " + std::to_string(appended_ + bad->index) + ": " + bad->problem));
   }
   rows_.append(std::as_bytes(gaussians));
   appended_ += gaussians.size();
@@ -419,6 +420,33 @@ std::string describe(const MixtureModel& model) {
 
 namespace {
 constexpr const char* kBackgroundKey = "background";
+constexpr const char* kRegionsKey = "background_regions";
+constexpr const char* kRegionKey = "background_region";
+
+io::BackgroundRegions regions_of(const CheckpointMeta& meta, std::string_view value, const std::string& source) {
+  const std::vector<std::string_view> tok = split_ws(value);
+  io::BackgroundRegions r;
+  bool ok = tok.size() == 3 && meta.volume_shape_zyx.has_value();
+  for (int a = 0; ok && a < 3; ++a) {
+    double v = 0;
+    ok = parse_number(tok[static_cast<std::size_t>(a)], v) && v >= 1 && v <= io::BackgroundRegions::kMaxPerAxis &&
+         v == std::floor(v);
+    r.cells[static_cast<std::size_t>(a)] = ok ? static_cast<int>(v) : 1;
+  }
+  if (ok) {
+    const auto& s = *meta.volume_shape_zyx;
+    r.shape = {static_cast<int>(s[2]), static_cast<int>(s[1]), static_cast<int>(s[0])};
+    for (int a = 0; ok && a < 3; ++a) ok = r.cells[static_cast<std::size_t>(a)] <= r.shape[static_cast<std::size_t>(a)];
+  }
+  if (!ok) {
+    io::fail_input(source, std::string("comment hisnegs ") + kRegionsKey + ": expected 'CX CY CZ' (1 to " +
+                               std::to_string(io::BackgroundRegions::kMaxPerAxis) +
+                               " regions per axis, no more than the volume_shape's voxels), got '" +
+                               io::printable(value, 80) + "'");
+  }
+  return r;
+}
+
 }  // namespace
 
 io::BackgroundModel background_of(const CheckpointMeta& meta, const std::string& source) {
@@ -431,6 +459,54 @@ io::BackgroundModel background_of(const CheckpointMeta& meta, const std::string&
 void set_background(CheckpointMeta& meta, const io::BackgroundModel& model) {
   std::erase_if(meta.extra, [](const auto& kv) { return kv.first == kBackgroundKey; });
   if (!model.none()) meta.extra.emplace_back(kBackgroundKey, model.text());
+}
+
+io::BackgroundField background_field_of(const CheckpointMeta& meta, const std::string& source) {
+  io::BackgroundField field;
+  field.merged = background_of(meta, source);
+  field.regions.shape = {1, 1, 1};
+  if (meta.volume_shape_zyx) {
+    const auto& s = *meta.volume_shape_zyx;
+    field.regions.shape = {static_cast<int>(s[2]), static_cast<int>(s[1]), static_cast<int>(s[0])};
+  }
+  bool has_regions = false;
+  for (const auto& [key, value] : meta.extra) {
+    if (key == kRegionsKey) {
+      field.regions = regions_of(meta, value, source);
+      has_regions = true;
+    }
+  }
+  for (const auto& [key, value] : meta.extra) {
+    if (key != kRegionKey) continue;
+    const std::size_t r = field.models.size();
+    const std::vector<std::string_view> tok = split_ws(value);
+    double index = -1;
+    if (!has_regions || tok.empty() || !parse_number(tok[0], index) || index != static_cast<double>(r)) {
+      io::fail_input(source, std::string("comment hisnegs ") + kRegionKey + " " + std::to_string(r) +
+                                 ": expected 'R MODEL' in order after a " + kRegionsKey + " line, got '" +
+                                 io::printable(value, 60) + "'");
+    }
+    const auto after = static_cast<std::size_t>(tok[0].data() - value.data()) + tok[0].size();
+    field.models.push_back(io::BackgroundModel::parse(std::string_view(value).substr(after), source));
+  }
+  if (has_regions && field.models.size() != static_cast<std::size_t>(field.regions.count())) {
+    io::fail_input(source, std::string("comment hisnegs ") + kRegionsKey + ": " +
+                               std::to_string(field.regions.count()) + " regions declared, " +
+                               std::to_string(field.models.size()) + " " + kRegionKey + " lines given");
+  }
+  if (field.models.size() == 1) field.models.clear();
+  return field;
+}
+
+void set_background(CheckpointMeta& meta, const io::BackgroundField& field) {
+  set_background(meta, field.merged);
+  std::erase_if(meta.extra, [](const auto& kv) { return kv.first == kRegionsKey || kv.first == kRegionKey; });
+  if (!field.regional() || field.none()) return;
+  const auto& c = field.regions.cells;
+  meta.extra.emplace_back(kRegionsKey, std::to_string(c[0]) + " " + std::to_string(c[1]) + " " + std::to_string(c[2]));
+  for (std::size_t r = 0; r < field.models.size(); ++r) {
+    meta.extra.emplace_back(kRegionKey, std::to_string(r) + " " + field.models[r].text());
+  }
 }
 
 std::optional<io::WorldFrame> model_frame(const CheckpointMeta& meta) {

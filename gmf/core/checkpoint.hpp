@@ -142,6 +142,14 @@ class CheckpointWriter {
 [[nodiscard]] io::BackgroundModel background_of(const CheckpointMeta& meta, const std::string& source);
 // Records `model` in `meta` (replacing any earlier one); a none() model removes it.
 void set_background(CheckpointMeta& meta, const io::BackgroundModel& model);
+// The background by region: `merged` from the "background" line; with a
+// "background_regions CX CY CZ" line, one "background_region R MODEL" line per region
+// (R = 0, 1, ... in order) over the stack of `volume_shape`. Throws io::InputError
+// naming `source` for lines that do not parse or do not match.
+[[nodiscard]] io::BackgroundField background_field_of(const CheckpointMeta& meta, const std::string& source);
+// Records `field` (replacing any earlier background): its merged model as
+// set_background does, and its regions when it has several.
+void set_background(CheckpointMeta& meta, const io::BackgroundField& field);
 
 // Checks that `frame` (the stack `volume`) spans the same world box as the stack the
 // model was fitted to (its `aspect` metadata, relative tolerance 1e-6), so that the

@@ -554,3 +554,68 @@ TEST(GaussianMixture, DescribeNonFiniteNamesTheFirstValueAndItsGroup) {
 
 }  // namespace
 }  // namespace hisnegs::gmf
+
+namespace hisnegs::gmf {
+namespace {
+
+io::BackgroundModel two_atoms(double top, double c) {
+  io::BackgroundModel m;
+  m.values = {0.0, top};
+  m.cdf = {0.75, 1.0};
+  m.samples_per_voxel = c;
+  return m;
+}
+
+// A background by region survives the file; regions that do not match the stack, a
+// missing or out-of-order region line, are refused naming the file.
+TEST(Checkpoint, BackgroundByRegionRoundTripsAndBadLinesAreRefused) {
+  ScratchDir dir;
+  CheckpointMeta meta = full_meta();  // 512 x 512 x 60 voxels
+  io::BackgroundField field;
+  field.regions = io::BackgroundRegions::of({512, 512, 60}, 256);
+  ASSERT_EQ(field.regions.count(), 4);
+  field.merged = two_atoms(0.04, 0.7);
+  field.models = {two_atoms(0.08, 0.7), io::BackgroundModel{{0.0}, {1.0}, 0.7, 10}, field.merged, two_atoms(0.02, 0.7)};
+  set_background(meta, field);
+  save_checkpoint(dir / "r.ply", random_mixture(3, 5), meta);
+  const CheckpointMeta back = load_checkpoint(dir / "r.ply").meta;
+  const io::BackgroundField read = background_field_of(back, "r.ply");
+  EXPECT_EQ(read.regions, field.regions);
+  EXPECT_EQ(read.merged, field.merged);
+  ASSERT_EQ(read.models.size(), 4u);
+  for (std::size_t i = 0; i < 4; ++i) {
+    EXPECT_EQ(read.models[i].values, field.models[i].values) << i;
+    EXPECT_EQ(read.models[i].cdf, field.models[i].cdf) << i;
+  }
+  EXPECT_EQ(background_of(back, "r.ply"), field.merged);  // what a reader of one background sees
+  // One region: no region lines at all.
+  io::BackgroundField one;
+  one.merged = field.merged;
+  CheckpointMeta plain = full_meta();
+  set_background(plain, one);
+  EXPECT_FALSE(background_field_of(plain, "p.ply").regional());
+  const auto refused = [&](const std::string& key, const std::string& value, const std::string& expected) {
+    CheckpointMeta bad = meta;
+    for (auto& [k, v] : bad.extra) {
+      if (k == key) {
+        v = value;
+        break;
+      }
+    }
+    try {
+      (void)background_field_of(bad, "bad.ply");
+      ADD_FAILURE() << key << " '" << value << "' was accepted";
+    } catch (const io::InputError& e) {
+      EXPECT_NE(std::string(e.what()).find("bad.ply"), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find(expected), std::string::npos) << e.what();
+    }
+  };
+  refused("background_regions", "2 2", "background_regions");
+  refused("background_regions", "9 1 1", "background_regions");
+  refused("background_regions", "2 2 2", "8 regions declared, 4");
+  refused("background_region", "1 " + field.models[0].text(), "background_region 0");
+  refused("background_region", "0 1 2 3", "background");
+}
+
+}  // namespace
+}  // namespace hisnegs::gmf

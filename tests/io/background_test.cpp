@@ -101,6 +101,87 @@ TEST(Background, CountsOfBricksWithAGuardHaloMergeIntoTheWholeEstimate) {
   EXPECT_EQ(background_from_counts(merged, options, "bricks"), estimate_background(v, options));
 }
 
+TEST(BackgroundRegions, SplitTheStackIntoEqualPartsThatTileIt) {
+  const BackgroundRegions r = BackgroundRegions::of({100, 120, 40}, 32);
+  EXPECT_EQ(r.cells, (std::array<int, 3>{4, 4, 2}));
+  EXPECT_EQ(BackgroundRegions::of({100, 120, 40}, 0).count(), 1);
+  EXPECT_EQ(BackgroundRegions::of({5000, 20, 3}, 16).cells, (std::array<int, 3>{8, 2, 1}));  // at most 8 a side
+  std::size_t voxels = 0;
+  for (int i = 0; i < r.count(); ++i) {
+    const VoxelBox b = r.box(i);
+    voxels += b.voxels();
+    for (int a = 0; a < 3; ++a) {
+      const int k = a == 0 ? i % 4 : a == 1 ? (i / 4) % 4 : i / 16;
+      EXPECT_EQ(r.cell_of(a, b.lo[a]), k);
+      EXPECT_EQ(r.cell_of(a, b.hi[a] - 1), k);
+    }
+  }
+  EXPECT_EQ(voxels, 100u * 120u * 40u);
+}
+
+// Three regions along x: Poisson noise, a subtracted (zero) background, and one the
+// neuron fills (no background voxel: it takes the whole stack's distribution).
+Volume three_part_stack() {
+  Volume v = noisy_stack(0.6, 7);
+  Volume out;
+  out.nx = 96, out.ny = v.ny, out.nz = v.nz;
+  out.voxels.assign(out.size(), 0.0f);
+  for (int z = 0; z < v.nz; ++z)
+    for (int y = 0; y < v.ny; ++y)
+      for (int x = 0; x < 32; ++x) {
+        out.at(x, y, z) = v.at(x, y, z);
+        out.at(64 + x, y, z) = 0.9f;
+      }
+  out.source = "three.tif";
+  return out;
+}
+
+TEST(BackgroundField, EachRegionHasItsOwnDistribution) {
+  const Volume v = three_part_stack();
+  BackgroundOptions options;
+  options.region_voxels = 32;
+  const BackgroundField field = estimate_background_field(v, options);
+  ASSERT_TRUE(field.regional());
+  ASSERT_EQ(field.regions.cells, (std::array<int, 3>{3, 2, 1}));
+  EXPECT_FALSE(field.merged.none());
+  for (int y = 0; y < 2; ++y) {
+    EXPECT_FALSE(field.at(3 * y).none()) << "the noisy part";
+    EXPECT_NE(field.at(3 * y), field.merged);
+    EXPECT_GT(field.at(3 * y).mean(), field.merged.mean()) << "the noise alone, not diluted by the zeros";
+    EXPECT_TRUE(field.at(3 * y + 1).none()) << "the subtracted part draws no floor";
+    EXPECT_EQ(field.at(3 * y + 2), field.merged) << "the filled part has no background of its own";
+  }
+  options.region_voxels = 0;
+  const BackgroundField one = estimate_background_field(v, options);
+  EXPECT_FALSE(one.regional());
+  EXPECT_EQ(one.merged, field.merged);
+  EXPECT_EQ(one.merged, estimate_background(v, options));
+}
+
+TEST(BackgroundField, CountsOfBricksByRegionMergeIntoTheWholeField) {
+  const Volume v = three_part_stack();
+  BackgroundOptions options;
+  options.region_voxels = 32;
+  const BackgroundRegions regions = BackgroundRegions::of({v.nx, v.ny, v.nz}, options.region_voxels);
+  const int g = options.guard_voxels;
+  std::vector<BackgroundCounts> merged(static_cast<std::size_t>(regions.count()));
+  for (int x0 = 0; x0 < v.nx; x0 += 40) {  // bricks that do not line up with the regions
+    const int x1 = std::min(v.nx, x0 + 40), lo = std::max(0, x0 - g), hi = std::min(v.nx, x1 + g);
+    Volume r;
+    r.nx = hi - lo, r.ny = v.ny, r.nz = v.nz;
+    for (int z = 0; z < v.nz; ++z)
+      for (int y = 0; y < v.ny; ++y)
+        for (int x = lo; x < hi; ++x) r.voxels.push_back(v.at(x, y, z));
+    const VoxelBox core{{x0 - lo, 0, 0}, {x1 - lo, v.ny, v.nz}};
+    const std::vector<BackgroundCounts> part = count_background_regions(r, options, core, regions, {lo, 0, 0});
+    for (std::size_t i = 0; i < merged.size(); ++i) merged[i].merge(part[i]);
+  }
+  const BackgroundField bricked = background_field(merged, regions, options, "bricks");
+  const BackgroundField whole = estimate_background_field(v, options);
+  EXPECT_EQ(bricked.merged, whole.merged);
+  EXPECT_EQ(bricked.models, whole.models);
+}
+
 TEST(Background, AZeroBackgroundIsNone) {
   Volume v = noisy_stack(0.0, 1);
   const BackgroundModel m = estimate_background(v);
@@ -162,8 +243,8 @@ TEST(Background, TextRoundTripsAndBadTextIsRefused) {
   m.cdf = {0.5, 0.9, 1.0};
   m.samples_per_voxel = 0.7312;
   EXPECT_EQ(BackgroundModel::parse(m.text(), "m.ply"), m);
-  for (const char* bad : {"", "x 2", "1 2 0 0.5", "1 1 0 0.5", "1 2 0.1 0.5 0.05 1", "0 1 0 1", "1 1 0 1 extra",
-                          "1 1 nan 1"}) {
+  for (const char* bad :
+       {"", "x 2", "1 2 0 0.5", "1 1 0 0.5", "1 2 0.1 0.5 0.05 1", "0 1 0 1", "1 1 0 1 extra", "1 1 nan 1"}) {
     EXPECT_THROW((void)BackgroundModel::parse(bad, "m.ply"), InputError) << bad;
   }
   try {

@@ -6,9 +6,12 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <array>
 #include <cmath>
 #include <random>
 
+#include "io/background.hpp"
 #include "splat/raymarch.hpp"
 
 namespace hisnegs::splat {
@@ -57,8 +60,8 @@ TEST(BackgroundFloor, FloorImageIsZeroWithoutABackgroundAndOffTheBox) {
   o.width = 40;
   o.height = 30;
   const CameraSet cams = custom_orbit(o, {20.0}, {30.0});
-  const std::vector<float> none = background_floor(FloorTable(io::BackgroundModel{}), frame, cams.intrinsics,
-                                                   cams.views[0]);
+  const std::vector<float> none =
+      background_floor(FloorTable(io::BackgroundModel{}), frame, cams.intrinsics, cams.views[0]);
   for (const float v : none) EXPECT_EQ(v, 0.0f);
   const io::BackgroundModel m = poisson_model(0.6);
   const std::vector<float> floor = background_floor(FloorTable(m), frame, cams.intrinsics, cams.views[0]);
@@ -73,7 +76,7 @@ TEST(BackgroundFloor, FloorImageIsZeroWithoutABackgroundAndOffTheBox) {
 // a larger, anisotropic volume (longer chords) than the calibration's.
 TEST(BackgroundFloor, CalibrationPredictsTheMarchersMipOfNoise) {
   const io::BackgroundModel voxels = poisson_model(0.6);
-  io::BackgroundModel m = voxels;  // becomes what a ray samples, with its c
+  io::BackgroundModel m = voxels;                                             // becomes what a ray samples, with its c
   const io::WorldFrame stack(160, 160, 40, Eigen::Vector3d(1.0, 1.0, 0.75));  // z voxels 3x the xy ones
   const RaymarchOptions options;
   const FloorCalibration cal = calibrate_background(m, stack, options, 4);
@@ -109,6 +112,139 @@ TEST(BackgroundFloor, CalibrationPredictsTheMarchersMipOfNoise) {
   }
   ASSERT_GT(sum_mip, 0.0);
   EXPECT_NEAR(sum_floor / sum_mip, 1.0, 0.05);
+}
+
+// With the same distribution in every region, the region floor is the table's.
+TEST(RegionFloor, OneDistributionEverywhereIsTheTablesFloor) {
+  io::BackgroundModel m = poisson_model(0.6);
+  m.samples_per_voxel = 0.8;
+  io::BackgroundField field;
+  field.regions = io::BackgroundRegions::of({40, 30, 10}, 16);
+  ASSERT_EQ(field.regions.count(), 3 * 2 * 1);
+  field.merged = m;
+  field.models.assign(6, m);
+  const io::WorldFrame frame(40, 30, 10, Eigen::Vector3d(1.0, 0.75, 0.5));
+  const RegionFloor floor(field, frame);
+  const FloorTable table(m);
+  std::mt19937_64 rng(3);
+  std::normal_distribution<double> g(0.0, 1.0);
+  int hits = 0;
+  for (int i = 0; i < 400; ++i) {
+    const Eigen::Vector3d origin = 3.0 * Eigen::Vector3d(g(rng), g(rng), g(rng)).normalized();
+    const Eigen::Vector3d dir = (-origin + 0.4 * Eigen::Vector3d(g(rng), g(rng), g(rng))).normalized();
+    const double expected = table.at_voxels(box_path_voxels(frame, origin, dir));
+    const double got = floor.at(origin, dir);
+    if (expected == 0.0) {
+      EXPECT_EQ(got, 0.0);
+      continue;
+    }
+    ++hits;
+    // Half a grid interval of 11/255 / 511, and the table's 1e-4.
+    EXPECT_NEAR(got, expected, 0.5 * m.values.back() / 511 + 1e-4 * expected) << i;
+  }
+  EXPECT_GT(hits, 200);
+}
+
+// A ray through two regions: the mean of the maximum of c L_A samples of A and
+// c L_B of B, whose CDF is F_A^(c L_A) F_B^(c L_B) (exact integral of the step
+// functions); one through a subtracted region alone: 0.
+TEST(RegionFloor, TheMaximumOverTheRegionsCrossedHasTheProductOfTheirCdfs) {
+  io::BackgroundModel a = poisson_model(0.6), b = poisson_model(2.5);
+  a.samples_per_voxel = b.samples_per_voxel = 0.5;
+  io::BackgroundField field;
+  field.regions = io::BackgroundRegions::of({60, 20, 20}, 20);  // 3 x 1 x 1
+  field.merged = a;
+  field.models = {a, b, io::BackgroundModel{{0.0}, {1.0}, 0.5, 100}};
+  const io::WorldFrame frame(60, 20, 20, Eigen::Vector3d(1.0, 1.0 / 3, 1.0 / 3));  // cubic voxels of 1/30
+  const RegionFloor floor(field, frame);
+  const auto exact = [&](double na, double nb) {
+    std::vector<double> v = a.values;
+    v.insert(v.end(), b.values.begin(), b.values.end());
+    std::sort(v.begin(), v.end());
+    v.erase(std::unique(v.begin(), v.end()), v.end());
+    const auto cdf = [](const io::BackgroundModel& m, double x) {
+      double F = 0;
+      for (std::size_t i = 0; i < m.values.size() && m.values[i] <= x; ++i) F = m.cdf[i];
+      return F;
+    };
+    double mean = 0;  // ∫ (1 − P(max <= x)) dx over the steps
+    for (std::size_t i = 0; i + 1 < v.size(); ++i) {
+      mean += (v[i + 1] - v[i]) * (1.0 - std::pow(cdf(a, v[i]), na) * std::pow(cdf(b, v[i]), nb));
+    }
+    return mean;
+  };
+  const double tolerance = 0.5 * b.values.back() / 511;
+  // Along x through the middle: 20 voxels in each region.
+  EXPECT_NEAR(floor.at({-3, 0.01, 0.01}, {1, 0, 0}), exact(0.5 * 20, 0.5 * 20), tolerance);
+  // Along y inside region A alone, then B alone, then the subtracted region.
+  EXPECT_NEAR(floor.at({-0.6, -3, 0.01}, {0, 1, 0}), exact(0.5 * 20, 0), tolerance);
+  EXPECT_NEAR(floor.at({0.05, -3, 0.01}, {0, 1, 0}), exact(0, 0.5 * 20), tolerance);
+  EXPECT_EQ(floor.at({0.7, -3, 0.01}, {0, 1, 0}), 0.0);
+  // Oblique in x-y: y rises 1/6 per unit of x, so each region holds a chord of 20
+  // voxels of x, sqrt(37) / 6 times as long; the subtracted third adds nothing.
+  const Eigen::Vector3d d = Eigen::Vector3d(6, 1, 0).normalized();
+  const Eigen::Vector3d origin = Eigen::Vector3d(-1.0, -0.2, 0.01) - 2.0 * d;
+  const double n = 0.5 * 20 * std::sqrt(37.0) / 6.0;
+  EXPECT_NEAR(floor.at(origin, d), exact(n, n), tolerance);
+  EXPECT_EQ(floor.at({-3, 2, 0}, {1, 0, 0}), 0.0);  // misses the box
+}
+
+// A noise volume whose halves differ (Poisson 0.6 and 3.0 counts): its background by
+// region, calibrated, predicts the marcher's MIP on each side; one distribution for
+// the whole volume is off on both.
+TEST(RegionFloor, ABackgroundByRegionPredictsTheMarchersMipOfTwoNoises) {
+  io::Volume noise;
+  noise.nx = noise.ny = 96;
+  noise.nz = 24;
+  noise.voxels.resize(noise.size());
+  std::mt19937_64 rng(5);
+  std::poisson_distribution<int> lo(0.6), hi(3.0);
+  for (int z = 0; z < noise.nz; ++z)
+    for (int y = 0; y < noise.ny; ++y)
+      for (int x = 0; x < noise.nx; ++x) noise.at(x, y, z) = static_cast<float>(x < 48 ? lo(rng) : hi(rng)) / 255.0f;
+  io::BackgroundOptions options;
+  options.foreground_level = 0.9;  // all of it is background
+  options.guard_voxels = 0;
+  options.region_voxels = 48;
+  io::BackgroundField field = io::estimate_background_field(noise, options);
+  ASSERT_TRUE(field.regional());
+  const io::WorldFrame frame(96, 96, 24, Eigen::Vector3d(1.0, 1.0, 0.5));
+  const RaymarchOptions marching;
+  (void)calibrate_background(field, frame, marching, 4);
+  io::BackgroundModel merged = field.merged;  // calibrated with the field
+  const BackgroundFloors regional(field, frame), single(merged, frame);
+  ASSERT_TRUE(regional.regional());
+  const RayMarcher marcher(noise, frame, marching);
+  CameraOptions o;
+  o.width = o.height = 64;
+  const CameraSet cams = custom_orbit(o, {-70.0, 70.0}, {0.0, 180.0});  // near the z axis: rays stay in one half
+  // A pixel's MIP is one draw; its floor is the mean. Compare means over 8 groups of
+  // pixels ranked by the regional floor (from the low-noise side to the high one).
+  std::vector<std::array<double, 3>> pixels;  // regional floor, single floor, MIP
+  std::vector<float> image(64 * 64);
+  for (const CameraView& view : cams.views) {
+    marcher.render(cams.intrinsics, view, image);
+    const std::vector<float> fr = regional(cams.intrinsics, view), fs = single(cams.intrinsics, view);
+    for (std::size_t i = 0; i < image.size(); ++i) {
+      if (fr[i] > 0.0f) pixels.push_back({fr[i], fs[i], image[i]});
+    }
+  }
+  ASSERT_GT(pixels.size(), 4000u);
+  std::sort(pixels.begin(), pixels.end());
+  double worst_regional = 0, worst_single = 0;
+  const std::size_t group = pixels.size() / 8;
+  for (std::size_t g = 0; g < 8; ++g) {
+    double r = 0, s1 = 0, mip = 0;
+    for (std::size_t i = g * group; i < (g + 1) * group; ++i) {
+      r += pixels[i][0];
+      s1 += pixels[i][1];
+      mip += pixels[i][2];
+    }
+    worst_regional = std::max(worst_regional, std::abs(r / mip - 1.0));
+    worst_single = std::max(worst_single, std::abs(s1 / mip - 1.0));
+  }
+  EXPECT_LT(worst_regional, 0.06) << "the regional floor against the marcher's mean MIP";
+  EXPECT_GT(worst_single, 3.0 * worst_regional) << "one floor for both halves: " << worst_single;
 }
 
 }  // namespace

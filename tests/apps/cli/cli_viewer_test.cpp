@@ -58,12 +58,12 @@ constexpr int kChromiumTimeoutSeconds = 60;
 constexpr double kMinPsnrDb = 35.0;
 
 // Skips a test where Chromium is missing; fails it under CI, which installs Chromium.
-#define REQUIRE_CHROMIUM()                                                                            \
-  do {                                                                                                \
-    if (!fs::exists(kChromium)) {                                                                     \
+#define REQUIRE_CHROMIUM()                                                                              \
+  do {                                                                                                  \
+    if (!fs::exists(kChromium)) {                                                                       \
       if (std::getenv("CI")) FAIL() << kChromium << " is missing; scripts/install-deps.sh installs it"; \
-      GTEST_SKIP() << kChromium << " is not installed";                                               \
-    }                                                                                                 \
+      GTEST_SKIP() << kChromium << " is not installed";                                                 \
+    }                                                                                                   \
   } while (false)
 
 // One camera file of the test: intrinsics of its own (non-square, FOV, principal point).
@@ -83,8 +83,7 @@ class CliViewer : public ::testing::Test {
   // large enough to overlap (so MAX blending matters).
   void SetUp() override {
     std::mt19937 rng(20);
-    std::uniform_real_distribution<float> u(-0.6f, 0.6f), log_scale(std::log(0.02f), std::log(0.15f)),
-        logit(-2.f, 3.f);
+    std::uniform_real_distribution<float> u(-0.6f, 0.6f), log_scale(std::log(0.02f), std::log(0.15f)), logit(-2.f, 3.f);
     std::normal_distribution<float> quat(0.0f, 1.0f);
     for (int k = 0; k < 40; ++k) {
       gmf::GaussianParams g;
@@ -114,6 +113,41 @@ class CliViewer : public ::testing::Test {
     return path;
   }
 
+  // A bright floor (so that 8-bit screenshots resolve it well) up to `top`.
+  static io::BackgroundModel bright_floor(double top) {
+    io::BackgroundModel bg;
+    bg.values = {0.0, 0.02 * top / 0.15, 0.05 * top / 0.15, 0.1 * top / 0.15, top};
+    bg.cdf = {0.5, 0.8, 0.95, 0.99, 1.0};
+    bg.samples_per_voxel = 1.6;
+    return bg;
+  }
+
+  // The page of checkpoint `c` (with a background) draws the floor `render --mode
+  // hard` draws, and #background=0 the Gaussians alone.
+  void expect_page_floor_as_cpu(const gmf::Checkpoint& c, const std::string& tag) {
+    const fs::path model = dir_ / (tag + ".ply"), html = dir_ / (tag + ".html");
+    gmf::save_checkpoint(model, c.mixture, c.meta);
+    const CameraCase cc{150, 110, 45.0, 4.0, 1.1};
+    const fs::path cams = write_cameras(tag + ".json", cc);
+    ASSERT_EQ(run_hisnegs({"-q", "export", "html", "--model", model, "--cameras", cams, "-o", html}).exit_code, 0);
+    const auto r = run_hisnegs({"-q", "render", "--model", model, "--cameras", cams, "-o", dir_ / ("r" + tag), "--mode",
+                                "hard", "--backend", "cpu"});
+    ASSERT_EQ(r.exit_code, 0) << r.err;
+    const auto n = run_hisnegs({"-q", "render", "--model", model, "--cameras", cams, "-o", dir_ / ("n" + tag), "--mode",
+                                "hard", "--background", "none", "--backend", "cpu"});
+    ASSERT_EQ(n.exit_code, 0) << n.err;
+    const io::Volume with = io::read_tiff_stack(dir_ / ("r" + tag) / "render.tif");
+    const io::Volume without = io::read_tiff_stack(dir_ / ("n" + tag) / "render.tif");
+    const std::size_t plane = static_cast<std::size_t>(cc.width) * cc.height;
+    const std::span<const float> cpu(with.voxels.data() + plane, plane), bare(without.voxels.data() + plane, plane);
+    ASSERT_LT(gmf::psnr(cpu, bare), 30.0) << "the floor must show";
+    const std::vector<float> page = chromium_view("file://" + html.string() + "#view=1&ui=0", cc.width, cc.height, tag);
+    EXPECT_GE(gmf::psnr(std::span<const float>(page.data(), plane), cpu), kMinPsnrDb);
+    const std::vector<float> page_bare =
+        chromium_view("file://" + html.string() + "#view=1&ui=0&background=0", cc.width, cc.height, tag + "n");
+    EXPECT_GE(gmf::psnr(std::span<const float>(page_bare.data(), plane), bare), kMinPsnrDb);
+  }
+
   // Headless Chromium's screenshot of `url` (a `#view=N&ui=0` page of a w x h view):
   // its top-left w x h grey values in [0, 1]. Fails the test on a page error.
   // `log` (if given) gets Chromium's output, console lines included.
@@ -125,10 +159,10 @@ class CliViewer : public ::testing::Test {
         "timeout " + std::to_string(kChromiumTimeoutSeconds) + " " + kChromium +
         " --headless --no-sandbox --disable-gpu --use-angle=swiftshader --enable-unsafe-swiftshader"
         " --force-device-scale-factor=1 --hide-scrollbars --force-color-profile=srgb --no-first-run"
-        " --disable-extensions --user-data-dir=" + testing::shell_quoted(dir_ / ("profile" + tag)) +
-        " --window-size=" + std::to_string(window_w) + "," + std::to_string(window_h) +
-        " --virtual-time-budget=10000 --enable-logging=stderr --v=0 --screenshot=" + testing::shell_quoted(png) +
-        " " + testing::shell_quoted(url));
+        " --disable-extensions --user-data-dir=" +
+        testing::shell_quoted(dir_ / ("profile" + tag)) + " --window-size=" + std::to_string(window_w) + "," +
+        std::to_string(window_h) + " --virtual-time-budget=10000 --enable-logging=stderr --v=0 --screenshot=" +
+        testing::shell_quoted(png) + " " + testing::shell_quoted(url));
     EXPECT_EQ(s.status, 0) << s.out;
     EXPECT_EQ(s.out.find("hisnegs-viewer error"), std::string::npos) << s.out;
     EXPECT_EQ(s.out.find("Uncaught"), std::string::npos) << s.out;
@@ -179,8 +213,8 @@ TEST_F(CliViewer, ExportHtmlIsSelfContainedAndReportsItsSize) {
   EXPECT_NE(r.out.find(expected), std::string::npos) << r.out << "\nexpected: " << expected;
   EXPECT_NE(html.find("fzstd"), std::string::npos);  // the decoder is inside
   // --float32: the exact parameters, 40 x 10 float32 = 1600 bytes -> 2136 characters.
-  const auto f = run_hisnegs(
-      {"export", "html", "--model", model(), "--cameras", cams, "-o", dir_ / "f.html", "--float32"});
+  const auto f =
+      run_hisnegs({"export", "html", "--model", model(), "--cameras", cams, "-o", dir_ / "f.html", "--float32"});
   ASSERT_EQ(f.exit_code, 0) << f.err;
   const std::string exact = testing::read_bytes(dir_ / "f.html");
   const std::vector<float> packed = apps::pack_viewer_model(mixture_);
@@ -214,8 +248,8 @@ TEST_F(CliViewer, ExportHtmlRefusesBadInputInOneLine) {
   EXPECT_NE(r.err.find("missing.ply"), std::string::npos) << r.err;
   EXPECT_FALSE(fs::exists(dir_ / "v.html"));
   testing::write_text(dir_ / "bad.json", "{\"width\": 4}");
-  const auto c = run_hisnegs({"export", "html", "--model", model(), "--cameras", dir_ / "bad.json", "-o",
-                              dir_ / "v.html"});
+  const auto c =
+      run_hisnegs({"export", "html", "--model", model(), "--cameras", dir_ / "bad.json", "-o", dir_ / "v.html"});
   EXPECT_NE(c.exit_code, 0);
   EXPECT_NE(c.err.find("bad.json"), std::string::npos) << c.err;
   EXPECT_FALSE(fs::exists(dir_ / "v.html"));
@@ -240,11 +274,11 @@ TEST(ViewerPage, PackedCovarianceIsTheModelsSigma) {
   const std::vector<float> p = apps::pack_viewer_model(mixture);
   ASSERT_EQ(p.size(), 10u);
   EXPECT_FLOAT_EQ(p[1], -0.2f);
-  EXPECT_NEAR(p[3], 0.01, 1e-7);   // xx = 0.1²
-  EXPECT_NEAR(p[4], 0.0, 1e-9);    // xy
-  EXPECT_NEAR(p[6], 0.04, 1e-7);   // yy = 0.2²
-  EXPECT_NEAR(p[8], 0.0025, 1e-8); // zz = 0.05²
-  EXPECT_FLOAT_EQ(p[9], 0.5f);     // sigmoid(0)
+  EXPECT_NEAR(p[3], 0.01, 1e-7);    // xx = 0.1²
+  EXPECT_NEAR(p[4], 0.0, 1e-9);     // xy
+  EXPECT_NEAR(p[6], 0.04, 1e-7);    // yy = 0.2²
+  EXPECT_NEAR(p[8], 0.0025, 1e-8);  // zz = 0.05²
+  EXPECT_FLOAT_EQ(p[9], 0.5f);      // sigmoid(0)
 }
 
 // Chromium's screenshot of each `#view=N&ui=0` against `render --mode hard` of view N.
@@ -256,34 +290,25 @@ TEST_F(CliViewer, ChromiumDrawsTheBackgroundFloorAsTheCpuDoes) {
   gmf::Checkpoint c{mixture_, {}};
   c.meta.volume_shape_zyx = std::array<int, 3>{40, 120, 100};
   c.meta.aspect = std::array<double, 3>{0.8, 1.0, 0.6};
-  io::BackgroundModel bg;  // a bright floor, so that 8-bit screenshots resolve it well
-  bg.values = {0.0, 0.02, 0.05, 0.1, 0.15};
-  bg.cdf = {0.5, 0.8, 0.95, 0.99, 1.0};
-  bg.samples_per_voxel = 1.6;
-  gmf::set_background(c.meta, bg);
-  gmf::save_checkpoint(dir_ / "bg.ply", c.mixture, c.meta);
-  const CameraCase cc{150, 110, 45.0, 4.0, 1.1};
-  const fs::path cams = write_cameras("bg.json", cc);
-  ASSERT_EQ(run_hisnegs({"-q", "export", "html", "--model", dir_ / "bg.ply", "--cameras", cams, "-o", dir_ / "bg.html"})
-                .exit_code,
-            0);
-  const auto r = run_hisnegs({"-q", "render", "--model", dir_ / "bg.ply", "--cameras", cams, "-o", dir_ / "rbg",
-                              "--mode", "hard", "--backend", "cpu"});
-  ASSERT_EQ(r.exit_code, 0) << r.err;
-  const auto n = run_hisnegs({"-q", "render", "--model", dir_ / "bg.ply", "--cameras", cams, "-o", dir_ / "rno",
-                              "--mode", "hard", "--background", "none", "--backend", "cpu"});
-  ASSERT_EQ(n.exit_code, 0) << n.err;
-  const io::Volume with = io::read_tiff_stack(dir_ / "rbg" / "render.tif");
-  const io::Volume without = io::read_tiff_stack(dir_ / "rno" / "render.tif");
-  const std::size_t plane = static_cast<std::size_t>(cc.width) * cc.height;
-  const std::span<const float> cpu(with.voxels.data() + plane, plane), bare(without.voxels.data() + plane, plane);
-  ASSERT_LT(gmf::psnr(cpu, bare), 30.0) << "the floor must show";
-  const std::vector<float> page =
-      chromium_view("file://" + (dir_ / "bg.html").string() + "#view=1&ui=0", cc.width, cc.height, "bg");
-  EXPECT_GE(gmf::psnr(std::span<const float>(page.data(), plane), cpu), kMinPsnrDb);
-  const std::vector<float> page_bare = chromium_view(
-      "file://" + (dir_ / "bg.html").string() + "#view=1&ui=0&background=0", cc.width, cc.height, "bgn");
-  EXPECT_GE(gmf::psnr(std::span<const float>(page_bare.data(), plane), bare), kMinPsnrDb);
+  gmf::set_background(c.meta, bright_floor(0.15));
+  expect_page_floor_as_cpu(c, "bg");
+}
+
+// A background by region (a raw and a subtracted half, a dimmer quarter): the
+// page's region shader splits each ray at the region edges as the CPU does.
+TEST_F(CliViewer, ChromiumDrawsABackgroundByRegionAsTheCpuDoes) {
+  REQUIRE_CHROMIUM();
+  gmf::Checkpoint c{mixture_, {}};
+  c.meta.volume_shape_zyx = std::array<int, 3>{40, 120, 100};
+  c.meta.aspect = std::array<double, 3>{0.8, 1.0, 0.6};
+  io::BackgroundField field;
+  field.regions = io::BackgroundRegions::of({100, 120, 40}, 50);  // 2 x 3 x 1
+  field.merged = bright_floor(0.15);
+  field.models = {bright_floor(0.15), io::BackgroundModel{{0.0}, {1.0}, 1.6, 100},
+                  bright_floor(0.15), io::BackgroundModel{{0.0}, {1.0}, 1.6, 100},
+                  bright_floor(0.08), bright_floor(0.2)};
+  gmf::set_background(c.meta, field);
+  expect_page_floor_as_cpu(c, "rg");
 }
 
 TEST_F(CliViewer, ChromiumScreenshotMatchesCpuHardMip) {
@@ -299,8 +324,8 @@ TEST_F(CliViewer, ChromiumScreenshotMatchesCpuHardMip) {
     const fs::path html = dir_ / ("v" + tag + ".html");
     const auto e = run_hisnegs({"export", "html", "--model", model(), "--cameras", cams, "-o", html});
     ASSERT_EQ(e.exit_code, 0) << e.err;
-    const auto r = run_hisnegs(
-        {"render", "--model", model(), "--cameras", cams, "-o", dir_ / ("r" + tag), "--mode", "hard", "--backend", "cpu"});
+    const auto r = run_hisnegs({"render", "--model", model(), "--cameras", cams, "-o", dir_ / ("r" + tag), "--mode",
+                                "hard", "--backend", "cpu"});
     ASSERT_EQ(r.exit_code, 0) << r.err;
     const io::Volume cpu = io::read_tiff_stack(dir_ / ("r" + tag) / "render.tif");
     ASSERT_EQ(cpu.nx, c.width);
@@ -322,8 +347,8 @@ TEST_F(CliViewer, ChromiumScreenshotMatchesCpuHardMip) {
     // The comparison discriminates: the same screenshot against another view's render is far off.
     const std::span<const float> other(cpu.voxels.data() + ((n + 1) % 3) * plane, plane);
     EXPECT_LT(gmf::psnr(std::span<const float>(page.data(), plane), other), kMinPsnrDb - 10.0);
-    std::printf("view %d: %dx%d, PSNR %.2f dB vs CPU hard MIP, chromium %.2f s, html %zu bytes\n", n, c.width,
-                c.height, db, seconds, static_cast<std::size_t>(fs::file_size(html)));
+    std::printf("view %d: %dx%d, PSNR %.2f dB vs CPU hard MIP, chromium %.2f s, html %zu bytes\n", n, c.width, c.height,
+                db, seconds, static_cast<std::size_t>(fs::file_size(html)));
     std::fflush(stdout);  // before the next popen forks a copy of the buffer
   }
 }
@@ -346,8 +371,8 @@ TEST_F(CliViewer, ViewServesOnlyThePageOnLoopbackAndStopsOnCtrlC) {
   EXPECT_EQ(model_block(page->body), apps::base64_encode(hgs.data(), hgs.size()));
   EXPECT_NE(page->body.find("\"width\":96"), std::string::npos);
   // Traversal, encoded traversal, absolute and unknown paths: refused, nothing leaks.
-  for (const char* path : {"/../etc/passwd", "/%2e%2e/%2e%2e/etc/passwd", "//etc/passwd", "/index.html/../../x",
-                           "/viewer.js", "/m.ply"}) {
+  for (const char* path :
+       {"/../etc/passwd", "/%2e%2e/%2e%2e/etc/passwd", "//etc/passwd", "/index.html/../../x", "/viewer.js", "/m.ply"}) {
     const auto r = client.Get(path);
     ASSERT_TRUE(r) << path;
     EXPECT_EQ(r->status, 404) << path;
@@ -493,8 +518,8 @@ TEST_F(CliViewer, ChromiumSlabMatchesCpuHardMipWithThatDepthRange) {
   slab.intrinsics.far = depth + offset + thick / 2;
   splat::write_cameras_json(dir_ / "slab.json", slab);
   for (const auto& [name, file] : {std::pair{"full", cams}, std::pair{"slab", dir_ / "slab.json"}}) {
-    const auto r = run_hisnegs({"render", "--model", model(), "--cameras", file, "-o", dir_ / name, "--mode", "hard",
-                                "--backend", "cpu"});
+    const auto r = run_hisnegs(
+        {"render", "--model", model(), "--cameras", file, "-o", dir_ / name, "--mode", "hard", "--backend", "cpu"});
     ASSERT_EQ(r.exit_code, 0) << r.err;
   }
   const io::Volume full = io::read_tiff_stack(dir_ / "full" / "render.tif");
@@ -583,9 +608,10 @@ TEST_F(CliViewer, ChromiumScreenshotAtAnotherSizeAndCameraAsCamerasJson) {
   std::string html = testing::read_bytes(dir_ / "v.html");
   const std::size_t body_end = html.rfind("</body>");
   ASSERT_NE(body_end, std::string::npos);
-  html.insert(body_end,
-              "<script>console.log(\"probe-camera \" + JSON.stringify(window.hisnegsViewer.camera()).replace(/\"/g, \"'\"));"
-              "console.log(\"probe-png \" + window.hisnegsViewer.screenshot(150, 80));</script>\n");
+  html.insert(
+      body_end,
+      "<script>console.log(\"probe-camera \" + JSON.stringify(window.hisnegsViewer.camera()).replace(/\"/g, \"'\"));"
+      "console.log(\"probe-png \" + window.hisnegsViewer.screenshot(150, 80));</script>\n");
   testing::write_text(dir_ / "p.html", html);
   std::string log;
   (void)chromium_view("file://" + (dir_ / "p.html").string() + "#view=1&ui=0", c.width, c.height, "probe", &log);
