@@ -38,9 +38,9 @@ FileKind detect_kind(const std::filesystem::path& path) {
   if (gmf::has_compact_magic(std::string_view(reinterpret_cast<const char*>(magic), 8))) return FileKind::kCompact;
   // OpenVDB files start with the int32 magic 0x56444220 (" BDV" little-endian).
   if (magic[0] == 0x20 && magic[1] == 0x42 && magic[2] == 0x44 && magic[3] == 0x56) return FileKind::kVdb;
-  io::fail_input(
-      path, "unrecognized file type (expected a TIFF or HDF5 stack, an OpenVDB .vdb, a .ply or a compact .hgs "
-      "checkpoint)");
+  io::fail_input(path,
+                 "unrecognized file type (expected a TIFF or HDF5 stack, an OpenVDB .vdb, a .ply or a compact .hgs "
+                 "checkpoint)");
 }
 
 // "%-12s %s" rows and free lines, in order.
@@ -119,16 +119,16 @@ void info_vdb(const std::filesystem::path& path, Sheet& sheet) {
   auto count = [](std::int64_t n) { return n < 0 ? std::string("?") : std::to_string(n); };
   for (const auto& g : grids) {
     sheet.line("grid '%s': %s %s, %s active voxels, %s leaves, %s, voxel size (%.4g, %.4g, %.4g)\n", g.name.c_str(),
-                g.value_type.c_str(), g.grid_class.c_str(), count(g.active_voxels).c_str(), count(g.leaf_count).c_str(),
-                g.memory_bytes < 0 ? "? bytes" : format_bytes(static_cast<double>(g.memory_bytes)).c_str(),
-                g.voxel_size[0], g.voxel_size[1], g.voxel_size[2]);
+               g.value_type.c_str(), g.grid_class.c_str(), count(g.active_voxels).c_str(), count(g.leaf_count).c_str(),
+               g.memory_bytes < 0 ? "? bytes" : format_bytes(static_cast<double>(g.memory_bytes)).c_str(),
+               g.voxel_size[0], g.voxel_size[1], g.voxel_size[2]);
     if (!g.values_read)
       sheet.line(
           "  values not loaded (OpenVDB's own %s format, which hisnegs cannot check first): "
           "counts as the writer recorded them\n",
           g.value_type.c_str());
     sheet.line("  active index bbox [%d %d %d] .. [%d %d %d]\n", g.bbox_min[0], g.bbox_min[1], g.bbox_min[2],
-                g.bbox_max[0], g.bbox_max[1], g.bbox_max[2]);
+               g.bbox_max[0], g.bbox_max[1], g.bbox_max[2]);
     for (const auto& [key, value] : g.metadata) sheet.line("  %-22s %s\n", key.c_str(), value.c_str());
   }
 }
@@ -174,7 +174,7 @@ void info_checkpoint(const std::filesystem::path& path, bool compact, const std:
   }
   if (!ckpt.meta.normalization.empty()) sheet.row("normalized", ckpt.meta.normalization);
   for (const auto& [k, v] : ckpt.meta.extra) {
-    if (k != "background") sheet.row(k, v);  // summarized below
+    if (!k.starts_with("background")) sheet.row(k, v);  // summarized below
   }
   if (st.count == 0) return;
   sheet.row("mean scale", vec3(Eigen::Vector3d(st.mean_scale[0], st.mean_scale[1], st.mean_scale[2])) + " world units");
@@ -184,17 +184,33 @@ void info_checkpoint(const std::filesystem::path& path, bool compact, const std:
                 gmf::kNeedleAxisRatio, st.largest_axis_ratio);
   sheet.row("needles", needles);
   if (!stack.empty()) sheet.row("halos", halo_text(count_model_halos(ckpt, stack, options)));
-  const io::BackgroundModel background = gmf::background_of(ckpt.meta, path.string());
-  if (background.none()) {
+  const io::BackgroundField field = gmf::background_field_of(ckpt.meta, path.string());
+  const io::BackgroundModel& background = field.merged;
+  if (field.none()) {
     sheet.row("background", "none recorded (renders draw no floor)");
   } else {
     char bg[200];
     std::snprintf(bg, sizeof bg,
                   "%zu levels of a ray sample, mean %.4g, p99 %.4g; %.3g samples per voxel of path: renders draw "
                   "its MIP floor (--background none: not)",
-                  background.values.size(), background.mean(), background.quantile(0.99),
-                  background.samples_per_voxel);
+                  background.values.size(), background.mean(), background.quantile(0.99), background.samples_per_voxel);
     sheet.row("background", bg);
+  }
+  if (field.regional() && !field.none()) {
+    int subtracted = 0;
+    double lo = 1.0, hi = 0.0;
+    for (const io::BackgroundModel& m : field.models) {
+      subtracted += m.none() ? 1 : 0;
+      if (!m.none()) {
+        lo = std::min(lo, m.quantile(0.99));
+        hi = std::max(hi, m.quantile(0.99));
+      }
+    }
+    const auto& c = field.regions.cells;
+    sheet.row("bg regions", std::to_string(field.regions.count()) + " (" + std::to_string(c[0]) + " x " +
+                                std::to_string(c[1]) + " x " + std::to_string(c[2]) + "), each its own floor; " +
+                                std::to_string(subtracted) + " subtracted (floor 0); p99 " + fmt("%.4g", lo) + " to " +
+                                fmt("%.4g", hi));
   }
   sheet.row("intensity", "a in [" + fmt("%.4g", st.intensity_min) + ", " + fmt("%.4g", st.intensity_max) + "], mean " +
                              fmt("%.4g", st.intensity_mean));
