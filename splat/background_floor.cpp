@@ -7,6 +7,7 @@
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <random>
 
@@ -156,17 +157,24 @@ double RegionFloor::at(const Eigen::Vector3d& origin, const Eigen::Vector3d& dir
   const Eigen::Vector3d u0 = frame_.index_from_world(origin + t_in * dir).array() + 0.5;
   const Eigen::Vector3d u1 = frame_.index_from_world(origin + t_out * dir).array() + 0.5;
   const double length = (u1 - u0).norm();
-  std::vector<double> cuts = {0.0, 1.0};
+  // At most kMaxPerAxis - 1 edges per axis are crossed, so the chord has at most
+  // 3 (kMaxPerAxis - 1) + 1 pieces: fixed arrays, no allocation per pixel.
+  constexpr int kMaxCuts = 3 * (io::BackgroundRegions::kMaxPerAxis - 1) + 2;
+  std::array<double, kMaxCuts> cuts{};
+  int n_cuts = 0;
+  cuts[n_cuts++] = 0.0;
+  cuts[n_cuts++] = 1.0;
   for (int a = 0; a < 3; ++a) {
     for (int k = 1; k < regions_.cells[a]; ++k) {
       const double e = regions_.edge(a, k);
-      if ((u0[a] - e) * (u1[a] - e) < 0.0) cuts.push_back((e - u0[a]) / (u1[a] - u0[a]));
+      if ((u0[a] - e) * (u1[a] - e) < 0.0) cuts[static_cast<std::size_t>(n_cuts++)] = (e - u0[a]) / (u1[a] - u0[a]);
     }
   }
-  std::sort(cuts.begin(), cuts.end());
-  std::vector<std::pair<int, double>> samples;  // (region, c L_j)
+  std::sort(cuts.begin(), cuts.begin() + n_cuts);
+  std::array<std::pair<int, double>, kMaxCuts> samples{};  // (region, c L_j)
+  int n_samples = 0;
   double total = 0.0;
-  for (std::size_t i = 0; i + 1 < cuts.size(); ++i) {
+  for (int i = 0; i + 1 < n_cuts; ++i) {
     const double n = samples_per_voxel_ * (cuts[i + 1] - cuts[i]) * length;
     if (!(n > 0.0)) continue;
     const Eigen::Vector3d mid = u0 + 0.5 * (cuts[i] + cuts[i + 1]) * (u1 - u0);
@@ -174,7 +182,8 @@ double RegionFloor::at(const Eigen::Vector3d& origin, const Eigen::Vector3d& dir
     for (int a = 0; a < 3; ++a) {
       cell[a] = regions_.cell_of(a, std::clamp(static_cast<int>(std::floor(mid[a])), 0, regions_.shape[a] - 1));
     }
-    samples.emplace_back(cell[0] + regions_.cells[0] * (cell[1] + regions_.cells[1] * cell[2]), n);
+    samples[static_cast<std::size_t>(n_samples++)] = {
+        cell[0] + regions_.cells[0] * (cell[1] + regions_.cells[1] * cell[2]), n};
     total += n;
   }
   if (!(total > 0.0)) return 0.0;
@@ -184,8 +193,10 @@ double RegionFloor::at(const Eigen::Vector3d& origin, const Eigen::Vector3d& dir
   double mean = levels_.back();
   for (int i = kLevels - 2; i >= 0; --i) {
     double log_p = 0.0;
-    for (const auto& [region, n] : samples)
+    for (int k = 0; k < n_samples; ++k) {
+      const auto& [region, n] = samples[static_cast<std::size_t>(k)];
       log_p += scale * n * log_cdf_[static_cast<std::size_t>(region) * kLevels + i];
+    }
     if (log_p < -40.0) break;
     mean -= (levels_[static_cast<std::size_t>(i) + 1] - levels_[static_cast<std::size_t>(i)]) * std::exp(log_p);
   }

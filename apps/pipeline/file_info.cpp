@@ -133,6 +133,38 @@ void info_vdb(const std::filesystem::path& path, Sheet& sheet) {
   }
 }
 
+// The "background" row (the merged distribution) and, for a background by region,
+// the "bg regions" row.
+void background_rows(const io::BackgroundField& field, Sheet& sheet) {
+  const io::BackgroundModel& background = field.merged;
+  if (field.none()) {
+    sheet.row("background", "none recorded (renders draw no floor)");
+  } else {
+    char bg[200];
+    std::snprintf(bg, sizeof bg,
+                  "%zu levels of a ray sample, mean %.4g, p99 %.4g; %.3g samples per voxel of path: renders draw "
+                  "its MIP floor (--background none: not)",
+                  background.values.size(), background.mean(), background.quantile(0.99), background.samples_per_voxel);
+    sheet.row("background", bg);
+  }
+  if (field.regional() && !field.none()) {
+    int subtracted = 0;
+    double lo = 1.0, hi = 0.0;
+    for (const io::BackgroundModel& m : field.models) {
+      subtracted += m.none() ? 1 : 0;
+      if (!m.none()) {
+        lo = std::min(lo, m.quantile(0.99));
+        hi = std::max(hi, m.quantile(0.99));
+      }
+    }
+    const auto& c = field.regions.cells;
+    sheet.row("bg regions", std::to_string(field.regions.count()) + " (" + std::to_string(c[0]) + " x " +
+                                std::to_string(c[1]) + " x " + std::to_string(c[2]) + "), each its own floor; " +
+                                std::to_string(subtracted) + " subtracted (floor 0); p99 " + fmt("%.4g", lo) + " to " +
+                                fmt("%.4g", hi));
+  }
+}
+
 void info_checkpoint(const std::filesystem::path& path, bool compact, const std::filesystem::path& stack,
                      const io::VolumeOptions& options, Sheet& sheet) {
   const gmf::Checkpoint ckpt = gmf::load_checkpoint(path);
@@ -184,34 +216,7 @@ void info_checkpoint(const std::filesystem::path& path, bool compact, const std:
                 gmf::kNeedleAxisRatio, st.largest_axis_ratio);
   sheet.row("needles", needles);
   if (!stack.empty()) sheet.row("halos", halo_text(count_model_halos(ckpt, stack, options)));
-  const io::BackgroundField field = gmf::background_field_of(ckpt.meta, path.string());
-  const io::BackgroundModel& background = field.merged;
-  if (field.none()) {
-    sheet.row("background", "none recorded (renders draw no floor)");
-  } else {
-    char bg[200];
-    std::snprintf(bg, sizeof bg,
-                  "%zu levels of a ray sample, mean %.4g, p99 %.4g; %.3g samples per voxel of path: renders draw "
-                  "its MIP floor (--background none: not)",
-                  background.values.size(), background.mean(), background.quantile(0.99), background.samples_per_voxel);
-    sheet.row("background", bg);
-  }
-  if (field.regional() && !field.none()) {
-    int subtracted = 0;
-    double lo = 1.0, hi = 0.0;
-    for (const io::BackgroundModel& m : field.models) {
-      subtracted += m.none() ? 1 : 0;
-      if (!m.none()) {
-        lo = std::min(lo, m.quantile(0.99));
-        hi = std::max(hi, m.quantile(0.99));
-      }
-    }
-    const auto& c = field.regions.cells;
-    sheet.row("bg regions", std::to_string(field.regions.count()) + " (" + std::to_string(c[0]) + " x " +
-                                std::to_string(c[1]) + " x " + std::to_string(c[2]) + "), each its own floor; " +
-                                std::to_string(subtracted) + " subtracted (floor 0); p99 " + fmt("%.4g", lo) + " to " +
-                                fmt("%.4g", hi));
-  }
+  background_rows(gmf::background_field_of(ckpt.meta, path.string()), sheet);
   sheet.row("intensity", "a in [" + fmt("%.4g", st.intensity_min) + ", " + fmt("%.4g", st.intensity_max) + "], mean " +
                              fmt("%.4g", st.intensity_mean));
   sheet.line("%-16s %12s %12s %12s\n", "parameter", "min", "max", "mean");
