@@ -21,7 +21,7 @@ constexpr int kOctaves = 26;    // n up to 2^26: far more samples than any ray t
 
 // The distribution of trilinear samples of `noise` at uniformly random interior
 // points, as at most max(atoms, 64) equal-width bins (each atom its bin's mean).
-io::BackgroundModel interpolated_distribution(const io::Volume& noise, std::mt19937_64& rng, int atoms) {
+gmf::BackgroundModel interpolated_distribution(const io::Volume& noise, std::mt19937_64& rng, int atoms) {
   constexpr int kSamples = 1 << 19;
   const int bins = std::clamp(atoms, 64, 4096);
   std::uniform_real_distribution<double> u(0.0, 1.0);
@@ -39,7 +39,7 @@ io::BackgroundModel interpolated_distribution(const io::Volume& noise, std::mt19
     }
     top = std::max(top, v);
   }
-  io::BackgroundModel m;
+  gmf::BackgroundModel m;
   m.voxels = kSamples;
   if (!(top > 0.0)) {
     m.values = {0.0};
@@ -66,7 +66,7 @@ io::BackgroundModel interpolated_distribution(const io::Volume& noise, std::mt19
 
 }  // namespace
 
-FloorTable::FloorTable(const io::BackgroundModel& model) : samples_per_voxel_(model.samples_per_voxel) {
+FloorTable::FloorTable(const gmf::BackgroundModel& model) : samples_per_voxel_(model.samples_per_voxel) {
   if (model.none()) return;
   values_.resize(kPerOctave * kOctaves + 1);
   for (std::size_t i = 0; i < values_.size(); ++i) {
@@ -115,19 +115,19 @@ std::vector<float> background_floor(const FloorTable& table, const io::WorldFram
 namespace {
 
 // P(X <= v) of `model` (0 below its first atom).
-double cdf_at(const io::BackgroundModel& model, double v) {
+double cdf_at(const gmf::BackgroundModel& model, double v) {
   const auto it = std::upper_bound(model.values.begin(), model.values.end(), v);
   return it == model.values.begin() ? 0.0 : model.cdf[static_cast<std::size_t>(it - model.values.begin() - 1)];
 }
 
 }  // namespace
 
-RegionFloor::RegionFloor(const io::BackgroundField& field, const io::WorldFrame& frame)
+RegionFloor::RegionFloor(const gmf::BackgroundField& field, const io::WorldFrame& frame)
     : regions_(field.regions), frame_(frame) {
   if (field.none()) return;
   double top = 0.0;
   for (int r = 0; r < regions_.count(); ++r) {
-    const io::BackgroundModel& m = field.at(r);
+    const gmf::BackgroundModel& m = field.at(r);
     if (!m.none()) {
       top = std::max(top, m.values.back());
       samples_per_voxel_ = m.samples_per_voxel;
@@ -142,7 +142,7 @@ RegionFloor::RegionFloor(const io::BackgroundField& field, const io::WorldFrame&
   edges.back() = top;  // every atom at or below the last edge: F = 1 there
   log_cdf_.resize(static_cast<std::size_t>(regions_.count()) * kLevels);
   for (int r = 0; r < regions_.count(); ++r) {
-    const io::BackgroundModel& m = field.at(r);
+    const gmf::BackgroundModel& m = field.at(r);
     for (int i = 0; i < kLevels; ++i) {
       const double F = m.none() ? 1.0 : cdf_at(m, edges[static_cast<std::size_t>(i)]);
       log_cdf_[static_cast<std::size_t>(r) * kLevels + i] = F > 0.0 ? static_cast<float>(std::log(F)) : -1e30f;
@@ -159,7 +159,7 @@ double RegionFloor::at(const Eigen::Vector3d& origin, const Eigen::Vector3d& dir
   const double length = (u1 - u0).norm();
   // At most kMaxPerAxis - 1 edges per axis are crossed, so the chord has at most
   // 3 (kMaxPerAxis - 1) + 1 pieces: fixed arrays, no allocation per pixel.
-  constexpr int kMaxCuts = 3 * (io::BackgroundRegions::kMaxPerAxis - 1) + 2;
+  constexpr int kMaxCuts = 3 * (gmf::BackgroundRegions::kMaxPerAxis - 1) + 2;
   std::array<double, kMaxCuts> cuts{};
   int n_cuts = 0;
   cuts[n_cuts++] = 0.0;
@@ -203,10 +203,10 @@ double RegionFloor::at(const Eigen::Vector3d& origin, const Eigen::Vector3d& dir
   return mean;
 }
 
-BackgroundFloors::BackgroundFloors(const io::BackgroundModel& model, const io::WorldFrame& frame)
+BackgroundFloors::BackgroundFloors(const gmf::BackgroundModel& model, const io::WorldFrame& frame)
     : table_(model), frame_(frame) {}
 
-BackgroundFloors::BackgroundFloors(const io::BackgroundField& field, const io::WorldFrame& frame) : frame_(frame) {
+BackgroundFloors::BackgroundFloors(const gmf::BackgroundField& field, const io::WorldFrame& frame) : frame_(frame) {
   if (field.regional()) {
     regional_ = RegionFloor(field, frame);
   } else {
@@ -232,7 +232,7 @@ std::vector<float> BackgroundFloors::operator()(const Intrinsics& K, const Camer
 
 BackgroundFloors floors_of(const gmf::CheckpointMeta& meta, const std::string& source, bool draw) {
   if (!draw) return {};
-  const io::BackgroundField field = gmf::background_field_of(meta, source);
+  const gmf::BackgroundField field = gmf::background_field_of(meta, source);
   const std::optional<io::WorldFrame> frame = gmf::model_frame(meta);
   if (field.none() || !frame) return {};
   return BackgroundFloors(field, *frame);
@@ -242,7 +242,7 @@ namespace {
 
 // A noise-only block drawn from `model` with the stack's voxel size, at most 64
 // voxels a side.
-io::Volume noise_block(const io::BackgroundModel& model, const io::WorldFrame& frame, std::mt19937_64& rng) {
+io::Volume noise_block(const gmf::BackgroundModel& model, const io::WorldFrame& frame, std::mt19937_64& rng) {
   io::Volume noise;
   const Eigen::Vector3i& shape = frame.shape();
   noise.nx = std::min(shape.x(), 64);
@@ -308,7 +308,7 @@ std::vector<ChordBin> chord_bins(const RayMarcher& marcher, const io::WorldFrame
 // The samples per voxel c whose E[max of c L samples] best matches the bins' mean
 // MIP (relative squared error; golden-section search over ln c in [ln 0.02, ln 8],
 // E[max] rises with c), and the worst relative error there.
-double fit_samples_per_voxel(const io::BackgroundModel& model, const std::vector<ChordBin>& bins, double& worst) {
+double fit_samples_per_voxel(const gmf::BackgroundModel& model, const std::vector<ChordBin>& bins, double& worst) {
   const auto error = [&](double c, double* largest) {
     double sum = 0.0;
     if (largest) *largest = 0.0;
@@ -348,7 +348,7 @@ double fit_samples_per_voxel(const io::BackgroundModel& model, const std::vector
 
 }  // namespace
 
-FloorCalibration calibrate_background(io::BackgroundModel& model, const io::WorldFrame& frame,
+FloorCalibration calibrate_background(gmf::BackgroundModel& model, const io::WorldFrame& frame,
                                       const RaymarchOptions& options, std::uint64_t seed) {
   FloorCalibration out;
   out.samples_per_voxel = model.samples_per_voxel;
@@ -370,18 +370,18 @@ FloorCalibration calibrate_background(io::BackgroundModel& model, const io::Worl
   return out;
 }
 
-FloorCalibration calibrate_background(io::BackgroundField& field, const io::WorldFrame& frame,
+FloorCalibration calibrate_background(gmf::BackgroundField& field, const io::WorldFrame& frame,
                                       const RaymarchOptions& options, std::uint64_t seed) {
-  io::BackgroundModel* basis = &field.merged;
+  gmf::BackgroundModel* basis = &field.merged;
   if (field.merged.none()) {
-    for (io::BackgroundModel& m : field.models) {
+    for (gmf::BackgroundModel& m : field.models) {
       if (!m.none() && (basis->none() || m.voxels > basis->voxels)) basis = &m;
     }
   }
-  const io::BackgroundModel before = *basis;
+  const gmf::BackgroundModel before = *basis;
   const FloorCalibration out = calibrate_background(*basis, frame, options, seed);
   std::mt19937_64 rng(seed + 1);
-  for (io::BackgroundModel& m : field.models) {
+  for (gmf::BackgroundModel& m : field.models) {
     if (&m == basis || m.none()) continue;
     if (m == before) {
       m = *basis;  // a region that took the merged model

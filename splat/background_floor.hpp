@@ -1,7 +1,7 @@
 // SPDX-License-Identifier: Apache-2.0
 // The floor of a MIP of the stack's background noise, per pixel: a ray that crosses
 // L voxels of the stack (index-space length of its chord through the box) gathers
-// about c L independent samples of the background (io::BackgroundModel), and its MIP
+// about c L independent samples of the background (gmf::BackgroundModel), and its MIP
 // is their expected maximum. Also the calibration of c against the ray marcher that
 // makes the ground truth, on a noise-only volume drawn from the model. The splat
 // renderer takes the floor as one more term per pixel (SplatSettings::floor).
@@ -12,7 +12,7 @@
 #include <vector>
 
 #include "gmf/core/checkpoint.hpp"
-#include "io/background.hpp"
+#include "gmf/core/background.hpp"
 #include "io/volume.hpp"
 #include "splat/camera.hpp"
 #include "splat/splat_options.hpp"
@@ -24,7 +24,7 @@ namespace hisnegs::splat {
 class FloorTable {
  public:
   FloorTable() = default;
-  explicit FloorTable(const io::BackgroundModel& model);
+  explicit FloorTable(const gmf::BackgroundModel& model);
   // E[max of model.samples_per_voxel × voxels], within 1e-4 relative of the exact sum.
   [[nodiscard]] double at_voxels(double voxels) const;
   [[nodiscard]] bool none() const { return values_.empty(); }
@@ -50,7 +50,7 @@ class FloorTable {
 [[nodiscard]] std::vector<float> background_floor(const FloorTable& table, const io::WorldFrame& frame,
                                                   const Intrinsics& K, const CameraView& view);
 
-// The floor of a background that varies by region (io::BackgroundField): a ray
+// The floor of a background that varies by region (gmf::BackgroundField): a ray
 // gathers c L_j samples in each region j it crosses (L_j its index-space chord
 // there), so its maximum has the CDF Π_j F_j(v)^(c L_j), and the floor is its
 // mean. The regions' CDFs are tabled on one grid of kLevels values over [0, the
@@ -60,7 +60,7 @@ class RegionFloor {
  public:
   static constexpr int kLevels = 512;
   RegionFloor() = default;
-  RegionFloor(const io::BackgroundField& field, const io::WorldFrame& frame);
+  RegionFloor(const gmf::BackgroundField& field, const io::WorldFrame& frame);
   [[nodiscard]] bool none() const { return log_cdf_.empty(); }
   // The floor of the ray origin + t dir (t >= 0, dir a unit world vector); 0 when it
   // misses the box.
@@ -68,13 +68,13 @@ class RegionFloor {
   // What the viewer page evaluates the same way: the regions, c, the values m_i the
   // mean gives each interval (m_0 = 0, m_i the midpoint of [v_(i-1), v_i]) and, per
   // region (x fastest), ln F_j(v_i) for i = 0 .. kLevels-1 (-1e30 for F = 0).
-  [[nodiscard]] const io::BackgroundRegions& regions() const { return regions_; }
+  [[nodiscard]] const gmf::BackgroundRegions& regions() const { return regions_; }
   [[nodiscard]] double samples_per_voxel() const { return samples_per_voxel_; }
   [[nodiscard]] const std::vector<double>& levels() const { return levels_; }
   [[nodiscard]] const std::vector<float>& log_cdf() const { return log_cdf_; }
 
  private:
-  io::BackgroundRegions regions_;
+  gmf::BackgroundRegions regions_;
   io::WorldFrame frame_;
   double samples_per_voxel_ = 1.0;
   std::vector<double> levels_;
@@ -87,8 +87,8 @@ class RegionFloor {
 class BackgroundFloors {
  public:
   BackgroundFloors() = default;
-  BackgroundFloors(const io::BackgroundModel& model, const io::WorldFrame& frame);
-  BackgroundFloors(const io::BackgroundField& field, const io::WorldFrame& frame);
+  BackgroundFloors(const gmf::BackgroundModel& model, const io::WorldFrame& frame);
+  BackgroundFloors(const gmf::BackgroundField& field, const io::WorldFrame& frame);
   [[nodiscard]] bool none() const { return table_.none() && regional_.none(); }
   [[nodiscard]] bool regional() const { return !regional_.none(); }
   // background_floor of this camera, or empty when none().
@@ -117,7 +117,7 @@ struct FloorCalibration {
   int rays = 0;
 };
 
-// Turns a model of the stack's background voxels (io::estimate_background) into one
+// Turns a model of the stack's background voxels (gmf::estimate_background) into one
 // of what a ray samples: builds a noise-only volume of voxels drawn i.i.d. from
 // `model`, with `frame`'s voxel spacing and at most 64 voxels a side; replaces the
 // atoms by the distribution of its trilinear samples at random points (interpolation
@@ -126,13 +126,13 @@ struct FloorCalibration {
 // sets samples_per_voxel to the c whose E[max of c L] best matches the mean MIP per
 // chord-length bin (relative least squares). Deterministic for a seed. A none()
 // model is left as it is.
-FloorCalibration calibrate_background(io::BackgroundModel& model, const io::WorldFrame& frame,
+FloorCalibration calibrate_background(gmf::BackgroundModel& model, const io::WorldFrame& frame,
                                       const RaymarchOptions& options, std::uint64_t seed = 1);
 // The same for a field: c is calibrated on the merged model (or, when that is
 // none(), on the region resting on the most voxels) and shared by every region;
 // each region's model becomes the distribution of trilinear samples of noise drawn
 // from it, as above.
-FloorCalibration calibrate_background(io::BackgroundField& field, const io::WorldFrame& frame,
+FloorCalibration calibrate_background(gmf::BackgroundField& field, const io::WorldFrame& frame,
                                       const RaymarchOptions& options, std::uint64_t seed = 1);
 
 }  // namespace hisnegs::splat

@@ -82,7 +82,7 @@ struct SplatOptions {
   // counted; 0 = never skip. The error this allows in a pixel is below
   // (number of skipped terms) × e^-skip_log_weight (2e-9 each at 20). [0, 100]
   double skip_log_weight = 20.0;
-  // Draw the MIP floor of the background a checkpoint records (io::BackgroundModel,
+  // Draw the MIP floor of the background a checkpoint records (gmf::BackgroundModel,
   // splat/background_floor.hpp) under the Gaussians, as the ground truth has it;
   // false (`--background none`): the Gaussians alone, a clean look.
   bool background = true;

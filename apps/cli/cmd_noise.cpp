@@ -1,15 +1,15 @@
 // SPDX-License-Identifier: Apache-2.0
 // `hisnegs noise STACK -o OUT.tif [--background-photons 0.6] [--gain G] [--read-noise S]
 // [--offset O] [--shot-noise] [--seed N]`: raw-like test data from a
-// background-subtracted stack (io/detector_noise.hpp), and what its background
+// background-subtracted stack (apps/simulate/detector_noise.hpp), and what its background
 // looks like after normalization, to compare with a raw stack's.
 // `hisnegs noise STACK --estimate [--offset O]`: the stack's own Poisson–Gaussian
-// parameters (io::estimate_detector_noise), in the same units as the options above.
+// parameters (simulate::estimate_detector_noise), in the same units as the options above.
 #include <cstdio>
 
 #include "apps/cli/cli_support.hpp"
-#include "io/background.hpp"
-#include "io/detector_noise.hpp"
+#include "gmf/core/background.hpp"
+#include "apps/simulate/detector_noise.hpp"
 #include "io/error.hpp"
 #include "io/stack_file.hpp"
 #include "io/tiff_stack.hpp"
@@ -21,7 +21,7 @@ void add_noise_command(CLI::App& app, GlobalOptions& global) {
       "noise", "add a microscope's detector noise (Poisson-Gaussian, offset, quantized) to a stack: raw-like test data");
   struct Args {
     std::string in, out;
-    io::DetectorNoiseOptions noise;
+    simulate::DetectorNoiseOptions noise;
     bool estimate = false;
     VolumeOverrides overrides;
   };
@@ -47,19 +47,19 @@ void add_noise_command(CLI::App& app, GlobalOptions& global) {
     if (args->estimate) {
       if (!args->out.empty()) throw CLI::ValidationError("--estimate writes nothing: drop -o " + args->out);
       const io::Volume raw = io::read_stack(args->in, io::stack_read_options(config.volume));
-      std::printf("noise: %s: %s\n", args->in.c_str(), io::estimate_detector_noise(raw, args->noise.offset).describe().c_str());
+      std::printf("noise: %s: %s\n", args->in.c_str(), simulate::estimate_detector_noise(raw, args->noise.offset).describe().c_str());
       return;
     }
     if (args->out.empty()) throw CLI::RequiredError("--output");
     const io::Volume raw = io::read_stack(args->in, io::stack_read_options(config.volume));
-    const io::Volume noisy = io::add_detector_noise(raw, args->noise);
+    const io::Volume noisy = simulate::add_detector_noise(raw, args->noise);
     io::TiffWriteOptions write;
     write.type = raw.stored_as;
     io::write_tiff_stack(args->out, noisy, write);
     if (global.quiet) return;
     io::Volume normalized = noisy;
     io::normalize(normalized, config.volume.normalization);
-    const io::BackgroundModel bg = io::estimate_background(normalized, config.background);
+    const gmf::BackgroundModel bg = gmf::estimate_background(normalized, config.background);
     std::printf(
         "noise: wrote %s: %s %dx%dx%d with Poisson(%g photons) x gain %g + read noise %g + offset %g%s; after %s "
         "normalization its background (%lld voxels) is %.1f %% zeros, mean %.4g, p99 %.4g\n",

@@ -25,7 +25,7 @@ void add_synth_command(CLI::App& app, GlobalOptions& global) {
                   "(default from config: synth.background_subtract)");
   cmd->callback([args, &global] {
     AppConfig config = global.config();
-    io::SyntheticNeuronOptions& options = config.synth;
+    simulate::SyntheticNeuronOptions& options = config.synth;
     if (args->seed) options.seed = *args->seed;
     if (!args->shape_zyx.empty()) {
       if (args->shape_zyx.size() != 3) {

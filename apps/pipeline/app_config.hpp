@@ -9,19 +9,19 @@
 #include <string>
 
 #include "gmf/gmf_options.hpp"
-#include "io/background.hpp"
+#include "gmf/core/background.hpp"
 #include "io/load_volume.hpp"
 #include "io/sparse_grid.hpp"
-#include "io/synthetic_neuron.hpp"
+#include "apps/simulate/synthetic_neuron.hpp"
 #include "splat/splat_options.hpp"
 
 namespace hisnegs::apps {
 
 struct AppConfig {
   io::VolumeOptions volume;
-  io::BackgroundOptions background;
+  gmf::BackgroundOptions background;
   io::SparseGridOptions sparse_grid;
-  io::SyntheticNeuronOptions synth;
+  simulate::SyntheticNeuronOptions synth;
   splat::CameraOptions camera;
   splat::RaymarchOptions raymarch;
   splat::SplatOptions splat;

@@ -135,8 +135,8 @@ void info_vdb(const std::filesystem::path& path, Sheet& sheet) {
 
 // The "background" row (the merged distribution) and, for a background by region,
 // the "bg regions" row.
-void background_rows(const io::BackgroundField& field, Sheet& sheet) {
-  const io::BackgroundModel& background = field.merged;
+void background_rows(const gmf::BackgroundField& field, Sheet& sheet) {
+  const gmf::BackgroundModel& background = field.merged;
   if (field.none()) {
     sheet.row("background", "none recorded (renders draw no floor)");
   } else {
@@ -150,7 +150,7 @@ void background_rows(const io::BackgroundField& field, Sheet& sheet) {
   if (field.regional() && !field.none()) {
     int subtracted = 0;
     double lo = 1.0, hi = 0.0;
-    for (const io::BackgroundModel& m : field.models) {
+    for (const gmf::BackgroundModel& m : field.models) {
       subtracted += m.none() ? 1 : 0;
       if (!m.none()) {
         lo = std::min(lo, m.quantile(0.99));

@@ -34,14 +34,14 @@ void report_iteration(const gmf::FitIteration& it, const Progress& progress) {
 
 }  // namespace
 
-io::BackgroundField stack_background(const io::LoadedVolume& loaded, const FitConfig& config,
+gmf::BackgroundField stack_background(const io::LoadedVolume& loaded, const FitConfig& config,
                                      const Progress& progress) {
-  const io::BackgroundOptions& options = config.get<&AppConfig::background>();
+  const gmf::BackgroundOptions& options = config.get<&AppConfig::background>();
   if (!options.estimate) {
     progress.say("fit: background: not estimated (background.estimate: false): renders draw no floor");
     return {};
   }
-  io::BackgroundField field = io::estimate_background_field(loaded.volume, options);
+  gmf::BackgroundField field = gmf::estimate_background_field(loaded.volume, options);
   if (field.none()) {
     progress.say("fit: background: exactly 0 outside the neuron (%lld voxels): no floor to draw",
                  static_cast<long long>(field.merged.voxels));
@@ -53,11 +53,11 @@ namespace {
 
 // "; 16 regions (4 x 4 x 1), each its own floor, 5 subtracted (floor 0), 2 on the
 // whole stack's (under 4096 background voxels), p99 0.02 to 0.09", or "" for one region.
-std::string regions_text(const io::BackgroundField& field) {
+std::string regions_text(const gmf::BackgroundField& field) {
   if (!field.regional()) return "";
   int subtracted = 0, merged = 0;
   double lo = 1.0, hi = 0.0;
-  for (const io::BackgroundModel& m : field.models) {
+  for (const gmf::BackgroundModel& m : field.models) {
     subtracted += m.none() ? 1 : 0;
     merged += m == field.merged ? 1 : 0;
     if (m.none()) continue;
@@ -69,14 +69,14 @@ std::string regions_text(const io::BackgroundField& field) {
   if (subtracted > 0) text += strf(", %d subtracted (floor 0)", subtracted);
   if (merged > 0)
     text += strf(", %d on the whole stack's (under %lld background voxels)", merged,
-                 static_cast<long long>(io::BackgroundField::kMinVoxels));
+                 static_cast<long long>(gmf::BackgroundField::kMinVoxels));
   if (hi > 0.0) text += strf(", p99 %.4g to %.4g", lo, hi);
   return text;
 }
 
 }  // namespace
 
-void record_background(const io::WorldFrame& frame, const FitConfig& config, io::BackgroundField field,
+void record_background(const io::WorldFrame& frame, const FitConfig& config, gmf::BackgroundField field,
                        gmf::CheckpointMeta& meta, const Progress& progress) {
   io::Stopwatch watch;
   const double mean = field.merged.mean(), p99 = field.merged.quantile(0.99);
@@ -204,7 +204,7 @@ FittedModel fit_loaded(io::LoadedVolume loaded, const std::string& source, const
                jitter_source.c_str(), gmf.jitter());
   // A raw stack's noise peaks are not structure: density control clones nothing that
   // the background's 99.9th percentile could explain.
-  const io::BackgroundField background = stack_background(setup.loaded, config, progress);
+  const gmf::BackgroundField background = stack_background(setup.loaded, config, progress);
   gmf::GmfOptions fit_options = gmf;
   fit_options.clone_floor = background.merged.none() ? 0.0 : background.merged.quantile(0.999);
   // gmf.time_budget_s bounds the command: loading, sampling, init and the background

@@ -55,10 +55,10 @@ gmf::CheckpointMeta checkpoint_meta(const io::WorldFrame& frame, const io::Voxel
 
 // The background of `loaded` by region (config section `background`); none, with
 // one line saying why, when background.estimate is false or the background is 0.
-io::BackgroundField stack_background(const io::LoadedVolume& loaded, const FitConfig& config, const Progress& progress);
+gmf::BackgroundField stack_background(const io::LoadedVolume& loaded, const FitConfig& config, const Progress& progress);
 // Calibrates `field` (not none) against the ray marcher (`raymarch`) and records it
 // in `meta`, with one line.
-void record_background(const io::WorldFrame& frame, const FitConfig& config, io::BackgroundField field,
+void record_background(const io::WorldFrame& frame, const FitConfig& config, gmf::BackgroundField field,
                        gmf::CheckpointMeta& meta, const Progress& progress);
 
 // prepare_fit(), the fit, the checkpoint `out` (with the stack's background,

@@ -9,7 +9,7 @@
 #include "apps/pipeline/format.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
-#include "io/plot.hpp"
+#include "apps/pipeline/plot.hpp"
 #include "io/png.hpp"
 #include "io/timer.hpp"
 
@@ -111,11 +111,11 @@ std::string summary_md(const gmf::Comparison& c, const std::string& volume, cons
 }
 
 io::Image8 loss_plot(const gmf::Comparison& c) {
-  std::vector<io::PlotSeries> series;
+  std::vector<PlotSeries> series;
   for (std::size_t i = 0; i < c.runs.size(); ++i) {
-    io::PlotSeries s;
+    PlotSeries s;
     s.label = c.runs[i].name;
-    s.rgb = io::plot_color(static_cast<int>(i));
+    s.rgb = plot_color(static_cast<int>(i));
     for (const auto& it : c.runs[i].result.log) {
       s.x.push_back(it.seconds);
       s.y.push_back(it.loss);
@@ -123,7 +123,7 @@ io::Image8 loss_plot(const gmf::Comparison& c) {
     series.push_back(std::move(s));
   }
   if (c.target_loss > 0) {
-    io::PlotSeries target;
+    PlotSeries target;
     target.label = "Adam target";
     target.rgb = {128, 128, 128};
     double t_max = 0;
@@ -132,12 +132,12 @@ io::Image8 loss_plot(const gmf::Comparison& c) {
     target.y = {c.target_loss, c.target_loss};
     series.push_back(std::move(target));
   }
-  io::PlotOptions o;
+  PlotOptions o;
   o.title = "GMF loss against wall time (same init, same samples)";
   o.x_label = "seconds";
   o.y_label = "loss";
   o.log_y = true;
-  return io::plot_lines(series, o);
+  return plot_lines(series, o);
 }
 
 }  // namespace

@@ -30,7 +30,7 @@
 #include "gmf/fit.hpp"
 #include "gmf/init.hpp"
 #include "io/atomic_file.hpp"
-#include "io/background.hpp"
+#include "gmf/core/background.hpp"
 #include "io/error.hpp"
 #include "io/fault_injection.hpp"
 #include "io/folder_lock.hpp"
@@ -126,7 +126,7 @@ struct StreamContext {
   double max_memory = 0;                      // bytes (FitPlanChoice)
   std::string fingerprint;
   std::filesystem::path folder;
-  io::BackgroundRegions regions;  // of the stack's background (background.region_voxels)
+  gmf::BackgroundRegions regions;  // of the stack's background (background.region_voxels)
 };
 
 // Raw values of `box`, normalized as the whole stack is.
@@ -325,7 +325,7 @@ struct BrickResult {
   gmf::GaussianMixture kept;  // empty once saved: the bricks stay in the folder, not in memory
   std::size_t count = 0;      // Gaussians kept
   CentreBox centres;
-  std::vector<io::BackgroundCounts> background;  // per region of the stack's BackgroundRegions, or empty
+  std::vector<gmf::BackgroundCounts> background;  // per region of the stack's BackgroundRegions, or empty
   std::vector<gmf::FitIteration> log;
   std::int64_t foreground_core = 0;
   std::int64_t samples = 0;
@@ -333,14 +333,14 @@ struct BrickResult {
   double final_beta = 0;
 };
 
-nlohmann::json counts_json(const io::BackgroundCounts& b) {
+nlohmann::json counts_json(const gmf::BackgroundCounts& b) {
   nlohmann::json values = nlohmann::json::array();
   for (const auto& [v, n] : b.values) values.push_back({v, n});
   return {{"total", b.total}, {"zeros", b.zeros}, {"rounded", b.rounded}, {"values", values}};
 }
 
 // Per-region counts as [[region, counts], ...] for the regions with any.
-nlohmann::json region_counts_json(const std::vector<io::BackgroundCounts>& regions) {
+nlohmann::json region_counts_json(const std::vector<gmf::BackgroundCounts>& regions) {
   nlohmann::json out = nlohmann::json::array();
   for (std::size_t r = 0; r < regions.size(); ++r) {
     if (regions[r].total > 0) out.push_back({r, counts_json(regions[r])});
@@ -348,10 +348,10 @@ nlohmann::json region_counts_json(const std::vector<io::BackgroundCounts>& regio
   return out;
 }
 
-io::BackgroundCounts counts_from(const nlohmann::json& j);
+gmf::BackgroundCounts counts_from(const nlohmann::json& j);
 
-std::vector<io::BackgroundCounts> region_counts_from(const nlohmann::json& j, int regions) {
-  std::vector<io::BackgroundCounts> out(static_cast<std::size_t>(regions));
+std::vector<gmf::BackgroundCounts> region_counts_from(const nlohmann::json& j, int regions) {
+  std::vector<gmf::BackgroundCounts> out(static_cast<std::size_t>(regions));
   for (const auto& pair : j) {
     const auto r = pair.at(0).get<std::size_t>();
     if (r >= out.size()) throw std::out_of_range("background region " + std::to_string(r));
@@ -360,8 +360,8 @@ std::vector<io::BackgroundCounts> region_counts_from(const nlohmann::json& j, in
   return out;
 }
 
-io::BackgroundCounts counts_from(const nlohmann::json& j) {
-  io::BackgroundCounts b;
+gmf::BackgroundCounts counts_from(const nlohmann::json& j) {
+  gmf::BackgroundCounts b;
   b.rounded = j.at("rounded").get<bool>();
   for (const auto& pair : j.at("values")) b.values[pair.at(0).get<float>()] += pair.at(1).get<std::int64_t>();
   b.total = j.at("total").get<std::int64_t>();
@@ -479,9 +479,9 @@ BrickResult fit_brick(const StreamContext& c, const gmf::StreamBrick& b, double 
   const gmf::RegionFrame rf = gmf::region_frame(c.frame, b.region);
   const io::VoxelBox core = local_box(b.core, b.region);
   const double threshold = config.get<&AppConfig::sparse_grid>().threshold;
-  const io::BackgroundOptions& bg = config.get<&AppConfig::background>();
+  const gmf::BackgroundOptions& bg = config.get<&AppConfig::background>();
   BrickResult r;
-  if (bg.estimate) r.background = io::count_background_regions(v, bg, core, c.regions, b.region.lo);
+  if (bg.estimate) r.background = gmf::count_background_regions(v, bg, core, c.regions, b.region.lo);
   r.foreground_core = count_above(v, core, threshold);
   const std::int64_t foreground_region = count_above(v.voxels, threshold);
   if (foreground_region == 0 || c.foreground == 0) {
@@ -500,10 +500,10 @@ BrickResult fit_brick(const StreamContext& c, const gmf::StreamBrick& b, double 
                                       static_cast<double>(c.foreground)),
                          1.0, 1e7));
   // The brick's own background's 99.9th percentile (fit_to_checkpoint uses the stack's).
-  io::BackgroundCounts own;
-  for (const io::BackgroundCounts& region : r.background) own.merge(region);
+  gmf::BackgroundCounts own;
+  for (const gmf::BackgroundCounts& region : r.background) own.merge(region);
   if (own.total > 0) {
-    const io::BackgroundModel local = io::background_from_counts(own, bg, c.path);
+    const gmf::BackgroundModel local = gmf::background_from_counts(own, bg, c.path);
     options.clone_floor = local.none() ? 0.0 : local.quantile(0.999);
   }
   const gmf::SampleSet samples = region_samples(c, v, rf, options);
@@ -1058,7 +1058,7 @@ StreamContext open_stream(const std::string& volume, const FitConfig& config, co
   c.max_memory = choice.max_memory;
   c.folder = brick_folder(out);
   c.fingerprint = fingerprint_of(volume, *c.source, config, c.plan);
-  c.regions = io::BackgroundRegions::of({c.source->nx, c.source->ny, c.source->nz},
+  c.regions = gmf::BackgroundRegions::of({c.source->nx, c.source->ny, c.source->nz},
                                         config.get<&AppConfig::background>().region_voxels);
   progress.say("fit: %s: %d x %d x %d %s (%s as float32), %s; in-memory fit would need %s of %s: bricked: %s",
                volume.c_str(), c.source->nx, c.source->ny, c.source->nz,
@@ -1171,7 +1171,7 @@ BrickPass brick_pass(const StreamContext& c, const io::Stopwatch& watch, double 
 // counts and the β of the model.
 struct BrickTotals {
   BrickState state;
-  std::vector<io::BackgroundCounts> background;  // per region
+  std::vector<gmf::BackgroundCounts> background;  // per region
   double beta = 0;                               // 0 for a sum
 };
 
@@ -1225,10 +1225,10 @@ std::size_t write_outputs(const StreamContext& c, const BrickTotals& totals,
   meta.aggregation = c.gmf.final_aggregation();
   meta.beta = totals.beta;
   const bool counted = std::any_of(totals.background.begin(), totals.background.end(),
-                                   [](const io::BackgroundCounts& b) { return b.total > 0; });
+                                   [](const gmf::BackgroundCounts& b) { return b.total > 0; });
   if (config.get<&AppConfig::background>().estimate && counted) {
-    const io::BackgroundField field =
-        io::background_field(totals.background, c.regions, config.get<&AppConfig::background>(), c.path);
+    const gmf::BackgroundField field =
+        gmf::background_field(totals.background, c.regions, config.get<&AppConfig::background>(), c.path);
     if (field.none()) {
       progress.say("fit: background: exactly 0 outside the neuron (%lld voxels): no floor to draw",
                    static_cast<long long>(field.merged.voxels));

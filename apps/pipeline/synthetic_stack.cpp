@@ -1,9 +1,9 @@
 // SPDX-License-Identifier: Apache-2.0
-// write_synthetic_stack: io::make_synthetic_neuron, then a uint16 TIFF with its spacing.
+// write_synthetic_stack: simulate::make_synthetic_neuron, then a uint16 TIFF with its spacing.
 #include "apps/pipeline/synthetic_stack.hpp"
 
 #include "apps/pipeline/format.hpp"
-#include "io/synthetic_neuron.hpp"
+#include "apps/simulate/synthetic_neuron.hpp"
 #include "io/tiff_stack.hpp"
 #include "io/timer.hpp"
 
@@ -11,10 +11,10 @@ namespace hisnegs::apps {
 
 io::Volume write_synthetic_stack(const std::filesystem::path& out, const SyntheticConfig& config,
                                  const Progress& progress) {
-  const io::SyntheticNeuronOptions& options = config.get<&AppConfig::synth>();
+  const simulate::SyntheticNeuronOptions& options = config.get<&AppConfig::synth>();
   options.validate();
   io::Stopwatch watch;
-  io::Volume volume = io::make_synthetic_neuron(options);
+  io::Volume volume = simulate::make_synthetic_neuron(options);
   io::TiffWriteOptions write;
   write.type = io::SampleType::kUint16;
   write.spacing_um = options.spacing_um;

@@ -1,6 +1,6 @@
 // SPDX-License-Identifier: Apache-2.0
 // The synthetic neuron written as a uint16 TIFF stack with its spacing (config
-// section synth). The neuron itself is io::make_synthetic_neuron.
+// section synth). The neuron itself is simulate::make_synthetic_neuron.
 #pragma once
 
 #include <filesystem>

@@ -6,7 +6,7 @@
 #include <fstream>
 
 #include "io/error.hpp"
-#include "io/plot.hpp"
+#include "apps/pipeline/plot.hpp"
 
 namespace hisnegs::apps {
 namespace {
@@ -45,26 +45,26 @@ std::vector<TrainingLogRow> read_training_log(const std::filesystem::path& path,
 }
 
 io::Image8 training_curve(const std::vector<TrainingLogRow>& rows) {
-  io::PlotSeries loss{"loss (Eq. 16)", {}, {}, io::plot_color(0)};
-  io::PlotSeries psnr{"PSNR (dB)", {}, {}, io::plot_color(1)};
+  PlotSeries loss{"loss (Eq. 16)", {}, {}, plot_color(0)};
+  PlotSeries psnr{"PSNR (dB)", {}, {}, plot_color(1)};
   for (const TrainingLogRow& r : rows) {
     loss.x.push_back(r.epoch);
     loss.y.push_back(r.loss);
     psnr.x.push_back(r.epoch);
     psnr.y.push_back(r.psnr);
   }
-  io::PlotOptions top;
+  PlotOptions top;
   top.height = 400;
   top.title = "training loss";
   top.x_label = "epoch";
   top.y_label = "loss";
   top.log_y = true;
-  io::PlotOptions bottom = top;
+  PlotOptions bottom = top;
   bottom.title = "training PSNR (mean over views)";
   bottom.y_label = "dB";
   bottom.log_y = false;
-  io::Image8 a = io::plot_lines(std::span(&loss, 1), top);
-  const io::Image8 b = io::plot_lines(std::span(&psnr, 1), bottom);
+  io::Image8 a = plot_lines(std::span(&loss, 1), top);
+  const io::Image8 b = plot_lines(std::span(&psnr, 1), bottom);
   a.pixels.insert(a.pixels.end(), b.pixels.begin(), b.pixels.end());  // same width and channels: stack
   a.height += b.height;
   return a;

@@ -39,7 +39,7 @@ nlohmann::ordered_json floor_json(const splat::BackgroundFloors& floor) {
     return j;
   }
   const splat::RegionFloor& r = floor.regional_floor();
-  const io::BackgroundRegions& g = r.regions();
+  const gmf::BackgroundRegions& g = r.regions();
   j["samples_per_voxel"] = r.samples_per_voxel();
   j["regions"] = {{"shape", g.shape}, {"cells", g.cells}};
   std::vector<std::vector<int>> edges(3);

@@ -423,13 +423,13 @@ constexpr const char* kBackgroundKey = "background";
 constexpr const char* kRegionsKey = "background_regions";
 constexpr const char* kRegionKey = "background_region";
 
-io::BackgroundRegions regions_of(const CheckpointMeta& meta, std::string_view value, const std::string& source) {
+gmf::BackgroundRegions regions_of(const CheckpointMeta& meta, std::string_view value, const std::string& source) {
   const std::vector<std::string_view> tok = split_ws(value);
-  io::BackgroundRegions r;
+  gmf::BackgroundRegions r;
   bool ok = tok.size() == 3 && meta.volume_shape_zyx.has_value();
   for (int a = 0; ok && a < 3; ++a) {
     double v = 0;
-    ok = parse_number(tok[static_cast<std::size_t>(a)], v) && v >= 1 && v <= io::BackgroundRegions::kMaxPerAxis &&
+    ok = parse_number(tok[static_cast<std::size_t>(a)], v) && v >= 1 && v <= gmf::BackgroundRegions::kMaxPerAxis &&
          v == std::floor(v);
     r.cells[static_cast<std::size_t>(a)] = ok ? static_cast<int>(v) : 1;
   }
@@ -440,7 +440,7 @@ io::BackgroundRegions regions_of(const CheckpointMeta& meta, std::string_view va
   }
   if (!ok) {
     io::fail_input(source, std::string("comment hisnegs ") + kRegionsKey + ": expected 'CX CY CZ' (1 to " +
-                               std::to_string(io::BackgroundRegions::kMaxPerAxis) +
+                               std::to_string(gmf::BackgroundRegions::kMaxPerAxis) +
                                " regions per axis, no more than the volume_shape's voxels), got '" +
                                io::printable(value, 80) + "'");
   }
@@ -449,20 +449,20 @@ io::BackgroundRegions regions_of(const CheckpointMeta& meta, std::string_view va
 
 }  // namespace
 
-io::BackgroundModel background_of(const CheckpointMeta& meta, const std::string& source) {
+gmf::BackgroundModel background_of(const CheckpointMeta& meta, const std::string& source) {
   for (const auto& [key, value] : meta.extra) {
-    if (key == kBackgroundKey) return io::BackgroundModel::parse(value, source);
+    if (key == kBackgroundKey) return gmf::BackgroundModel::parse(value, source);
   }
   return {};
 }
 
-void set_background(CheckpointMeta& meta, const io::BackgroundModel& model) {
+void set_background(CheckpointMeta& meta, const gmf::BackgroundModel& model) {
   std::erase_if(meta.extra, [](const auto& kv) { return kv.first == kBackgroundKey; });
   if (!model.none()) meta.extra.emplace_back(kBackgroundKey, model.text());
 }
 
-io::BackgroundField background_field_of(const CheckpointMeta& meta, const std::string& source) {
-  io::BackgroundField field;
+gmf::BackgroundField background_field_of(const CheckpointMeta& meta, const std::string& source) {
+  gmf::BackgroundField field;
   field.merged = background_of(meta, source);
   field.regions.shape = {1, 1, 1};
   if (meta.volume_shape_zyx) {
@@ -487,7 +487,7 @@ io::BackgroundField background_field_of(const CheckpointMeta& meta, const std::s
                                  io::printable(value, 60) + "'");
     }
     const auto after = static_cast<std::size_t>(tok[0].data() - value.data()) + tok[0].size();
-    field.models.push_back(io::BackgroundModel::parse(std::string_view(value).substr(after), source));
+    field.models.push_back(gmf::BackgroundModel::parse(std::string_view(value).substr(after), source));
   }
   if (has_regions && field.models.size() != static_cast<std::size_t>(field.regions.count())) {
     io::fail_input(source, std::string("comment hisnegs ") + kRegionsKey + ": " +
@@ -498,7 +498,7 @@ io::BackgroundField background_field_of(const CheckpointMeta& meta, const std::s
   return field;
 }
 
-void set_background(CheckpointMeta& meta, const io::BackgroundField& field) {
+void set_background(CheckpointMeta& meta, const gmf::BackgroundField& field) {
   set_background(meta, field.merged);
   std::erase_if(meta.extra, [](const auto& kv) { return kv.first == kRegionsKey || kv.first == kRegionKey; });
   if (!field.regional() || field.none()) return;

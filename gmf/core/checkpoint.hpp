@@ -15,7 +15,7 @@
 
 #include "gmf/core/aggregation.hpp"
 #include "gmf/core/gaussian_mixture.hpp"
-#include "io/background.hpp"
+#include "gmf/core/background.hpp"
 #include "io/ply.hpp"
 #include "io/volume.hpp"
 
@@ -135,21 +135,21 @@ class CheckpointWriter {
 [[nodiscard]] std::optional<io::WorldFrame> model_frame(const CheckpointMeta& meta);
 
 // The background a checkpoint records ("comment hisnegs background ..." in the
-// io::BackgroundModel text form): what a ray through the stack samples of its noise,
+// gmf::BackgroundModel text form): what a ray through the stack samples of its noise,
 // from which renders draw the MIP's floor. A checkpoint without the line (every file
 // before it, and fits of zero-background stacks) has none: an empty model. Throws
 // io::InputError naming `source` for a line that does not parse.
-[[nodiscard]] io::BackgroundModel background_of(const CheckpointMeta& meta, const std::string& source);
+[[nodiscard]] gmf::BackgroundModel background_of(const CheckpointMeta& meta, const std::string& source);
 // Records `model` in `meta` (replacing any earlier one); a none() model removes it.
-void set_background(CheckpointMeta& meta, const io::BackgroundModel& model);
+void set_background(CheckpointMeta& meta, const gmf::BackgroundModel& model);
 // The background by region: `merged` from the "background" line; with a
 // "background_regions CX CY CZ" line, one "background_region R MODEL" line per region
 // (R = 0, 1, ... in order) over the stack of `volume_shape`. Throws io::InputError
 // naming `source` for lines that do not parse or do not match.
-[[nodiscard]] io::BackgroundField background_field_of(const CheckpointMeta& meta, const std::string& source);
+[[nodiscard]] gmf::BackgroundField background_field_of(const CheckpointMeta& meta, const std::string& source);
 // Records `field` (replacing any earlier background): its merged model as
 // set_background does, and its regions when it has several.
-void set_background(CheckpointMeta& meta, const io::BackgroundField& field);
+void set_background(CheckpointMeta& meta, const gmf::BackgroundField& field);
 
 // Checks that `frame` (the stack `volume`) spans the same world box as the stack the
 // model was fitted to (its `aspect` metadata, relative tolerance 1e-6), so that the

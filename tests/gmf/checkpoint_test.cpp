@@ -558,8 +558,8 @@ TEST(GaussianMixture, DescribeNonFiniteNamesTheFirstValueAndItsGroup) {
 namespace hisnegs::gmf {
 namespace {
 
-io::BackgroundModel two_atoms(double top, double c) {
-  io::BackgroundModel m;
+gmf::BackgroundModel two_atoms(double top, double c) {
+  gmf::BackgroundModel m;
   m.values = {0.0, top};
   m.cdf = {0.75, 1.0};
   m.samples_per_voxel = c;
@@ -571,15 +571,15 @@ io::BackgroundModel two_atoms(double top, double c) {
 TEST(Checkpoint, BackgroundByRegionRoundTripsAndBadLinesAreRefused) {
   ScratchDir dir;
   CheckpointMeta meta = full_meta();  // 512 x 512 x 60 voxels
-  io::BackgroundField field;
-  field.regions = io::BackgroundRegions::of({512, 512, 60}, 256);
+  gmf::BackgroundField field;
+  field.regions = gmf::BackgroundRegions::of({512, 512, 60}, 256);
   ASSERT_EQ(field.regions.count(), 4);
   field.merged = two_atoms(0.04, 0.7);
-  field.models = {two_atoms(0.08, 0.7), io::BackgroundModel{{0.0}, {1.0}, 0.7, 10}, field.merged, two_atoms(0.02, 0.7)};
+  field.models = {two_atoms(0.08, 0.7), gmf::BackgroundModel{{0.0}, {1.0}, 0.7, 10}, field.merged, two_atoms(0.02, 0.7)};
   set_background(meta, field);
   save_checkpoint(dir / "r.ply", random_mixture(3, 5), meta);
   const CheckpointMeta back = load_checkpoint(dir / "r.ply").meta;
-  const io::BackgroundField read = background_field_of(back, "r.ply");
+  const gmf::BackgroundField read = background_field_of(back, "r.ply");
   EXPECT_EQ(read.regions, field.regions);
   EXPECT_EQ(read.merged, field.merged);
   ASSERT_EQ(read.models.size(), 4u);
@@ -589,7 +589,7 @@ TEST(Checkpoint, BackgroundByRegionRoundTripsAndBadLinesAreRefused) {
   }
   EXPECT_EQ(background_of(back, "r.ply"), field.merged);  // what a reader of one background sees
   // One region: no region lines at all.
-  io::BackgroundField one;
+  gmf::BackgroundField one;
   one.merged = field.merged;
   CheckpointMeta plain = full_meta();
   set_background(plain, one);

@@ -11,15 +11,15 @@
 #include <cmath>
 #include <random>
 
-#include "io/background.hpp"
+#include "gmf/core/background.hpp"
 #include "splat/raymarch.hpp"
 
 namespace hisnegs::splat {
 namespace {
 
 // Poisson(0.6) counts / 255: op1's noisy recipe.
-io::BackgroundModel poisson_model(double lambda) {
-  io::BackgroundModel m;
+gmf::BackgroundModel poisson_model(double lambda) {
+  gmf::BackgroundModel m;
   double p = std::exp(-lambda), cdf = 0;
   for (int k = 0; k < 12; ++k) {
     cdf += p;
@@ -31,7 +31,7 @@ io::BackgroundModel poisson_model(double lambda) {
 }
 
 TEST(BackgroundFloor, TableMatchesTheExactOrderStatistic) {
-  io::BackgroundModel m = poisson_model(0.6);
+  gmf::BackgroundModel m = poisson_model(0.6);
   m.samples_per_voxel = 0.8;
   const FloorTable table(m);
   for (const double L : {0.5, 1.0, 3.3, 17.0, 250.0, 1900.0, 5e5}) {
@@ -39,7 +39,7 @@ TEST(BackgroundFloor, TableMatchesTheExactOrderStatistic) {
     EXPECT_NEAR(table.at_voxels(L), exact, 1e-4 * exact) << L;
   }
   EXPECT_EQ(table.at_voxels(0.0), 0.0);
-  EXPECT_TRUE(FloorTable(io::BackgroundModel{}).none());
+  EXPECT_TRUE(FloorTable(gmf::BackgroundModel{}).none());
 }
 
 TEST(BackgroundFloor, ChordsAreMeasuredInVoxels) {
@@ -61,9 +61,9 @@ TEST(BackgroundFloor, FloorImageIsZeroWithoutABackgroundAndOffTheBox) {
   o.height = 30;
   const CameraSet cams = custom_orbit(o, {20.0}, {30.0});
   const std::vector<float> none =
-      background_floor(FloorTable(io::BackgroundModel{}), frame, cams.intrinsics, cams.views[0]);
+      background_floor(FloorTable(gmf::BackgroundModel{}), frame, cams.intrinsics, cams.views[0]);
   for (const float v : none) EXPECT_EQ(v, 0.0f);
-  const io::BackgroundModel m = poisson_model(0.6);
+  const gmf::BackgroundModel m = poisson_model(0.6);
   const std::vector<float> floor = background_floor(FloorTable(m), frame, cams.intrinsics, cams.views[0]);
   ASSERT_EQ(floor.size(), 40u * 30u);
   EXPECT_EQ(floor[0], 0.0f);  // the corner ray misses the box
@@ -75,8 +75,8 @@ TEST(BackgroundFloor, FloorImageIsZeroWithoutABackgroundAndOffTheBox) {
 // The calibrated c predicts the mean MIP of i.i.d. noise for the marcher, also on
 // a larger, anisotropic volume (longer chords) than the calibration's.
 TEST(BackgroundFloor, CalibrationPredictsTheMarchersMipOfNoise) {
-  const io::BackgroundModel voxels = poisson_model(0.6);
-  io::BackgroundModel m = voxels;                                             // becomes what a ray samples, with its c
+  const gmf::BackgroundModel voxels = poisson_model(0.6);
+  gmf::BackgroundModel m = voxels;                                             // becomes what a ray samples, with its c
   const io::WorldFrame stack(160, 160, 40, Eigen::Vector3d(1.0, 1.0, 0.75));  // z voxels 3x the xy ones
   const RaymarchOptions options;
   const FloorCalibration cal = calibrate_background(m, stack, options, 4);
@@ -116,10 +116,10 @@ TEST(BackgroundFloor, CalibrationPredictsTheMarchersMipOfNoise) {
 
 // With the same distribution in every region, the region floor is the table's.
 TEST(RegionFloor, OneDistributionEverywhereIsTheTablesFloor) {
-  io::BackgroundModel m = poisson_model(0.6);
+  gmf::BackgroundModel m = poisson_model(0.6);
   m.samples_per_voxel = 0.8;
-  io::BackgroundField field;
-  field.regions = io::BackgroundRegions::of({40, 30, 10}, 16);
+  gmf::BackgroundField field;
+  field.regions = gmf::BackgroundRegions::of({40, 30, 10}, 16);
   ASSERT_EQ(field.regions.count(), 3 * 2 * 1);
   field.merged = m;
   field.models.assign(6, m);
@@ -149,12 +149,12 @@ TEST(RegionFloor, OneDistributionEverywhereIsTheTablesFloor) {
 // c L_B of B, whose CDF is F_A^(c L_A) F_B^(c L_B) (exact integral of the step
 // functions); one through a subtracted region alone: 0.
 TEST(RegionFloor, TheMaximumOverTheRegionsCrossedHasTheProductOfTheirCdfs) {
-  io::BackgroundModel a = poisson_model(0.6), b = poisson_model(2.5);
+  gmf::BackgroundModel a = poisson_model(0.6), b = poisson_model(2.5);
   a.samples_per_voxel = b.samples_per_voxel = 0.5;
-  io::BackgroundField field;
-  field.regions = io::BackgroundRegions::of({60, 20, 20}, 20);  // 3 x 1 x 1
+  gmf::BackgroundField field;
+  field.regions = gmf::BackgroundRegions::of({60, 20, 20}, 20);  // 3 x 1 x 1
   field.merged = a;
-  field.models = {a, b, io::BackgroundModel{{0.0}, {1.0}, 0.5, 100}};
+  field.models = {a, b, gmf::BackgroundModel{{0.0}, {1.0}, 0.5, 100}};
   const io::WorldFrame frame(60, 20, 20, Eigen::Vector3d(1.0, 1.0 / 3, 1.0 / 3));  // cubic voxels of 1/30
   const RegionFloor floor(field, frame);
   const auto exact = [&](double na, double nb) {
@@ -162,7 +162,7 @@ TEST(RegionFloor, TheMaximumOverTheRegionsCrossedHasTheProductOfTheirCdfs) {
     v.insert(v.end(), b.values.begin(), b.values.end());
     std::sort(v.begin(), v.end());
     v.erase(std::unique(v.begin(), v.end()), v.end());
-    const auto cdf = [](const io::BackgroundModel& m, double x) {
+    const auto cdf = [](const gmf::BackgroundModel& m, double x) {
       double F = 0;
       for (std::size_t i = 0; i < m.values.size() && m.values[i] <= x; ++i) F = m.cdf[i];
       return F;
@@ -202,16 +202,16 @@ TEST(RegionFloor, ABackgroundByRegionPredictsTheMarchersMipOfTwoNoises) {
   for (int z = 0; z < noise.nz; ++z)
     for (int y = 0; y < noise.ny; ++y)
       for (int x = 0; x < noise.nx; ++x) noise.at(x, y, z) = static_cast<float>(x < 48 ? lo(rng) : hi(rng)) / 255.0f;
-  io::BackgroundOptions options;
+  gmf::BackgroundOptions options;
   options.foreground_level = 0.9;  // all of it is background
   options.guard_voxels = 0;
   options.region_voxels = 48;
-  io::BackgroundField field = io::estimate_background_field(noise, options);
+  gmf::BackgroundField field = gmf::estimate_background_field(noise, options);
   ASSERT_TRUE(field.regional());
   const io::WorldFrame frame(96, 96, 24, Eigen::Vector3d(1.0, 1.0, 0.5));
   const RaymarchOptions marching;
   (void)calibrate_background(field, frame, marching, 4);
-  io::BackgroundModel merged = field.merged;  // calibrated with the field
+  gmf::BackgroundModel merged = field.merged;  // calibrated with the field
   const BackgroundFloors regional(field, frame), single(merged, frame);
   ASSERT_TRUE(regional.regional());
   const RayMarcher marcher(noise, frame, marching);

@@ -46,7 +46,7 @@ TEST(CliNoise, AddsDetectorNoiseDeterministicallyAndSaysWhatTheBackgroundBecame)
 }
 
 // --estimate measures a stack's noise (the library's recovery is tested in
-// io/detector_noise_test.cpp): here the synthetic stack with a 5-photon background at
+// apps/simulate/detector_noise_test.cpp): here the synthetic stack with a 5-photon background at
 // gain 2 and offset 10 reads back near those, and the flags that make no sense together
 // are refused.
 TEST(CliNoise, EstimateReportsTheStacksNoise) {

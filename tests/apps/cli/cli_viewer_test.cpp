@@ -114,8 +114,8 @@ class CliViewer : public ::testing::Test {
   }
 
   // A bright floor (so that 8-bit screenshots resolve it well) up to `top`.
-  static io::BackgroundModel bright_floor(double top) {
-    io::BackgroundModel bg;
+  static gmf::BackgroundModel bright_floor(double top) {
+    gmf::BackgroundModel bg;
     bg.values = {0.0, 0.02 * top / 0.15, 0.05 * top / 0.15, 0.1 * top / 0.15, top};
     bg.cdf = {0.5, 0.8, 0.95, 0.99, 1.0};
     bg.samples_per_voxel = 1.6;
@@ -301,11 +301,11 @@ TEST_F(CliViewer, ChromiumDrawsABackgroundByRegionAsTheCpuDoes) {
   gmf::Checkpoint c{mixture_, {}};
   c.meta.volume_shape_zyx = std::array<int, 3>{40, 120, 100};
   c.meta.aspect = std::array<double, 3>{0.8, 1.0, 0.6};
-  io::BackgroundField field;
-  field.regions = io::BackgroundRegions::of({100, 120, 40}, 50);  // 2 x 3 x 1
+  gmf::BackgroundField field;
+  field.regions = gmf::BackgroundRegions::of({100, 120, 40}, 50);  // 2 x 3 x 1
   field.merged = bright_floor(0.15);
-  field.models = {bright_floor(0.15), io::BackgroundModel{{0.0}, {1.0}, 1.6, 100},
-                  bright_floor(0.15), io::BackgroundModel{{0.0}, {1.0}, 1.6, 100},
+  field.models = {bright_floor(0.15), gmf::BackgroundModel{{0.0}, {1.0}, 1.6, 100},
+                  bright_floor(0.15), gmf::BackgroundModel{{0.0}, {1.0}, 1.6, 100},
                   bright_floor(0.08), bright_floor(0.2)};
   gmf::set_background(c.meta, field);
   expect_page_floor_as_cpu(c, "rg");

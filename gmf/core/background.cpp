@@ -1,7 +1,7 @@
 // SPDX-License-Identifier: Apache-2.0
 // estimate_background (foreground mask, its dilation by the guard, the histogram of
 // what is left) and BackgroundModel's order statistics and text form.
-#include "io/background.hpp"
+#include "gmf/core/background.hpp"
 
 #include <algorithm>
 #include <charconv>
@@ -12,7 +12,7 @@
 
 #include "io/error.hpp"
 
-namespace hisnegs::io {
+namespace hisnegs::gmf {
 namespace {
 
 std::string shortest(double v) {
@@ -52,20 +52,20 @@ void dilate_axis(std::vector<std::uint8_t>& mask, int nx, int ny, int nz, int ax
 
 void BackgroundOptions::validate() const {
   if (!(foreground_level > 0.0 && foreground_level < 1.0)) {
-    throw InputError("background.foreground_level = " + number_text(foreground_level) + ": must be in (0, 1)");
+    throw io::InputError("background.foreground_level = " + io::number_text(foreground_level) + ": must be in (0, 1)");
   }
   if (guard_voxels < 0 || guard_voxels > 16) {
-    throw InputError("background.guard_voxels = " + std::to_string(guard_voxels) + ": must be in [0, 16]");
+    throw io::InputError("background.guard_voxels = " + std::to_string(guard_voxels) + ": must be in [0, 16]");
   }
   if (max_atoms < 16 || max_atoms > 4096) {
-    throw InputError("background.max_atoms = " + std::to_string(max_atoms) + ": must be in [16, 4096]");
+    throw io::InputError("background.max_atoms = " + std::to_string(max_atoms) + ": must be in [16, 4096]");
   }
   if (!(subtracted_zero_fraction > 0.0 && subtracted_zero_fraction <= 1.0)) {
-    throw InputError("background.subtracted_zero_fraction = " + number_text(subtracted_zero_fraction) +
+    throw io::InputError("background.subtracted_zero_fraction = " + io::number_text(subtracted_zero_fraction) +
                      ": must be in (0, 1]");
   }
   if (region_voxels != 0 && (region_voxels < 16 || region_voxels > 65536)) {
-    throw InputError("background.region_voxels = " + std::to_string(region_voxels) +
+    throw io::InputError("background.region_voxels = " + std::to_string(region_voxels) +
                      ": must be 0 (one region) or in [16, 65536]");
   }
 }
@@ -100,22 +100,22 @@ std::string BackgroundModel::text() const {
 }
 
 void BackgroundModel::validate(const std::string& source) const {
-  const auto fail = [&](const std::string& problem) { fail_input(source, "background: " + problem); };
+  const auto fail = [&](const std::string& problem) { io::fail_input(source, "background: " + problem); };
   if (!(std::isfinite(samples_per_voxel) && samples_per_voxel > 0.0 && samples_per_voxel <= 1e3)) {
-    fail("samples per voxel " + number_text(samples_per_voxel) + " is not in (0, 1000]");
+    fail("samples per voxel " + io::number_text(samples_per_voxel) + " is not in (0, 1000]");
   }
   if (values.size() != cdf.size()) fail("values and probabilities differ in number");
   if (values.size() > 4096) fail(std::to_string(values.size()) + " atoms, at most 4096");
   for (std::size_t i = 0; i < values.size(); ++i) {
     if (!(std::isfinite(values[i]) && values[i] >= 0.0 && values[i] <= 1.0)) {
-      fail("value " + number_text(values[i]) + " is not in [0, 1]");
+      fail("value " + io::number_text(values[i]) + " is not in [0, 1]");
     }
-    if (!(cdf[i] > 0.0 && cdf[i] <= 1.0)) fail("probability " + number_text(cdf[i]) + " is not in (0, 1]");
+    if (!(cdf[i] > 0.0 && cdf[i] <= 1.0)) fail("probability " + io::number_text(cdf[i]) + " is not in (0, 1]");
     if (i > 0 && !(values[i] > values[i - 1] && cdf[i] > cdf[i - 1])) {
       fail("atom " + std::to_string(i) + " does not increase in value and probability");
     }
   }
-  if (!values.empty() && cdf.back() != 1.0) fail("the last probability is " + number_text(cdf.back()) + ", not 1");
+  if (!values.empty() && cdf.back() != 1.0) fail("the last probability is " + io::number_text(cdf.back()) + ", not 1");
 }
 
 BackgroundModel BackgroundModel::parse(std::string_view text, const std::string& source) {
@@ -123,18 +123,18 @@ BackgroundModel BackgroundModel::parse(std::string_view text, const std::string&
   BackgroundModel m;
   std::size_t count = 0;
   if (!(in >> m.samples_per_voxel >> count) || count > 4096) {
-    fail_input(source,
-               "background: expected 'SAMPLES_PER_VOXEL N v_1 F_1 ... v_N F_N', got '" + printable(text, 60) + "'");
+    io::fail_input(source,
+               "background: expected 'SAMPLES_PER_VOXEL N v_1 F_1 ... v_N F_N', got '" + io::printable(text, 60) + "'");
   }
   m.values.resize(count);
   m.cdf.resize(count);
   for (std::size_t i = 0; i < count; ++i) {
     if (!(in >> m.values[i] >> m.cdf[i])) {
-      fail_input(source, "background: " + std::to_string(count) + " atoms declared, fewer given");
+      io::fail_input(source, "background: " + std::to_string(count) + " atoms declared, fewer given");
     }
   }
   std::string extra;
-  if (in >> extra) fail_input(source, "background: more than the " + std::to_string(count) + " atoms declared");
+  if (in >> extra) io::fail_input(source, "background: more than the " + std::to_string(count) + " atoms declared");
   m.validate(source);
   return m;
 }
@@ -169,7 +169,7 @@ void BackgroundCounts::merge(const BackgroundCounts& other) {
 namespace {
 
 // 1 where a voxel is foreground or within guard_voxels of it (not background).
-std::vector<std::uint8_t> not_background(const Volume& volume, const BackgroundOptions& options) {
+std::vector<std::uint8_t> not_background(const io::Volume& volume, const BackgroundOptions& options) {
   const std::size_t n = volume.size();
   std::vector<std::uint8_t> mask(n);
   bool any = false;
@@ -183,7 +183,7 @@ std::vector<std::uint8_t> not_background(const Volume& volume, const BackgroundO
   return mask;
 }
 
-void count_box(const Volume& volume, const std::vector<std::uint8_t>& mask, const VoxelBox& box,
+void count_box(const io::Volume& volume, const std::vector<std::uint8_t>& mask, const io::VoxelBox& box,
                BackgroundCounts& counts) {
   for (int z = box.lo[2]; z < box.hi[2]; ++z) {
     for (int y = box.lo[1]; y < box.hi[1]; ++y) {
@@ -197,7 +197,7 @@ void count_box(const Volume& volume, const std::vector<std::uint8_t>& mask, cons
 
 }  // namespace
 
-BackgroundCounts count_background(const Volume& volume, const BackgroundOptions& options, const VoxelBox& box) {
+BackgroundCounts count_background(const io::Volume& volume, const BackgroundOptions& options, const io::VoxelBox& box) {
   options.validate();
   BackgroundCounts counts;
   count_box(volume, not_background(volume, options), box, counts);
@@ -214,9 +214,9 @@ BackgroundRegions BackgroundRegions::of(const std::array<int, 3>& shape, int reg
   return r;
 }
 
-VoxelBox BackgroundRegions::box(int region) const {
+io::VoxelBox BackgroundRegions::box(int region) const {
   const int k[3] = {region % cells[0], (region / cells[0]) % cells[1], region / (cells[0] * cells[1])};
-  VoxelBox b;
+  io::VoxelBox b;
   for (int a = 0; a < 3; ++a) {
     b.lo[a] = edge(a, k[a]);
     b.hi[a] = edge(a, k[a] + 1);
@@ -237,15 +237,15 @@ bool BackgroundField::none() const {
   return std::all_of(models.begin(), models.end(), [](const BackgroundModel& m) { return m.none(); });
 }
 
-std::vector<BackgroundCounts> count_background_regions(const Volume& volume, const BackgroundOptions& options,
-                                                       const VoxelBox& box, const BackgroundRegions& regions,
+std::vector<BackgroundCounts> count_background_regions(const io::Volume& volume, const BackgroundOptions& options,
+                                                       const io::VoxelBox& box, const BackgroundRegions& regions,
                                                        const std::array<int, 3>& origin) {
   options.validate();
   std::vector<BackgroundCounts> out(static_cast<std::size_t>(regions.count()));
   const std::vector<std::uint8_t> mask = not_background(volume, options);
   for (int r = 0; r < regions.count(); ++r) {
-    const VoxelBox region = regions.box(r);
-    VoxelBox part;  // the region in `volume`'s index space, clipped to `box`
+    const io::VoxelBox region = regions.box(r);
+    io::VoxelBox part;  // the region in `volume`'s index space, clipped to `box`
     bool empty = false;
     for (int a = 0; a < 3; ++a) {
       part.lo[a] = std::max(box.lo[a], region.lo[a] - origin[a]);
@@ -276,9 +276,9 @@ BackgroundField background_field(const std::vector<BackgroundCounts>& counts, co
   return field;
 }
 
-BackgroundField estimate_background_field(const Volume& volume, const BackgroundOptions& options) {
+BackgroundField estimate_background_field(const io::Volume& volume, const BackgroundOptions& options) {
   const BackgroundRegions regions = BackgroundRegions::of({volume.nx, volume.ny, volume.nz}, options.region_voxels);
-  const VoxelBox all{{0, 0, 0}, {volume.nx, volume.ny, volume.nz}};
+  const io::VoxelBox all{{0, 0, 0}, {volume.nx, volume.ny, volume.nz}};
   return background_field(count_background_regions(volume, options, all, regions, {0, 0, 0}), regions, options,
                           volume.source);
 }
@@ -288,8 +288,8 @@ BackgroundModel background_from_counts(const BackgroundCounts& counts, const Bac
   options.validate();
   const std::int64_t total = counts.total;
   if (total == 0) {
-    fail_input(source, "no background voxels (every voxel is within " + std::to_string(options.guard_voxels) +
-                           " voxels of one above " + number_text(options.foreground_level) + ")");
+    io::fail_input(source, "no background voxels (every voxel is within " + std::to_string(options.guard_voxels) +
+                           " voxels of one above " + io::number_text(options.foreground_level) + ")");
   }
   BackgroundModel m;
   m.voxels = total;
@@ -328,9 +328,9 @@ BackgroundModel background_from_counts(const BackgroundCounts& counts, const Bac
   return m;
 }
 
-BackgroundModel estimate_background(const Volume& volume, const BackgroundOptions& options) {
-  const VoxelBox all{{0, 0, 0}, {volume.nx, volume.ny, volume.nz}};
+BackgroundModel estimate_background(const io::Volume& volume, const BackgroundOptions& options) {
+  const io::VoxelBox all{{0, 0, 0}, {volume.nx, volume.ny, volume.nz}};
   return background_from_counts(count_background(volume, options, all), options, volume.source);
 }
 
-}  // namespace hisnegs::io
+}  // namespace hisnegs::gmf

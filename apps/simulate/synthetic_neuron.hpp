@@ -9,10 +9,10 @@
 #include <cstdint>
 #include <vector>
 
-#include "io/error.hpp"  // InputError, thrown by validate()
+#include "io/error.hpp"  // io::InputError, thrown by validate()
 #include "io/volume.hpp"
 
-namespace hisnegs::io {
+namespace hisnegs::simulate {
 
 // Every knob of the simulated neuron and of its simulated acquisition. The volume is
 // a deterministic function of these fields (same options, same build -> same voxels,
@@ -68,7 +68,7 @@ struct SyntheticNeuronOptions {
   bool background_subtract = true;          // apply the subtraction above
   double background_subtract_sigmas = 3.0;  // k in offset + k * read_noise, [0, 100]
 
-  // Throws InputError("synth.FIELD = VALUE: rule broken") on the first
+  // Throws io::InputError("synth.FIELD = VALUE: rule broken") on the first
   // field outside its range (or soma + margins not fitting the box).
   void validate() const;
 
@@ -141,13 +141,13 @@ struct SyntheticNeuronCounts {
 };
 
 // Generates the stack: raw camera counts (background-subtracted if the option says
-// so) as a Volume of shape (options.nx, ny, nz) holding integral values in [0, 65535],
-// stored_as = kUint16, spacing = options.spacing_um (SpacingSource::kUser), source =
+// so) as a io::Volume of shape (options.nx, ny, nz) holding integral values in [0, 65535],
+// stored_as = kUint16, spacing = options.spacing_um (io::SpacingSource::kUser), source =
 // "synthetic (seed N)", normalization kNone. Optionally returns the ground-truth
-// skeleton and the clamp counts (either pointer may be null). Throws InputError
+// skeleton and the clamp counts (either pointer may be null). Throws io::InputError
 // from options.validate(). Uses TBB; the result does not depend on the thread count.
-[[nodiscard]] Volume make_synthetic_neuron(const SyntheticNeuronOptions& options,
+[[nodiscard]] io::Volume make_synthetic_neuron(const SyntheticNeuronOptions& options,
                                            std::vector<NeuriteNode>* skeleton = nullptr,
                                            SyntheticNeuronCounts* counts = nullptr);
 
-}  // namespace hisnegs::io
+}  // namespace hisnegs::simulate

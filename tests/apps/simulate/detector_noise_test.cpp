@@ -1,10 +1,10 @@
 // SPDX-License-Identifier: Apache-2.0
-// io::add_detector_noise and io::estimate_detector_noise: the noise added has the
+// simulate::add_detector_noise and simulate::estimate_detector_noise: the noise added has the
 // Poisson–Gaussian statistics asked for, and the estimate recovers known parameters
 // (gain, read noise, background photons) within 10 % on a synthetic stack of smooth
 // blobs, for a camera-like setting (offset, read noise, uint16) and for the raw-stack
 // recipe (Poisson only, uint8, most of the background 0).
-#include "io/detector_noise.hpp"
+#include "apps/simulate/detector_noise.hpp"
 
 #include <gtest/gtest.h>
 
@@ -14,13 +14,13 @@
 
 #include "io/error.hpp"
 
-namespace hisnegs::io {
+namespace hisnegs::simulate {
 namespace {
 
 // A noise-free stack of counts: `blobs` Gaussian blobs (σ 4–6 voxels, peaks up to
 // peak_counts) on a zero background.
-Volume blob_stack(int blobs, double peak_counts, SampleType type, std::uint64_t seed) {
-  Volume v;
+io::Volume blob_stack(int blobs, double peak_counts, io::SampleType type, std::uint64_t seed) {
+  io::Volume v;
   v.nx = 160, v.ny = 160, v.nz = 32;
   v.stored_as = type;
   v.source = "blobs.tif";
@@ -41,13 +41,13 @@ Volume blob_stack(int blobs, double peak_counts, SampleType type, std::uint64_t 
 }
 
 TEST(DetectorNoise, AddsPoissonGaussianNoiseWithTheAskedStatistics) {
-  Volume flat;
+  io::Volume flat;
   flat.nx = 64, flat.ny = 64, flat.nz = 16;
-  flat.stored_as = SampleType::kUint16;
+  flat.stored_as = io::SampleType::kUint16;
   flat.voxels.assign(flat.size(), 0.0f);
   DetectorNoiseOptions o;
   o.background_photons = 20.0, o.gain = 2.0, o.read_noise = 3.0, o.offset = 50.0;
-  const Volume noisy = add_detector_noise(flat, o);
+  const io::Volume noisy = add_detector_noise(flat, o);
   double sum = 0, sq = 0;
   for (const float v : noisy.voxels) sum += v, sq += double(v) * v;
   const double n = static_cast<double>(noisy.size()), mean = sum / n, var = sq / n - mean * mean;
@@ -74,7 +74,7 @@ TEST(DetectorNoise, EstimateRecoversACamerasParameters) {
   DetectorNoiseOptions truth;
   truth.background_photons = 20.0, truth.gain = 2.0, truth.read_noise = 4.0, truth.offset = 20.0;
   truth.shot_noise = true, truth.seed = 7;
-  const Volume noisy = add_detector_noise(blob_stack(12, 1600.0, SampleType::kUint16, 3), truth);
+  const io::Volume noisy = add_detector_noise(blob_stack(12, 1600.0, io::SampleType::kUint16, 3), truth);
   expect_recovered(estimate_detector_noise(noisy, truth.offset), truth);
 }
 
@@ -83,31 +83,31 @@ TEST(DetectorNoise, EstimateRecoversTheRawStackRecipe) {
   // background is 0, so the low bins are left out and the line rests on the blobs.
   DetectorNoiseOptions truth;
   truth.background_photons = 0.6, truth.shot_noise = true, truth.seed = 11;
-  const Volume noisy = add_detector_noise(blob_stack(12, 200.0, SampleType::kUint8, 5), truth);
+  const io::Volume noisy = add_detector_noise(blob_stack(12, 200.0, io::SampleType::kUint8, 5), truth);
   expect_recovered(estimate_detector_noise(noisy, 0.0), truth);
 }
 
 TEST(DetectorNoise, EstimateRefusesWhatItCannotMeasure) {
-  Volume flat;
+  io::Volume flat;
   flat.nx = 40, flat.ny = 40, flat.nz = 4;
-  flat.stored_as = SampleType::kUint8;
+  flat.stored_as = io::SampleType::kUint8;
   flat.source = "flat.tif";
   flat.voxels.assign(flat.size(), 0.0f);
-  EXPECT_THROW((void)estimate_detector_noise(flat), InputError);  // nothing to fit a slope to
-  Volume tiny = flat;
+  EXPECT_THROW((void)estimate_detector_noise(flat), io::InputError);  // nothing to fit a slope to
+  io::Volume tiny = flat;
   tiny.nx = 4, tiny.ny = 4;
   tiny.voxels.assign(tiny.size(), 1.0f);
   try {
     (void)estimate_detector_noise(tiny);
     FAIL() << "a 4x4 page was accepted";
-  } catch (const InputError& e) {
+  } catch (const io::InputError& e) {
     EXPECT_NE(std::string(e.what()).find("flat.tif: 4x4 pages are too small"), std::string::npos) << e.what();
   }
-  Volume normalized = blob_stack(2, 100.0, SampleType::kUint8, 1);
-  normalized.normalization.method = NormalizationMethod::kMinMax;
-  EXPECT_THROW((void)estimate_detector_noise(normalized), InputError);
-  EXPECT_THROW((void)estimate_detector_noise(blob_stack(2, 100.0, SampleType::kUint8, 1), -1.0), InputError);
+  io::Volume normalized = blob_stack(2, 100.0, io::SampleType::kUint8, 1);
+  normalized.normalization.method = io::NormalizationMethod::kMinMax;
+  EXPECT_THROW((void)estimate_detector_noise(normalized), io::InputError);
+  EXPECT_THROW((void)estimate_detector_noise(blob_stack(2, 100.0, io::SampleType::kUint8, 1), -1.0), io::InputError);
 }
 
 }  // namespace
-}  // namespace hisnegs::io
+}  // namespace hisnegs::simulate

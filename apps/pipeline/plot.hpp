@@ -1,5 +1,5 @@
 // SPDX-License-Identifier: Apache-2.0
-// Line charts drawn into an RGB Image8 (for write_png): axes box, nice ticks, labels,
+// Line charts drawn into an RGB io::Image8 (for write_png): axes box, nice ticks, labels,
 // title and legend, in an embedded bitmap font. Not a plotting library: no markers, bars or fills.
 #pragma once
 
@@ -11,7 +11,7 @@
 
 #include "io/png.hpp"
 
-namespace hisnegs::io {
+namespace hisnegs::apps {
 
 // One polyline. Point i is (x[i], y[i]); consecutive drawable points are joined in
 // order. A point with a non-finite coordinate (or one <= 0 on a log axis) is not
@@ -32,9 +32,9 @@ struct PlotOptions {
 // Draws `series` as lines on white, 3 channels, options.width x options.height.
 // Axis ranges come from the drawable points of all series (padded when they are
 // degenerate); with no drawable point the axes are drawn empty. Text is scaled
-// 1x..4x with the image size. Throws InputError naming the field and value for a
+// 1x..4x with the image size. Throws io::InputError naming the field and value for a
 // width/height outside [64, 8192] or a series whose x and y lengths differ.
-Image8 plot_lines(std::span<const PlotSeries> series, const PlotOptions& options);
+io::Image8 plot_lines(std::span<const PlotSeries> series, const PlotOptions& options);
 
 // Colour i of the Okabe-Ito palette (distinct under the common colour-vision
 // deficiencies), ordered so the first ones contrast most on white; cycles every 8.
@@ -45,4 +45,4 @@ std::array<std::uint8_t, 3> plot_color(int i);
 // a short exponent form ("1e-3", "2.5e+4"). Exposed for tests and tables beside plots.
 std::string format_tick_label(double value, double step, bool scientific);
 
-}  // namespace hisnegs::io
+}  // namespace hisnegs::apps

@@ -1,8 +1,8 @@
 // SPDX-License-Identifier: Apache-2.0
-// io::BackgroundModel: E[max of n] against a Monte-Carlo draw from the same
+// gmf::BackgroundModel: E[max of n] against a Monte-Carlo draw from the same
 // distribution, the estimate's atoms on a stack of known noise (the neuron and its
 // halo left out), a zero background as none, and the text form round trip.
-#include "io/background.hpp"
+#include "gmf/core/background.hpp"
 
 #include <gtest/gtest.h>
 
@@ -12,13 +12,13 @@
 
 #include "io/error.hpp"
 
-namespace hisnegs::io {
+namespace hisnegs::gmf {
 namespace {
 
 // A stack of Poisson(lambda) counts / 255 (op1's noisy recipe) with a bright rod
 // through it whose dim halo (0.05) reaches 2 voxels out.
-Volume noisy_stack(double lambda, std::uint64_t seed) {
-  Volume v;
+io::Volume noisy_stack(double lambda, std::uint64_t seed) {
+  io::Volume v;
   v.nx = 48, v.ny = 40, v.nz = 24;
   v.voxels.assign(v.size(), 0.0f);
   std::mt19937_64 rng(seed);
@@ -61,7 +61,7 @@ TEST(Background, ExpectedMaxMatchesAMonteCarloDraw) {
 
 TEST(Background, EstimateLeavesTheNeuronAndItsHaloOut) {
   const double lambda = 0.6;
-  const Volume v = noisy_stack(lambda, 11);
+  const io::Volume v = noisy_stack(lambda, 11);
   const BackgroundModel m = estimate_background(v);
   ASSERT_FALSE(m.none());
   EXPECT_EQ(m.values.front(), 0.0);
@@ -79,21 +79,21 @@ TEST(Background, EstimateLeavesTheNeuronAndItsHaloOut) {
 // Bricks: counting each core of a tiling inside its region (core + a halo as wide as
 // the guard) and merging gives the whole stack's estimate exactly.
 TEST(Background, CountsOfBricksWithAGuardHaloMergeIntoTheWholeEstimate) {
-  const Volume v = noisy_stack(0.6, 4);
+  const io::Volume v = noisy_stack(0.6, 4);
   const BackgroundOptions options;
   const int g = options.guard_voxels;
   BackgroundCounts merged;
   for (int z0 = 0; z0 < v.nz; z0 += 10) {
     for (int x0 = 0; x0 < v.nx; x0 += 20) {
-      const VoxelBox core{{x0, 0, z0}, {std::min(v.nx, x0 + 20), v.ny, std::min(v.nz, z0 + 10)}};
-      const VoxelBox region{{std::max(0, x0 - g), 0, std::max(0, z0 - g)},
+      const io::VoxelBox core{{x0, 0, z0}, {std::min(v.nx, x0 + 20), v.ny, std::min(v.nz, z0 + 10)}};
+      const io::VoxelBox region{{std::max(0, x0 - g), 0, std::max(0, z0 - g)},
                             {std::min(v.nx, core.hi[0] + g), v.ny, std::min(v.nz, core.hi[2] + g)}};
-      Volume r;
+      io::Volume r;
       r.nx = region.hi[0] - region.lo[0], r.ny = v.ny, r.nz = region.hi[2] - region.lo[2];
       for (int z = region.lo[2]; z < region.hi[2]; ++z)
         for (int y = 0; y < v.ny; ++y)
           for (int x = region.lo[0]; x < region.hi[0]; ++x) r.voxels.push_back(v.at(x, y, z));
-      const VoxelBox local{{core.lo[0] - region.lo[0], 0, core.lo[2] - region.lo[2]},
+      const io::VoxelBox local{{core.lo[0] - region.lo[0], 0, core.lo[2] - region.lo[2]},
                            {core.hi[0] - region.lo[0], v.ny, core.hi[2] - region.lo[2]}};
       merged.merge(count_background(r, options, local));
     }
@@ -108,7 +108,7 @@ TEST(BackgroundRegions, SplitTheStackIntoEqualPartsThatTileIt) {
   EXPECT_EQ(BackgroundRegions::of({5000, 20, 3}, 16).cells, (std::array<int, 3>{8, 2, 1}));  // at most 8 a side
   std::size_t voxels = 0;
   for (int i = 0; i < r.count(); ++i) {
-    const VoxelBox b = r.box(i);
+    const io::VoxelBox b = r.box(i);
     voxels += b.voxels();
     for (int a = 0; a < 3; ++a) {
       const int k = a == 0 ? i % 4 : a == 1 ? (i / 4) % 4 : i / 16;
@@ -121,9 +121,9 @@ TEST(BackgroundRegions, SplitTheStackIntoEqualPartsThatTileIt) {
 
 // Three regions along x: Poisson noise, a subtracted (zero) background, and one the
 // neuron fills (no background voxel: it takes the whole stack's distribution).
-Volume three_part_stack() {
-  Volume v = noisy_stack(0.6, 7);
-  Volume out;
+io::Volume three_part_stack() {
+  io::Volume v = noisy_stack(0.6, 7);
+  io::Volume out;
   out.nx = 96, out.ny = v.ny, out.nz = v.nz;
   out.voxels.assign(out.size(), 0.0f);
   for (int z = 0; z < v.nz; ++z)
@@ -137,7 +137,7 @@ Volume three_part_stack() {
 }
 
 TEST(BackgroundField, EachRegionHasItsOwnDistribution) {
-  const Volume v = three_part_stack();
+  const io::Volume v = three_part_stack();
   BackgroundOptions options;
   options.region_voxels = 32;
   const BackgroundField field = estimate_background_field(v, options);
@@ -159,7 +159,7 @@ TEST(BackgroundField, EachRegionHasItsOwnDistribution) {
 }
 
 TEST(BackgroundField, CountsOfBricksByRegionMergeIntoTheWholeField) {
-  const Volume v = three_part_stack();
+  const io::Volume v = three_part_stack();
   BackgroundOptions options;
   options.region_voxels = 32;
   const BackgroundRegions regions = BackgroundRegions::of({v.nx, v.ny, v.nz}, options.region_voxels);
@@ -167,12 +167,12 @@ TEST(BackgroundField, CountsOfBricksByRegionMergeIntoTheWholeField) {
   std::vector<BackgroundCounts> merged(static_cast<std::size_t>(regions.count()));
   for (int x0 = 0; x0 < v.nx; x0 += 40) {  // bricks that do not line up with the regions
     const int x1 = std::min(v.nx, x0 + 40), lo = std::max(0, x0 - g), hi = std::min(v.nx, x1 + g);
-    Volume r;
+    io::Volume r;
     r.nx = hi - lo, r.ny = v.ny, r.nz = v.nz;
     for (int z = 0; z < v.nz; ++z)
       for (int y = 0; y < v.ny; ++y)
         for (int x = lo; x < hi; ++x) r.voxels.push_back(v.at(x, y, z));
-    const VoxelBox core{{x0 - lo, 0, 0}, {x1 - lo, v.ny, v.nz}};
+    const io::VoxelBox core{{x0 - lo, 0, 0}, {x1 - lo, v.ny, v.nz}};
     const std::vector<BackgroundCounts> part = count_background_regions(r, options, core, regions, {lo, 0, 0});
     for (std::size_t i = 0; i < merged.size(); ++i) merged[i].merge(part[i]);
   }
@@ -183,20 +183,20 @@ TEST(BackgroundField, CountsOfBricksByRegionMergeIntoTheWholeField) {
 }
 
 TEST(Background, AZeroBackgroundIsNone) {
-  Volume v = noisy_stack(0.0, 1);
+  io::Volume v = noisy_stack(0.0, 1);
   const BackgroundModel m = estimate_background(v);
   EXPECT_TRUE(m.none());
   EXPECT_EQ(m.expected_max(500), 0.0);
   EXPECT_TRUE(BackgroundModel{}.none());
   // Every voxel foreground: an error naming the stack.
   std::fill(v.voxels.begin(), v.voxels.end(), 0.9f);
-  EXPECT_THROW((void)estimate_background(v), InputError);
+  EXPECT_THROW((void)estimate_background(v), io::InputError);
 }
 
 // A background-subtracted stack (the shared ones: 99.9 % to 100 % of the background
 // exactly 0) keeps a few remnants of structure, not a noise floor: none.
 TEST(Background, ASubtractedBackgroundIsNone) {
-  Volume v = noisy_stack(0.0, 2);
+  io::Volume v = noisy_stack(0.0, 2);
   for (std::size_t i = 0; i < v.voxels.size(); i += 997) {
     if (v.voxels[i] == 0.0f) v.voxels[i] = 0.03f;  // ~0.1 % speckles
   }
@@ -207,11 +207,11 @@ TEST(Background, ASubtractedBackgroundIsNone) {
   EXPECT_FALSE(m.none());
   EXPECT_NEAR(m.cdf.front(), 0.999, 0.0005);
   keep.subtracted_zero_fraction = 0.0;
-  EXPECT_THROW(keep.validate(), InputError);
+  EXPECT_THROW(keep.validate(), io::InputError);
 }
 
 TEST(Background, ManyDistinctValuesAreBinnedKeepingTheMean) {
-  Volume v = noisy_stack(0.6, 5);
+  io::Volume v = noisy_stack(0.6, 5);
   std::mt19937_64 rng(8);
   std::exponential_distribution<double> noise(300.0);  // continuous: every value distinct
   for (float& x : v.voxels) {
@@ -245,14 +245,14 @@ TEST(Background, TextRoundTripsAndBadTextIsRefused) {
   EXPECT_EQ(BackgroundModel::parse(m.text(), "m.ply"), m);
   for (const char* bad :
        {"", "x 2", "1 2 0 0.5", "1 1 0 0.5", "1 2 0.1 0.5 0.05 1", "0 1 0 1", "1 1 0 1 extra", "1 1 nan 1"}) {
-    EXPECT_THROW((void)BackgroundModel::parse(bad, "m.ply"), InputError) << bad;
+    EXPECT_THROW((void)BackgroundModel::parse(bad, "m.ply"), io::InputError) << bad;
   }
   try {
     (void)BackgroundModel::parse("1 1 0 0.5", "m.ply");
-  } catch (const InputError& e) {
+  } catch (const io::InputError& e) {
     EXPECT_EQ(std::string(e.what()), "m.ply: background: the last probability is 0.5, not 1");
   }
 }
 
 }  // namespace
-}  // namespace hisnegs::io
+}  // namespace hisnegs::gmf

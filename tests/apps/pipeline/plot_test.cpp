@@ -1,7 +1,7 @@
 // SPDX-License-Identifier: Apache-2.0
-// Tests of io/plot: image shape, where lines land (linear and log axes), broken
+// Tests of apps/pipeline/plot: image shape, where lines land (linear and log axes), broken
 // lines, empty plots, text, legend, palette, tick labels and option errors.
-#include "io/plot.hpp"
+#include "apps/pipeline/plot.hpp"
 
 #include <gtest/gtest.h>
 
@@ -16,7 +16,7 @@
 
 #include "io/error.hpp"
 
-namespace hisnegs::io {
+namespace hisnegs::apps {
 namespace {
 
 using Rgb = std::array<std::uint8_t, 3>;
@@ -24,7 +24,7 @@ using Rgb = std::array<std::uint8_t, 3>;
 constexpr Rgb kRed{200, 30, 40};
 constexpr double kNan = std::numeric_limits<double>::quiet_NaN();
 
-Rgb pixel(const Image8& img, int x, int y) {
+Rgb pixel(const io::Image8& img, int x, int y) {
   const std::uint8_t* p = &img.pixels[(static_cast<std::size_t>(y) * img.width + x) * 3];
   return {p[0], p[1], p[2]};
 }
@@ -33,7 +33,7 @@ struct Pixel {
   int x, y;
 };
 
-std::vector<Pixel> pixels_of(const Image8& img, const Rgb& c) {
+std::vector<Pixel> pixels_of(const io::Image8& img, const Rgb& c) {
   std::vector<Pixel> out;
   for (int y = 0; y < img.height; ++y)
     for (int x = 0; x < img.width; ++x)
@@ -41,13 +41,13 @@ std::vector<Pixel> pixels_of(const Image8& img, const Rgb& c) {
   return out;
 }
 
-bool is_black(const Image8& img, int x, int y) { return pixel(img, x, y) == Rgb{0, 0, 0}; }
+bool is_black(const io::Image8& img, int x, int y) { return pixel(img, x, y) == Rgb{0, 0, 0}; }
 
 // The axes box: outermost rows/columns that are mostly black (text never is).
 struct Box {
   int left = -1, top = -1, right = -1, bottom = -1;
 };
-Box find_box(const Image8& img) {
+Box find_box(const io::Image8& img) {
   Box b;
   for (int y = 0; y < img.height; ++y) {
     int n = 0;
@@ -63,7 +63,7 @@ Box find_box(const Image8& img) {
 }
 
 // Rows that are mostly light grey: the grid lines of the labelled y ticks.
-int grid_rows(const Image8& img) {
+int grid_rows(const io::Image8& img) {
   int rows = 0;
   for (int y = 0; y < img.height; ++y) {
     int n = 0;
@@ -105,7 +105,7 @@ TEST(Plot, ImageHasRequestedSizeAndThreeChannels) {
   PlotOptions o;
   o.width = 321;
   o.height = 203;
-  const Image8 img = plot_lines(s, o);
+  const io::Image8 img = plot_lines(s, o);
   EXPECT_EQ(img.width, 321);
   EXPECT_EQ(img.height, 203);
   EXPECT_EQ(img.channels, 3);
@@ -115,7 +115,7 @@ TEST(Plot, ImageHasRequestedSizeAndThreeChannels) {
 
 TEST(Plot, RisingLineGoesUpToTheRightInsideTheBox) {
   const std::vector<PlotSeries> s = {line({0, 2, 4, 6, 8, 10}, {0, 2, 4, 6, 8, 10})};
-  const Image8 img = plot_lines(s, PlotOptions{});
+  const io::Image8 img = plot_lines(s, PlotOptions{});
   const std::vector<Pixel> px = pixels_of(img, kRed);
   ASSERT_GT(px.size(), 500u);
   const Box box = find_box(img);
@@ -176,7 +176,7 @@ TEST(Plot, LogAxisSkipsNonPositivePoints) {
   o.log_y = true;
   const std::vector<PlotSeries> with = {line({0, 1, 2, 3, 4}, {0, -5, 1, 10, 100})};
   const std::vector<PlotSeries> without = {line({2, 3, 4}, {1, 10, 100})};
-  const Image8 a = plot_lines(with, o), b = plot_lines(without, o);
+  const io::Image8 a = plot_lines(with, o), b = plot_lines(without, o);
   EXPECT_FALSE(pixels_of(a, kRed).empty());
   EXPECT_EQ(a.pixels, b.pixels);
 }
@@ -185,7 +185,7 @@ TEST(Plot, LogAxisWithNoPositiveValueDrawsEmptyAxes) {
   PlotOptions o;
   o.log_y = true;
   const std::vector<PlotSeries> s = {line({0, 1, 2}, {0, -1, -2})};
-  const Image8 img = plot_lines(s, o);
+  const io::Image8 img = plot_lines(s, o);
   EXPECT_TRUE(pixels_of(img, kRed).empty());
   EXPECT_GE(find_box(img).right, 0);
 }
@@ -218,7 +218,7 @@ TEST(Plot, EmptyPlotsDrawBlackAxes) {
   const std::vector<PlotSeries> none;
   const std::vector<PlotSeries> empty = {line({}, {}), line({kNan}, {1})};
   for (const auto& s : {none, empty}) {
-    const Image8 img = plot_lines(s, PlotOptions{});
+    const io::Image8 img = plot_lines(s, PlotOptions{});
     const Box box = find_box(img);
     EXPECT_GE(box.left, 0);
     EXPECT_GT(box.right, box.left);
@@ -233,7 +233,7 @@ TEST(Plot, BadOptionsThrowInputErrorNamingTheField) {
   const auto message = [&](const PlotOptions& o, const std::vector<PlotSeries>& series) {
     try {
       plot_lines(series, o);
-    } catch (const InputError& e) {
+    } catch (const io::InputError& e) {
       return std::string(e.what());
     }
     return std::string("no error");
@@ -256,7 +256,7 @@ TEST(Plot, TitleIsDrawnAboveTheBox) {
   const auto dark_above_box = [](const std::string& title) {
     PlotOptions o;
     o.title = title;
-    const Image8 img = plot_lines(std::vector<PlotSeries>{line({0, 1}, {0, 1})}, o);
+    const io::Image8 img = plot_lines(std::vector<PlotSeries>{line({0, 1}, {0, 1})}, o);
     const Box box = find_box(img);
     int n = 0;  // middle third only: tick labels may reach above the box at the left
     for (int y = 0; y < box.top; ++y)
@@ -269,7 +269,7 @@ TEST(Plot, TitleIsDrawnAboveTheBox) {
 
 TEST(Plot, LegendListsLabelledSeriesTopRight) {
   const auto red_top_right = [](const std::string& label) {
-    const Image8 img = plot_lines(std::vector<PlotSeries>{line({0, 1}, {0, 0}, label)}, PlotOptions{});
+    const io::Image8 img = plot_lines(std::vector<PlotSeries>{line({0, 1}, {0, 0}, label)}, PlotOptions{});
     int n = 0;  // the flat line itself lies at mid height
     for (const Pixel& p : pixels_of(img, kRed)) n += p.x > img.width / 2 && p.y < img.height / 4;
     return n;
@@ -286,7 +286,7 @@ TEST(Plot, SmallestImageWithAllTextDoesNotCrash) {
   o.x_label = "x (\xC2\xB5m)";  // UTF-8 micro sign: drawn as one box
   o.y_label = "y";
   const std::vector<PlotSeries> s = {line({0, 1e6}, {-1e-9, 1e9}, "series")};
-  const Image8 img = plot_lines(s, o);
+  const io::Image8 img = plot_lines(s, o);
   EXPECT_EQ(img.pixels.size(), 64u * 64u * 3u);
 }
 
@@ -312,4 +312,4 @@ TEST(Plot, TickLabelsAreCompact) {
 }
 
 }  // namespace
-}  // namespace hisnegs::io
+}  // namespace hisnegs::apps

@@ -1,7 +1,7 @@
 // SPDX-License-Identifier: Apache-2.0
-// Tests of io/synthetic_neuron: determinism, the Volume contract (shape, spacing,
+// Tests of apps/simulate/synthetic_neuron: determinism, the io::Volume contract (shape, spacing,
 // uint16 counts), realistic sparsity, soma brightest, skeleton sanity, validation.
-#include "io/synthetic_neuron.hpp"
+#include "apps/simulate/synthetic_neuron.hpp"
 
 #include <gtest/gtest.h>
 #include <tbb/global_control.h>
@@ -16,7 +16,7 @@
 
 #include "io/error.hpp"
 
-namespace hisnegs::io {
+namespace hisnegs::simulate {
 namespace {
 
 // A small stack that still holds the default soma (radius 4 µm + 1 µm margins).
@@ -31,7 +31,7 @@ SyntheticNeuronOptions small_options(std::uint64_t seed = 7) {
 
 // The default stack and its skeleton, generated once for the suite (~0.1 s).
 struct DefaultStack {
-  Volume volume;
+  io::Volume volume;
   std::vector<NeuriteNode> skeleton;
   SyntheticNeuronCounts counts;
 };
@@ -44,31 +44,31 @@ const DefaultStack& default_stack() {
   return stack;
 }
 
-double zero_fraction(const Volume& v) {
+double zero_fraction(const io::Volume& v) {
   const auto n = std::count(v.voxels.begin(), v.voxels.end(), 0.0f);
   return static_cast<double>(n) / static_cast<double>(v.size());
 }
 
-// Runs validate() and returns the InputError message ("" if nothing was thrown).
+// Runs validate() and returns the io::InputError message ("" if nothing was thrown).
 std::string validation_error(const SyntheticNeuronOptions& o) {
   try {
     o.validate();
-  } catch (const InputError& e) {
+  } catch (const io::InputError& e) {
     return e.what();
   }
   return "";
 }
 
 TEST(SyntheticNeuron, SameSeedGivesBitIdenticalVolume) {
-  const Volume a = make_synthetic_neuron(small_options(11));
-  const Volume b = make_synthetic_neuron(small_options(11));
+  const io::Volume a = make_synthetic_neuron(small_options(11));
+  const io::Volume b = make_synthetic_neuron(small_options(11));
   ASSERT_EQ(a.voxels.size(), b.voxels.size());
   EXPECT_TRUE(a.voxels == b.voxels);
 }
 
 TEST(SyntheticNeuron, ResultDoesNotDependOnThreadCount) {
-  const Volume parallel = make_synthetic_neuron(small_options(12));
-  Volume serial;
+  const io::Volume parallel = make_synthetic_neuron(small_options(12));
+  io::Volume serial;
   {
     tbb::global_control one_thread(tbb::global_control::max_allowed_parallelism, 1);
     serial = make_synthetic_neuron(small_options(12));
@@ -77,8 +77,8 @@ TEST(SyntheticNeuron, ResultDoesNotDependOnThreadCount) {
 }
 
 TEST(SyntheticNeuron, DifferentSeedGivesDifferentVolume) {
-  const Volume a = make_synthetic_neuron(small_options(1));
-  const Volume b = make_synthetic_neuron(small_options(2));
+  const io::Volume a = make_synthetic_neuron(small_options(1));
+  const io::Volume b = make_synthetic_neuron(small_options(2));
   ASSERT_EQ(a.voxels.size(), b.voxels.size());
   std::size_t differing = 0;
   for (std::size_t i = 0; i < a.voxels.size(); ++i) differing += a.voxels[i] != b.voxels[i];
@@ -87,7 +87,7 @@ TEST(SyntheticNeuron, DifferentSeedGivesDifferentVolume) {
 }
 
 TEST(SyntheticNeuron, ValuesAreIntegralCountsInUint16Range) {
-  const Volume& v = default_stack().volume;
+  const io::Volume& v = default_stack().volume;
   for (const float x : v.voxels) {
     ASSERT_EQ(x, std::round(x));
     ASSERT_GE(x, 0.0f);
@@ -104,15 +104,15 @@ TEST(SyntheticNeuron, ShapeSpacingAndProvenanceAreAsRequested) {
   o.nz = 24;
   o.spacing_um = {0.5, 0.4, 1.2};
   o.seed = 42;
-  const Volume v = make_synthetic_neuron(o);
+  const io::Volume v = make_synthetic_neuron(o);
   EXPECT_EQ(v.nx, 40);
   EXPECT_EQ(v.ny, 56);
   EXPECT_EQ(v.nz, 24);
   EXPECT_EQ(v.voxels.size(), std::size_t{40} * 56 * 24);
-  EXPECT_EQ(v.stored_as, SampleType::kUint16);
+  EXPECT_EQ(v.stored_as, io::SampleType::kUint16);
   EXPECT_EQ(v.spacing.um, o.spacing_um);
-  for (const SpacingSource s : v.spacing.source) EXPECT_EQ(s, SpacingSource::kUser);
-  EXPECT_EQ(v.normalization.method, NormalizationMethod::kNone);
+  for (const io::SpacingSource s : v.spacing.source) EXPECT_EQ(s, io::SpacingSource::kUser);
+  EXPECT_EQ(v.normalization.method, io::NormalizationMethod::kNone);
   EXPECT_EQ(v.source, "synthetic (seed 42)");
 }
 
@@ -120,9 +120,9 @@ TEST(SyntheticNeuron, ShapeSpacingAndProvenanceAreAsRequested) {
 // (fg = voxels above 0.2; 0.07-0.3 % there, 0.2-5 % wanted here, where the smaller
 // field of view holds relatively more neuron), with a background mostly exactly 0.
 TEST(SyntheticNeuron, DefaultIsSparseLikeTheRealStacks) {
-  Volume v = default_stack().volume;
-  normalize(v, NormalizationOptions{});
-  const VolumeStats stats = compute_stats(v, 0.2);
+  io::Volume v = default_stack().volume;
+  normalize(v, io::NormalizationOptions{});
+  const io::VolumeStats stats = compute_stats(v, 0.2);
   EXPECT_EQ(stats.min, 0.0);
   EXPECT_NEAR(stats.max, 1.0, 1e-6);
   EXPECT_GE(stats.foreground_fraction, 0.002);
@@ -141,7 +141,7 @@ TEST(SyntheticNeuron, BackgroundSubtractionIsCountedAndOptional) {
   SyntheticNeuronOptions o = small_options();
   o.background_subtract = false;
   SyntheticNeuronCounts counts;
-  const Volume raw = make_synthetic_neuron(o, nullptr, &counts);
+  const io::Volume raw = make_synthetic_neuron(o, nullptr, &counts);
   EXPECT_EQ(counts.clipped_to_zero, 0);
   // Without subtraction the background sits at the camera offset (100 ± 2 counts).
   const float lo = *std::min_element(raw.voxels.begin(), raw.voxels.end());
@@ -151,7 +151,7 @@ TEST(SyntheticNeuron, BackgroundSubtractionIsCountedAndOptional) {
 
 // Every voxel holding the maximum lies in the soma: within its radius plus the PSF
 // reach (3 sigma) and one voxel of the soma centre (skeleton node 0).
-void expect_max_in_soma(const Volume& v, const std::vector<NeuriteNode>& skeleton, const SyntheticNeuronOptions& o) {
+void expect_max_in_soma(const io::Volume& v, const std::vector<NeuriteNode>& skeleton, const SyntheticNeuronOptions& o) {
   ASSERT_FALSE(skeleton.empty());
   ASSERT_EQ(skeleton[0].parent, -1);
   const Eigen::Vector3d centre = skeleton[0].position_um;
@@ -176,7 +176,7 @@ TEST(SyntheticNeuron, SomaIsTheBrightestRegion) {
   for (const std::uint64_t seed : {2u, 3u, 4u}) {
     const SyntheticNeuronOptions o = small_options(seed);
     std::vector<NeuriteNode> skeleton;
-    const Volume v = make_synthetic_neuron(o, &skeleton);
+    const io::Volume v = make_synthetic_neuron(o, &skeleton);
     expect_max_in_soma(v, skeleton, o);
   }
 }
@@ -237,7 +237,7 @@ TEST(SyntheticNeuronOptions, ValidateRejectsBadFieldsNamingThem) {
 TEST(SyntheticNeuronOptions, MakeSyntheticNeuronValidatesFirst) {
   SyntheticNeuronOptions o = small_options();
   o.primary_branches = 0;
-  EXPECT_THROW((void)make_synthetic_neuron(o), InputError);
+  EXPECT_THROW((void)make_synthetic_neuron(o), io::InputError);
 }
 
 TEST(SyntheticNeuronOptions, VisitNamesEveryFieldOnceAndCanSetIt) {
@@ -260,4 +260,4 @@ TEST(SyntheticNeuronOptions, VisitNamesEveryFieldOnceAndCanSetIt) {
 }
 
 }  // namespace
-}  // namespace hisnegs::io
+}  // namespace hisnegs::simulate

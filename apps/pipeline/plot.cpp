@@ -1,7 +1,7 @@
 // SPDX-License-Identifier: Apache-2.0
 // plot_lines: layout, tick choice, a 5x9 bitmap font and thick clipped lines on an
-// RGB Image8. Writing the PNG is png.cpp's job.
-#include "io/plot.hpp"
+// RGB io::Image8. Writing the PNG is png.cpp's job.
+#include "apps/pipeline/plot.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -13,7 +13,7 @@
 #include "io/config.hpp"
 #include "io/error.hpp"
 
-namespace hisnegs::io {
+namespace hisnegs::apps {
 namespace {
 
 using Rgb = std::array<std::uint8_t, 3>;
@@ -61,7 +61,7 @@ struct Rect {
 
 // The image and the rectangle that drawing is confined to (the plot area, for data).
 struct Canvas {
-  Image8& image;
+  io::Image8& image;
   Rect clip;
   void put(int x, int y, const Rgb& c) const {
     if (x < clip.x0 || x >= clip.x1 || y < clip.y0 || y >= clip.y1) return;
@@ -230,7 +230,7 @@ int max_label_width(const Axis& axis, int scale) {
 
 void require_size(std::string_view field, int value) {
   if (value < kMinSize || value > kMaxSize)
-    fail_option("plot", field, std::to_string(value),
+    io::fail_option("plot", field, std::to_string(value),
                 "must be in [" + std::to_string(kMinSize) + ", " + std::to_string(kMaxSize) + "] pixels");
 }
 
@@ -293,7 +293,7 @@ struct PlotLayout {
 void check_series(std::span<const PlotSeries> series) {
   for (std::size_t i = 0; i < series.size(); ++i)
     if (series[i].x.size() != series[i].y.size())
-      fail_option("plot", "series[" + std::to_string(i) + "] '" + printable(series[i].label, 40) + "'",
+      io::fail_option("plot", "series[" + std::to_string(i) + "] '" + io::printable(series[i].label, 40) + "'",
                   "x size " + std::to_string(series[i].x.size()) + ", y size " + std::to_string(series[i].y.size()),
                   "x and y must have the same length");
 }
@@ -426,11 +426,11 @@ void draw_legend(const Canvas& plot, const PlotLayout& L, std::span<const PlotSe
 
 }  // namespace
 
-Image8 plot_lines(std::span<const PlotSeries> series, const PlotOptions& options) {
+io::Image8 plot_lines(std::span<const PlotSeries> series, const PlotOptions& options) {
   require_size("width", options.width);
   require_size("height", options.height);
   check_series(series);
-  Image8 image;
+  io::Image8 image;
   image.width = options.width, image.height = options.height, image.channels = 3;
   image.pixels.assign(static_cast<std::size_t>(image.width) * image.height * 3, 255);
   const Canvas full{image, {0, 0, image.width, image.height}};
@@ -445,4 +445,4 @@ Image8 plot_lines(std::span<const PlotSeries> series, const PlotOptions& options
   return image;
 }
 
-}  // namespace hisnegs::io
+}  // namespace hisnegs::apps

@@ -2,7 +2,7 @@
 // make_synthetic_neuron: grows a random neuron skeleton in µm, rasterizes it with an
 // anti-aliased tube profile, blurs it with the rest of the PSF and simulates the camera.
 // Owns no file format and no normalization (volume.cpp does that on the result).
-#include "io/synthetic_neuron.hpp"
+#include "apps/simulate/synthetic_neuron.hpp"
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
@@ -21,7 +21,7 @@
 #include "io/error.hpp"
 #include "io/hash.hpp"
 
-namespace hisnegs::io {
+namespace hisnegs::simulate {
 namespace {
 
 using Eigen::Vector3d;
@@ -43,7 +43,7 @@ constexpr double kMaxVoxels = 2147483648.0;    // 2^31: the volume must stay add
 constexpr std::uint64_t kMorphologyStream = 0x6D6F7270686F6CULL;
 constexpr std::uint64_t kNoiseStream = 0x6E6F697365ULL;
 std::uint64_t stream_seed(std::uint64_t seed, std::uint64_t stream, std::uint64_t index) {
-  return splitmix64(splitmix64(seed ^ stream) + index);
+  return io::splitmix64(io::splitmix64(seed ^ stream) + index);
 }
 
 template <class T>
@@ -55,7 +55,7 @@ std::string to_text(const T& value) {
 
 // "synth.FIELD = VALUE: RULE", as every options struct reports (config section `synth`).
 [[noreturn]] void fail_field(const std::string& field, const std::string& value, const std::string& rule) {
-  fail_option("synth", field, value, rule);
+  io::fail_option("synth", field, value, rule);
 }
 
 void require_range(const char* field, double value, double lo, double hi, bool lo_open = false) {
@@ -567,7 +567,7 @@ SyntheticNeuronCounts apply_camera(const SyntheticNeuronOptions& o, std::vector<
 
 }  // namespace
 
-Volume make_synthetic_neuron(const SyntheticNeuronOptions& options, std::vector<NeuriteNode>* skeleton,
+io::Volume make_synthetic_neuron(const SyntheticNeuronOptions& options, std::vector<NeuriteNode>* skeleton,
                              SyntheticNeuronCounts* counts) {
   options.validate();
   const SyntheticNeuronOptions& o = options;
@@ -580,19 +580,19 @@ Volume make_synthetic_neuron(const SyntheticNeuronOptions& options, std::vector<
       render_intensity(make_primitives(nodes, grower.soma_lobes(), g, sigma_aa), g, sigma_aa, sigma_blur_vox);
   const SyntheticNeuronCounts camera = apply_camera(o, intensity);
 
-  Volume volume;
+  io::Volume volume;
   volume.nx = o.nx;
   volume.ny = o.ny;
   volume.nz = o.nz;
   volume.voxels = std::move(intensity);
-  volume.stored_as = SampleType::kUint16;
+  volume.stored_as = io::SampleType::kUint16;
   volume.spacing.um = o.spacing_um;
-  volume.spacing.source = {SpacingSource::kUser, SpacingSource::kUser, SpacingSource::kUser};
-  volume.normalization = Normalization{};
+  volume.spacing.source = {io::SpacingSource::kUser, io::SpacingSource::kUser, io::SpacingSource::kUser};
+  volume.normalization = io::Normalization{};
   volume.source = "synthetic (seed " + to_text(o.seed) + ")";
   if (counts != nullptr) *counts = camera;
   if (skeleton != nullptr) *skeleton = std::move(nodes);
   return volume;
 }
 
-}  // namespace hisnegs::io
+}  // namespace hisnegs::simulate

@@ -9,7 +9,7 @@
 
 #include "io/volume.hpp"
 
-namespace hisnegs::io {
+namespace hisnegs::simulate {
 
 // counts' = clip(round(offset + gain · Poisson(photons) + Normal(0, read_noise²))),
 // photons = background_photons (+ counts / gain with shot_noise): the Poisson–Gaussian
@@ -28,13 +28,13 @@ struct DetectorNoiseOptions {
   // noise already. false: the stack's values are kept and the background's noise added.
   bool shot_noise = false;
   std::uint64_t seed = 1;
-  void validate() const;  // throws InputError("noise.FIELD = VALUE: rule")
+  void validate() const;  // throws io::InputError("noise.FIELD = VALUE: rule")
 };
 
 // `raw` (counts as read, not normalized; stored_as decides the rounding and the
 // clipping: uint8 0..255, uint16 0..65535, float32 >= 0 unrounded) with detector noise
 // added. Deterministic for a seed (one stream, voxel order), spacing and type kept.
-[[nodiscard]] Volume add_detector_noise(const Volume& raw, const DetectorNoiseOptions& options);
+[[nodiscard]] io::Volume add_detector_noise(const io::Volume& raw, const DetectorNoiseOptions& options);
 
 // The Poisson–Gaussian parameters of a raw stack (counts, not normalized), measured
 // the way Foi et al. (2008) do: the noise variance is affine in the signal,
@@ -76,9 +76,9 @@ struct NoiseEstimate {
 // the gain up (the synthetic neuron of `synth --noise raw`, gain 1: 1.23), and the
 // background photons down with it; the read noise and the background's mean in counts
 // come from the background and stay right (2.00 for 2; 100.5 counts for 100.5).
-// Throws InputError naming raw.source when the stack is normalized, smaller than 5
+// Throws io::InputError naming raw.source when the stack is normalized, smaller than 5
 // voxels along both x and y, has fewer than 2 usable bins (no signal range to fit a
 // slope to: a constant or nearly empty stack), or the fitted slope is not positive.
-[[nodiscard]] NoiseEstimate estimate_detector_noise(const Volume& raw, double offset = 0.0);
+[[nodiscard]] NoiseEstimate estimate_detector_noise(const io::Volume& raw, double offset = 0.0);
 
-}  // namespace hisnegs::io
+}  // namespace hisnegs::simulate

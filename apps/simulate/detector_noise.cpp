@@ -1,6 +1,6 @@
 // SPDX-License-Identifier: Apache-2.0
 // add_detector_noise: one seeded stream over the voxels in order.
-#include "io/detector_noise.hpp"
+#include "apps/simulate/detector_noise.hpp"
 
 #include <algorithm>
 #include <array>
@@ -11,13 +11,13 @@
 
 #include "io/error.hpp"
 
-namespace hisnegs::io {
+namespace hisnegs::simulate {
 namespace {
 
 void require(const char* field, double value, double lo, double hi, bool open_lo = false) {
   if (!(std::isfinite(value) && (open_lo ? value > lo : value >= lo) && value <= hi)) {
-    throw InputError(std::string("noise.") + field + " = " + number_text(value) + ": must be in " +
-                     (open_lo ? "(" : "[") + number_text(lo) + ", " + number_text(hi) + "]");
+    throw io::InputError(std::string("noise.") + field + " = " + io::number_text(value) + ": must be in " +
+                     (open_lo ? "(" : "[") + io::number_text(lo) + ", " + io::number_text(hi) + "]");
   }
 }
 
@@ -30,18 +30,18 @@ void DetectorNoiseOptions::validate() const {
   require("offset", offset, 0.0, 1e5);
 }
 
-Volume add_detector_noise(const Volume& raw, const DetectorNoiseOptions& options) {
+io::Volume add_detector_noise(const io::Volume& raw, const DetectorNoiseOptions& options) {
   options.validate();
-  if (raw.normalization.method != NormalizationMethod::kNone) {
+  if (raw.normalization.method != io::NormalizationMethod::kNone) {
     throw std::invalid_argument("add_detector_noise: the stack must be raw counts, not normalized");
   }
-  Volume out = raw;
+  io::Volume out = raw;
   std::mt19937_64 rng(options.seed);
   std::normal_distribution<double> read(0.0, 1.0);
-  const double top = raw.stored_as == SampleType::kUint8    ? 255.0
-                     : raw.stored_as == SampleType::kUint16 ? 65535.0
+  const double top = raw.stored_as == io::SampleType::kUint8    ? 255.0
+                     : raw.stored_as == io::SampleType::kUint16 ? 65535.0
                                                             : std::numeric_limits<double>::infinity();
-  const bool integer = raw.stored_as != SampleType::kFloat32;
+  const bool integer = raw.stored_as != io::SampleType::kFloat32;
   for (float& v : out.voxels) {
     const double photons = options.background_photons + (options.shot_noise ? std::max(0.0, double(v)) / options.gain : 0.0);
     double counts = photons > 0.0 ? options.gain * static_cast<double>(std::poisson_distribution<std::int64_t>(photons)(rng))
@@ -98,7 +98,7 @@ constexpr double kMaxZeroFraction = 0.01;
 // Noise samples of the windows along one axis: voxel stride `step` along the window,
 // `side` to the rows beside it; `len`/`side_len` their extents (windows need 2 voxels
 // either side, the mean rows 1 voxel either side).
-void accumulate_axis(const Volume& raw, std::size_t step, std::size_t side, int len, int side_len, double top,
+void accumulate_axis(const io::Volume& raw, std::size_t step, std::size_t side, int len, int side_len, double top,
                      double sqrt_hi, std::vector<NoiseBin>& bins) {
   static constexpr std::array<double, 5> kW{1.0, -4.0, 6.0, -4.0, 1.0};
   const double norm = 1.0 / std::sqrt(70.0);
@@ -133,7 +133,7 @@ void accumulate_axis(const Volume& raw, std::size_t step, std::size_t side, int 
 }
 
 // The mean of each voxel's 3×3×3 box (edges clamped), separably.
-std::vector<float> box_mean_3(const Volume& v) {
+std::vector<float> box_mean_3(const io::Volume& v) {
   std::vector<float> a = v.voxels, b(v.size());
   const std::array<std::size_t, 3> stride{1, static_cast<std::size_t>(v.nx), static_cast<std::size_t>(v.nx) * v.ny};
   const std::array<int, 3> extent{v.nx, v.ny, v.nz};
@@ -185,20 +185,20 @@ std::string NoiseEstimate::describe() const {
   return buf;
 }
 
-NoiseEstimate estimate_detector_noise(const Volume& raw, double offset) {
-  if (raw.normalization.method != NormalizationMethod::kNone) {
-    throw InputError(raw.source + ": the noise estimate needs the stack's raw counts, not normalized values");
+NoiseEstimate estimate_detector_noise(const io::Volume& raw, double offset) {
+  if (raw.normalization.method != io::NormalizationMethod::kNone) {
+    throw io::InputError(raw.source + ": the noise estimate needs the stack's raw counts, not normalized values");
   }
   if (!(std::isfinite(offset) && offset >= 0.0)) {
-    throw InputError(raw.source + ": noise offset = " + number_text(offset) + ": must be >= 0");
+    throw io::InputError(raw.source + ": noise offset = " + io::number_text(offset) + ": must be >= 0");
   }
   const bool along_x = raw.nx >= 5 && raw.ny >= 3, along_y = raw.ny >= 5 && raw.nx >= 3;
   if (!along_x && !along_y) {
-    throw InputError(raw.source + ": " + std::to_string(raw.nx) + "x" + std::to_string(raw.ny) +
+    throw io::InputError(raw.source + ": " + std::to_string(raw.nx) + "x" + std::to_string(raw.ny) +
                      " pages are too small for a noise estimate (5 voxels along x or y needed)");
   }
-  const double top = raw.stored_as == SampleType::kUint8    ? 255.0
-                     : raw.stored_as == SampleType::kUint16 ? 65535.0
+  const double top = raw.stored_as == io::SampleType::kUint8    ? 255.0
+                     : raw.stored_as == io::SampleType::kUint16 ? 65535.0
                                                             : std::numeric_limits<double>::infinity();
   const double hi = std::max(1.0, static_cast<double>(*std::max_element(raw.voxels.begin(), raw.voxels.end())));
   std::vector<NoiseBin> all(kNoiseBins);
@@ -215,13 +215,13 @@ NoiseEstimate estimate_detector_noise(const Volume& raw, double offset) {
     est.samples += bin.n;
   }
   if (used.size() < 2) {
-    throw InputError(raw.source + ": too little signal range for a noise estimate (" + std::to_string(used.size()) +
+    throw io::InputError(raw.source + ": too little signal range for a noise estimate (" + std::to_string(used.size()) +
                      " usable intensity bins; 2 needed)");
   }
   const LineFit first = fit_line(used, nullptr);
   const LineFit line = fit_line(used, &first);
   if (!(line.a > 0.0)) {
-    throw InputError(raw.source + ": the noise variance does not grow with the signal (slope " + number_text(line.a) +
+    throw io::InputError(raw.source + ": the noise variance does not grow with the signal (slope " + io::number_text(line.a) +
                      " over " + std::to_string(used.size()) +
                      " intensity bins): too little smooth signal to measure a gain");
   }
@@ -267,4 +267,4 @@ NoiseEstimate estimate_detector_noise(const Volume& raw, double offset) {
   return est;
 }
 
-}  // namespace hisnegs::io
+}  // namespace hisnegs::simulate

@@ -17,7 +17,7 @@
 #include "io/volume.hpp"
 #include "io/volume_source.hpp"
 
-namespace hisnegs::io {
+namespace hisnegs::gmf {
 
 // Config section `background`: whether a fit records the stack's background for
 // renders to draw its MIP floor, and how estimate_background tells background voxels
@@ -46,7 +46,7 @@ struct BackgroundOptions {
   // brain each draw their own floor. 0: one distribution for the whole stack.
   // 0 or [16, 65536].
   int region_voxels = 128;
-  void validate() const;  // throws InputError naming the field
+  void validate() const;  // throws io::InputError naming the field
   template <class V>
   void visit(V&& v) {
     v("estimate", estimate);
@@ -78,7 +78,7 @@ struct BackgroundModel {
   [[nodiscard]] double quantile(double p) const;
 
   // "c N v_1 F_1 ... v_N F_N" (shortest round-trip doubles); parse() reads it back
-  // and throws InputError("SOURCE: background: problem") for anything else.
+  // and throws io::InputError("SOURCE: background: problem") for anything else.
   [[nodiscard]] std::string text() const;
   [[nodiscard]] static BackgroundModel parse(std::string_view text, const std::string& source);
   void validate(const std::string& source) const;  // the rules parse() checks
@@ -90,8 +90,8 @@ struct BackgroundModel {
 // [0, 1]) as BackgroundOptions defines them; samples_per_voxel is left at 1 for the
 // calibration. A stack whose background is exactly 0, or at least
 // subtracted_zero_fraction of it, gives atoms {0} (none()).
-// Throws InputError naming volume.source when no voxel is background.
-[[nodiscard]] BackgroundModel estimate_background(const Volume& volume, const BackgroundOptions& options = {});
+// Throws io::InputError naming volume.source when no voxel is background.
+[[nodiscard]] BackgroundModel estimate_background(const io::Volume& volume, const BackgroundOptions& options = {});
 
 // The histogram estimate_background rests on, counted piecewise: the background
 // voxels of `volume` inside `box` (index space of `volume`; the foreground mask and
@@ -108,10 +108,10 @@ struct BackgroundCounts {
   [[nodiscard]] static float round(float v);
   void merge(const BackgroundCounts& other);
 };
-[[nodiscard]] BackgroundCounts count_background(const Volume& volume, const BackgroundOptions& options,
-                                                const VoxelBox& box);
+[[nodiscard]] BackgroundCounts count_background(const io::Volume& volume, const BackgroundOptions& options,
+                                                const io::VoxelBox& box);
 // The model of the counted voxels (as estimate_background describes it); throws
-// InputError naming `source` when nothing was counted.
+// io::InputError naming `source` when nothing was counted.
 [[nodiscard]] BackgroundModel background_from_counts(const BackgroundCounts& counts, const BackgroundOptions& options,
                                                      const std::string& source);
 
@@ -129,7 +129,7 @@ struct BackgroundRegions {
   [[nodiscard]] int edge(int axis, int k) const {
     return static_cast<int>(static_cast<std::int64_t>(shape[axis]) * k / cells[axis]);
   }
-  [[nodiscard]] VoxelBox box(int region) const;
+  [[nodiscard]] io::VoxelBox box(int region) const;
   [[nodiscard]] int cell_of(int axis, int voxel) const;  // the part of that axis holding voxel
   friend bool operator==(const BackgroundRegions&, const BackgroundRegions&) = default;
 };
@@ -156,17 +156,17 @@ struct BackgroundField {
 // as count_background), split by the region of `regions` each lies in; `volume`'s
 // voxel (0, 0, 0) is the stack's voxel `origin`. One entry per region (empty for
 // the regions `box` does not reach).
-[[nodiscard]] std::vector<BackgroundCounts> count_background_regions(const Volume& volume,
+[[nodiscard]] std::vector<BackgroundCounts> count_background_regions(const io::Volume& volume,
                                                                      const BackgroundOptions& options,
-                                                                     const VoxelBox& box,
+                                                                     const io::VoxelBox& box,
                                                                      const BackgroundRegions& regions,
                                                                      const std::array<int, 3>& origin);
 // The field of per-region counts (as count_background_regions, merged over the
-// bricks of a stack). Throws InputError naming `source` when nothing was counted.
+// bricks of a stack). Throws io::InputError naming `source` when nothing was counted.
 [[nodiscard]] BackgroundField background_field(const std::vector<BackgroundCounts>& counts,
                                                const BackgroundRegions& regions, const BackgroundOptions& options,
                                                const std::string& source);
 // estimate_background by region (options.region_voxels).
-[[nodiscard]] BackgroundField estimate_background_field(const Volume& volume, const BackgroundOptions& options = {});
+[[nodiscard]] BackgroundField estimate_background_field(const io::Volume& volume, const BackgroundOptions& options = {});
 
-}  // namespace hisnegs::io
+}  // namespace hisnegs::gmf
