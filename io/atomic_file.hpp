@@ -63,27 +63,10 @@ void protect_input(const std::filesystem::path& path);
 // failed"): what every writer says when the disk is full or the device fails.
 [[noreturn]] void fail_write(const std::filesystem::path& target, int err);
 
-// Installs handlers for SIGINT, SIGTERM and SIGHUP that remove the temporary
-// file of every AtomicFile alive at that moment (unlink is async-signal-safe),
-// say so in one line and exit 128 + signal (130 for Ctrl-C, 143 for SIGTERM);
-// and ignores SIGXFSZ, so exceeding a file-size limit is a write error (EFBIG)
-// rather than a core dump. Call once at start-up (the CLI does).
-void install_interrupt_cleanup();
-
-// A line those handlers write to stderr before their own, and into the file
-// `marker` when it is not empty: what this process was doing when it was stopped
-// from outside (an MPI launcher's SIGTERM after another rank died, Ctrl-C). An
-// empty `line` clears it. Lines over 1023 bytes and markers over 4095 are cut.
-void set_interrupt_note(std::string_view line, const std::filesystem::path& marker = {});
-
-// What those handlers look at after their note, to say what another process left
-// unsaid (an MPI rank killed outright cannot speak): `wait_ms` after the signal,
-// for each file `said` that exists while its `unless` does not, they write the
-// file's second line to stderr, prefixed "hisnegs: ". An empty list clears it.
-// (The fit's ranks: `said` = the brick a rank holds, `unless` = the mark its own
-// handler leaves when it is stopped rather than killed.)
-void set_interrupt_watch(const std::vector<std::pair<std::filesystem::path, std::filesystem::path>>& files,
-                         int wait_ms);
+// Removes the temporary file of every AtomicFile alive at this moment
+// (async-signal-safe: unlink only): what a signal handler calls before it exits
+// (apps/pipeline/interrupts.hpp installs one).
+void unlink_live_temporaries() noexcept;
 
 // Writes `bytes` to `target` atomically.
 void write_file_atomic(const std::filesystem::path& target, const void* bytes, std::size_t size);

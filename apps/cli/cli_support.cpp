@@ -11,6 +11,7 @@
 
 #include "apps/cli/console_progress.hpp"
 #include "apps/pipeline/distributed.hpp"
+#include "apps/pipeline/interrupts.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
 #include "io/stack_file.hpp"
@@ -224,7 +225,7 @@ const Job* start_job(const std::string& command) {
 }  // namespace
 
 int run_cli(int argc, char** argv) {
-  io::install_interrupt_cleanup();
+  install_interrupt_cleanup();
   CLI::App app{"hisnegs: Gaussian Mixture Field fitting and soft-MIP Gaussian splatting of microscopy volumes",
                "hisnegs"};
   app.set_version_flag("--version", std::string("hisnegs ") + HISNEGS_VERSION);

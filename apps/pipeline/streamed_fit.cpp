@@ -21,6 +21,7 @@
 
 #include "apps/pipeline/app_config.hpp"
 #include "apps/pipeline/distributed.hpp"
+#include "apps/pipeline/interrupts.hpp"
 #include "apps/pipeline/format.hpp"
 #include "apps/pipeline/stack_reading.hpp"
 #include "apps/pipeline/stage_folder.hpp"
@@ -688,7 +689,7 @@ std::filesystem::path held_path(const StreamContext& c, int rank) {
   return c.folder / ("rank-" + std::to_string(rank) + ".holds");
 }
 
-// FOLDER/rank-R.stopped: written by rank R's interrupt handler (io::set_interrupt_note)
+// FOLDER/rank-R.stopped: written by rank R's interrupt handler (set_interrupt_note)
 // when the launcher or the user stopped it; a rank with a .holds mark and none of
 // these died.
 std::filesystem::path stopped_path(const StreamContext& c, int rank) {
@@ -697,14 +698,14 @@ std::filesystem::path stopped_path(const StreamContext& c, int rank) {
 
 // What this rank says if it is stopped now: `doing`, and that a rerun resumes.
 void note_for_interrupt(const StreamContext& c, const Job& ranks, const std::string& doing) {
-  io::set_interrupt_note(strf("hisnegs: rank %d of %d: stopped while %s; the finished bricks stay in %s: run the same "
+  set_interrupt_note(strf("hisnegs: rank %d of %d: stopped while %s; the finished bricks stay in %s: run the same "
                               "command again to resume",
                               ranks.rank(), ranks.size(), doing.c_str(), c.folder.c_str()),
                          stopped_path(c, ranks.rank()));
 }
 
 // Writes FOLDER/rank-R.holds: "ID SIZE" for the rerun, then the line a neighbour
-// rank says if this one dies holding the brick (io::set_interrupt_watch).
+// rank says if this one dies holding the brick (set_interrupt_watch).
 void hold_brick(const StreamContext& c, const Job& ranks, const gmf::StreamBrick& b) {
   const std::string brick = brick_text(c, b);
   const std::string text =
@@ -720,7 +721,7 @@ void hold_brick(const StreamContext& c, const Job& ranks, const gmf::StreamBrick
 // dead rank is named once, by the rank before it).
 void watch_next_rank(const StreamContext& c, const Job& ranks) {
   const int next = (ranks.rank() + 1) % ranks.size();
-  io::set_interrupt_watch({{held_path(c, next), stopped_path(c, next)}}, 300);
+  set_interrupt_watch({{held_path(c, next), stopped_path(c, next)}}, 300);
 }
 
 // Says, for each rank of a previous launch that left its mark, the unfinished brick
@@ -1157,8 +1158,8 @@ BrickPass brick_pass(const StreamContext& c, const io::Stopwatch& watch, double 
     std::filesystem::remove(held_path(c, ranks.rank()), ec);
     note_for_interrupt(c, ranks, "waiting for the other ranks' bricks (its own are finished)");
     ranks.barrier();
-    io::set_interrupt_note("");
-    io::set_interrupt_watch({}, 0);
+    set_interrupt_note("");
+    set_interrupt_watch({}, 0);
     for (std::size_t b = 0; b < n; ++b) {  // their records; the Gaussians stay in the folder
       if (!results[b]) results[b] = load_brick(c, static_cast<int>(b));
       if (!results[b]) throw std::runtime_error("brick " + std::to_string(b) + " is missing after the brick pass");
