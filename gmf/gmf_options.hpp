@@ -112,7 +112,7 @@ struct GmfOptions {
   // (a needle is a ratio above kNeedleAxisRatio, 20). [1.5, 1e6].
   double max_axis_ratio = 16.0;
   std::uint64_t seed = 0;            // init jitter and sampling seed
-  // Stacks larger than memory: the streamed brick fit (apps/pipeline/streamed_fit.hpp,
+  // Stacks larger than memory: the bricked fit (gmf/bricked/bricked_fit.hpp,
   // docs/user-guide.md "Stacks larger than memory").
   // The most memory the fit may use: "auto" (half the machine's RAM) or a size
   // ("1GiB", "512MiB", "2GB", "1.5G"; K/M/G/T without B are binary). A stack whose

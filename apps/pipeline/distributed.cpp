@@ -273,15 +273,6 @@ void open_on_every_rank(const Job& job, const std::function<void()>& open) {
   }
 }
 
-io::ScanShare scan_share(const Job& job) {
-  io::ScanShare share;
-  share.part = job.rank();
-  share.parts = job.size();
-  share.sum = [&job](std::span<double> values) { job.sum_all(values); };
-  share.max = [&job](std::span<double> values) { job.max_all(values); };
-  return share;
-}
-
 std::string rank_prefix(const Job& job) {
   return job.distributed() ? "rank " + std::to_string(job.rank()) + " of " + std::to_string(job.size()) + ": " : "";
 }

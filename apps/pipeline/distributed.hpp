@@ -20,50 +20,20 @@
 #include <string>
 #include <vector>
 
+#include "gmf/bricked/collective.hpp"
 #include "io/volume_source.hpp"
 #include "splat/render_views.hpp"
 
 namespace hisnegs::apps {
 
-class Job {
+// The job: the bricked fit's Collective (gmf/bricked/collective.hpp) and what the
+// render adds to it.
+class Job : public gmf::Collective {
  public:
-  virtual ~Job() = default;
-  [[nodiscard]] virtual int rank() const = 0;
-  [[nodiscard]] virtual int size() const = 0;
-  [[nodiscard]] bool root() const { return rank() == 0; }
-  [[nodiscard]] bool distributed() const { return size() > 1; }
-  // Waits for every rank.
-  virtual void barrier() const = 0;
-  // values[i] = the max of values[i] over the ranks, on rank 0 (MPI_Reduce with
-  // MPI_MAX: exact, so the result does not depend on the number of ranks). The
-  // other ranks' values are left as they were.
-  virtual void max_to_root(std::span<float> values) const = 0;
   // pixels[i] = splat::merge_soft_pixel over the ranks' pixels[i], on rank 0 (a
   // custom MPI operation, applied in rank order: the same result on every run with
   // the same number of ranks). The other ranks' pixels are left as they were.
   virtual void merge_soft_to_root(std::span<splat::SoftPixel> pixels) const = 0;
-  // values[i] = the sum of values[i] over the ranks, on every rank, identical bits on
-  // each: reduced in rank order (a non-commutative MPI operation) to rank 0, then
-  // broadcast. Deterministic for a given number of ranks; a float sum in another
-  // order than one process's, so not bit-equal to it.
-  virtual void sum_all(std::span<float> values) const = 0;
-  virtual void sum_all(std::span<double> values) const = 0;
-  // values[i] = the max of values[i] over the ranks, on every rank (MPI_Allreduce
-  // with MPI_MAX: exact).
-  virtual void max_all(std::span<double> values) const = 0;
-  // Rank 0's values on every rank.
-  virtual void broadcast(std::span<double> values) const = 0;
-  // Rank `root`'s bytes (and their count) on every rank.
-  virtual void broadcast(std::vector<unsigned char>& bytes, int root) const = 0;
-  // Point to point: to[r] goes to rank r (to[rank()] is not sent); returns what
-  // each rank sent this one (from[r], empty from this rank and from a rank that sent
-  // nothing). Every rank must call it. MPI_Alltoall of the sizes, then
-  // MPI_Isend/MPI_Irecv of the bytes. Alone: a list of one empty entry.
-  [[nodiscard]] virtual std::vector<std::vector<unsigned char>> exchange(
-      const std::vector<std::vector<unsigned char>>& to) const = 0;
-  // Ends every rank of the job with `code` (MPI_Abort): a rank that fails must not
-  // leave the others waiting for it. Alone: std::exit(code).
-  [[noreturn]] virtual void abort(int code) const = 0;
 };
 
 // The job of this process (initializes MPI on the first call of a launch of
@@ -80,9 +50,7 @@ class Job {
 // will not finish. Alone: open().
 void open_on_every_rank(const Job& job, const std::function<void()>& open);
 
-// The ranks of `job` scanning a stack's statistics together (io::ScanShare): each
-// reads its share of the pages; the counts and extremes meet exactly.
-[[nodiscard]] io::ScanShare scan_share(const Job& job);
+using gmf::scan_share;
 
 // "rank 1 of 4: " when distributed, else "".
 [[nodiscard]] std::string rank_prefix(const Job& job);

@@ -1,19 +1,31 @@
 // SPDX-License-Identifier: Apache-2.0
-// prepare_fit, fit_to_checkpoint, checkpoint_meta and the run folder's fit stage.
+// prepare_fit, fit_to_checkpoint (in memory, or the driver of the bricked fit of
+// gmf/bricked/: the stack opened on every rank, the fingerprint of stack, config and
+// plan, the brick folder locked, gmf::fit_bricked on this process's job with its
+// signal handlers as the ranks' runtime, then rank 0's checkpoint, log and
+// background), checkpoint_meta and the run folder's fit stage.
 #include "apps/pipeline/fit_stage.hpp"
 
 #include <algorithm>
+#include <optional>
 #include <sstream>
 
+#include "apps/pipeline/app_config.hpp"
 #include "apps/pipeline/distributed.hpp"
 #include "apps/pipeline/format.hpp"
-#include "apps/pipeline/streamed_fit.hpp"
+#include "apps/pipeline/interrupts.hpp"
+#include "apps/pipeline/stage_folder.hpp"
+#include "gmf/bricked/bricked_fit.hpp"
+#include "gmf/bricked/memory_plan.hpp"
 #include "gmf/fit.hpp"
 #include "gmf/init.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
+#include "io/hash.hpp"
+#include "io/memory_limit.hpp"
 #include "io/stack_file.hpp"
 #include "io/timer.hpp"
+#include "io/volume_source.hpp"
 #include "splat/background_floor.hpp"
 
 namespace hisnegs::apps {
@@ -152,6 +164,167 @@ gmf::CheckpointMeta checkpoint_meta(const io::LoadedVolume& loaded, const std::s
   return checkpoint_meta(loaded.frame, loaded.volume.spacing, loaded.volume.normalization, source);
 }
 
+namespace {
+
+
+// The fingerprint of what decides the bricks: the stack (path, and the size and
+// time of every file behind it), its shape, the fit's config sections and the plan.
+std::string fingerprint_of(const std::string& path, const io::VolumeSource& source, const FitConfig& config,
+                           const gmf::BrickPlan& plan) {
+  AppConfig slice;
+  slice.volume = config.get<&AppConfig::volume>();
+  slice.background = config.get<&AppConfig::background>();
+  slice.sparse_grid = config.get<&AppConfig::sparse_grid>();
+  slice.gmf = config.get<&AppConfig::gmf>();
+  std::ostringstream s;
+  s << std::filesystem::absolute(path).lexically_normal().string() << "\n";
+  for (const std::filesystem::path& file : io::stack_files(path)) {  // a BigDataViewer .xml: its .h5 too
+    std::error_code ec;
+    s << std::filesystem::file_size(file, ec) << " "
+      << std::filesystem::last_write_time(file, ec).time_since_epoch().count() << "\n";
+  }
+  s << source.nx << " " << source.ny << " " << source.nz << "\n" << plan.describe() << "\n" << dump_app_config(slice);
+  char hex[17];
+  std::snprintf(hex, sizeof hex, "%016llx", static_cast<unsigned long long>(io::fnv1a64(s.str())));
+  return hex;
+}
+
+// The stack opened on every rank (a shared filesystem; a rank that cannot ends the
+// job before any work) and what the fit is told, and the opening lines.
+gmf::BrickedFitSetup open_stream(const std::string& volume, const FitConfig& config,
+                                 const gmf::FitPlanChoice& choice, std::unique_ptr<io::VolumeSource>& source,
+                                 const Progress& progress) {
+  const io::VolumeOptions& vo = config.get<&AppConfig::volume>();
+  gmf::BrickedFitSetup s;
+  s.path = volume;
+  s.gmf = config.get<&AppConfig::gmf>();
+  s.sparse = config.get<&AppConfig::sparse_grid>();
+  s.background = config.get<&AppConfig::background>();
+  s.normalization_options = vo.normalization;
+  open_on_every_rank(job(), [&] { source = io::open_volume_source(volume, io::stack_read_options(vo)); });
+  s.source = source.get();
+  s.frame = io::stack_frame(source->nx, source->ny, source->nz, source->spacing, vo.aspect, volume);
+  s.gmf.max_scale_world = gmf::brick_max_scale(s.frame, s.gmf);
+  s.plan = choice.plan;
+  s.max_memory = choice.max_memory;
+  progress.say("fit: %s: %d x %d x %d %s (%s as float32), %s; in-memory fit would need %s of %s: bricked: %s",
+               volume.c_str(), source->nx, source->ny, source->nz,
+               std::string(io::to_string(source->stored_as)).c_str(),
+               io::gib_text(4.0 * static_cast<double>(source->whole().voxels())).c_str(), source->format.c_str(),
+               io::gib_text(choice.whole_need).c_str(), choice.memory_source.c_str(), s.plan.describe().c_str());
+  if (choice.for_ranks) {
+    progress.say(
+        "fit: %d MPI ranks: bricks of core %d voxels, two or more per rank (the same fit as "
+        "--brick-voxels %d in one process)",
+        job().size(), s.plan.core[0], s.plan.core[0]);
+  }
+  progress.say(
+      "fit: each brick keeps the Gaussians centred in its core; scales <= %g voxels (gmf.stream_scale_voxels) "
+      "reach at most sqrt(%g) x that, inside the halo; planned peak %s",
+      s.gmf.stream_scale_voxels, s.gmf.mahalanobis_cutoff, io::gib_text(choice.brick_need).c_str());
+  return s;
+}
+
+// The ranks' runtime: this process's signal handlers (apps/pipeline/interrupts.hpp).
+gmf::RankRuntime signal_runtime() {
+  gmf::RankRuntime r;
+  r.note_on_stop = [](std::string_view line, const std::filesystem::path& marker) {
+    set_interrupt_note(line, marker);
+  };
+  r.watch = [](const std::vector<std::pair<std::filesystem::path, std::filesystem::path>>& files, int wait_ms) {
+    set_interrupt_watch(files, wait_ms);
+  };
+  return r;
+}
+
+// Rank 0's outputs: the checkpoint (brick after brick) with the fit's metadata and
+// background, the log, and the brick folder removed.
+void write_outputs(const gmf::BrickedFitSetup& s, const gmf::BrickStore& store, const gmf::BrickedFitResult& fit,
+                   const FitConfig& config, const std::filesystem::path& out, const std::filesystem::path& log_csv,
+                   const Progress& progress) {
+  gmf::CheckpointMeta meta = checkpoint_meta(s.frame, s.source->spacing, fit.normalization, s.path);
+  meta.extra.emplace_back("bricks", s.plan.describe());
+  meta.aggregation = s.gmf.final_aggregation();
+  meta.beta = fit.beta;
+  const bool counted = std::any_of(fit.background.begin(), fit.background.end(),
+                                   [](const gmf::BackgroundCounts& b) { return b.total > 0; });
+  if (s.background.estimate && counted) {
+    const gmf::BackgroundField field = gmf::background_field(fit.background, fit.regions, s.background, s.path);
+    if (field.none()) {
+      progress.say("fit: background: exactly 0 outside the neuron (%lld voxels): no floor to draw",
+                   static_cast<long long>(field.merged.voxels));
+    } else {
+      record_background(s.frame, config, field, meta, progress);
+    }
+  }
+  store.write_checkpoint(fit.state.count, fit.state.kind, out, meta);
+  if (!log_csv.empty()) {
+    std::ostringstream csv;
+    csv << fit_log_csv_header() << "\n";
+    for (const gmf::BrickRecord& r : fit.records) append_fit_log_csv(csv, r.log, "");
+    const std::string text = csv.str();
+    io::write_file_atomic(log_csv, text.data(), text.size());
+  }
+  std::error_code ec;
+  std::filesystem::remove_all(store.folder(), ec);  // the checkpoint holds everything now
+}
+
+FitOutcome run_streamed(const std::string& volume, const FitConfig& config, const gmf::FitPlanChoice& choice,
+                        const std::filesystem::path& out, const std::filesystem::path& log_csv,
+                        const Progress& progress) {
+  io::Stopwatch watch;
+  std::unique_ptr<io::VolumeSource> source;
+  const gmf::BrickedFitSetup setup = open_stream(volume, config, choice, source, progress);
+  const gmf::BrickStore store(gmf::brick_folder(out), fingerprint_of(volume, *source, config, setup.plan), setup.frame,
+                              gmf::BackgroundRegions::of({source->nx, source->ny, source->nz},
+                                                         setup.background.region_voxels)
+                                  .count());
+  const Job& ranks = job();
+  // Rank 0 (the only one alone) holds the folder.
+  std::optional<OutputFolderLock> lock;  // and the run folder's, for a run's fit
+  if (ranks.root()) lock.emplace(store.folder());
+  ranks.barrier();
+  const gmf::BrickedFitResult fit = gmf::fit_bricked(setup, store, ranks, signal_runtime(), progress);
+  const std::size_t n = setup.plan.bricks.size();
+  if (!ranks.root()) {  // rank 0 goes on alone: the checkpoint
+    return FitOutcome{0, 0.0, watch.elapsed(), rank_prefix(ranks) + std::to_string(fit.fitted_here) + " bricks"};
+  }
+  write_outputs(setup, store, fit, config, out, log_csv, progress);
+  const std::size_t total = fit.gaussians();
+  FitOutcome outcome{total, fit.psnr_3d, watch.elapsed(),
+                     std::string("bricks: ") + std::to_string(n) + (fit.seam ? " + seam pass" : "")};
+  progress.say("fit: wrote %s: K %zu from %zu bricks, 3D PSNR %.2f dB (measured in %s), %s (fit %s)", out.c_str(),
+               total, n, fit.psnr_3d, format_seconds(fit.measure_seconds).c_str(),
+               format_seconds(outcome.seconds).c_str(), format_seconds(fit.fit_seconds).c_str());
+  return outcome;
+}
+
+// The bricked fit of `volume` to the checkpoint `out` (and the log `log_csv` unless
+// empty), with `choice` from gmf::choose_fit_plan (bricked). Same lines, checkpoint
+// metadata and outcome as the in-memory fit.
+FitOutcome fit_streamed(const std::string& volume, const FitConfig& config, const gmf::FitPlanChoice& choice,
+                        const std::filesystem::path& out, const std::filesystem::path& log_csv,
+                        const Progress& progress) {
+  const std::filesystem::path folder = gmf::brick_folder(out);
+  const bool created = !std::filesystem::exists(folder);
+  try {
+    return run_streamed(volume, config, choice, out, log_csv, progress);
+  } catch (...) {
+    if (!job().root()) throw;  // rank 0 made the folder: only it may remove it
+    // A fit that fails before any brick finished leaves no folder it made (a killed
+    // one cannot clean up; its folder is resumed or refused next time).
+    std::error_code ec;
+    bool finished = false;
+    for (const auto& e : std::filesystem::directory_iterator(folder, ec)) {
+      finished = finished || (e.path().extension() == ".json" && e.path().filename() != "plan.json");
+    }
+    if (created && !finished) std::filesystem::remove_all(folder, ec);
+    throw;
+  }
+}
+
+}  // namespace
+
 FitOutcome fit_to_checkpoint(const std::string& volume, const FitConfig& config, const std::filesystem::path& out,
                              const std::filesystem::path& log_csv, const Progress& progress) {
   io::Stopwatch watch;  // the command's clock: gmf.time_budget_s bounds all of it
@@ -162,7 +335,7 @@ FitOutcome fit_to_checkpoint(const std::string& volume, const FitConfig& config,
     vo.validate();
     const io::StackHeader header = io::inspect_stack(volume, io::stack_read_options(vo));
     const io::WorldFrame frame = io::stack_frame(header.nx, header.ny, header.nz, header.spacing, vo.aspect, volume);
-    const FitPlanChoice choice = choose_fit_plan({header.nx, header.ny, header.nz}, frame, gmf, {}, job().size());
+    const gmf::FitPlanChoice choice = gmf::choose_fit_plan({header.nx, header.ny, header.nz}, frame, gmf, {}, job().size());
     if (choice.bricked) return fit_streamed(volume, config, choice, out, log_csv, progress);
   }
   const FittedModel fitted =

@@ -9,6 +9,7 @@
 #include "apps/pipeline/distributed.hpp"
 #include "apps/pipeline/format.hpp"
 #include "apps/pipeline/report_tables.hpp"
+#include "gmf/bricked/memory_plan.hpp"
 #include "io/atomic_file.hpp"
 #include "io/png.hpp"
 #include "io/stack_file.hpp"
@@ -158,7 +159,7 @@ int ground_truth_core(const std::array<int, 3>& shape, const StackReading& readi
   if (!ranks.distributed()) return core;
   // Several MPI ranks share the bricks: two or more each, even when the stack fits.
   const int start = core > 0 ? core : *std::max_element(shape.begin(), shape.end());
-  const int shared = core_for_ranks(shape, ranks.size(), start, std::min(16, start));
+  const int shared = gmf::core_for_ranks(shape, ranks.size(), start, std::min(16, start));
   progress.say("gt: %d MPI ranks share bricks of %d voxels", ranks.size(), shared);
   return shared;
 }

@@ -1,23 +1,11 @@
 // SPDX-License-Identifier: Apache-2.0
-// Progress: where pipeline stages send what they would print (the CLI prints it,
-// tests collect it, an empty Progress is quiet). Decides no wording and no stream.
+// io::Progress under the name the pipeline's stages use.
 #pragma once
 
-#include <functional>
-#include <string_view>
+#include "io/progress.hpp"
 
 namespace hisnegs::apps {
 
-struct Progress {
-  // One finished line without its newline, e.g. "fit: round 1 done: ...". Empty: quiet.
-  std::function<void(std::string_view line)> line;
-  // A count that replaces its previous text, e.g. "gt train: 12/106 views, ..."; `last`
-  // is set on the final one. Empty: not shown.
-  std::function<void(std::string_view text, bool last)> meter;
-
-  [[nodiscard]] bool quiet() const { return !line; }
-  // Formats printf-style and sends one line; formats nothing when quiet.
-  void say(const char* format, ...) const __attribute__((format(printf, 2, 3)));
-};
+using io::Progress;
 
 }  // namespace hisnegs::apps

@@ -8,7 +8,7 @@
 
 #include "apps/pipeline/format.hpp"
 #include "apps/pipeline/run_state.hpp"
-#include "apps/pipeline/streamed_fit.hpp"
+#include "gmf/bricked/memory_plan.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
 #include "io/memory_limit.hpp"
@@ -27,7 +27,7 @@ int reading_core(const std::array<int, 3>& shape, const StackReading& reading, c
   };
   const int longest = *std::max_element(shape.begin(), shape.end());
   if (brick(longest) <= bytes) return 0;
-  const int core = largest_core(shape, need.smallest, bytes, brick);
+  const int core = gmf::largest_core(shape, need.smallest, bytes, brick);
   if (brick(core) > bytes) {
     throw io::InputError("--max-memory = " + reading.max_memory + ": too small for " + what + ": a brick of " +
                          std::to_string(core) + " voxels needs " + io::gib_text(brick(core)) +
@@ -35,19 +35,6 @@ int reading_core(const std::array<int, 3>& shape, const StackReading& reading, c
   }
   progress.say("%s: the stack needs %s in memory, more than %s: read in bricks of %d voxels", what.c_str(),
                io::gib_text(brick(longest)).c_str(), io::gib_text(bytes).c_str(), core);
-  return core;
-}
-
-int core_for_ranks(const std::array<int, 3>& shape, int ranks, int start, int smallest) {
-  const auto count = [&](int edge) {
-    std::size_t n = 1;
-    for (int a = 0; a < 3; ++a) n *= static_cast<std::size_t>((shape[a] + edge - 1) / edge);
-    return n;
-  };
-  int core = start;
-  while (core > smallest && count(core) < 2 * static_cast<std::size_t>(std::max(ranks, 1))) {
-    core = std::max(smallest, (core * 3 / 4) / 16 * 16);
-  }
   return core;
 }
 

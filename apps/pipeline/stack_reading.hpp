@@ -36,11 +36,6 @@ struct BrickNeed {
   int smallest = 16;  // the smallest core edge worth planning
 };
 
-// The core edge (a multiple of 16 below `start`, never below `smallest`) that cuts
-// a stack of `shape` into at least two bricks per rank of `ranks`: the work of an
-// MPI launch on a stack that would fit one process (`start` when it already does).
-[[nodiscard]] int core_for_ranks(const std::array<int, 3>& shape, int ranks, int start, int smallest);
-
 // What the sparse grid of a stack of `stack_voxels` needs by tiles: each tile's
 // voxels and the band around them as float32, as much again for a tile's scattered
 // background leaves when background_fraction > 0, and the background samples of

@@ -1,5 +1,5 @@
 // SPDX-License-Identifier: Apache-2.0
-// The streamed brick fit through the real binary (apps/pipeline/streamed_fit.hpp):
+// The bricked fit through the real binary (gmf/bricked/, driven by apps/pipeline/fit_stage.cpp):
 // a stack cut into bricks fits to a model as good as the whole fit's; a fit killed
 // (SIGKILL) between bricks resumes from the finished ones to the checkpoint of an
 // uninterrupted run, byte for byte; a brick folder of another config is refused,

@@ -1,8 +1,10 @@
 // SPDX-License-Identifier: Apache-2.0
-// How the streamed fit shares bricks among MPI ranks (apps/pipeline/streamed_fit.hpp):
-// heaviest first to the least-loaded rank, the same answer on every rank; and which
-// Gaussians its seam pass refits.
-#include "apps/pipeline/streamed_fit.hpp"
+// How the bricked fit is planned and shares bricks among MPI ranks
+// (gmf/bricked/memory_plan.hpp, gmf/bricked/schedule.hpp): heaviest first to the
+// least-loaded rank, the same answer on every rank; and which Gaussians its seam
+// pass refits.
+#include "gmf/bricked/memory_plan.hpp"
+#include "gmf/bricked/schedule.hpp"
 
 #include <gtest/gtest.h>
 
@@ -14,13 +16,13 @@
 
 #include "io/error.hpp"
 
-namespace hisnegs::apps {
+namespace hisnegs::gmf {
 namespace {
 
 // --brick-voxels is bounded: below the smallest core the options refuse it; a plan
 // of more bricks than the limit is refused before it is made, naming the limit.
 TEST(FitPlan, BrickCoresAndCountsAreBounded) {
-  gmf::GmfOptions gmf;
+  GmfOptions gmf;
   gmf.stream_brick_voxels = 1;
   try {
     gmf.validate();
@@ -91,9 +93,9 @@ TEST(CoreForeground, APassOfSlabsCountsEachCore) {
   map.raw_lo = 0;
   map.raw_hi = 4000;
   const double threshold = 0.6;
-  const gmf::BrickPlan plan = gmf::plan_bricks({v.nx, v.ny, v.nz}, {16, 10, 4}, {2, 2, 1});
+  const BrickPlan plan = plan_bricks({v.nx, v.ny, v.nz}, {16, 10, 4}, {2, 2, 1});
   std::vector<std::int64_t> expected(plan.bricks.size(), 0);
-  for (const gmf::StreamBrick& b : plan.bricks) {
+  for (const StreamBrick& b : plan.bricks) {
     for (int z = b.core.lo[2]; z < b.core.hi[2]; ++z) {
       for (int y = b.core.lo[1]; y < b.core.hi[1]; ++y) {
         for (int x = b.core.lo[0]; x < b.core.hi[0]; ++x) {
@@ -125,18 +127,18 @@ TEST(CoreForeground, APassOfSlabsCountsEachCore) {
 // along the face's normal.
 TEST(SeamPass, RefitsTheGaussiansWhoseSupportReachesASharedFace) {
   const io::WorldFrame frame(64, 32, 16, Eigen::Vector3d(1.0, 0.5, 0.25));  // voxels of 1/32 world
-  const gmf::BrickPlan plan = gmf::plan_bricks({64, 32, 16}, {32, 32, 16}, {8, 8, 8});  // shared face at x = 31.5
+  const BrickPlan plan = plan_bricks({64, 32, 16}, {32, 32, 16}, {8, 8, 8});  // shared face at x = 31.5
   ASSERT_EQ(plan.bricks.size(), 2u);
   const double voxel = frame.voxel_size().x();
   const auto gaussian = [&](double i, double sx, double sy) {  // centre (i, 16, 8), σ in voxels, axis-aligned
-    gmf::GaussianParams g;
+    GaussianParams g;
     const Eigen::Vector3d p = frame.world_from_index(Eigen::Vector3d(i, 16, 8));
     for (int a = 0; a < 3; ++a) g.mean[a] = static_cast<float>(p[a]);
     g.log_scale = {static_cast<float>(std::log(sx * voxel)), static_cast<float>(std::log(sy * voxel)),
                    static_cast<float>(std::log(0.5 * voxel))};
     return g;
   };
-  const auto reaches = [&](int brick, const gmf::GaussianParams& g) {
+  const auto reaches = [&](int brick, const GaussianParams& g) {
     return reaches_shared_face(plan, frame, 16.0, plan.bricks[static_cast<std::size_t>(brick)], g);
   };
   // σ 0.5 voxel: support 2 voxels, reach 3.5 voxels from the face
@@ -148,7 +150,7 @@ TEST(SeamPass, RefitsTheGaussiansWhoseSupportReachesASharedFace) {
   EXPECT_TRUE(reaches(0, gaussian(25.0, 3.0, 3.0)));
   EXPECT_FALSE(reaches(0, gaussian(22.0, 3.0, 3.0)));
   // long along y, thin along x (the face's normal): thin; then turned 90° about z
-  gmf::GaussianParams needle = gaussian(27.0, 0.5, 4.0);
+  GaussianParams needle = gaussian(27.0, 0.5, 4.0);
   EXPECT_FALSE(reaches(0, needle));
   needle.rotation = {static_cast<float>(std::sqrt(0.5)), 0.0f, 0.0f, static_cast<float>(std::sqrt(0.5))};
   EXPECT_TRUE(reaches(0, needle));
@@ -158,4 +160,4 @@ TEST(SeamPass, RefitsTheGaussiansWhoseSupportReachesASharedFace) {
 }
 
 }  // namespace
-}  // namespace hisnegs::apps
+}  // namespace hisnegs::gmf

@@ -1,12 +1,12 @@
 // SPDX-License-Identifier: Apache-2.0
 // Progress::say.
-#include "apps/pipeline/progress.hpp"
+#include "io/progress.hpp"
 
 #include <cstdarg>
 
-#include "apps/pipeline/format.hpp"
+#include "io/text.hpp"
 
-namespace hisnegs::apps {
+namespace hisnegs::io {
 
 void Progress::say(const char* format, ...) const {
   if (!line) return;
@@ -17,4 +17,4 @@ void Progress::say(const char* format, ...) const {
   line(text);
 }
 
-}  // namespace hisnegs::apps
+}  // namespace hisnegs::io

@@ -1,10 +1,10 @@
 // SPDX-License-Identifier: Apache-2.0
 // strf, format_seconds and format_bytes.
-#include "apps/pipeline/format.hpp"
+#include "io/text.hpp"
 
 #include <cstdio>
 
-namespace hisnegs::apps {
+namespace hisnegs::io {
 
 std::string vstrf(const char* format, va_list args) {
   va_list measure;
@@ -38,4 +38,4 @@ std::string format_bytes(double bytes) {
   return strf("%.2f GiB", bytes / (1024.0 * 1024.0 * 1024.0));
 }
 
-}  // namespace hisnegs::apps
+}  // namespace hisnegs::io
