@@ -2,6 +2,12 @@
 // read_stack / inspect_stack: the TIFF or HDF5 reader, by the file's signature.
 #include "io/stack_file.hpp"
 
+#include <sys/stat.h>
+
+#include <cerrno>
+#include <system_error>
+
+#include "io/atomic_file.hpp"
 #include "io/error.hpp"
 
 namespace hisnegs::io {
@@ -59,5 +65,38 @@ std::vector<std::filesystem::path> stack_files(const std::filesystem::path& path
   }
   return {path};
 }
+
+namespace {
+
+std::string stat_identity(const std::filesystem::path& path) {
+  struct stat st {};
+  if (::stat(path.c_str(), &st) != 0) {
+    throw std::filesystem::filesystem_error("cannot stat", path, std::error_code(errno, std::generic_category()));
+  }
+  const long long mtime_ns = static_cast<long long>(st.st_mtim.tv_sec) * 1000000000LL + st.st_mtim.tv_nsec;
+  return std::to_string(st.st_size) + "|" + std::to_string(mtime_ns) + "|" + std::to_string(st.st_dev) + ":" +
+         std::to_string(st.st_ino);
+}
+
+}  // namespace
+
+std::string StackIdentity::content() const {
+  std::string text;
+  std::error_code ec;
+  for (std::size_t i = 0; i < files.size(); ++i) {
+    if (i > 0) text += "|";
+    text += i == 0 || std::filesystem::exists(files[i], ec) ? stat_identity(files[i]) : std::string("missing");
+  }
+  return text;
+}
+
+bool StackIdentity::holds(const std::filesystem::path& path) const {
+  for (const std::filesystem::path& file : files) {
+    if (same_file(file, path)) return true;
+  }
+  return false;
+}
+
+StackIdentity stack_identity(const std::filesystem::path& path) { return {path, stack_files(path)}; }
 
 }  // namespace hisnegs::io

@@ -45,4 +45,22 @@ struct StackHeader {
 // reader says what is wrong with it).
 [[nodiscard]] std::vector<std::filesystem::path> stack_files(const std::filesystem::path& path);
 
+// What a stack is, as every fingerprint and input guard sees it: the path it was
+// named by and every file behind it (stack_files). One definition for the run
+// stages' fingerprints, the bricked fit's brick folder, the statistics cache and
+// the guards that refuse an output that is any file of an input.
+struct StackIdentity {
+  std::filesystem::path named;
+  std::vector<std::filesystem::path> files;  // the one named first; empty for a stack in memory
+  // Size, modification time (ns) and device:inode of each file, "missing" for one
+  // that is gone, without the path: an atomic rewrite (a new inode) or a change of
+  // any file behind the stack (a BigDataViewer .h5 behind its .xml) gives a new
+  // value; moving the folder does not. Throws std::filesystem::filesystem_error
+  // when the named file cannot be stat'ed.
+  [[nodiscard]] std::string content() const;
+  // Whether `path` is one of the files (the same file: io::same_file).
+  [[nodiscard]] bool holds(const std::filesystem::path& path) const;
+};
+[[nodiscard]] StackIdentity stack_identity(const std::filesystem::path& path);
+
 }  // namespace hisnegs::io

@@ -119,6 +119,7 @@ std::unique_ptr<VolumeSource> open_volume_source(const std::filesystem::path& pa
     s->format = header.format;
   }
   s->source = path.string();
+  s->identity = stack_identity(path);
   return s;
 }
 

@@ -39,6 +39,7 @@ class VolumeSource {
   VoxelSpacing spacing;
   std::string source;  // the path (or "memory")
   std::string format;  // as `info` shows it
+  StackIdentity identity;  // every file behind it (none in memory): fingerprints and input guards use it
   // Raw values of `box` (inside the stack, not empty), x fastest, into `out`
   // (box.voxels() floats). Safe to call from several threads at once. Throws
   // InputError naming the file when it cannot be decoded, std::invalid_argument

@@ -130,7 +130,7 @@ void guard_outputs(const CLI::App& cmd) {
     if (std::find(outputs.begin(), outputs.end(), opt) != outputs.end()) continue;
     for (const std::string& value : opt->results()) {
       // Every file behind the value: a BigDataViewer .xml reads the .h5 it names.
-      for (const std::filesystem::path& file : io::stack_files(value)) {
+      for (const std::filesystem::path& file : io::stack_identity(value).files) {
         for (const CLI::Option* out : outputs) {
           for (const std::string& o : out->results()) {
             if (io::same_file(file, o)) {

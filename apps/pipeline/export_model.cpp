@@ -41,12 +41,11 @@ io::WorldFrame native_frame(const gmf::Checkpoint& checkpoint, const std::string
 // before any work; a library caller (the Python module) is refused here.
 void refuse_to_overwrite(const std::filesystem::path& out, const std::filesystem::path& match_volume) {
   if (match_volume.empty()) return;
-  for (const std::filesystem::path& file : io::stack_files(match_volume)) {  // a BigDataViewer .xml: its .h5 too
-    if (io::same_file(file, out)) {
-      io::fail_input(out, "is also the volume to match" +
-                              (file == match_volume ? std::string() : " (" + match_volume.string() + " reads it)") +
-                              "; refusing to overwrite it (choose another output)");
-    }
+  const io::StackIdentity input = io::stack_identity(match_volume);  // a BigDataViewer .xml: its .h5 too
+  if (input.holds(out)) {
+    io::fail_input(out, "is also the volume to match" +
+                            (io::same_file(match_volume, out) ? std::string() : " (" + match_volume.string() + " reads it)") +
+                            "; refusing to overwrite it (choose another output)");
   }
 }
 

@@ -167,8 +167,8 @@ gmf::CheckpointMeta checkpoint_meta(const io::LoadedVolume& loaded, const std::s
 namespace {
 
 
-// The fingerprint of what decides the bricks: the stack (path, and the size and
-// time of every file behind it), its shape, the fit's config sections and the plan.
+// The fingerprint of what decides the bricks: the stack (path, and the identity of
+// every file behind it), its shape, the fit's config sections and the plan.
 std::string fingerprint_of(const std::string& path, const io::VolumeSource& source, const FitConfig& config,
                            const gmf::BrickPlan& plan) {
   AppConfig slice;
@@ -178,21 +178,16 @@ std::string fingerprint_of(const std::string& path, const io::VolumeSource& sour
   slice.gmf = config.get<&AppConfig::gmf>();
   std::ostringstream s;
   s << std::filesystem::absolute(path).lexically_normal().string() << "\n";
-  for (const std::filesystem::path& file : io::stack_files(path)) {  // a BigDataViewer .xml: its .h5 too
-    std::error_code ec;
-    s << std::filesystem::file_size(file, ec) << " "
-      << std::filesystem::last_write_time(file, ec).time_since_epoch().count() << "\n";
-  }
+  s << source.identity.content() << "\n";  // a BigDataViewer .xml: its .h5 too
   s << source.nx << " " << source.ny << " " << source.nz << "\n" << plan.describe() << "\n" << dump_app_config(slice);
   char hex[17];
   std::snprintf(hex, sizeof hex, "%016llx", static_cast<unsigned long long>(io::fnv1a64(s.str())));
   return hex;
 }
 
-// The stack opened on every rank (a shared filesystem; a rank that cannot ends the
-// job before any work) and what the fit is told, and the opening lines.
+// What the fit of the stack opened as `source` is told, and the opening lines.
 gmf::BrickedFitSetup open_stream(const std::string& volume, const FitConfig& config,
-                                 const gmf::FitPlanChoice& choice, std::unique_ptr<io::VolumeSource>& source,
+                                 const gmf::FitPlanChoice& choice, const io::VolumeSource* source,
                                  const Progress& progress) {
   const io::VolumeOptions& vo = config.get<&AppConfig::volume>();
   gmf::BrickedFitSetup s;
@@ -201,8 +196,7 @@ gmf::BrickedFitSetup open_stream(const std::string& volume, const FitConfig& con
   s.sparse = config.get<&AppConfig::sparse_grid>();
   s.background = config.get<&AppConfig::background>();
   s.normalization_options = vo.normalization;
-  open_on_every_rank(job(), [&] { source = io::open_volume_source(volume, io::stack_read_options(vo)); });
-  s.source = source.get();
+  s.source = source;
   s.frame = io::stack_frame(source->nx, source->ny, source->nz, source->spacing, vo.aspect, volume);
   s.gmf.max_scale_world = gmf::brick_max_scale(s.frame, s.gmf);
   s.plan = choice.plan;
@@ -269,14 +263,13 @@ void write_outputs(const gmf::BrickedFitSetup& s, const gmf::BrickStore& store, 
   std::filesystem::remove_all(store.folder(), ec);  // the checkpoint holds everything now
 }
 
-FitOutcome run_streamed(const std::string& volume, const FitConfig& config, const gmf::FitPlanChoice& choice,
-                        const std::filesystem::path& out, const std::filesystem::path& log_csv,
-                        const Progress& progress) {
+FitOutcome run_streamed(const std::string& volume, const io::VolumeSource& source, const FitConfig& config,
+                        const gmf::FitPlanChoice& choice, const std::filesystem::path& out,
+                        const std::filesystem::path& log_csv, const Progress& progress) {
   io::Stopwatch watch;
-  std::unique_ptr<io::VolumeSource> source;
-  const gmf::BrickedFitSetup setup = open_stream(volume, config, choice, source, progress);
-  const gmf::BrickStore store(gmf::brick_folder(out), fingerprint_of(volume, *source, config, setup.plan), setup.frame,
-                              gmf::BackgroundRegions::of({source->nx, source->ny, source->nz},
+  const gmf::BrickedFitSetup setup = open_stream(volume, config, choice, &source, progress);
+  const gmf::BrickStore store(gmf::brick_folder(out), fingerprint_of(volume, source, config, setup.plan), setup.frame,
+                              gmf::BackgroundRegions::of({source.nx, source.ny, source.nz},
                                                          setup.background.region_voxels)
                                   .count());
   const Job& ranks = job();
@@ -299,16 +292,17 @@ FitOutcome run_streamed(const std::string& volume, const FitConfig& config, cons
   return outcome;
 }
 
-// The bricked fit of `volume` to the checkpoint `out` (and the log `log_csv` unless
-// empty), with `choice` from gmf::choose_fit_plan (bricked). Same lines, checkpoint
-// metadata and outcome as the in-memory fit.
-FitOutcome fit_streamed(const std::string& volume, const FitConfig& config, const gmf::FitPlanChoice& choice,
-                        const std::filesystem::path& out, const std::filesystem::path& log_csv,
-                        const Progress& progress) {
+// The bricked fit of `volume` (opened as `source` on every rank) to the checkpoint
+// `out` (and the log `log_csv` unless empty), with `choice` from
+// gmf::choose_fit_plan (bricked). Same lines, checkpoint metadata and outcome as
+// the in-memory fit.
+FitOutcome fit_streamed(const std::string& volume, const io::VolumeSource& source, const FitConfig& config,
+                        const gmf::FitPlanChoice& choice, const std::filesystem::path& out,
+                        const std::filesystem::path& log_csv, const Progress& progress) {
   const std::filesystem::path folder = gmf::brick_folder(out);
   const bool created = !std::filesystem::exists(folder);
   try {
-    return run_streamed(volume, config, choice, out, log_csv, progress);
+    return run_streamed(volume, source, config, choice, out, log_csv, progress);
   } catch (...) {
     if (!job().root()) throw;  // rank 0 made the folder: only it may remove it
     // A fit that fails before any brick finished leaves no folder it made (a killed
@@ -333,10 +327,14 @@ FitOutcome fit_to_checkpoint(const std::string& volume, const FitConfig& config,
   {  // a stack larger than gmf.max_memory (or asked to) is fitted in bricks
     const io::VolumeOptions& vo = config.get<&AppConfig::volume>();
     vo.validate();
-    const io::StackHeader header = io::inspect_stack(volume, io::stack_read_options(vo));
-    const io::WorldFrame frame = io::stack_frame(header.nx, header.ny, header.nz, header.spacing, vo.aspect, volume);
-    const gmf::FitPlanChoice choice = gmf::choose_fit_plan({header.nx, header.ny, header.nz}, frame, gmf, {}, job().size());
-    if (choice.bricked) return fit_streamed(volume, config, choice, out, log_csv, progress);
+    // Opened once, on every rank (a shared filesystem; a rank that cannot ends the
+    // job before any work); the bricked fit reads it by regions.
+    std::unique_ptr<io::VolumeSource> source;
+    open_on_every_rank(job(), [&] { source = io::open_volume_source(volume, io::stack_read_options(vo)); });
+    const io::WorldFrame frame = io::stack_frame(source->nx, source->ny, source->nz, source->spacing, vo.aspect, volume);
+    const gmf::FitPlanChoice choice =
+        gmf::choose_fit_plan({source->nx, source->ny, source->nz}, frame, gmf, {}, job().size());
+    if (choice.bricked) return fit_streamed(volume, *source, config, choice, out, log_csv, progress);
   }
   const FittedModel fitted =
       fit_loaded(io::load_volume(volume, config.get<&AppConfig::volume>()), volume, config, progress, &watch);

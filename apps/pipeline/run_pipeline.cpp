@@ -44,7 +44,7 @@ void refuse_stack_among_outputs(const RunRequest& request) {
   const fs::path dir = fs::weakly_canonical(request.dir, ec);
   if (ec) return;  // the folder's own checks report it
   const std::vector<std::string> written = run_written_names(PipelineStages{});
-  for (const fs::path& file : io::stack_files(request.volume)) {
+  for (const fs::path& file : io::stack_identity(request.volume).files) {
     const fs::path stack = fs::weakly_canonical(file, ec);
     if (ec) continue;
     const fs::path inside = stack.lexically_relative(dir);

@@ -2,9 +2,7 @@
 // RunState (DIR/run.json), hash_hex and file_identity.
 #include "apps/pipeline/run_state.hpp"
 
-#include <sys/stat.h>
 
-#include <cerrno>
 #include <system_error>
 
 #include "apps/pipeline/format.hpp"
@@ -61,27 +59,7 @@ std::string hash_hex(const std::string& text) {
   return strf("%016llx", static_cast<unsigned long long>(io::fnv1a64(text)));
 }
 
-namespace {
-std::string stat_identity(const fs::path& path) {
-  struct stat st {};
-  if (::stat(path.c_str(), &st) != 0) {
-    throw fs::filesystem_error("cannot stat", path, std::error_code(errno, std::generic_category()));
-  }
-  const long long mtime_ns = static_cast<long long>(st.st_mtim.tv_sec) * 1000000000LL + st.st_mtim.tv_nsec;
-  return std::to_string(st.st_size) + "|" + std::to_string(mtime_ns) + "|" + std::to_string(st.st_dev) + ":" +
-         std::to_string(st.st_ino);
-}
-}  // namespace
-
-std::string file_content_identity(const fs::path& path) {
-  std::string identity = stat_identity(path);
-  const std::vector<fs::path> files = io::stack_files(path);  // BigDataViewer: an .xml and the .h5 it names
-  std::error_code ec;
-  for (std::size_t i = 1; i < files.size(); ++i) {
-    identity += "|" + (fs::exists(files[i], ec) ? stat_identity(files[i]) : std::string("missing"));
-  }
-  return identity;
-}
+std::string file_content_identity(const fs::path& path) { return io::stack_identity(path).content(); }
 
 std::string file_identity(const fs::path& path) {
   return fs::absolute(path).lexically_normal().string() + "|" + file_content_identity(path);

@@ -46,7 +46,7 @@ class RunState {
 [[nodiscard]] std::string file_identity(const std::filesystem::path& path);
 // Size, modification time (ns) and device:inode of a file, without its path: every
 // atomic rewrite (a new inode) or change gives a new value; moving the folder does not.
-// For a BigDataViewer stack, its .xml's and .h5's both (io::hdf5_stack_files).
+// For a stack, of every file behind it (io::StackIdentity::content).
 [[nodiscard]] std::string file_content_identity(const std::filesystem::path& path);
 
 }  // namespace hisnegs::apps

@@ -15,6 +15,7 @@
 
 #include "io/error.hpp"
 #include "io/stack_file.hpp"
+#include "io/volume_source.hpp"
 #include "tests/test_support.hpp"
 
 namespace hisnegs::io {
@@ -197,6 +198,19 @@ open('bdv.xml', 'w').write('''<?xml version="1.0" encoding="UTF-8"?>
   EXPECT_EQ(hdf5_stack_files(dir / "bdv.h5"), (std::vector<fs::path>{dir / "bdv.h5", xml}));
   EXPECT_EQ(stack_files(xml), hdf5_stack_files(xml));
   EXPECT_EQ(stack_files(dir / "nothing.tif"), (std::vector<fs::path>{dir / "nothing.tif"}));
+  // One identity for every fingerprint and input guard, the same the source opened
+  // on the stack carries: both files; an output that is the .h5 behind the .xml is
+  // held by it; a new .h5 behind an unchanged .xml changes its content.
+  const StackIdentity identity = stack_identity(xml);
+  EXPECT_EQ(identity.files, stack_files(xml));
+  EXPECT_EQ(open_volume_source(xml, o)->identity.files, identity.files);
+  EXPECT_TRUE(identity.holds(dir / "bdv.h5"));
+  EXPECT_FALSE(identity.holds(dir / "nothing.tif"));
+  const std::string before = identity.content();
+  fs::copy_file(dir / "bdv.h5", dir / "copy.h5");
+  fs::rename(dir / "copy.h5", dir / "bdv.h5");
+  EXPECT_NE(stack_identity(xml).content(), before);
+  EXPECT_TRUE(memory_source(Volume{})->identity.files.empty());
   // An .xml naming a folder: said so, not "does not exist".
   std::string text = testing::read_bytes(xml);
   text.replace(text.find(">bdv.h5<"), 8, ">.<");
