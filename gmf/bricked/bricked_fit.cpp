@@ -230,6 +230,7 @@ BrickRecord fit_brick(const StreamContext& c, const StreamBrick& b, double left,
 
 struct SeamStats {
   std::size_t refitted = 0, held = 0;
+  std::size_t left = 0;  // bricks left as the brick pass fitted them: the time budget was spent
 };
 
 // Brick b's Gaussians after refitting those reaching its shared faces with every other
@@ -283,22 +284,18 @@ GaussianMixture seam_brick(const StreamContext& c, const StreamBrick& b,
 
 // Σ (f − V)² over brick b's core voxels (the model's Gaussians that reach its region).
 // `local`: the model's Gaussians within b's region grown by the halo, in brick order.
+// Only the core is read and rasterized (each voxel's value depends on its position
+// and the Gaussians alone, not on the lattice around it).
 double core_squared_error(const StreamContext& c, const StreamBrick& b, GaussianMixture local,
                           const RasterizeOptions& raster) {
-  const io::Volume v = read_region(c, b.region);
-  const RegionFrame rf = region_frame(c.frame, b.region);
+  const io::Volume v = read_region(c, b.core);
+  const RegionFrame rf = region_frame(c.frame, b.core);
   shift_means(local, -rf.shift);
   const std::vector<float> f = rasterize_mixture(local, rf.frame, raster);
-  const io::VoxelBox core = local_box(b.core, b.region);
   double sse = 0;
-  for (int z = core.lo[2]; z < core.hi[2]; ++z) {
-    for (int y = core.lo[1]; y < core.hi[1]; ++y) {
-      for (int x = core.lo[0]; x < core.hi[0]; ++x) {
-        const std::size_t i = v.index(x, y, z);
-        const double d = static_cast<double>(f[i]) - static_cast<double>(v.voxels[i]);
-        sse += d * d;
-      }
-    }
+  for (std::size_t i = 0; i < f.size(); ++i) {
+    const double d = static_cast<double>(f[i]) - static_cast<double>(v.voxels[i]);
+    sse += d * d;
   }
   return sse;
 }
@@ -518,7 +515,8 @@ void publish_seam_results(const StreamContext& c, const std::vector<GaussianMixt
                           const std::vector<bool>& mine, const Collective& ranks, BrickState& state, SeamOutcome& out) {
   const std::size_t n = held.size();
   std::vector<double> boxes(6 * n, 0.0),
-      totals = {out.exchanged, static_cast<double>(out.stats.refitted), static_cast<double>(out.stats.held)};
+      totals = {out.exchanged, static_cast<double>(out.stats.refitted), static_cast<double>(out.stats.held),
+                static_cast<double>(out.stats.left)};
   for (std::size_t id = 0; id < n; ++id) {
     if (!mine[id]) continue;
     c.store->save_seam(static_cast<int>(id), held[id]);
@@ -537,6 +535,7 @@ void publish_seam_results(const StreamContext& c, const std::vector<GaussianMixt
   out.exchanged = totals[0];
   out.stats.refitted = static_cast<std::size_t>(totals[1]);
   out.stats.held = static_cast<std::size_t>(totals[2]);
+  out.stats.left = static_cast<std::size_t>(totals[3]);
 }
 
 // The seam pass, colour by colour (bricks of one colour share no face; each is
@@ -566,7 +565,13 @@ SeamOutcome seam_pass(const StreamContext& c, BrickState& state, const Collectiv
       if (!mine[id] || c.plan.bricks[id].colour() != colour) continue;
       const double share = (1.0 + static_cast<double>(state.count[id])) / std::max(1.0, to_refit);
       to_refit -= 1.0 + static_cast<double>(state.count[id]);
-      const double seconds = std::max(0.0, budget - watch.elapsed()) * std::min(1.0, share);
+      const double left = budget - watch.elapsed();
+      if (c.gmf.time_budget_s > 0 && left <= 0) {  // each refit costs its reading and sampling at least
+        refitted.emplace_back(id, held[id]);
+        ++out.stats.left;
+        continue;
+      }
+      const double seconds = std::max(0.0, left) * std::min(1.0, share);
       refitted.emplace_back(id, seam_brick(c, c.plan.bricks[id], held, beta, seconds, out.stats));
       release_free_memory();
     }
@@ -596,7 +601,7 @@ double measure_pass(const StreamContext& c, const BrickState& state, const Colle
   for (std::size_t id = 0; id < n; ++id) ids[id] = static_cast<int>(id);
   const std::vector<int> rank_of = brick_ranks(ids, ranks.size(), [&](int id) {
     const auto b = static_cast<std::size_t>(id);
-    return measure_work(static_cast<double>(c.plan.bricks[b].region.voxels()), static_cast<double>(state.count[b]));
+    return measure_work(static_cast<double>(c.plan.bricks[b].core.voxels()), static_cast<double>(state.count[b]));
   });
   std::vector<double> sse(n, 0.0);
   for (std::size_t id = 0; id < n; ++id) {
@@ -674,16 +679,32 @@ BrickPass brick_pass(const StreamContext& c, const io::Stopwatch& watch, double 
   pass.fitted_here = mine.size();
   std::int64_t done_here = 0;
   if (ranks.distributed()) watch_next_rank(c, ranks);
+  // What a brick costs beside its fit (reading, sampling, initializing, saving),
+  // measured on the bricks done so far: every brick still to do will cost it, so
+  // the fits share only what is left after it (tiny bricks are mostly this).
+  double overhead = 0;
+  std::size_t done_bricks = 0;
   for (const int id : mine) {
     const StreamBrick& b = c.plan.bricks[static_cast<std::size_t>(id)];
     if (ranks.distributed()) hold_brick(c, ranks, b);
     // Time: what is left of the brick pass, shared by the foreground still to fit.
-    const double left = std::max(0.0, budget - watch.elapsed());
+    const double start = watch.elapsed();
+    const double still = static_cast<double>(mine.size() - done_bricks);
+    const double per_brick = done_bricks == 0 ? 0.0 : overhead / static_cast<double>(done_bricks);
+    const double left = std::max(0.0, budget - start - per_brick * still);
+    if (c.gmf.time_budget_s > 0 && done_bricks == 1 && start + per_brick * still > budget) {
+      progress.say("fit: the bricks cost %s each beside their fits: %zu more take %s, past the brick pass's share "
+                   "of gmf.time_budget_s (%s); each is fitted as briefly as it can be (larger bricks cost less)",
+                   format_seconds(per_brick).c_str(), mine.size() - done_bricks,
+                   format_seconds(per_brick * still).c_str(), format_seconds(budget).c_str());
+    }
     BrickRecord r = fit_brick(c, b, left, std::max<std::int64_t>(1, rest_foreground - done_here));
     release_free_memory();
     c.store->save(id, r);
     r.kept = {};  // in the folder now
     done_here += r.foreground_core;
+    overhead += std::max(0.0, watch.elapsed() - start - (r.log.empty() ? 0.0 : r.log.back().seconds));
+    ++done_bricks;
     const int rounds = r.log.empty() ? 0 : r.log.back().round + 1;
     progress.say("fit: %s: %lld samples, %zu Gaussians kept, %d rounds, beta %g, %s", brick_text(c, b).c_str(),
                  static_cast<long long>(r.samples), r.count, rounds, r.final_beta, format_seconds(r.seconds).c_str());
@@ -750,6 +771,11 @@ void say_seam_pass(const StreamContext& c, const SeamOutcome& s, double seconds,
         "neighbours held fixed, %s",
         s.stats.refitted, c.gmf.seam_iterations, s.stats.held, format_seconds(seconds).c_str());
   }
+  if (s.stats.left > 0) {
+    progress.say("fit: seam pass: %zu of %zu bricks left as the brick pass fitted them: the time budget "
+                 "(gmf.time_budget_s %g s) was spent",
+                 s.stats.left, c.plan.bricks.size(), c.gmf.time_budget_s);
+  }
 }
 
 
@@ -785,9 +811,13 @@ BrickedFitResult fit_bricked(const BrickedFitSetup& setup, const BrickStore& sto
   result.seam = c.gmf.seam_iterations > 0 && n > 1;
   BrickPass pass = brick_pass(c, watch, total_budget * (result.seam ? 0.85 : 0.95), progress);
   BrickTotals totals = brick_totals(c, pass.results);
+  const double seam_budget = std::max(0.0, total_budget * 0.95 - watch.elapsed());
+  if (result.seam && c.gmf.time_budget_s > 0 && seam_budget <= 0) {
+    progress.say("fit: seam pass skipped: the time budget (gmf.time_budget_s %g s) was spent", c.gmf.time_budget_s);
+    result.seam = false;
+  }
   if (result.seam) {
     io::Stopwatch seam_watch;
-    const double seam_budget = std::max(0.0, total_budget * 0.95 - watch.elapsed());
     const SeamOutcome s = seam_pass(c, totals.state, ranks, totals.beta, seam_budget);
     say_seam_pass(c, s, seam_watch.elapsed(), progress);
   }

@@ -36,7 +36,7 @@ namespace hisnegs::gmf {
                                                                const io::Normalization& map, const BrickPlan& p,
                                                                double threshold, std::size_t slab,
                                                                const io::ScanShare& share = {});
-// What measuring a brick's 3D error costs, in voxels: its region's (read, rendered
+// What measuring a brick's 3D error costs, in voxels: its core's (read, rendered
 // and compared) plus its Gaussians' (a Gaussian rendered costs about 2,000 voxels:
 // ~20 µs against ~8 ns on one core, from the measuring passes of op1 and the
 // largest stack, docs/benchmarks.md "Several MPI ranks").

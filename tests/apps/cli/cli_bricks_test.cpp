@@ -189,6 +189,22 @@ TEST_F(BrickedFit, AFailedBrickWriteLeavesTheFinishedBricksIntact) {
 }
 
 // `gt` of a stack read by bricks writes the whole-stack images, byte for byte.
+// The time budget holds for many small bricks: the brick pass shares what is left
+// after what a brick costs beside its fit (measured on the bricks done), and the
+// seam pass leaves a brick as fitted once the budget is spent (or is skipped when
+// nothing is left), saying so; the fit still ends with a whole checkpoint. (Bricks
+// of 8 voxels: 3 x 9 x 10 = 270.)
+TEST_F(BrickedFit, ManySmallBricksKeepToTheTimeBudget) {
+  const auto r = run_hisnegs({"fit", dir() / "s.tif", "-o", dir() / "small.ply", "--brick-voxels", "8",
+                              "--time-budget", "0.2"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const std::string said = r.out + r.err;
+  EXPECT_NE(said.find("the time budget (gmf.time_budget_s 0.2 s) was spent"),
+            std::string::npos)
+      << said;
+  EXPECT_GT(gmf::load_checkpoint(dir() / "small.ply").mixture.size(), 0u);
+}
+
 TEST_F(BrickedFit, GroundTruthByBricksEqualsTheWholeStacks) {
   const auto whole = run_hisnegs({"-q", "gt", dir() / "s.tif", "-o", dir() / "gt_whole", "--orbit", "eval", "--size",
                                   "40", "--backend", "cpu"});
