@@ -25,6 +25,7 @@
 #include "gmf/samples.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
+#include "io/fault_injection.hpp"
 #include "io/hash.hpp"
 #include "io/text.hpp"
 #include "io/timer.hpp"
@@ -382,16 +383,27 @@ void note_for_interrupt(const StreamContext& c, const Collective& ranks, const s
               c.store->stopped_path(ranks.rank()));
 }
 
-// Writes FOLDER/rank-R.holds: "ID SIZE" for the rerun, then the line a neighbour
-// rank says if this one dies holding the brick (RankRuntime::watch).
-void hold_brick(const StreamContext& c, const Collective& ranks, const StreamBrick& b) {
-  const std::string brick = brick_text(c, b);
+// Writes FOLDER/rank-R.holds: "ID SIZE" for the rerun (ID the brick it fits, -1
+// when it fits none), then the line a neighbour rank says if this one dies while
+// `doing` it (RankRuntime::watch); and the note this rank says if it is stopped.
+void mark_doing(const StreamContext& c, const Collective& ranks, int id, const std::string& doing) {
   const std::string text =
-      std::to_string(b.id) + " " + std::to_string(ranks.size()) + "\n" +
-      strf("rank %d of %d died (killed, crashed or out of memory) while fitting ", ranks.rank(), ranks.size()) + brick +
-      "\n";
+      std::to_string(id) + " " + std::to_string(ranks.size()) + "\n" +
+      strf("rank %d of %d died (killed, crashed or out of memory) while ", ranks.rank(), ranks.size()) + doing + "\n";
   io::write_file_atomic(c.store->held_path(ranks.rank()), text.data(), text.size());
-  note_for_interrupt(c, ranks, "fitting " + brick);
+  note_for_interrupt(c, ranks, doing);
+}
+
+void hold_brick(const StreamContext& c, const Collective& ranks, const StreamBrick& b) {
+  mark_doing(c, ranks, b.id, "fitting " + brick_text(c, b));
+}
+
+// Ends this rank's marks, note and watch (the passes are over).
+void end_marks(const StreamContext& c, const Collective& ranks) {
+  std::error_code ec;
+  std::filesystem::remove(c.store->held_path(ranks.rank()), ec);
+  say_on_stop(c, "", {});
+  if (c.runtime->watch) c.runtime->watch({}, 0);
 }
 
 // Each rank watches the next: stopped by the launcher because a rank died, rank R
@@ -415,9 +427,13 @@ void say_what_stopped_ranks_held(const StreamContext& c, const std::vector<std::
     std::istringstream in(io::read_file(entry.path()));
     long long id = -1, size = 0;
     in >> id >> size;
+    std::string said;
+    std::getline(in >> std::ws, said);
     const std::filesystem::path stopped = std::filesystem::path(entry.path()).replace_extension(".stopped");
     const bool died = !std::filesystem::exists(stopped, ec);
-    if (id >= 0 && id < static_cast<long long>(results.size()) && !results[static_cast<std::size_t>(id)]) {
+    if (id < 0 && died && !said.empty()) {  // it died between bricks: waiting, in the seam or measuring pass
+      progress.say("fit: the previous run's %s", said.c_str());
+    } else if (id >= 0 && id < static_cast<long long>(results.size()) && !results[static_cast<std::size_t>(id)]) {
       const StreamBrick& b = c.plan.bricks[static_cast<std::size_t>(id)];
       progress.say("fit: the previous run's %s of %lld %s while fitting %s; it is fitted again",
                    name.substr(0, name.size() - 6).replace(4, 1, " ").c_str(), size,
@@ -545,6 +561,8 @@ void publish_seam_results(const StreamContext& c, const std::vector<GaussianMixt
 // Every brick's result goes to brick_N.seam.ply; `state` becomes the seam pass's.
 SeamOutcome seam_pass(const StreamContext& c, BrickState& state, const Collective& ranks, double beta, double budget) {
   io::Stopwatch watch;
+  if (ranks.distributed()) mark_doing(c, ranks, -1, "refitting the seams between bricks");
+  io::fault_point("seam-pass");
   const std::size_t n = c.plan.bricks.size();
   const std::vector<int> rank_of = seam_ranks(c, state, ranks.size());
   std::vector<bool> mine(n);
@@ -597,6 +615,7 @@ SeamOutcome seam_pass(const StreamContext& c, BrickState& state, const Collectiv
 double measure_pass(const StreamContext& c, const BrickState& state, const Collective& ranks,
                     const RasterizeOptions& raster) {
   const std::size_t n = c.plan.bricks.size();
+  if (ranks.distributed()) mark_doing(c, ranks, -1, "measuring the 3D PSNR");
   std::vector<int> ids(n);
   for (std::size_t id = 0; id < n; ++id) ids[id] = static_cast<int>(id);
   const std::vector<int> rank_of = brick_ranks(ids, ranks.size(), [&](int id) {
@@ -678,7 +697,10 @@ BrickPass brick_pass(const StreamContext& c, const io::Stopwatch& watch, double 
   const std::int64_t rest_foreground = share.second;  // not a structured binding: clang 14 cannot capture those
   pass.fitted_here = mine.size();
   std::int64_t done_here = 0;
-  if (ranks.distributed()) watch_next_rank(c, ranks);
+  if (ranks.distributed()) {
+    ranks.barrier();  // rank 0 has removed the previous launch's marks: this one's may start
+    watch_next_rank(c, ranks);
+  }
   // What a brick costs beside its fit (reading, sampling, initializing, saving),
   // measured on the bricks done so far: every brick still to do will cost it, so
   // the fits share only what is left after it (tiny bricks are mostly this).
@@ -712,12 +734,8 @@ BrickPass brick_pass(const StreamContext& c, const io::Stopwatch& watch, double 
   }
   if (ranks.distributed()) {
     // Every brick is in the folder once all ranks are here.
-    std::error_code ec;
-    std::filesystem::remove(c.store->held_path(ranks.rank()), ec);
-    note_for_interrupt(c, ranks, "waiting for the other ranks' bricks (its own are finished)");
+    mark_doing(c, ranks, -1, "waiting for the other ranks' bricks (its own are finished)");
     ranks.barrier();
-    say_on_stop(c, "", {});
-    if (c.runtime->watch) c.runtime->watch({}, 0);
     for (std::size_t b = 0; b < n; ++b) {  // their records; the Gaussians stay in the folder
       if (!results[b]) results[b] = c.store->load(static_cast<int>(b));
       if (!results[b]) throw std::runtime_error("brick " + std::to_string(b) + " is missing after the brick pass");
@@ -829,6 +847,7 @@ BrickedFitResult fit_bricked(const BrickedFitSetup& setup, const BrickStore& sto
   const double sse = measure_pass(c, totals.state, ranks, RasterizeOptions::of(report));
   result.psnr_3d = psnr_from_mse(sse / static_cast<double>(c.source->whole().voxels()));
   result.measure_seconds = measuring.elapsed();
+  if (ranks.distributed()) end_marks(c, ranks);
   result.normalization = c.normalization;
   for (std::optional<BrickRecord>& r : pass.results) result.records.push_back(std::move(*r));
   result.state = std::move(totals.state);

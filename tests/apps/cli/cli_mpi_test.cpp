@@ -146,6 +146,23 @@ TEST_F(Mpi, AKilledRankEndsTheJobAndTheRerunResumes) {
   EXPECT_EQ(testing::read_bytes(dir() / "k.ply"), testing::read_bytes(dir() / "one.ply"));
 }
 
+// Rank 1 is killed (SIGKILL) between bricks, as the seam pass starts: rank 0 names
+// what it was doing (not only its own "stopped while ..."), and the rerun says it
+// and resumes to the uninterrupted checkpoint.
+TEST_F(Mpi, ARankKilledBetweenBricksIsNamedWithWhatItWasDoing) {
+  if (!fs::exists(dir() / "one.ply")) {
+    ASSERT_EQ(testing::run_hisnegs(fit_args("one.ply")).exit_code, 0);
+  }
+  const auto killed = mpirun(2, fit_args("ks.ply"), "HISNEGS_FAULT=seam-pass:1");
+  EXPECT_NE(killed.status, 0) << killed.out;
+  const std::string died = "rank 1 of 2 died (killed, crashed or out of memory) while refitting the seams between bricks";
+  EXPECT_NE(killed.out.find("hisnegs: " + died), std::string::npos) << killed.out;
+  const auto rerun = mpirun(2, fit_args("ks.ply"));
+  ASSERT_EQ(rerun.status, 0) << rerun.out;
+  EXPECT_NE(rerun.out.find("fit: the previous run's " + died), std::string::npos) << rerun.out;
+  EXPECT_EQ(testing::read_bytes(dir() / "ks.ply"), testing::read_bytes(dir() / "one.ply"));
+}
+
 // A model and its 30 evaluation views at 48 x 48 for the render and training tests
 // (one process makes them; made once per test process).
 void make_model_and_views(const fs::path& dir) {
