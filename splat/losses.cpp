@@ -10,6 +10,7 @@
 #include <numbers>
 #include <stdexcept>
 #include <string>
+#include <type_traits>
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
@@ -601,12 +602,42 @@ double scale_regularizer_impl(std::span<const T> params, double s_min, double s_
 
 // ---------------------------------------------------------------- Eq. 16
 
+template <class T>
+double wmse_term(std::span<const T> render, std::span<const T> target, int width, int height,
+                 const ImageLossWeights& w, double weight, std::span<T> grad, LossWorkspace&) {
+  return weighted_mse_impl(render, target, width, height, w.foreground_weight, weight, grad);
+}
+template <class T>
+double ssim_term(std::span<const T> render, std::span<const T> target, int width, int height,
+                 const ImageLossWeights&, double weight, std::span<T> grad, LossWorkspace& workspace) {
+  return ssim_impl(render, target, width, height, weight, grad, workspace);
+}
+template <class T>
+double edge_term(std::span<const T> render, std::span<const T> target, int width, int height,
+                 const ImageLossWeights&, double weight, std::span<T> grad, LossWorkspace& workspace) {
+  return edge_impl(render, target, width, height, weight, grad, workspace);
+}
+template <class T>
+double intensity_term(std::span<const T> render, std::span<const T> target, int width, int height,
+                      const ImageLossWeights& w, double weight, std::span<T> grad, LossWorkspace& workspace) {
+  return intensity_kl_impl(render, target, width, height, w.histogram, weight, grad, workspace);
+}
+
+constexpr std::array<ImageLossEntry, 4> kImageLosses{{
+    {"wmse", &ImageLossWeights::wmse, &ImageLossTerms::wmse, &wmse_term<float>, &wmse_term<double>},
+    {"ssim", &ImageLossWeights::ssim, &ImageLossTerms::ssim, &ssim_term<float>, &ssim_term<double>},
+    {"edge", &ImageLossWeights::edge, &ImageLossTerms::edge, &edge_term<float>, &edge_term<double>},
+    {"intensity", &ImageLossWeights::intensity, &ImageLossTerms::intensity, &intensity_term<float>,
+     &intensity_term<double>},
+}};
+
 void check_weights(const ImageLossWeights& w) {
-  for (auto [name, value] : {std::pair{"wmse", w.wmse}, std::pair{"ssim", w.ssim}, std::pair{"edge", w.edge},
-                             std::pair{"intensity", w.intensity}})
+  for (const ImageLossEntry& loss : kImageLosses) {
+    const double value = w.*loss.weight;
     if (!(value >= 0 && std::isfinite(value)))
-      throw std::invalid_argument(std::string("ImageLossWeights.") + name + " = " + std::to_string(value) +
+      throw std::invalid_argument(std::string("ImageLossWeights.") + loss.name + " = " + std::to_string(value) +
                                   ": must be finite and >= 0");
+  }
 }
 
 template <class T>
@@ -615,21 +646,17 @@ ImageLossTerms combined_impl(std::span<const T> render, std::span<const T> targe
   check_weights(w);
   constexpr double kNotEvaluated = std::numeric_limits<double>::quiet_NaN();
   ImageLossTerms terms{kNotEvaluated, kNotEvaluated, kNotEvaluated, kNotEvaluated, 0.0};
-  if (w.wmse > 0) {
-    terms.wmse = weighted_mse_impl(render, target, width, height, w.foreground_weight, w.wmse, grad);
-    terms.total += w.wmse * terms.wmse;
-  }
-  if (w.ssim > 0) {
-    terms.ssim = ssim_impl(render, target, width, height, w.ssim, grad, workspace);
-    terms.total += w.ssim * terms.ssim;
-  }
-  if (w.edge > 0) {
-    terms.edge = edge_impl(render, target, width, height, w.edge, grad, workspace);
-    terms.total += w.edge * terms.edge;
-  }
-  if (w.intensity > 0) {
-    terms.intensity = intensity_kl_impl(render, target, width, height, w.histogram, w.intensity, grad, workspace);
-    terms.total += w.intensity * terms.intensity;
+  for (const ImageLossEntry& loss : kImageLosses) {
+    const double weight = w.*loss.weight;
+    if (!(weight > 0)) continue;
+    ImageLossFunction<T> f = nullptr;
+    if constexpr (std::is_same_v<T, float>) {
+      f = loss.of_float;
+    } else {
+      f = loss.of_double;
+    }
+    terms.*loss.value = f(render, target, width, height, w, weight, grad, workspace);
+    terms.total += weight * terms.*loss.value;
   }
   return terms;
 }
@@ -701,6 +728,8 @@ double scale_regularizer(std::span<const double> params, double s_min, double s_
                          std::span<double> grad) {
   return scale_regularizer_impl(params, s_min, s_max, weight, grad);
 }
+
+std::span<const ImageLossEntry> image_losses() { return kImageLosses; }
 
 ImageLossTerms combined_image_loss(std::span<const float> render, std::span<const float> target, int width, int height,
                                    const ImageLossWeights& weights, std::span<float> grad, LossWorkspace& workspace) {

@@ -116,6 +116,25 @@ struct ImageLossTerms {
   double total = 0;
 };
 
+// The image losses as a registry: each entry names a term, where its weight and
+// its value live, and computes it with its gradient (a float function for the
+// trainer, a double one for the reference the tests check against finite
+// differences). combined_image_loss and the weight checks iterate it, in its
+// order; a new image loss is its function, a weight and a value field, and one
+// entry here.
+template <class T>
+using ImageLossFunction = double (*)(std::span<const T> render, std::span<const T> target, int width, int height,
+                                     const ImageLossWeights& weights, double weight, std::span<T> grad,
+                                     LossWorkspace& workspace);
+struct ImageLossEntry {
+  const char* name;                   // as ImageLossWeights names it
+  double ImageLossWeights::*weight;   // its weight (0: not evaluated)
+  double ImageLossTerms::*value;      // where its unweighted value goes
+  ImageLossFunction<float> of_float;
+  ImageLossFunction<double> of_double;
+};
+[[nodiscard]] std::span<const ImageLossEntry> image_losses();
+
 // The image part of Eq. 16 (everything but L_reg): adds ∂total/∂render into `grad`
 // (or only evaluates when `grad` is empty).
 ImageLossTerms combined_image_loss(std::span<const float> render, std::span<const float> target, int width, int height,

@@ -397,6 +397,31 @@ TEST(LossCombined, SumsTheWeightedTermsAndTheirGradients) {
   for (std::size_t i = 0; i < grad.size(); ++i) EXPECT_FLOAT_EQ(grad[i], expected_grad[i]) << i;
 }
 
+// The registry holds each image loss once, in the order combined_image_loss adds
+// them; each entry's double function is that loss with its gradient (the finite-
+// difference checks above cover the functions themselves).
+TEST(LossCombined, TheRegistryHoldsEachImageLossOnce) {
+  const auto render = random_image(kW, kH, 31), target = random_image(kW, kH, 32);
+  std::vector<std::string> names;
+  for (const ImageLossEntry& loss : image_losses()) names.emplace_back(loss.name);
+  EXPECT_EQ(names, (std::vector<std::string>{"wmse", "ssim", "edge", "intensity"}));
+  ImageLossWeights w;
+  w.foreground_weight = 3.0;
+  LossWorkspace ws;
+  for (const ImageLossEntry& loss : image_losses()) {
+    std::vector<double> grad(render.size(), 0.0), alone(render.size(), 0.0);
+    const double value = loss.of_double(render, target, kW, kH, w, 0.5, grad, ws);
+    ImageLossWeights only;
+    only.wmse = 0.0;
+    only.foreground_weight = 3.0;
+    only.*loss.weight = 0.5;
+    const ImageLossTerms terms = combined_image_loss(render, target, kW, kH, only, alone, ws);
+    EXPECT_DOUBLE_EQ(terms.*loss.value, value) << loss.name;
+    EXPECT_DOUBLE_EQ(terms.total, 0.5 * value) << loss.name;
+    for (std::size_t i = 0; i < grad.size(); ++i) ASSERT_EQ(grad[i], alone[i]) << loss.name << " " << i;
+  }
+}
+
 TEST(LossCombined, TermsOfWeightZeroAreNotEvaluated) {
   const auto render = random_image(kW, kH, 29), target = random_image(kW, kH, 30);
   LossWorkspace ws;
