@@ -148,20 +148,12 @@ void background_rows(const gmf::BackgroundField& field, Sheet& sheet) {
     sheet.row("background", bg);
   }
   if (field.regional() && !field.none()) {
-    int subtracted = 0;
-    double lo = 1.0, hi = 0.0;
-    for (const gmf::BackgroundModel& m : field.models) {
-      subtracted += m.none() ? 1 : 0;
-      if (!m.none()) {
-        lo = std::min(lo, m.quantile(0.99));
-        hi = std::max(hi, m.quantile(0.99));
-      }
-    }
+    const gmf::BackgroundField::Summary s = field.summary();
     const auto& c = field.regions.cells;
     sheet.row("bg regions", std::to_string(field.regions.count()) + " (" + std::to_string(c[0]) + " x " +
                                 std::to_string(c[1]) + " x " + std::to_string(c[2]) + "), each its own floor; " +
-                                std::to_string(subtracted) + " subtracted (floor 0); p99 " + fmt("%.4g", lo) + " to " +
-                                fmt("%.4g", hi));
+                                std::to_string(s.subtracted) + " subtracted (floor 0); p99 " + fmt("%.4g", s.p99_lo) +
+                                " to " + fmt("%.4g", s.p99_hi));
   }
 }
 

@@ -67,22 +67,14 @@ namespace {
 // whole stack's (under 4096 background voxels), p99 0.02 to 0.09", or "" for one region.
 std::string regions_text(const gmf::BackgroundField& field) {
   if (!field.regional()) return "";
-  int subtracted = 0, merged = 0;
-  double lo = 1.0, hi = 0.0;
-  for (const gmf::BackgroundModel& m : field.models) {
-    subtracted += m.none() ? 1 : 0;
-    merged += m == field.merged ? 1 : 0;
-    if (m.none()) continue;
-    lo = std::min(lo, m.quantile(0.99));
-    hi = std::max(hi, m.quantile(0.99));
-  }
+  const gmf::BackgroundField::Summary s = field.summary();
   const auto& c = field.regions.cells;
   std::string text = strf("; %d regions (%d x %d x %d), each its own floor", field.regions.count(), c[0], c[1], c[2]);
-  if (subtracted > 0) text += strf(", %d subtracted (floor 0)", subtracted);
-  if (merged > 0)
-    text += strf(", %d on the whole stack's (under %lld background voxels)", merged,
+  if (s.subtracted > 0) text += strf(", %d subtracted (floor 0)", s.subtracted);
+  if (s.merged > 0)
+    text += strf(", %d on the whole stack's (under %lld background voxels)", s.merged,
                  static_cast<long long>(gmf::BackgroundField::kMinVoxels));
-  if (hi > 0.0) text += strf(", p99 %.4g to %.4g", lo, hi);
+  if (s.p99_hi > 0.0) text += strf(", p99 %.4g to %.4g", s.p99_lo, s.p99_hi);
   return text;
 }
 

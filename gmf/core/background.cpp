@@ -232,6 +232,18 @@ int BackgroundRegions::cell_of(int axis, int voxel) const {
   return k;
 }
 
+BackgroundField::Summary BackgroundField::summary() const {
+  Summary s;
+  for (const BackgroundModel& m : models) {
+    s.subtracted += m.none() ? 1 : 0;
+    s.merged += m == merged ? 1 : 0;
+    if (m.none()) continue;
+    s.p99_lo = std::min(s.p99_lo, m.quantile(0.99));
+    s.p99_hi = std::max(s.p99_hi, m.quantile(0.99));
+  }
+  return s;
+}
+
 bool BackgroundField::none() const {
   if (!regional()) return merged.none();
   return std::all_of(models.begin(), models.end(), [](const BackgroundModel& m) { return m.none(); });

@@ -150,6 +150,13 @@ struct BackgroundField {
   [[nodiscard]] const BackgroundModel& at(int r) const {
     return regional() ? models[static_cast<std::size_t>(r)] : merged;
   }
+  // What the regions hold, as the fit's line and `info` say it.
+  struct Summary {
+    int subtracted = 0;            // regions with no floor (their background is 0)
+    int merged = 0;                // regions that took the merged model (too few voxels of their own)
+    double p99_lo = 1.0, p99_hi = 0.0;  // the range of the others' 99th percentiles (lo > hi: none)
+  };
+  [[nodiscard]] Summary summary() const;
 };
 
 // The background counts of `volume`'s voxels inside `box` (index space of `volume`,

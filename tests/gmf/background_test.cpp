@@ -151,6 +151,14 @@ TEST(BackgroundField, EachRegionHasItsOwnDistribution) {
     EXPECT_TRUE(field.at(3 * y + 1).none()) << "the subtracted part draws no floor";
     EXPECT_EQ(field.at(3 * y + 2), field.merged) << "the filled part has no background of its own";
   }
+  // The summary the fit's line and `info` print: two subtracted, two on the merged
+  // model, the 99th percentiles of the others (the noisy parts and the merged ones).
+  const BackgroundField::Summary summary = field.summary();
+  EXPECT_EQ(summary.subtracted, 2);
+  EXPECT_EQ(summary.merged, 2);
+  const double p0 = field.at(0).quantile(0.99), p3 = field.at(3).quantile(0.99), pm = field.merged.quantile(0.99);
+  EXPECT_EQ(summary.p99_lo, std::min({p0, p3, pm}));
+  EXPECT_EQ(summary.p99_hi, std::max({p0, p3, pm}));
   options.region_voxels = 0;
   const BackgroundField one = estimate_background_field(v, options);
   EXPECT_FALSE(one.regional());
