@@ -39,7 +39,7 @@ MipStack render_ground_truth(const io::Volume& volume, const io::WorldFrame& fra
     io::Stopwatch watch;
 #if HISNEGS_HAVE_CUDA
     if (gpu) {
-      gpu->render(make_view_params(K, cameras.views[i]), image.data(), image.size());
+      gpu->render(make_ray_view(K, cameras.views[i]), image.data(), image.size());
     } else {
       marcher.render(K, cameras.views[i], image);
     }

@@ -79,8 +79,8 @@ double RayMarcher::nonempty_brick_fraction() const {
   return static_cast<double>(n) / static_cast<double>(brick_max_.size());
 }
 
-kernels::ViewParams make_view_params(const Intrinsics& K, const CameraView& view) {
-  kernels::ViewParams p{};
+kernels::RayView make_ray_view(const Intrinsics& K, const CameraView& view) {
+  kernels::RayView p{};
   const Eigen::Matrix3d Rt = view.R_cam_from_world.transpose();
   for (int r = 0; r < 3; ++r)
     for (int c = 0; c < 3; ++c) p.Rt[3 * r + c] = Rt(r, c);
@@ -99,7 +99,7 @@ void RayMarcher::render(const Intrinsics& K, const CameraView& view, std::span<f
   if (out.size() != static_cast<std::size_t>(K.width) * K.height) {
     throw std::invalid_argument("RayMarcher::render: output has the wrong size");
   }
-  const kernels::ViewParams vp = make_view_params(K, view);
+  const kernels::RayView vp = make_ray_view(K, view);
   const kernels::DenseVolume vol = dense();
   const kernels::BrickMax bricks = this->bricks();
   const kernels::MarchParams mp = params_;

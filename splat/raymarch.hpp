@@ -49,7 +49,7 @@ class RayMarcher {
 };
 
 // Per-view constants of the kernel.
-[[nodiscard]] kernels::ViewParams make_view_params(const Intrinsics& K, const CameraView& view);
+[[nodiscard]] kernels::RayView make_ray_view(const Intrinsics& K, const CameraView& view);
 
 // The definition, in double precision and without skipping: every sample of the
 // mode along the ray from `origin` with unit direction `dir`, io::sample_trilinear

@@ -41,8 +41,8 @@ struct BrickMax {
 // setup alone shifts every sample by up to ~1e-4 voxel; double keeps the CPU
 // and CUDA back ends within ~1e-6 of the double-precision reference.
 
-// Everything per view.
-struct ViewParams {
+// Everything per view of a ray march (the splatting kernels' view is splat::ViewParams).
+struct RayView {
   double Rt[9];            // Rᵀ (camera -> world rotation), row-major
   double center_world[3];  // camera centre C
   double fx, fy, cx, cy;   // intrinsics
@@ -115,7 +115,7 @@ HISNEGS_HD float trilinear_interior(const DenseVolume& v, float x, float y, floa
 }
 
 // World direction of the ray through the centre of pixel (col, row): normalize(Rᵀ K⁻¹ (u, v, 1)).
-HISNEGS_HD void pixel_ray(const ViewParams& view, int col, int row, double d[3]) {
+HISNEGS_HD void pixel_ray(const RayView& view, int col, int row, double d[3]) {
   const double xc = (col + 0.5 - view.cx) / view.fx;
   const double yc = (row + 0.5 - view.cy) / view.fy;
   double w[3];
@@ -241,7 +241,7 @@ HISNEGS_HD float march_ray(const DenseVolume& vol, const BrickMax& bricks, const
 
 // The MIP of pixel (col, row) of `view`.
 HISNEGS_HD float march_pixel(const DenseVolume& vol, const BrickMax& bricks, const MarchParams& mp,
-                             const ViewParams& view, int col, int row) {
+                             const RayView& view, int col, int row) {
   double d[3];
   pixel_ray(view, col, row, d);
   return march_ray(vol, bricks, mp, view.center_world, d);

@@ -93,8 +93,8 @@ MipStack render_ground_truth_streamed(const io::VolumeSource& source, const io::
   out.pixels.assign(static_cast<std::size_t>(out.views) * K.width * K.height, 0.0f);
   out.seconds_per_view.assign(static_cast<std::size_t>(out.views), 0.0);
   const kernels::MarchParams mp = march_params(frame, options, 1.0f);
-  std::vector<kernels::ViewParams> views;
-  for (const CameraView& v : cameras.views) views.push_back(make_view_params(K, v));
+  std::vector<kernels::RayView> views;
+  for (const CameraView& v : cameras.views) views.push_back(make_ray_view(K, v));
   const int n[3] = {source.nx, source.ny, source.nz};
   int count[3];
   for (int a = 0; a < 3; ++a) count[a] = (n[a] + core_voxels - 1) / core_voxels;
@@ -128,7 +128,7 @@ MipStack render_ground_truth_streamed(const io::VolumeSource& source, const io::
           for (int v = 0; v < out.views; ++v) {
             io::Stopwatch watch;
             float* image = out.pixels.data() + static_cast<std::size_t>(v) * K.width * K.height;
-            const kernels::ViewParams& vp = views[static_cast<std::size_t>(v)];
+            const kernels::RayView& vp = views[static_cast<std::size_t>(v)];
             tbb::parallel_for(tbb::blocked_range2d<int>(0, K.height, 16, 0, K.width, 16),
                               [&](const tbb::blocked_range2d<int>& r) {
                                 for (int row = r.rows().begin(); row != r.rows().end(); ++row) {

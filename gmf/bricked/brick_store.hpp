@@ -14,7 +14,7 @@
 #include <string>
 #include <vector>
 
-#include "gmf/brick_plan.hpp"
+#include "gmf/bricked/brick_plan.hpp"
 #include "gmf/core/background.hpp"
 #include "gmf/core/checkpoint.hpp"
 #include "gmf/core/gaussian_mixture.hpp"

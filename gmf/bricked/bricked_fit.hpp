@@ -1,6 +1,6 @@
 // SPDX-License-Identifier: Apache-2.0
 // The bricked fit: a stack larger than memory (or one the user asks to cut) read by
-// regions through io::VolumeSource and fitted brick by brick (gmf/brick_plan.hpp),
+// regions through io::VolumeSource and fitted brick by brick (gmf/bricked/brick_plan.hpp),
 // each brick a pure function of its region, its share of the budget K, its seed and
 // the iteration schedule; then a seam pass refits the Gaussians near the faces
 // between bricks with their neighbours held fixed, colour by colour; then one pass
@@ -23,7 +23,7 @@
 #include <utility>
 #include <vector>
 
-#include "gmf/brick_plan.hpp"
+#include "gmf/bricked/brick_plan.hpp"
 #include "gmf/bricked/brick_store.hpp"
 #include "gmf/bricked/collective.hpp"
 #include "gmf/core/background.hpp"

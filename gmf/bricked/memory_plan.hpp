@@ -1,6 +1,6 @@
 // SPDX-License-Identifier: Apache-2.0
 // How a fit is planned under a memory limit: the in-memory fit when the stack fits,
-// else bricks (gmf/brick_plan.hpp) as large as the limit allows, or two or more per
+// else bricks (gmf/bricked/brick_plan.hpp) as large as the limit allows, or two or more per
 // MPI rank. The memory model is measured (docs/benchmarks.md "Stacks larger than
 // memory"); the planner refuses a limit that not even the smallest brick fits.
 #pragma once
@@ -10,7 +10,7 @@
 #include <functional>
 #include <string>
 
-#include "gmf/brick_plan.hpp"
+#include "gmf/bricked/brick_plan.hpp"
 #include "gmf/gmf_options.hpp"
 #include "io/volume.hpp"
 

@@ -9,7 +9,7 @@
 #include <functional>
 #include <vector>
 
-#include "gmf/brick_plan.hpp"
+#include "gmf/bricked/brick_plan.hpp"
 #include "gmf/core/gaussian_mixture.hpp"
 #include "io/volume_source.hpp"
 

@@ -18,7 +18,7 @@ namespace {
 constexpr int kRayBlock = 16;
 
 __global__ void march_kernel(kernels::DenseVolume vol, kernels::BrickMax bricks, kernels::MarchParams mp,
-                             kernels::ViewParams view, float* out) {
+                             kernels::RayView view, float* out) {
   const int col = blockIdx.x * blockDim.x + threadIdx.x;
   const int row = blockIdx.y * blockDim.y + threadIdx.y;
   if (col >= view.width || row >= view.height) return;
@@ -53,7 +53,7 @@ CudaRayMarcher::~CudaRayMarcher() {
   if (impl_->stop) cudaEventDestroy(impl_->stop);
 }
 
-void CudaRayMarcher::render(const kernels::ViewParams& vp, float* out, std::size_t count) {
+void CudaRayMarcher::render(const kernels::RayView& vp, float* out, std::size_t count) {
   const std::size_t pixels = static_cast<std::size_t>(vp.width) * vp.height;
   if (count != pixels) throw std::invalid_argument("CudaRayMarcher::render: output has the wrong size");
   impl_->image.resize(pixels);

@@ -23,7 +23,7 @@ class CudaRayMarcher {
 
   // Renders `view` into host memory `out` (`count` = height × width floats). Synchronous.
   // (Pointer + count, not std::span: this header is compiled as C++17 by nvcc.)
-  void render(const kernels::ViewParams& view, float* out, std::size_t count);
+  void render(const kernels::RayView& view, float* out, std::size_t count);
   // Milliseconds of the last render's kernel alone (CUDA events), without the copy back.
   [[nodiscard]] double last_kernel_ms() const;
 

@@ -1,6 +1,6 @@
 // SPDX-License-Identifier: Apache-2.0
 // Brick plans: halo bound, tiling, ownership and the region's own world frame.
-#include "gmf/brick_plan.hpp"
+#include "gmf/bricked/brick_plan.hpp"
 
 #include <algorithm>
 #include <cmath>

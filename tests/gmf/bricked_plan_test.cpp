@@ -3,7 +3,7 @@
 // their halo, every centre has exactly one owner, a kept Gaussian's support stays
 // inside its brick's region (the halo bound), and a region's own frame maps to the
 // stack's world points by the stated shift.
-#include "gmf/brick_plan.hpp"
+#include "gmf/bricked/brick_plan.hpp"
 
 #include <gtest/gtest.h>
 
