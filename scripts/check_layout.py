@@ -8,6 +8,9 @@ this as Layout.Rules. Standard library only, any Python 3.
    back (an implementation header of it).
 2. No file under apps/ over 600 lines (a driver stays a driver).
 3. io holds formats and system I/O only: no simulation, noise or plotting source.
+4. No function in a CUDA file (.cu, .cuh) over 80 lines: clang-tidy's
+   readability-function-size (scripts/tidy.sh, .clang-tidy) checks the C++
+   sources and their headers but cannot parse nvcc's files.
 Prints every violation, one per line; exit 1 if any.
 """
 import os
@@ -77,6 +80,38 @@ def cycles(graph):
     return out
 
 
+FUNCTION_LINES = 80
+SCOPE = re.compile(r"^\s*(template\s*<[^{]*>\s*)?(namespace\b|extern\s+\"C\"|struct\b|class\b|union\b|enum\b)")
+
+
+def long_functions(path):
+    """(name line, lines) of each function body in `path` longer than FUNCTION_LINES:
+    a brace opened outside any function, not by a namespace, struct, class, union or
+    enum, starts one; its lines run to the matching brace (comments and strings skipped)."""
+    with open(os.path.join(ROOT, path), encoding="utf-8") as f:
+        text = f.read()
+    text = re.sub(r"//[^\n]*|/\*.*?\*/", lambda m: re.sub(r"[^\n]", " ", m.group(0)), text, flags=re.S)
+    text = re.sub(r'"(\\.|[^"\\\n])*"', '""', text)
+    out, stack, header = [], [], ""
+    for number, line in enumerate(text.split("\n"), start=1):
+        for ch in line:
+            if ch == "{":
+                in_function = any(kind == "function" for kind, _ in stack)
+                kind = "scope" if in_function or SCOPE.match(header + line) else "function"
+                if in_function:
+                    kind = "block"
+                stack.append((kind, number))
+                header = ""
+            elif ch == "}" and stack:
+                kind, start = stack.pop()
+                if kind == "function" and number - start - 1 > FUNCTION_LINES:
+                    out.append((start, number - start - 1))
+        stripped = line.strip()
+        ends = not stripped or stripped.startswith("#") or stripped.endswith((";", "}", "{"))
+        header = "" if ends else (header + " " + stripped)[-400:]
+    return out
+
+
 def main():
     problems = []
     files = sorted(sources())
@@ -102,12 +137,16 @@ def main():
                 lines = sum(1 for _ in f)
             if lines > 600:
                 problems.append(f"{path}: {lines} lines, over the 600 a file under apps/ may have")
+        if path.endswith((".cu", ".cuh")):
+            for start, lines in long_functions(path):
+                problems.append(f"{path}:{start}: a function of {lines} lines, over {FUNCTION_LINES}")
         if path.startswith("io/") and re.search(r"synthetic|noise|plot|simulat", os.path.basename(path)):
             problems.append(f"{path}: simulation or plotting in io/ (it holds formats and system I/O only)")
     for p in problems:
         print(p)
     if not problems:
-        print(f"layout: {len(files)} sources: no include circle, apps files <= 600 lines, io formats only")
+        print(f"layout: {len(files)} sources: no include circle, apps files <= 600 lines, io formats only, "
+              f"CUDA functions <= {FUNCTION_LINES} lines")
     return 1 if problems else 0
 
 

@@ -150,23 +150,13 @@ HISNEGS_HD SampleRange sample_range(const MarchParams& mp, double t_in, double t
   return r;
 }
 
-HISNEGS_HD float march_ray(const DenseVolume& vol, const BrickMax& bricks, const MarchParams& mp,
-                           const double o_world[3], const double d_world[3]) {
-  constexpr double kFar = 1.0e300;
-  const int n[3] = {vol.nx, vol.ny, vol.nz};
-  const int nb[3] = {bricks.bx, bricks.by, bricks.bz};
-  // The ray in continuous index space: p(t) = o + t d, t = world distance.
-  double o[3], d[3];
-  for (int a = 0; a < 3; ++a) {
-    o[a] = (o_world[a] - mp.index_from_world_offset[a]) * mp.index_from_world_scale[a];
-    d[a] = d_world[a] * mp.index_from_world_scale[a];
-  }
-  // Slab test against the box [-0.5, n - 0.5] (= world [-a, a]), t >= 0.
-  double t_in = 0.0, t_out = kFar;
+// Slab test of the ray o + t d (index space) against the box [-0.5, n - 0.5]
+// (= world [-a, a]) for t >= 0: narrows [t_in, t_out]; false when it misses.
+HISNEGS_HD bool box_entry(const int n[3], const double o[3], const double d[3], double& t_in, double& t_out) {
   for (int a = 0; a < 3; ++a) {
     const double lo = -0.5, hi = n[a] - 0.5;
     if (d[a] == 0.0) {
-      if (o[a] < lo || o[a] > hi) return 0.0f;
+      if (o[a] < lo || o[a] > hi) return false;
       continue;
     }
     double ta = (lo - o[a]) / d[a], tb = (hi - o[a]) / d[a];
@@ -178,7 +168,22 @@ HISNEGS_HD float march_ray(const DenseVolume& vol, const BrickMax& bricks, const
     t_in = max_of(t_in, ta);
     t_out = min_of(t_out, tb);
   }
-  if (!(t_out > t_in)) return 0.0f;
+  return t_out > t_in;
+}
+
+HISNEGS_HD float march_ray(const DenseVolume& vol, const BrickMax& bricks, const MarchParams& mp,
+                           const double o_world[3], const double d_world[3]) {
+  constexpr double kFar = 1.0e300;
+  const int n[3] = {vol.nx, vol.ny, vol.nz};
+  const int nb[3] = {bricks.bx, bricks.by, bricks.bz};
+  // The ray in continuous index space: p(t) = o + t d, t = world distance.
+  double o[3], d[3];
+  for (int a = 0; a < 3; ++a) {
+    o[a] = (o_world[a] - mp.index_from_world_offset[a]) * mp.index_from_world_scale[a];
+    d[a] = d_world[a] * mp.index_from_world_scale[a];
+  }
+  double t_in = 0.0, t_out = kFar;
+  if (!box_entry(n, o, d, t_in, t_out)) return 0.0f;
 
   const SampleRange sr = sample_range(mp, t_in, t_out);
   const double t0 = sr.t0, dt = sr.dt;

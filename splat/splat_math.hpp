@@ -164,7 +164,8 @@ HISNEGS_HD EllipseRows<T> ellipse_rows(const Splat2D<T>& s, T cutoff, T widen) {
   const T A = s.con_a, B = s.con_b, C = s.con_c, det = A * C - B * B;
   const T delta = cutoff * widen, inv_A = T(1) / A;
   // ∇q ∥ (1, 0) ⇒ b dx + c dy = 0, and q = δ there: dx = √(δ c / det), dy = −b dx / c.
-  const T x_right = static_cast<T>(sqrt(delta * C / det));
+  // sqrt of a float through double (the host's C sqrt) rounds to sqrtf's value: the same on both back ends.
+  const T x_right = static_cast<T>(sqrt(delta * C / det));  // NOLINT(performance-type-promotion-in-math-fn)
   return {s.u, s.v, -B * inv_A, delta * inv_A, det * inv_A * inv_A, x_right, -B * x_right / C};
 }
 

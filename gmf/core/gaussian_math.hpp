@@ -41,7 +41,7 @@ HISNEGS_HD T sigmoid_vjp(T a, T dL_da) {
 template <class T>
 HISNEGS_HD T quat_normalize(const T q[4], T q_hat[4]) {
   using std::sqrt;
-  const T inv_norm = T(1) / sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+  T inv_norm = T(1) / sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);  // not const: returned (moved for a Jet)
   for (int i = 0; i < 4; ++i) q_hat[i] = q[i] * inv_norm;
   return inv_norm;
 }
@@ -212,7 +212,7 @@ HISNEGS_HD T evaluate_gaussian(const GaussianFrame<T>& f, const T x[3], T* grad)
   T z[3];
   const T m = mahalanobis(f, x, z);
   const T e = exp(T(-0.5) * m);
-  const T g = f.a * e;
+  T g = f.a * e;  // not const: returned (moved for a Jet)
   if (!grad) return g;
   T dL_dR[9];
   mahalanobis_vjp(f, x, z, T(-0.5) * g, &grad[kMeanX], dL_dR, &grad[kLogScale0]);

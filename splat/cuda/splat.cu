@@ -183,9 +183,10 @@ void CudaSplatter::Impl::bin() {
   HISNEGS_CUDA_CHECK_LAUNCH();
 }
 
-void CudaSplatter::forward(const float* params, std::size_t count, const ViewParams<float>& view,
-                           const KernelSettings& settings, float* image, const float* floor) {
-  Impl& d = *impl_;
+namespace {
+
+void check_forward_arguments(const float* params, std::size_t count, const ViewParams<float>& view,
+                             const float* image) {
   if (count > static_cast<std::size_t>(INT_MAX)) {
     throw std::invalid_argument("CudaSplatter::forward: " + std::to_string(count) + " Gaussians exceed INT_MAX");
   }
@@ -196,6 +197,14 @@ void CudaSplatter::forward(const float* params, std::size_t count, const ViewPar
     throw std::invalid_argument("CudaSplatter::forward: image size " + std::to_string(view.width) + "x" +
                                 std::to_string(view.height) + " is empty");
   }
+}
+
+}  // namespace
+
+void CudaSplatter::forward(const float* params, std::size_t count, const ViewParams<float>& view,
+                           const KernelSettings& settings, float* image, const float* floor) {
+  Impl& d = *impl_;
+  check_forward_arguments(params, count, view, image);
   d.has_forward = false;
   d.count = count;
   d.view = view;

@@ -175,6 +175,21 @@ __device__ __forceinline__ unsigned long long warp_sum(unsigned long long x) {
   return x;
 }
 
+// Block reduction of each thread's skipped terms, one atomic per block. Every thread
+// of the block calls it (it synchronizes the block).
+__device__ __forceinline__ void add_block_skipped(unsigned long long skipped, FrameCounters* __restrict__ counters) {
+  __shared__ unsigned long long warp_skipped[kWarps];
+  const int t = threadIdx.y * kTileSize + threadIdx.x;
+  skipped = warp_sum(skipped);
+  if (t % 32 == 0) warp_skipped[t / 32] = skipped;
+  __syncthreads();
+  if (t == 0) {
+    unsigned long long total = 0;
+    for (int w = 0; w < kWarps; ++w) total += warp_skipped[w];
+    if (total != 0) atomicAdd(&counters->skipped, total);
+  }
+}
+
 // 4. One 16x16 block per tile, one thread per pixel, in the CPU's two passes
 // (splat/detail/splat_cpu_tiles.cpp, ForwardTile):
 //   pass 1, both modes: lm = ln of the largest g = a e^{-q/2} over the terms with
@@ -272,17 +287,7 @@ __global__ void __launch_bounds__(kBlock)
       S_out[at] = S;
       I_out[at] = S > 0.0f ? W / S : 0.0f;
     }
-    // Block reduction of the skipped terms, one atomic per block.
-    __shared__ unsigned long long warp_skipped[kWarps];
-    const int t = threadIdx.y * kTileSize + threadIdx.x;
-    skipped = warp_sum(skipped);
-    if (t % 32 == 0) warp_skipped[t / 32] = skipped;
-    __syncthreads();
-    if (t == 0) {
-      unsigned long long total = 0;
-      for (int w = 0; w < kWarps; ++w) total += warp_skipped[w];
-      if (total != 0) atomicAdd(&counters->skipped, total);
-    }
+    add_block_skipped(skipped, counters);
   }
 }
 
