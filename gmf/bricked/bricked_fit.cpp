@@ -44,16 +44,7 @@ using io::format_seconds;
 using io::strf;
 
 // What every brick of one fit shares: the setup, the seams and the statistics.
-struct StreamContext {
-  std::string path;
-  const io::VolumeSource* source = nullptr;
-  io::WorldFrame frame;
-  GmfOptions gmf;
-  io::SparseGridOptions sparse;
-  BackgroundOptions background;
-  io::NormalizationOptions normalization_options;
-  BrickPlan plan;
-  double max_memory = 0;
+struct StreamContext : BrickedFitSetup {
   const BrickStore* store = nullptr;
   const Collective* ranks = nullptr;
   const RankRuntime* runtime = nullptr;
@@ -803,15 +794,7 @@ BrickedFitResult fit_bricked(const BrickedFitSetup& setup, const BrickStore& sto
                              const RankRuntime& runtime, const io::Progress& progress) {
   io::Stopwatch watch;
   StreamContext c;
-  c.path = setup.path;
-  c.source = setup.source;
-  c.frame = setup.frame;
-  c.gmf = setup.gmf;
-  c.sparse = setup.sparse;
-  c.background = setup.background;
-  c.normalization_options = setup.normalization_options;
-  c.plan = setup.plan;
-  c.max_memory = setup.max_memory;
+  static_cast<BrickedFitSetup&>(c) = setup;
   c.store = &store;
   c.ranks = &ranks;
   c.runtime = &runtime;
