@@ -14,6 +14,7 @@
 #include "apps/pipeline/distributed.hpp"
 #include "apps/pipeline/format.hpp"
 #include "apps/pipeline/interrupts.hpp"
+#include "apps/pipeline/run_state.hpp"
 #include "apps/pipeline/stage_folder.hpp"
 #include "gmf/bricked/bricked_fit.hpp"
 #include "gmf/bricked/memory_plan.hpp"
@@ -21,7 +22,6 @@
 #include "gmf/init.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
-#include "io/hash.hpp"
 #include "io/memory_limit.hpp"
 #include "io/stack_file.hpp"
 #include "io/timer.hpp"
@@ -158,7 +158,6 @@ gmf::CheckpointMeta checkpoint_meta(const io::LoadedVolume& loaded, const std::s
 
 namespace {
 
-
 // The fingerprint of what decides the bricks: the stack (path, and the identity of
 // every file behind it), its shape, the fit's config sections and the plan.
 std::string fingerprint_of(const std::string& path, const io::VolumeSource& source, const FitConfig& config,
@@ -172,9 +171,7 @@ std::string fingerprint_of(const std::string& path, const io::VolumeSource& sour
   s << std::filesystem::absolute(path).lexically_normal().string() << "\n";
   s << source.identity.content() << "\n";  // a BigDataViewer .xml: its .h5 too
   s << source.nx << " " << source.ny << " " << source.nz << "\n" << plan.describe() << "\n" << dump_app_config(slice);
-  char hex[17];
-  std::snprintf(hex, sizeof hex, "%016llx", static_cast<unsigned long long>(io::fnv1a64(s.str())));
-  return hex;
+  return hash_hex(s.str());
 }
 
 // What the fit of the stack opened as `source` is told, and the opening lines.
@@ -192,6 +189,7 @@ gmf::BrickedFitSetup open_stream(const std::string& volume, const FitConfig& con
   s.frame = io::stack_frame(source->nx, source->ny, source->nz, source->spacing, vo.aspect, volume);
   s.gmf.max_scale_world = gmf::brick_max_scale(s.frame, s.gmf);
   s.plan = choice.plan;
+  s.regions = gmf::BackgroundRegions::of({source->nx, source->ny, source->nz}, s.background.region_voxels);
   s.max_memory = choice.max_memory;
   progress.say("fit: %s: %d x %d x %d %s (%s as float32), %s; in-memory fit would need %s of %s: bricked: %s",
                volume.c_str(), source->nx, source->ny, source->nz,
@@ -235,7 +233,7 @@ void write_outputs(const gmf::BrickedFitSetup& s, const gmf::BrickStore& store, 
   const bool counted = std::any_of(fit.background.begin(), fit.background.end(),
                                    [](const gmf::BackgroundCounts& b) { return b.total > 0; });
   if (s.background.estimate && counted) {
-    const gmf::BackgroundField field = gmf::background_field(fit.background, fit.regions, s.background, s.path);
+    const gmf::BackgroundField field = gmf::background_field(fit.background, s.regions, s.background, s.path);
     if (field.none()) {
       progress.say("fit: background: exactly 0 outside the neuron (%lld voxels): no floor to draw",
                    static_cast<long long>(field.merged.voxels));
@@ -261,9 +259,7 @@ FitOutcome run_streamed(const std::string& volume, const io::VolumeSource& sourc
   io::Stopwatch watch;
   const gmf::BrickedFitSetup setup = open_stream(volume, config, choice, &source, progress);
   const gmf::BrickStore store(gmf::brick_folder(out), fingerprint_of(volume, source, config, setup.plan), setup.frame,
-                              gmf::BackgroundRegions::of({source.nx, source.ny, source.nz},
-                                                         setup.background.region_voxels)
-                                  .count());
+                              setup.regions.count());
   const Job& ranks = job();
   // Rank 0 (the only one alone) holds the folder.
   std::optional<OutputFolderLock> lock;  // and the run folder's, for a run's fit

@@ -2,9 +2,6 @@
 // RunState (DIR/run.json), hash_hex and file_identity.
 #include "apps/pipeline/run_state.hpp"
 
-
-#include <system_error>
-
 #include "apps/pipeline/format.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"

@@ -51,7 +51,6 @@ struct StreamContext : BrickedFitSetup {
   io::Normalization normalization;
   std::int64_t foreground = 0;                // voxels above sparse.threshold, whole stack
   std::vector<std::int64_t> core_foreground;  // per brick (its core); counted on several ranks only
-  BackgroundRegions regions;                  // of the stack's background (background.region_voxels)
 };
 
 void say_on_stop(const StreamContext& c, std::string_view line, const std::filesystem::path& marker) {
@@ -798,7 +797,6 @@ BrickedFitResult fit_bricked(const BrickedFitSetup& setup, const BrickStore& sto
   c.store = &store;
   c.ranks = &ranks;
   c.runtime = &runtime;
-  c.regions = BackgroundRegions::of({c.source->nx, c.source->ny, c.source->nz}, c.background.region_voxels);
   const double total_budget = c.gmf.budget_seconds();
   // The ranks make the statistics pass together (or read plan.json when resuming),
   // and none fits before rank 0 wrote it.
@@ -835,7 +833,6 @@ BrickedFitResult fit_bricked(const BrickedFitSetup& setup, const BrickStore& sto
   for (std::optional<BrickRecord>& r : pass.results) result.records.push_back(std::move(*r));
   result.state = std::move(totals.state);
   result.background = std::move(totals.background);
-  result.regions = c.regions;
   result.beta = totals.beta;
   result.fitted_here = pass.fitted_here;
   return result;

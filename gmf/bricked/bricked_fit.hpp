@@ -44,7 +44,8 @@ struct BrickedFitSetup {
   BackgroundOptions background;               // estimate, region_voxels
   io::NormalizationOptions normalization_options;  // how the stack is normalized (method, percentiles)
   BrickPlan plan;
-  double max_memory = 0;  // bytes: the scans' slabs are a share of what the plan leaves
+  BackgroundRegions regions;  // of the stack's background (background.region_voxels); the store's records use it
+  double max_memory = 0;      // bytes: the scans' slabs are a share of what the plan leaves
 };
 
 // What a rank does when it is stopped from outside, and how ranks watch each other
@@ -72,8 +73,7 @@ struct BrickedFitResult {
   io::Normalization normalization;
   std::vector<BrickRecord> records;         // every brick's, by id (Gaussians in the store)
   BrickState state;                         // where the model's Gaussians are
-  std::vector<BackgroundCounts> background; // per region of `regions`
-  BackgroundRegions regions;
+  std::vector<BackgroundCounts> background; // per region of the setup's `regions`
   double beta = 0;                 // of the model: 0 for a sum
   std::size_t fitted_here = 0;     // bricks this rank fitted
   bool seam = false;               // a seam pass ran
