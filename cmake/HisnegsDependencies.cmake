@@ -27,6 +27,8 @@ find_package(benchmark CONFIG REQUIRED)
 # pkg-config file on every release, its CMake config only on newer ones.
 find_package(PkgConfig REQUIRED)
 pkg_check_modules(ZSTD REQUIRED IMPORTED_TARGET libzstd)
+# blosc (libblosc-dev): OME-Zarr chunks (io/zarr_codecs.cpp).
+pkg_check_modules(BLOSC REQUIRED IMPORTED_TARGET blosc)
 # cpp-httplib (libcpp-httplib-dev; Debian builds it as a shared library) for `hisnegs view`.
 pkg_check_modules(HTTPLIB REQUIRED IMPORTED_TARGET cpp-httplib)
 # HDF5 (libhdf5-dev, the serial C library): BigDataViewer, Imaris and plain HDF5

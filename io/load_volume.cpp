@@ -30,6 +30,7 @@ void VolumeOptions::validate() const {
   }
   if (channel < -1) fail_option("volume", "channel", std::to_string(channel), "must be -1 (none) or >= 0");
   if (timepoint < -1) fail_option("volume", "timepoint", std::to_string(timepoint), "must be -1 (none) or >= 0");
+  if (level < 0 || level > 64) fail_option("volume", "level", std::to_string(level), "must be in [0, 64] (0: full resolution)");
   if (dataset.size() > 1024) fail_option("volume", "dataset", printable(dataset, 40), "longer than 1024 characters");
   require_in_range("volume", "foreground_threshold", foreground_threshold, 1e-9, 1.0 - 1e-9);
 }
@@ -48,6 +49,7 @@ StackReadOptions stack_read_options(const VolumeOptions& options) {
   read.tiff = tiff_read_options(options);
   read.dataset = options.dataset;
   if (options.timepoint >= 0) read.timepoint = options.timepoint;
+  read.level = options.level;
   return read;
 }
 

@@ -21,6 +21,7 @@ struct VolumeOptions {
   int channel = -1;                           // channel of multi-channel files, -1 = none (error if needed)
   std::string dataset;                        // HDF5: the dataset's path, "" = the only stack in the file
   int timepoint = -1;                         // HDF5 time series: the time point, -1 = none (error if needed)
+  int level = 0;                              // OME-Zarr: the multiscale level (0: full resolution)
   double foreground_threshold = 0.2;          // relative level for the "foreground fraction" statistic, (0, 1)
 
   void validate() const;  // throws InputError("volume.FIELD = VALUE: rule")
@@ -36,6 +37,7 @@ struct VolumeOptions {
     v("channel", channel);
     v("dataset", dataset);
     v("timepoint", timepoint);
+    v("level", level);
     v("foreground_threshold", foreground_threshold);
   }
 };

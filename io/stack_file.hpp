@@ -1,7 +1,8 @@
 // SPDX-License-Identifier: Apache-2.0
-// Any stack file hisnegs reads, by what the file is (not its name): TIFF/BigTIFF
-// (tiff_stack.hpp) or HDF5 (hdf5_stack.hpp: plain, BigDataViewer .xml/.h5, Imaris
-// .ims). Every command that reads a stack goes through here.
+// Any stack hisnegs reads, by what the file is (not its name): TIFF/BigTIFF
+// (tiff_stack.hpp), HDF5 (hdf5_stack.hpp: plain, BigDataViewer .xml/.h5, Imaris
+// .ims) or an OME-Zarr / Zarr folder (zarr_stack.hpp). Every command that reads a
+// stack goes through here.
 #pragma once
 
 #include <filesystem>
@@ -11,6 +12,7 @@
 #include "io/hdf5_stack.hpp"
 #include "io/tiff_stack.hpp"
 #include "io/volume.hpp"
+#include "io/zarr_stack.hpp"
 
 namespace hisnegs::io {
 
@@ -19,8 +21,10 @@ namespace hisnegs::io {
 struct StackReadOptions {
   TiffReadOptions tiff;
   std::string dataset;           // HDF5: the dataset's path ("" = the only stack)
-  std::optional<int> timepoint;  // HDF5 time series
+  std::optional<int> timepoint;  // HDF5 and OME-Zarr time series
+  int level = 0;                 // OME-Zarr: the multiscale level
   [[nodiscard]] Hdf5ReadOptions hdf5() const;
+  [[nodiscard]] ZarrReadOptions zarr() const;
 };
 
 // A stack's header: what inspect_tiff_stack / inspect_hdf5_stack found, in common.

@@ -46,6 +46,8 @@ std::string_view to_string(SpacingSource source) {
       return "file metadata";
     case SpacingSource::kHdf5:
       return "HDF5 metadata";
+    case SpacingSource::kOmeZarr:
+      return "OME-Zarr scale";
   }
   return "?";
 }

@@ -30,6 +30,7 @@ enum class SpacingSource {
   kTiffResolution,    // X/YResolution with ResolutionUnit = centimeter
   kFile,              // a hisnegs file's own metadata (.vdb, .ply)
   kHdf5,              // HDF5 metadata: element_size_um, BigDataViewer's voxelSize, Imaris' extents
+  kOmeZarr,           // OME-Zarr multiscales: the level's scale and the axes' units
 };
 [[nodiscard]] std::string_view to_string(SpacingSource source);
 

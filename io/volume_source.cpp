@@ -1,5 +1,5 @@
 // SPDX-License-Identifier: Apache-2.0
-// VolumeSource implementations (memory, TIFF slabs, HDF5 hyperslabs) and the
+// VolumeSource implementations (memory, TIFF slabs, HDF5 hyperslabs, Zarr chunks) and the
 // streaming statistics pass.
 #include "io/volume_source.hpp"
 
@@ -85,6 +85,18 @@ class Hdf5Source final : public VolumeSource {
   Hdf5StackInfo info_;
 };
 
+class ZarrSource final : public VolumeSource {
+ public:
+  explicit ZarrSource(ZarrStackInfo info) : info_(std::move(info)) {}
+  void read(const VoxelBox& box, float* out) const override {
+    check_box(box);
+    read_zarr_region(info_, box.lo, box.hi, out);
+  }
+
+ private:
+  ZarrStackInfo info_;
+};
+
 }  // namespace
 
 void VolumeSource::check_box(const VoxelBox& box) const {
@@ -98,7 +110,17 @@ void VolumeSource::check_box(const VoxelBox& box) const {
 
 std::unique_ptr<VolumeSource> open_volume_source(const std::filesystem::path& path, const StackReadOptions& options) {
   std::unique_ptr<VolumeSource> s;
-  if (is_hdf5_stack(path)) {
+  if (is_zarr_stack(path)) {
+    if (!options.dataset.empty()) fail_input(path, "--dataset is for HDF5 files; name the Zarr array folder instead");
+    const ZarrStackInfo info = inspect_zarr_stack(path, options.zarr());
+    s = std::make_unique<ZarrSource>(info);
+    s->nx = info.nx, s->ny = info.ny, s->nz = info.nz;
+    s->stored_as = info.type;
+    s->spacing = info.spacing;
+    s->format = info.describe();
+  } else if (options.level != 0) {
+    fail_input(path, "--level is for OME-Zarr stacks (multiscale); this file has one level");
+  } else if (is_hdf5_stack(path)) {
     const Hdf5StackInfo info = inspect_hdf5_stack(path, options.hdf5());
     s = std::make_unique<Hdf5Source>(info);
     s->nx = info.nx, s->ny = info.ny, s->nz = info.nz;

@@ -1,8 +1,9 @@
 // SPDX-License-Identifier: Apache-2.0
 // A stack that is read by regions instead of held whole: its shape, spacing, sample
 // type and provenance, and read(box) of raw values. Implementations: a Volume in
-// memory, a TIFF/BigTIFF file (the pages of the box's z range) and an HDF5 file (a
-// hyperslab: the chunks the box touches). Statistics for normalization come from one
+// memory, a TIFF/BigTIFF file (the pages of the box's z range), an HDF5 file (a
+// hyperslab: the chunks the box touches) and an OME-Zarr folder (the chunks or
+// shard parts the box touches). Statistics for normalization come from one
 // streaming pass over the source (exact for 8/16-bit stacks), so a stack larger than
 // memory can be normalized as load_volume normalizes one that fits.
 #pragma once

@@ -9,7 +9,7 @@ set -euo pipefail
 packages=(
   build-essential cmake ninja-build pkg-config
   libeigen3-dev libceres-dev libopenvdb-dev libboost-iostreams-dev libtbb-dev
-  libtiff-dev libhdf5-dev libpng-dev libgif-dev libhwy-dev libzstd-dev zlib1g-dev
+  libtiff-dev libhdf5-dev libpng-dev libgif-dev libhwy-dev libzstd-dev zlib1g-dev libblosc-dev
   libcli11-dev libyaml-cpp-dev nlohmann-json3-dev libcpp-httplib-dev
   libgtest-dev libgmock-dev libbenchmark-dev
   libopenvdb-tools python3-openvdb
@@ -17,6 +17,7 @@ packages=(
   xz-utils  # scripts/device-bundle.sh packs the GPU bundle with xz
   python3-tifffile  # tests/io/tiff_stack_test.cpp reads the stacks hisnegs writes with tifffile
   python3-h5py  # tests/io/hdf5_stack_test.cpp reads the HDF5 stacks hisnegs writes with h5py
+  python3-zarr  # tests/io/zarr_stack_test.cpp: Zarr fixtures written, and pyramids read back, by zarr-python
   libopenmpi-dev openmpi-bin  # optional at build time: fit and gt on MPI ranks (tests/apps/cli/cli_mpi_test.cpp)
   python3-dev python3-numpy pybind11-dev  # optional at build time: the Python module (apps/python)
   python3-pytest python3-scipy  # tests/python: pytest, and scipy.optimize driving hisnegs.Objective

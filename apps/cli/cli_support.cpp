@@ -32,8 +32,10 @@ void VolumeOverrides::add_to(CLI::App* command) {
   command->add_option("--channel", channel, "channel of a multi-channel stack (0-based; BigDataViewer: the setup)")
       ->check(CLI::NonNegativeNumber);
   command->add_option("--dataset", dataset, "HDF5: the dataset holding the stack, e.g. /data (default: the only one)");
-  command->add_option("--timepoint", timepoint, "HDF5 time series: the time point (0-based)")
+  command->add_option("--timepoint", timepoint, "HDF5 / OME-Zarr time series: the time point (0-based)")
       ->check(CLI::NonNegativeNumber);
+  command->add_option("--level", level, "OME-Zarr: the multiscale level to read (0: full resolution)")
+      ->check(CLI::Range(0, 64));
   command->add_option("--normalization", normalization, "minmax | percentile (default from config)");
   command->add_option("--aspect", aspect, "physical | shape (report Eq. 9)");
 }
@@ -43,6 +45,7 @@ void VolumeOverrides::apply(io::VolumeOptions& options) const {
   if (channel) options.channel = *channel;
   if (!dataset.empty()) options.dataset = dataset;
   if (timepoint) options.timepoint = *timepoint;
+  if (level) options.level = *level;
   if (!normalization.empty()) io::set_enum_field(options, "normalization", normalization, "--normalization");
   if (!aspect.empty()) io::set_enum_field(options, "aspect", aspect, "--aspect");
   if (!spacing_um.empty() && spacing_um.size() != 3) {

@@ -34,7 +34,8 @@ struct VolumeOverrides {
   std::vector<double> spacing_um;  // --spacing X,Y,Z
   std::optional<int> channel;      // --channel C
   std::string dataset;             // --dataset /path (HDF5)
-  std::optional<int> timepoint;    // --timepoint T (HDF5)
+  std::optional<int> timepoint;    // --timepoint T (HDF5, OME-Zarr)
+  std::optional<int> level;        // --level N (OME-Zarr multiscale)
   std::string normalization;       // --normalization minmax|percentile
   std::string aspect;              // --aspect physical|shape
   void add_to(CLI::App* command);

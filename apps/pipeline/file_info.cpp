@@ -25,6 +25,7 @@ namespace {
 enum class FileKind { kStack, kVdb, kPly, kCompact };
 
 FileKind detect_kind(const std::filesystem::path& path) {
+  if (io::is_zarr_stack(path)) return FileKind::kStack;  // a folder: OME-Zarr or a Zarr array
   io::require_regular_file(path);
   std::ifstream in(path, std::ios::binary);
   unsigned char magic[8] = {0, 0, 0, 0, 0, 0, 0, 0};
@@ -39,8 +40,24 @@ FileKind detect_kind(const std::filesystem::path& path) {
   // OpenVDB files start with the int32 magic 0x56444220 (" BDV" little-endian).
   if (magic[0] == 0x20 && magic[1] == 0x42 && magic[2] == 0x44 && magic[3] == 0x56) return FileKind::kVdb;
   io::fail_input(path,
-                 "unrecognized file type (expected a TIFF or HDF5 stack, an OpenVDB .vdb, a .ply or a compact .hgs "
-                 "checkpoint)");
+                 "unrecognized file type (expected a TIFF or HDF5 stack, an OME-Zarr folder, an OpenVDB .vdb, a .ply "
+                 "or a compact .hgs checkpoint)");
+}
+
+// The bytes of every file under `folder`.
+double folder_bytes(const std::filesystem::path& folder) {
+  double bytes = 0;
+  std::error_code ec;
+  for (auto it = std::filesystem::recursive_directory_iterator(folder, ec); !ec && it != decltype(it)(); it.increment(ec)) {
+    if (it->is_regular_file(ec)) bytes += static_cast<double>(it->file_size(ec));
+  }
+  return bytes;
+}
+
+std::string joined(const std::vector<long long>& v) {
+  std::string s;
+  for (const long long e : v) s += (s.empty() ? "" : "x") + std::to_string(e);
+  return s;
 }
 
 // "%-12s %s" rows and free lines, in order.
@@ -86,6 +103,20 @@ void info_stack(const std::filesystem::path& path, const io::VolumeOptions& opti
 
   sheet.row("file", path.string());
   sheet.row("format", header.format);
+  if (io::is_zarr_stack(path)) {  // the pyramid: each level's shape, chunks, codecs, voxel size and size on disk
+    const io::ZarrStackInfo zarr = io::inspect_zarr_stack(path, read.zarr());
+    const std::filesystem::path group = zarr.pyramid.size() > 1 || !zarr.ome_version.empty() ? zarr.array.parent_path() : zarr.array;
+    for (std::size_t l = 0; l < zarr.pyramid.size(); ++l) {
+      const io::ZarrLevel& level = zarr.pyramid[l];
+      const std::filesystem::path folder = zarr.pyramid.size() > 1 ? group / level.path : zarr.array;
+      sheet.row(l == 0 ? "pyramid" : " ", "level " + std::to_string(l) + " (" + level.path + "): " + zarr.axes + " " +
+                                              joined(level.shape) + ", chunks " + joined(level.chunks) + ", " +
+                                              level.codecs + ", " + fmt("%.4g", level.scale_um[0]) + " x " +
+                                              fmt("%.4g", level.scale_um[1]) + " x " + fmt("%.4g", level.scale_um[2]) +
+                                              " um, " + format_bytes(folder_bytes(folder)) + " on disk" +
+                                              (static_cast<int>(l) == zarr.level ? "  <- read" : ""));
+    }
+  }
   sheet.row("shape", "Z=" + std::to_string(raw.nz) + " Y=" + std::to_string(raw.ny) + " X=" + std::to_string(raw.nx) +
                          " (" + fmt("%.2f", raw.size() / 1e6) + " M voxels, " +
                          format_bytes(static_cast<double>(raw.size()) * 4.0) + " as float32)");

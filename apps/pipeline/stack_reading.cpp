@@ -61,7 +61,8 @@ std::string statistics_key(const std::filesystem::path& volume, const io::Volume
                            {"percentile_hi", o.normalization.percentile_hi},
                            {"channel", o.channel},
                            {"dataset", o.dataset},
-                           {"timepoint", o.timepoint}};
+                           {"timepoint", o.timepoint},
+                           {"level", o.level}};
   return key.dump();
 }
 
