@@ -167,7 +167,7 @@ bool StackIdentity::holds(const std::filesystem::path& path) const {
   std::error_code ec;
   for (const std::filesystem::path& file : files) {
     if (same_file(file, path)) return true;
-    if (std::filesystem::is_directory(file, ec)) {  // anything inside a folder stack is part of it
+    if (is_zarr_stack(file)) {  // anything inside a folder stack is part of it
       const std::filesystem::path folder = std::filesystem::weakly_canonical(file, ec);
       const std::filesystem::path inner = std::filesystem::weakly_canonical(path, ec);
       const auto [f, i] = std::mismatch(folder.begin(), folder.end(), inner.begin(), inner.end());

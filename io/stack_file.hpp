@@ -62,7 +62,8 @@ struct StackIdentity {
   // value; moving the folder does not. Throws std::filesystem::filesystem_error
   // when the named file cannot be stat'ed.
   [[nodiscard]] std::string content() const;
-  // Whether `path` is one of the files (the same file: io::same_file).
+  // Whether `path` is one of the files (the same file: io::same_file), or lies
+  // inside a folder stack (OME-Zarr) among them.
   [[nodiscard]] bool holds(const std::filesystem::path& path) const;
 };
 [[nodiscard]] StackIdentity stack_identity(const std::filesystem::path& path);

@@ -91,6 +91,12 @@ constexpr long long kMaxChunkValues = 1LL << 28;   // a decoded chunk: at most 1
 constexpr long long kMaxInnerChunks = 1LL << 22;   // per shard
 constexpr long long kMaxExtent = std::numeric_limits<int>::max();
 
+std::string joined_extents(const std::vector<long long>& v) {
+  std::string s;
+  for (const long long e : v) s += (s.empty() ? "" : "x") + std::to_string(e);
+  return s;
+}
+
 json read_json(const fs::path& file) {
   try {
     return json::parse(read_file(file));
@@ -116,12 +122,24 @@ T field(const json& j, const char* key, const fs::path& file) {
 }
 
 std::vector<long long> extents(const json& j, const char* key, const fs::path& file, long long max) {
-  const auto v = field<std::vector<long long>>(j, key, file);
-  if (v.empty() || v.size() > 5) fail_input(file, std::string(key) + " has " + std::to_string(v.size()) + " axes; 1 to 5 are read");
-  for (const long long e : v) {
-    if (e < 1 || e > max) fail_input(file, std::string(key) + " = " + j.at(key).dump() + ": each must be in [1, " + std::to_string(max) + "]");
+  const json list = field<json>(j, key, file);
+  const auto bad = [&](const std::string& why) { fail_input(file, std::string(key) + " = " + list.dump() + ": " + why); };
+  if (!list.is_array() || list.empty() || list.size() > 5) bad("expected a list of 1 to 5 extents");
+  std::vector<long long> v;
+  for (const json& e : list) {
+    if (!e.is_number_integer() || e.get<long long>() < 1 || e.get<long long>() > max) {
+      bad("each must be an integer in [1, " + std::to_string(max) + "]");
+    }
+    v.push_back(e.get<long long>());
   }
   return v;
+}
+
+// The whole array's count of values must be one hisnegs can index (shape's product).
+void check_values(const Array& a, const fs::path& file) {
+  double n = 1;
+  for (const long long e : a.shape) n *= static_cast<double>(e);
+  if (n > 0x1p62) fail_input(file, "shape " + joined_extents(a.shape) + " holds more than 2^62 values");
 }
 
 void set_type(Array& a, const std::string& name, const fs::path& file) {
@@ -189,6 +207,7 @@ Array v2_array(const fs::path& folder) {
   a.shape = extents(j, "shape", file, kMaxExtent);
   a.chunk = extents(j, "chunks", file, kMaxExtent);
   if (a.chunk.size() != a.shape.size()) fail_input(file, "chunks and shape have different numbers of axes");
+  check_values(a, file);
   const auto dtype = field<std::string>(j, "dtype", file);
   static const std::pair<const char*, const char*> kDtypes[] = {
       {"u1", "uint8"}, {"u2", "uint16"}, {"i2", "int16"}, {"f4", "float32"}};
@@ -211,7 +230,7 @@ Array v2_array(const fs::path& folder) {
   return a;
 }
 
-Chain v3_chain(const json& codecs, const fs::path& file, std::size_t ndim, int size, long long max_inner);
+Chain v3_chain(const json& codecs, const fs::path& file, std::size_t ndim, int size);
 
 // One v3 codec object into `chain` (which it may only extend in encoding order).
 void v3_codec(const json& c, Chain& chain, bool& have_bytes, const fs::path& file, std::size_t ndim, int size) {
@@ -243,9 +262,9 @@ void v3_codec(const json& c, Chain& chain, bool& have_bytes, const fs::path& fil
     auto s = std::make_shared<zarr::Sharding>();
     s->inner = extents(conf, "chunk_shape", file, kMaxExtent);
     if (s->inner.size() != ndim) fail_input(file, "sharding chunk_shape has the wrong number of axes");
-    s->chain = v3_chain(field<json>(conf, "codecs", file), file, ndim, size, 0);
+    s->chain = v3_chain(field<json>(conf, "codecs", file), file, ndim, size);
     s->index = v3_chain(conf.contains("index_codecs") ? conf["index_codecs"] : json::array({json{{"name", "bytes"}}}),
-                        file, 1, 8, 0);
+                        file, 1, 8);
     s->index_at_end = conf.value("index_location", std::string("end")) == "end";
     chain.sharding = s;
   } else if (name == "blosc" || name == "gzip" || name == "zstd" || name == "crc32c") {
@@ -262,7 +281,7 @@ void v3_codec(const json& c, Chain& chain, bool& have_bytes, const fs::path& fil
   }
 }
 
-Chain v3_chain(const json& codecs, const fs::path& file, std::size_t ndim, int size, long long /*max_inner*/) {
+Chain v3_chain(const json& codecs, const fs::path& file, std::size_t ndim, int size) {
   if (!codecs.is_array()) fail_input(file, "codecs is not a list");
   Chain chain;
   bool have_bytes = false;
@@ -285,7 +304,8 @@ Array v3_array(const fs::path& folder, const json& j) {
   if (grid.value("name", std::string()) != "regular") fail_input(file, "chunk_grid " + grid.dump() + " is not regular");
   a.chunk = extents(field<json>(grid, "configuration", file), "chunk_shape", file, kMaxExtent);
   if (a.chunk.size() != a.shape.size()) fail_input(file, "chunk_shape and shape have different numbers of axes");
-  a.chain = v3_chain(field<json>(j, "codecs", file), file, a.shape.size(), a.size, kMaxInnerChunks);
+  check_values(a, file);
+  a.chain = v3_chain(field<json>(j, "codecs", file), file, a.shape.size(), a.size);
   a.fill = fill_of(j.contains("fill_value") ? j["fill_value"] : json(), file);
   const json keys = j.contains("chunk_key_encoding") ? j["chunk_key_encoding"] : json{{"name", "default"}};
   const std::string encoding = keys.value("name", std::string("default"));
@@ -300,12 +320,12 @@ Array v3_array(const fs::path& folder, const json& j) {
   }
   if (a.separator != '.' && a.separator != '/') fail_input(file, "chunk key separator is not . or /");
   if (const auto& s = a.chain.sharding) {
-    long long inner = 1;
+    double inner = 1;
     for (std::size_t d = 0; d < a.chunk.size(); ++d) {
       if (a.chunk[d] % s->inner[d] != 0) fail_input(file, "the shard's chunk_shape is not a multiple of the inner chunk's");
-      inner *= a.chunk[d] / s->inner[d];
+      inner *= static_cast<double>(a.chunk[d]) / static_cast<double>(s->inner[d]);
     }
-    if (inner > kMaxInnerChunks) fail_input(file, "a shard holds " + std::to_string(inner) + " chunks; at most 2^22 are read");
+    if (inner > static_cast<double>(kMaxInnerChunks)) fail_input(file, "a shard holds " + number_text(inner) + " chunks; at most 2^22 are read");
   }
   return a;
 }
@@ -422,11 +442,6 @@ ZarrLevel level_of(const Array& a, const std::string& path, const std::array<dou
   return l;
 }
 
-std::string joined(const std::vector<long long>& v) {
-  std::string s;
-  for (const long long e : v) s += (s.empty() ? "" : "x") + std::to_string(e);
-  return s;
-}
 
 // Fixes t and c, the sizes and the sample type from the array, checking the choices.
 void choose_indices(ZarrStackInfo& info, const Array& a, const ZarrReadOptions& options) {
@@ -476,96 +491,138 @@ bool is_zarr_stack(const fs::path& path) {
   return std::any_of(std::begin(kMetadata), std::end(kMetadata), [&](const char* f) { return exists_entry(path / f); });
 }
 
-ZarrStackInfo inspect_zarr_stack(const fs::path& path, const ZarrReadOptions& options) {
-  if (!is_zarr_stack(path)) fail_input(path, "is not a Zarr folder (no .zarray, .zgroup, .zattrs or zarr.json)");
-  ZarrStackInfo info;
-  info.named = path;
-  std::optional<Array> array = array_in(path);
-  json ms;
-  fs::path ms_file;
+namespace {
+
+// Where the array to read is: the folder itself (a bare array, maybe one level of
+// a multiscale group above it) or the chosen level of the multiscale group.
+// (clang-tidy sees a throwing implicit member through json's members; nothing here throws.)
+struct Located {  // NOLINT(bugprone-exception-escape)
+  std::optional<Array> array;
+  json ms;           // the OME multiscales entry (null: none)
+  fs::path ms_file;  // the file it came from
   std::string level_path;
-  if (array) {
+  bool group = false;  // the folder named is the multiscale group
+};
+
+Located locate(const fs::path& path, const ZarrReadOptions& options, ZarrStackInfo& info) {
+  Located at;
+  at.array = array_in(path);
+  if (at.array) {
     // A bare array, maybe one level of a multiscale group: its scale from the parent.
-    const fs::path parent = path.has_filename() ? path.parent_path() : path.parent_path().parent_path();
+    const fs::path self = path.has_filename() ? path : path.parent_path();
+    const fs::path parent = self.parent_path();
     auto [pms, version] = multiscales_of(parent);
-    const std::string name = (path.has_filename() ? path : path.parent_path()).filename().string();
-    if (pms.is_object() && pms.contains("datasets")) {
+    at.level_path = self.filename().string();
+    if (pms.is_object() && pms.contains("datasets") && pms["datasets"].is_array()) {
       for (std::size_t i = 0; i < pms["datasets"].size(); ++i) {
-        if (pms["datasets"][i].value("path", std::string()) == name) {
-          ms = pms;
-          ms_file = metadata_file(parent);
+        if (pms["datasets"][i].is_object() && pms["datasets"][i].value("path", std::string()) == at.level_path) {
+          at.ms = pms;
+          at.ms_file = metadata_file(parent);
           info.ome_version = version;
           info.level = static_cast<int>(i);
         }
       }
     }
-    if (options.level != 0) fail_input(path, "--level " + std::to_string(options.level) + ": this is one array (name the multiscale group to choose a level)");
-    level_path = name;
-  } else {
-    auto [pms, version] = multiscales_of(path);
-    if (!pms.is_object()) fail_input(path, "is a Zarr group without OME multiscales metadata; name the array folder to read");
-    ms = pms;
-    ms_file = metadata_file(path);
-    info.ome_version = version;
-    const json datasets = field<json>(ms, "datasets", ms_file);
-    if (!datasets.is_array() || datasets.empty()) fail_input(ms_file, "multiscales lists no datasets");
-    if (options.level < 0 || options.level >= static_cast<int>(datasets.size())) {
-      fail_input(path, "--level " + std::to_string(options.level) + " is out of range: it has " + std::to_string(datasets.size()) + " levels (0.." + std::to_string(datasets.size() - 1) + ")");
+    if (options.level != 0) {
+      fail_input(path, "--level " + std::to_string(options.level) +
+                           ": this is one array (name the multiscale group to choose a level)");
     }
-    info.level = options.level;
-    for (const json& d : datasets) check_dataset_path(field<std::string>(d, "path", ms_file), ms_file);
-    level_path = field<std::string>(datasets[static_cast<std::size_t>(options.level)], "path", ms_file);
-    array = array_in(path / level_path);
-    if (!array) fail_input(path / level_path, "holds no Zarr array (.zarray or zarr.json)");
+    return at;
   }
-  info.array = array->folder;
-  info.zarr_format = array->format;
-  const std::size_t ndim = array->shape.size();
-  const auto [letters, unit_um] = axes_of(ms, ndim, ms_file.empty() ? path : ms_file);
-  info.axes = letters;
-  // Every level's shape, chunks, codecs and scale (the chosen one's array decides the rest).
-  const std::vector<double> global = ms.is_object() ? scale_of(ms.value("coordinateTransformations", json()), ndim, ms_file) : std::vector<double>(ndim, 1.0);
-  auto spatial = [&](const std::vector<double>& s) {
+  auto [pms, version] = multiscales_of(path);
+  if (!pms.is_object()) fail_input(path, "is a Zarr group without OME multiscales metadata; name the array folder to read");
+  at.ms = pms;
+  at.ms_file = metadata_file(path);
+  at.group = true;
+  info.ome_version = version;
+  const json datasets = field<json>(at.ms, "datasets", at.ms_file);
+  if (!datasets.is_array() || datasets.empty()) fail_input(at.ms_file, "multiscales lists no datasets");
+  const auto levels = static_cast<int>(datasets.size());
+  if (options.level < 0 || options.level >= levels) {
+    fail_input(path, "--level " + std::to_string(options.level) + " is out of range: it has " + std::to_string(levels) +
+                         " levels (0.." + std::to_string(levels - 1) + ")");
+  }
+  info.level = options.level;
+  for (const json& d : datasets) check_dataset_path(field<std::string>(d, "path", at.ms_file), at.ms_file);
+  at.level_path = field<std::string>(datasets[static_cast<std::size_t>(options.level)], "path", at.ms_file);
+  at.array = array_in(path / at.level_path);
+  if (!at.array) fail_input(path / at.level_path, "holds no Zarr array (.zarray or zarr.json)");
+  return at;
+}
+
+// Every level's shape, chunks, codecs and voxel size (µm, x y z), in the order listed.
+void read_pyramid(ZarrStackInfo& info, const Located& at, const fs::path& path) {
+  const std::size_t ndim = at.array->shape.size();
+  const auto axes = axes_of(at.ms, ndim, at.ms_file.empty() ? path : at.ms_file);
+  info.axes = axes.first;
+  const std::vector<double>& unit_um = axes.second;
+  const std::vector<double> global = at.ms.is_object()
+                                         ? scale_of(at.ms.value("coordinateTransformations", json()), ndim, at.ms_file)
+                                         : std::vector<double>(ndim, 1.0);
+  const auto spatial = [&](const json& dataset) {
+    const std::vector<double> s = scale_of(dataset.value("coordinateTransformations", json()), ndim, at.ms_file);
     std::array<double, 3> um{1, 1, 1};
     for (std::size_t d = 0; d < ndim; ++d) {
-      const auto at = std::string("xyz").find(letters[d]);
-      if (at != std::string::npos) um[at] = s[d] * global[d] * unit_um[d];
+      const auto a = std::string("xyz").find(info.axes[d]);
+      if (a != std::string::npos) um[a] = s[d] * global[d] * unit_um[d];
     }
     return um;
   };
-  if (ms.is_object() && !array_in(path)) {
-    for (const json& d : ms["datasets"]) {
-      const std::string p = d.value("path", std::string());
-      const std::array<double, 3> um = spatial(scale_of(d.value("coordinateTransformations", json()), ndim, ms_file));
-      if (p == level_path) {
-        info.pyramid.push_back(level_of(*array, p, um));
-      } else if (const std::optional<Array> other = array_in(path / p)) {
-        info.pyramid.push_back(level_of(*other, p, um));
-      }
-    }
-  } else {
-    std::array<double, 3> um{1, 1, 1};
-    if (ms.is_object()) um = spatial(scale_of(ms["datasets"][static_cast<std::size_t>(info.level)].value("coordinateTransformations", json()), ndim, ms_file));
-    info.pyramid.push_back(level_of(*array, level_path, um));
+  if (!at.group) {
+    const std::array<double, 3> um =
+        at.ms.is_object() ? spatial(at.ms["datasets"][static_cast<std::size_t>(info.level)]) : std::array<double, 3>{1, 1, 1};
+    info.pyramid.push_back(level_of(*at.array, at.level_path, um));
+    return;
   }
-  choose_indices(info, *array, options);
-  const ZarrLevel& chosen = ms.is_object() && !array_in(path) ? info.pyramid[static_cast<std::size_t>(info.level)] : info.pyramid.front();
+  for (const json& d : at.ms["datasets"]) {
+    const std::string p = d.value("path", std::string());
+    if (p == at.level_path) {
+      info.pyramid.push_back(level_of(*at.array, p, spatial(d)));
+    } else if (const std::optional<Array> other = array_in(path / p)) {
+      info.pyramid.push_back(level_of(*other, p, spatial(d)));
+    } else {
+      fail_input(path / p, "holds no Zarr array (.zarray or zarr.json), a level its multiscales lists");
+    }
+  }
+}
+
+void set_spacing(ZarrStackInfo& info, const Located& at, const ZarrReadOptions& options) {
+  const ZarrLevel& chosen = info.pyramid[at.group ? static_cast<std::size_t>(info.level) : 0];
   for (int a = 0; a < 3; ++a) {
     if (options.spacing_um) {
       info.spacing.um[a] = (*options.spacing_um)[a];
       info.spacing.source[a] = SpacingSource::kUser;
-    } else if (ms.is_object()) {
+    } else if (at.ms.is_object()) {
       const std::string problem = voxel_size_problem(chosen.scale_um[a]);
-      if (!problem.empty()) fail_input(ms_file, std::string("the ") + "xyz"[a] + " scale of level " + std::to_string(info.level) + " is " + number_text(chosen.scale_um[a]) + " um: " + problem);
+      if (!problem.empty()) {
+        fail_input(at.ms_file, std::string("the ") + "xyz"[a] + " scale of level " + std::to_string(info.level) +
+                                   " is " + number_text(chosen.scale_um[a]) + " um: " + problem);
+      }
       info.spacing.um[a] = chosen.scale_um[a];
       info.spacing.source[a] = SpacingSource::kOmeZarr;
     }
   }
-  long long chunk_values = 1;
-  const std::vector<long long>& unit = array->chain.sharding ? array->chain.sharding->inner : array->chunk;
-  for (const long long e : unit) chunk_values *= e;
-  if (chunk_values > kMaxChunkValues) fail_input(info.array, "a chunk of " + joined(unit) + " values is over the 2^28 hisnegs decodes at once");
-  info.plan = std::make_shared<const Array>(std::move(*array));
+}
+
+}  // namespace
+
+ZarrStackInfo inspect_zarr_stack(const fs::path& path, const ZarrReadOptions& options) {
+  if (!is_zarr_stack(path)) fail_input(path, "is not a Zarr folder (no .zarray, .zgroup, .zattrs or zarr.json)");
+  ZarrStackInfo info;
+  info.named = path;
+  Located at = locate(path, options, info);
+  info.array = at.array->folder;
+  info.zarr_format = at.array->format;
+  read_pyramid(info, at, path);
+  choose_indices(info, *at.array, options);
+  set_spacing(info, at, options);
+  const std::vector<long long>& unit = at.array->chain.sharding ? at.array->chain.sharding->inner : at.array->chunk;
+  double chunk_values = 1;
+  for (const long long e : unit) chunk_values *= static_cast<double>(e);
+  if (chunk_values > static_cast<double>(kMaxChunkValues)) {
+    fail_input(info.array, "a chunk of " + joined_extents(unit) + " values is over the 2^28 hisnegs decodes at once");
+  }
+  info.plan = std::make_shared<const Array>(std::move(*at.array));
   return info;
 }
 
@@ -576,7 +633,7 @@ std::string ZarrStackInfo::describe() const {
     s += ", level " + std::to_string(level) + " of " + std::to_string(std::max<std::size_t>(pyramid.size(), 1));
   }
   const ZarrLevel& l = pyramid.size() > static_cast<std::size_t>(level) ? pyramid[static_cast<std::size_t>(level)] : pyramid.front();
-  s += ", " + dtype + ", axes " + axes + ", chunks " + joined(l.chunks) + ", " + l.codecs;
+  s += ", " + dtype + ", axes " + axes + ", chunks " + joined_extents(l.chunks) + ", " + l.codecs;
   if (channels > 1) s += ", " + std::to_string(channels) + " channels";
   if (timepoints > 1) s += ", " + std::to_string(timepoints) + " time points";
   return s;

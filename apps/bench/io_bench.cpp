@@ -11,6 +11,7 @@
 #include "io/load_volume.hpp"
 #include "io/sparse_grid.hpp"
 #include "io/hdf5_stack.hpp"
+#include "io/zarr_stack.hpp"
 #include "io/stack_file.hpp"
 #include "io/tiff_stack.hpp"
 #include "io/volume_source.hpp"
@@ -63,7 +64,7 @@ void register_reading(const std::filesystem::path& volume, const std::string& na
 
   // TIFF only: a 64-voxel region at the end of the stack, its pages reached by walking
   // the directory chain from page 0 or through the page index the source keeps.
-  if (!io::is_hdf5_stack(volume)) {
+  if (!io::is_hdf5_stack(volume) && !io::is_zarr_stack(volume)) {
     for (const bool indexed : {false, true}) {
       benchmark::RegisterBenchmark(
           ("io/tiff_region_64_last_pages_" + std::string(indexed ? "indexed" : "walked") + "/" + name).c_str(),

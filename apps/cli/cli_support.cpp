@@ -132,11 +132,13 @@ void guard_outputs(const CLI::App& cmd) {
   for (const CLI::Option* opt : values) {
     if (std::find(outputs.begin(), outputs.end(), opt) != outputs.end()) continue;
     for (const std::string& value : opt->results()) {
-      // Every file behind the value: a BigDataViewer .xml reads the .h5 it names.
-      for (const std::filesystem::path& file : io::stack_identity(value).files) {
+      // Every file behind the value: a BigDataViewer .xml reads the .h5 it names;
+      // an OME-Zarr folder holds every file under it.
+      const io::StackIdentity input = io::stack_identity(value);
+      for (const std::filesystem::path& file : input.files) {
         for (const CLI::Option* out : outputs) {
           for (const std::string& o : out->results()) {
-            if (io::same_file(file, o)) {
+            if (io::same_file(file, o) || (io::is_zarr_stack(file) && input.holds(o))) {
               io::fail_input(o, "is also an input (" + opt->get_name() +
                                     (file == value ? std::string() : " " + value + " reads it") +
                                     "); refusing to overwrite it");

@@ -234,10 +234,12 @@ void add_export_splat_ply(CLI::App* cmd, GlobalOptions& global) {
 
 // export volume: the mixture on a voxel grid.
 void add_export_volume(CLI::App* cmd, GlobalOptions& global) {
-  auto* volume = cmd->add_subcommand("volume", "the mixture resampled onto the voxel grid as a float32 TIFF stack");
+  auto* volume = cmd->add_subcommand(
+      "volume", "the mixture resampled onto the voxel grid as a float32 TIFF stack, or an OME-Zarr pyramid (-o X.ome.zarr)");
   auto volume_args = std::make_shared<VolumeArgs>();
   volume->add_option("--model", volume_args->model, "checkpoint (.ply)")->required();
-  volume->add_option("-o,--output", volume_args->out, "output .tif")->required();
+  volume->add_option("-o,--output", volume_args->out, "output .tif, or .ome.zarr (a multiscale OME-Zarr v0.4 folder)")
+      ->required();
   volume->add_option("--match-volume", volume_args->match_volume,
                      "resample onto this stack's voxels and report the 3D PSNR against it");
   volume->add_option("--tail", volume_args->tail, "leave out each Gaussian where its value is below this")

@@ -13,6 +13,7 @@
 #include "io/memory_limit.hpp"
 #include "io/stack_file.hpp"
 #include "io/tiff_stack.hpp"
+#include "io/zarr_stack.hpp"
 #include "io/timer.hpp"
 #include "splat/background_floor.hpp"
 
@@ -48,6 +49,9 @@ void refuse_to_overwrite(const std::filesystem::path& out, const std::filesystem
                             "; refusing to overwrite it (choose another output)");
   }
 }
+
+// An output named X.zarr or X.ome.zarr is written as OME-Zarr.
+bool is_zarr_path(const std::filesystem::path& out) { return out.extension() == ".zarr"; }
 
 }  // namespace
 
@@ -133,7 +137,15 @@ VolumeExportDone export_model_volume(const gmf::Checkpoint& checkpoint, const st
       gmf::rasterize_dense(checkpoint.mixture, model, done.frame, request.tail, request.untruncated_sum);
   done.rasterize_seconds = watch.lap();
   const Eigen::Vector3i& n = done.frame.shape();
-  io::write_tiff_stack(out, f, n.x(), n.y(), n.z(), tiff);
+  if (is_zarr_path(out)) {  // a multiscale OME-Zarr pyramid, for napari and Neuroglancer beside the stack
+    io::Volume v;
+    v.nx = n.x(), v.ny = n.y(), v.nz = n.z();
+    if (tiff.spacing_um) v.spacing.um = *tiff.spacing_um;
+    v.voxels = f;
+    io::write_ome_zarr(out, v);
+  } else {
+    io::write_tiff_stack(out, f, n.x(), n.y(), n.z(), tiff);
+  }
   done.write_seconds = watch.lap();
   if (matched) done.psnr = gmf::psnr(f, matched->volume.voxels);
   return done;

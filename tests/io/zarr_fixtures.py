@@ -264,6 +264,74 @@ with open("escape.ome.zarr/.zattrs", "w") as f:
     json.dump({"multiscales": [{"version": "0.4", "axes": ["z", "y", "x"], "datasets": [{"path": "../v2-fill.zarr"}]}]}, f)
 refuse("escape.ome.zarr", "escape.ome.zarr", "leaves the folder")
 
+
+# Bad metadata and chunks, each refused in one line naming the file and the problem.
+def v2_meta(folder, **changes):
+    zarr.open(folder, mode="w", shape=(4, 8, 8), chunks=(2, 4, 4), dtype="<u2", compressor=None)[:] = 3
+    with open(os.path.join(folder, ".zarray")) as f:
+        meta = json.load(f)
+    meta.update(changes)
+    with open(os.path.join(folder, ".zarray"), "w") as f:
+        json.dump(meta, f)
+
+
+os.makedirs("bad-json.zarr", exist_ok=True)
+with open("bad-json.zarr/.zarray", "w") as f:
+    f.write('{"zarr_format": 2, "shape": [4, 8')
+refuse("bad-json.zarr", "bad-json.zarr", "is not valid JSON")
+os.makedirs("bad-json3.zarr", exist_ok=True)
+with open("bad-json3.zarr/zarr.json", "w") as f:
+    f.write('{"zarr_format": 3, "node_type": "array", "shape": [4, 8, 8], "data_type": "uint16"}')
+refuse("bad-json3.zarr", "bad-json3.zarr", "has no field \"chunk_grid\"")
+v2_meta("bad-chunk0.zarr", chunks=[2, 0, 4])
+refuse("bad-chunk0.zarr", "bad-chunk0.zarr", "chunks = [2,0,4]")
+v2_meta("bad-huge.zarr", shape=[2147483647, 2147483647, 2147483647], chunks=[1, 1, 1])
+refuse("bad-huge.zarr", "bad-huge.zarr", "more than 2^62")
+v2_meta("bad-axes.zarr")
+os.makedirs("bad-axes.ome.zarr", exist_ok=True)
+os.rename("bad-axes.zarr", "bad-axes.ome.zarr/0")
+with open("bad-axes.ome.zarr/.zattrs", "w") as f:
+    json.dump({"multiscales": [{"version": "0.4", "axes": [{"name": "z", "type": "space"}, {"name": "y", "type": "space"},
+                                                          {"name": "q", "type": "space"}],
+                                "datasets": [{"path": "0"}]}]}, f)
+with open("bad-axes.ome.zarr/.zgroup", "w") as f:
+    json.dump({"zarr_format": 2}, f)
+refuse("bad-axes.ome.zarr", "bad-axes.ome.zarr", "do not name x, y and z once each")
+for label, scale in {"zero": [0.0, 1.0, 1.0], "negative": [1.0, -2.0, 1.0], "nan": ["NaN", 1.0, 1.0]}.items():
+    folder = "bad-scale-%s.ome.zarr" % label
+    g = zarr.open_group(folder, mode="w")
+    g.create_dataset("0", data=np.ones((4, 8, 8), dtype="<u2"), chunks=(2, 4, 4))
+    g.attrs["multiscales"] = [{"version": "0.4", "axes": ["z", "y", "x"], "datasets": [
+        {"path": "0", "coordinateTransformations": [{"type": "scale", "scale": scale}]}]}]
+    refuse(folder, folder, "scale" if label != "nan" else "has the wrong type")
+os.makedirs("bad-level.ome.zarr", exist_ok=True)
+with open("bad-level.ome.zarr/.zattrs", "w") as f:
+    json.dump({"multiscales": [{"version": "0.4", "axes": ["z", "y", "x"], "datasets": [{"path": "0"}]}]}, f)
+refuse("bad-level.ome.zarr", "bad-level.ome.zarr", "holds no Zarr array")
+v2_meta("bad-short.zarr")
+with open("bad-short.zarr/0.0.0", "r+b") as f:
+    f.truncate(10)
+refuse("bad-short.zarr", "bad-short.zarr", "holds 10 bytes, the chunk 64")
+v2_meta("bad-long.zarr")
+with open("bad-long.zarr/1.1.1", "ab") as f:
+    f.write(b"xx")
+refuse("bad-long.zarr", "bad-long.zarr", "holds 66 bytes, the chunk 64")
+v2_meta("bad-sep.zarr", dimension_separator="\\")
+refuse("bad-sep.zarr", "bad-sep.zarr", "dimension_separator")
+v2_meta("bad-zstd.zarr", compressor={"id": "zstd", "level": 1})
+refuse("bad-zstd.zarr", "bad-zstd.zarr", "zstd: ")
+write_v3("bad-shard-past.zarr", stack((8, 16, 16), "uint16"), (8, 16, 16), None, shard_inner=(4, 8, 8),
+         inner_codecs=bytes_le)
+with open("bad-shard-past.zarr/c/0/0/0", "r+b") as f:
+    data = bytearray(f.read())
+    n = 8
+    index = bytearray(data[-(16 * n + 4):-4])
+    index[0:8] = struct.pack("<Q", 10 ** 9)
+    data[-(16 * n + 4):] = index + struct.pack("<I", crc32c(bytes(index)))
+    f.seek(0)
+    f.write(data)
+refuse("bad-shard-past.zarr", "bad-shard-past.zarr", "lies past the file's end")
+
 with open("manifest.json", "w") as f:
     json.dump(manifest, f, indent=1)
 print("zarr fixtures: %d" % len(manifest))

@@ -76,7 +76,7 @@ std::string zarr_error(const std::function<void()>& f) {
 
 TEST(ZarrStack, EveryFixtureReadsWholeAndByRegionWithItsSpacing) {
   REQUIRE_ZARR_PYTHON();
-  const fs::path dir = zarr_fixtures();
+  const fs::path& dir = zarr_fixtures();
   const nlohmann::json manifest = nlohmann::json::parse(std::ifstream(dir / "manifest.json"));
   ASSERT_GT(manifest.size(), 60u);
   std::mt19937 rng(3);
@@ -86,7 +86,7 @@ TEST(ZarrStack, EveryFixtureReadsWholeAndByRegionWithItsSpacing) {
     const fs::path path = dir / f["path"].get<std::string>();
     const StackReadOptions options = zarr_options(f["options"]);
     if (f.contains("error")) {
-      const std::string e = zarr_error([&] { (void)inspect_stack(path, options); });
+      const std::string e = zarr_error([&] { (void)read_stack(path, options); });
       EXPECT_NE(e.find(f["error"].get<std::string>()), std::string::npos) << e;
       EXPECT_EQ(e.find('\n'), std::string::npos) << e;
       continue;

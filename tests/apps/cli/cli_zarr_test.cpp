@@ -1,0 +1,119 @@
+// SPDX-License-Identifier: Apache-2.0
+// OME-Zarr stacks through the real binary: `info` prints the pyramid, `gt` and
+// `fit` (in memory and in bricks) read an OME-Zarr copy of a TIFF stack to the same
+// result, `export volume` writes a pyramid `info` reads, an output inside an input
+// store is refused, and bad Zarr input is one line naming the file, exit 2,
+// nothing written.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <filesystem>
+#include <fstream>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "io/tiff_stack.hpp"
+#include "io/zarr_stack.hpp"
+#include "tests/test_support.hpp"
+
+namespace hisnegs {
+namespace {
+namespace fs = std::filesystem;
+using testing::run_hisnegs;
+
+// s.tif (synthetic, uint16) and s.ome.zarr, its copy as a two-level pyramid.
+void make_stacks(const testing::ScratchDir& dir) {
+  ASSERT_EQ(run_hisnegs({"-q", "synth", "-o", dir / "s.tif", "--shape", "16,80,96"}).exit_code, 0);
+  const io::Volume v = io::read_tiff_stack(dir / "s.tif");
+  io::ZarrWriteOptions o;
+  o.type = v.stored_as;
+  o.chunk_edge = 32;
+  o.min_edge = 40;
+  io::write_ome_zarr(dir / "s.ome.zarr", v, o);
+}
+
+std::string without_source(std::string t) {
+  const auto at = t.find("comment hisnegs source ");
+  if (at != std::string::npos) t.erase(at, t.find('\n', at) - at);
+  return t;
+}
+
+TEST(CliZarr, EveryStackCommandReadsAnOmeZarrCopy) {
+  testing::ScratchDir dir;
+  ASSERT_NO_FATAL_FAILURE(make_stacks(dir));
+  const auto info = run_hisnegs({"info", dir / "s.ome.zarr"});
+  ASSERT_EQ(info.exit_code, 0) << info.err;
+  EXPECT_NE(info.out.find("OME-Zarr v0.4 (Zarr v2), level 0 of 2, uint16, axes zyx, chunks 16x32x32, blosc(zstd)"),
+            std::string::npos) << info.out;
+  EXPECT_NE(info.out.find("level 1 (1): zyx 16x40x48"), std::string::npos) << info.out;
+  EXPECT_NE(info.out.find("OME-Zarr scale"), std::string::npos) << info.out;
+  // Ground truth from either stack is the same image, byte for byte.
+  ASSERT_EQ(run_hisnegs({"-q", "gt", dir / "s.tif", "-o", dir / "gt_tif", "--orbit", "eval", "--size", "48"}).exit_code, 0);
+  const auto gt = run_hisnegs({"-q", "gt", dir / "s.ome.zarr", "-o", dir / "gt_zarr", "--orbit", "eval", "--size", "48"});
+  ASSERT_EQ(gt.exit_code, 0) << gt.err;
+  EXPECT_EQ(testing::read_bytes(dir / "gt_zarr" / "mips.tif"), testing::read_bytes(dir / "gt_tif" / "mips.tif"));
+  // A fixed-schedule fit, in memory and in bricks: the same checkpoint but for the source line.
+  testing::write_text(dir / "fixed.yaml", "gmf: {gaussians: 40, rounds: 2, iterations_per_round: 5, time_budget_s: 0}\n");
+  for (const bool bricks : {false, true}) {
+    SCOPED_TRACE(bricks ? "bricks" : "in memory");
+    auto fit = [&](const fs::path& in, const fs::path& out) {
+      std::vector<std::string> args{"-q", "--config", (dir / "fixed.yaml").string(), "fit", in.string(), "-o", out.string()};
+      if (bricks) args.insert(args.end(), {"--brick-voxels", "48"});
+      return run_hisnegs(args);
+    };
+    const auto a = fit(dir / "s.tif", dir / "a.ply");
+    ASSERT_EQ(a.exit_code, 0) << a.err;
+    const auto b = fit(dir / "s.ome.zarr", dir / "b.ply");
+    ASSERT_EQ(b.exit_code, 0) << b.err;
+    EXPECT_EQ(without_source(testing::read_bytes(dir / "a.ply")), without_source(testing::read_bytes(dir / "b.ply")));
+  }
+  // --level 1: the coarser level, with its own voxel size.
+  const auto coarse = run_hisnegs({"info", dir / "s.ome.zarr", "--level", "1"});
+  ASSERT_EQ(coarse.exit_code, 0) << coarse.err;
+  EXPECT_NE(coarse.out.find("shape        Z=16 Y=40 X=48"), std::string::npos) << coarse.out;
+  // export volume writes a pyramid that reads back; an output inside an input store is refused.
+  const auto exported = run_hisnegs({"-q", "export", "volume", "--model", dir / "b.ply", "-o", dir / "m.ome.zarr"});
+  ASSERT_EQ(exported.exit_code, 0) << exported.err;
+  EXPECT_EQ(run_hisnegs({"info", dir / "m.ome.zarr"}).exit_code, 0);
+  const auto inside = run_hisnegs({"fit", dir / "s.ome.zarr", "-o", dir / "s.ome.zarr" / "m.ply"});
+  EXPECT_EQ(inside.exit_code, 2);
+  EXPECT_NE(inside.err.find("is also an input"), std::string::npos) << inside.err;
+  EXPECT_FALSE(fs::exists(dir / "s.ome.zarr" / "m.ply"));
+  const auto over = run_hisnegs({"export", "volume", "--model", dir / "b.ply", "-o", dir / "s.ome.zarr", "--match-volume",
+                                 dir / "s.ome.zarr"});
+  EXPECT_EQ(over.exit_code, 2);
+  EXPECT_NE(over.err.find("is also an input"), std::string::npos) << over.err;
+}
+
+TEST(CliZarr, BadZarrInputIsOneLineExitTwoAndWritesNothing) {
+  testing::ScratchDir dir;
+  ASSERT_NO_FATAL_FAILURE(make_stacks(dir));
+  const fs::path chunk = dir / "s.ome.zarr" / "0" / "0" / "1" / "1";
+  const std::vector<std::pair<std::function<void()>, std::string>> cases{
+      {[&] { std::ofstream(chunk, std::ios::binary | std::ios::trunc) << "garbage"; }, chunk.string() + ": blosc: "},
+      {[&] { std::ofstream(dir / "s.ome.zarr" / "0" / ".zarray", std::ios::trunc) << "{\"zarr_format\": 2"; },
+       (dir / "s.ome.zarr" / "0" / ".zarray").string() + ": is not valid JSON"},
+      {[&] { fs::remove(dir / "s.ome.zarr" / "0" / ".zarray"); }, (dir / "s.ome.zarr" / "0").string() + ": holds no Zarr array"},
+  };
+  for (const auto& [damage, expect] : cases) {
+    damage();
+    for (const std::vector<std::string>& command :
+         {std::vector<std::string>{"fit", dir / "s.ome.zarr", "-o", dir / "m.ply"},
+          std::vector<std::string>{"gt", dir / "s.ome.zarr", "-o", dir / "g", "--orbit", "eval", "--size", "32"}}) {
+      const auto r = run_hisnegs(command);
+      EXPECT_EQ(r.exit_code, 2) << command[0] << ": " << r.err;
+      EXPECT_NE(r.err.find(expect), std::string::npos) << command[0] << ": " << r.err;
+      const std::string error_line = r.err.substr(std::min(r.err.size(), r.err.find("hisnegs: error: ")));  // after the back end's notice
+      EXPECT_EQ(std::count(error_line.begin(), error_line.end(), '\n'), 1) << r.err;
+    }
+    EXPECT_FALSE(fs::exists(dir / "m.ply"));
+    EXPECT_FALSE(fs::exists(dir / "g"));
+  }
+  const auto level = run_hisnegs({"fit", dir / "s.tif", "-o", dir / "m.ply", "--level", "1"});
+  EXPECT_EQ(level.exit_code, 2);
+  EXPECT_NE(level.err.find("--level is for OME-Zarr stacks"), std::string::npos) << level.err;
+}
+
+}  // namespace
+}  // namespace hisnegs
