@@ -3,7 +3,7 @@
 """Seed corpora of the libFuzzer targets, generated (never fetched): small valid
 and slightly malformed TIFF stacks, PLY checkpoints, cameras.json and configs.
 
-Usage: make_corpus.py OUT_DIR  (writes OUT_DIR/{tiff,ply,cameras,config}/*).
+Usage: make_corpus.py OUT_DIR  (writes OUT_DIR/{tiff,ply,cameras,config,zarr}/*).
 Python 3 standard library only; the TIFF writer is hand-written so the seeds do
 not depend on libtiff or on a hisnegs build. Output is deterministic.
 """
@@ -321,6 +321,55 @@ def config_seeds():
     return out
 
 
+def zarr_seeds():
+    """Zarr arrays for fuzz_zarr: the metadata (.zarray or zarr.json), a NUL, then
+    the bytes of chunk 0 (v2 key 0.0.0, v3 key c/0/0/0)."""
+    import gzip
+    import json
+    import zlib
+
+    def crc32c(data):
+        crc = 0xFFFFFFFF
+        for b in data:
+            crc ^= b
+            for _ in range(8):
+                crc = (crc >> 1) ^ 0x82F63B78 if crc & 1 else crc >> 1
+        return crc ^ 0xFFFFFFFF
+
+    raw = bytes((7 * i) % 251 for i in range(2 * 4 * 4 * 2))  # 2x4x4 uint16
+    def v2(compressor, data, dtype="<u2", **extra):
+        meta = {"zarr_format": 2, "shape": [2, 4, 4], "chunks": [2, 4, 4], "dtype": dtype, "compressor": compressor,
+                "fill_value": 0, "order": "C", "filters": None}
+        meta.update(extra)
+        return json.dumps(meta).encode() + b"\0" + data
+
+    def v3(codecs, data, chunk=(2, 4, 4)):
+        meta = {"zarr_format": 3, "node_type": "array", "shape": [2, 4, 4], "data_type": "uint16",
+                "chunk_grid": {"name": "regular", "configuration": {"chunk_shape": list(chunk)}},
+                "chunk_key_encoding": {"name": "default"}, "fill_value": 0, "codecs": codecs}
+        return json.dumps(meta).encode() + b"\0" + data
+
+    le = [{"name": "bytes", "configuration": {"endian": "little"}}]
+    index = b"".join(struct.pack("<QQ", o, 16) for o in (0, 16, 32, 48))
+    shard = raw[:16] + raw[16:32] + raw[32:48] + raw[48:64] + index + struct.pack("<I", crc32c(index))
+    sharding = [{"name": "sharding_indexed", "configuration": {
+        "chunk_shape": [1, 2, 4], "codecs": le,
+        "index_codecs": le + [{"name": "crc32c"}], "index_location": "end"}}]
+    return {
+        "v2_none.zarr": v2(None, raw),
+        "v2_zlib.zarr": v2({"id": "zlib", "level": 1}, zlib.compress(raw)),
+        "v2_gzip.zarr": v2({"id": "gzip", "level": 1}, gzip.compress(raw, mtime=0)),
+        "v2_u8.zarr": v2(None, raw[:32], dtype="|u1"),
+        "v2_f4_big.zarr": v2(None, raw * 2, dtype=">f4"),
+        "v2_slash.zarr": v2(None, raw, dimension_separator="/"),
+        "v3_bytes.zarr": v3(le, raw),
+        "v3_gzip_crc.zarr": v3(le + [{"name": "gzip", "configuration": {"level": 1}}, {"name": "crc32c"}],
+                               gzip.compress(raw, mtime=0) + struct.pack("<I", crc32c(gzip.compress(raw, mtime=0)))),
+        "v3_transpose.zarr": v3([{"name": "transpose", "configuration": {"order": [2, 1, 0]}}] + le, raw),
+        "v3_shard.zarr": v3(sharding, shard),
+    }
+
+
 # ---------------------------------------------------------------------------
 
 
@@ -328,7 +377,8 @@ def main():
     if len(sys.argv) != 2:
         sys.exit("usage: make_corpus.py OUT_DIR")
     root = Path(sys.argv[1])
-    sets = {"tiff": tiff_seeds(), "ply": ply_seeds(), "cameras": camera_seeds(), "config": config_seeds()}
+    sets = {"tiff": tiff_seeds(), "ply": ply_seeds(), "cameras": camera_seeds(), "config": config_seeds(),
+            "zarr": zarr_seeds()}
     for target, seeds in sets.items():
         folder = root / target
         folder.mkdir(parents=True, exist_ok=True)

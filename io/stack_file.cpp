@@ -55,6 +55,10 @@ ZarrReadOptions StackReadOptions::zarr() const {
   return z;
 }
 
+void require_stack_path(const std::filesystem::path& path) {
+  if (!is_zarr_stack(path)) require_regular_file(path);
+}
+
 StackHeader inspect_stack(const std::filesystem::path& path, const StackReadOptions& options) {
   StackHeader h;
   if (is_zarr_stack(path)) {

@@ -36,6 +36,10 @@ struct StackHeader {
   std::string format;  // "TIFF (BigTIFF), 60 pages, uint8, LZW, striped" / Hdf5StackInfo::describe()
 };
 
+// Checks that `path` names something a stack can be: a Zarr folder or a regular
+// file (throws InputError as require_regular_file otherwise; the reader checks the rest).
+void require_stack_path(const std::filesystem::path& path);
+
 [[nodiscard]] StackHeader inspect_stack(const std::filesystem::path& path, const StackReadOptions& options = {});
 
 // The whole stack (raw values, normalization kNone). A TIFF refuses --dataset and

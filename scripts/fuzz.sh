@@ -1,18 +1,18 @@
 #!/usr/bin/env bash
 # SPDX-License-Identifier: Apache-2.0
-# Fuzzes the five file readers with libFuzzer: builds the `fuzz` preset (clang 14,
+# Fuzzes the six file readers with libFuzzer: builds the `fuzz` preset (clang 14,
 # ASan + UBSan; installs clang and libclang-rt-14-dev if missing), writes the seed
 # corpora (scripts/make-fuzz-corpus.sh) and runs each target RUNS executions
 # (default 2000) on a scratch copy of its seeds, so runs never grow the repo.
 # Exits non-zero if any target finds a crash, leak, sanitizer report or broken
 # promise; the input is kept in build/fuzz/artifacts/. CI runs this with the default.
-#   scripts/fuzz.sh [RUNS] [TARGET...]     TARGET: tiff ply cameras config vdb (default all)
+#   scripts/fuzz.sh [RUNS] [TARGET...]     TARGET: tiff ply cameras config vdb zarr (default all)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 runs="${1:-2000}"
 shift || true
 targets=("$@")
-[ ${#targets[@]} -gt 0 ] || targets=(tiff ply cameras config vdb)
+[ ${#targets[@]} -gt 0 ] || targets=(tiff ply cameras config vdb zarr)
 
 bash scripts/install-deps.sh
 missing=()

@@ -13,6 +13,7 @@
 #include "apps/cli/cli_support.hpp"
 #include "apps/pipeline/synthetic_stack.hpp"
 #include "io/error.hpp"
+#include "io/stack_file.hpp"
 #include "splat/camera.hpp"
 
 namespace hisnegs::apps {
@@ -150,7 +151,7 @@ void add_bench_command(CLI::App& app, GlobalOptions& global) {
       volume = temp / "synthetic.tif";
       write_synthetic_stack(volume, SyntheticConfig(global.config()), Progress{});
     } else {
-      io::require_regular_file(volume);
+      io::require_stack_path(volume);
     }
     if (args->is_report()) {
       run_bench_report(*args, volume, !temp.empty(), global);

@@ -5,6 +5,7 @@
 #include "apps/pipeline/run_pipeline.hpp"
 #include "apps/pipeline/train_stage.hpp"
 #include "io/error.hpp"
+#include "io/stack_file.hpp"
 
 namespace hisnegs::apps {
 
@@ -33,7 +34,7 @@ void add_run_command(CLI::App& app, GlobalOptions& global) {
     args->overrides.apply(config.volume);
     if (args->reading.max_memory) config.gmf.max_memory = *args->reading.max_memory;
     if (args->reading.brick_voxels) config.gmf.stream_brick_voxels = *args->reading.brick_voxels;
-    io::require_regular_file(args->volume);  // before the back-end notice: a bad path is the one line
+    io::require_stack_path(args->volume);  // before the back-end notice: a bad path is the one line
     const splat::Backend backend = splat::resolve_backend(splat::parse_backend_request(args->backend));
     choose_train_schedule(config, backend, global.progress());
     run_pipeline({args->volume, args->out, backend, args->force, args->orbit_frames, args->orbit_elevation,

@@ -60,7 +60,13 @@ void refuse_stack_among_outputs(const RunRequest& request) {
 // Everything is checked before the run folder is touched.
 void check_request(const RunRequest& request, const AppConfig& config) {
   config.validate();
-  io::require_regular_file(request.volume);
+  if (io::is_zarr_stack(request.volume)) {  // a folder stack: the run folder must not be inside it
+    if (io::stack_identity(request.volume).holds(request.dir)) {
+      io::fail_input(request.dir, "lies inside the input stack " + request.volume.string() + "; use another -o");
+    }
+  } else {
+    io::require_stack_path(request.volume);
+  }
   if (request.orbit_frames < 1 || request.orbit_frames > 3600) {
     throw io::InputError("--orbit-frames: " + std::to_string(request.orbit_frames) + " is outside [1, 3600]");
   }

@@ -86,6 +86,32 @@ TEST(CliZarr, EveryStackCommandReadsAnOmeZarrCopy) {
   EXPECT_NE(over.err.find("is also an input"), std::string::npos) << over.err;
 }
 
+// `run` on an OME-Zarr stack: every stage, then a second run reuses them all (the
+// folder's identity is stable); a run folder inside the store is refused.
+TEST(CliZarr, RunTakesAnOmeZarrStackAndResumesOnItsIdentity) {
+  testing::ScratchDir dir;
+  ASSERT_NO_FATAL_FAILURE(make_stacks(dir));
+  testing::write_text(dir / "tiny.yaml",
+                      "camera: {width: 32, height: 32}\n"
+                      "gmf: {optimizer: adam, gaussians: 150, time_budget_s: 0, rounds: 2, iterations_per_round: 10}\n"
+                      "train: {epochs: 2, beta_warmup_epochs: 1, densify_from: 2, densify_every: 2, densify_until: 2, "
+                      "prune_every: 2, save_every: 1}\n");
+  const auto run = [&] {
+    return run_hisnegs({"--config", dir / "tiny.yaml", "run", dir / "s.ome.zarr", "-o", dir / "R", "--orbit-frames", "4"});
+  };
+  const auto first = run();
+  ASSERT_EQ(first.exit_code, 0) << first.err;
+  EXPECT_TRUE(fs::exists(dir / "R" / "report.md"));
+  const auto again = run();
+  ASSERT_EQ(again.exit_code, 0) << again.err;
+  EXPECT_NE(again.out.find("[1/"), std::string::npos);
+  EXPECT_NE(again.out.find(": reused ("), std::string::npos) << again.out;
+  const auto inside = run_hisnegs({"--config", dir / "tiny.yaml", "run", dir / "s.ome.zarr", "-o", dir / "s.ome.zarr" / "R"});
+  EXPECT_EQ(inside.exit_code, 2);
+  EXPECT_NE(inside.err.find("is also an input"), std::string::npos) << inside.err;
+  EXPECT_FALSE(fs::exists(dir / "s.ome.zarr" / "R"));
+}
+
 TEST(CliZarr, BadZarrInputIsOneLineExitTwoAndWritesNothing) {
   testing::ScratchDir dir;
   ASSERT_NO_FATAL_FAILURE(make_stacks(dir));
