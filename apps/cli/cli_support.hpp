@@ -29,6 +29,10 @@ struct GlobalOptions {
   std::optional<AppConfig> config_;
 };
 
+// What a VOLUME argument may be (every reader of io/stack_file.hpp), for --help.
+inline constexpr const char* kStackHelp =
+    "stack: TIFF/BigTIFF, HDF5 (.h5), BigDataViewer (.xml), Imaris (.ims), OME-Zarr or Zarr (a folder)";
+
 // Command-line overrides of the `volume` section, shared by commands that read a stack.
 struct VolumeOverrides {
   std::vector<double> spacing_um;  // --spacing X,Y,Z

@@ -20,7 +20,7 @@ void add_compare_command(CLI::App& app, GlobalOptions& global) {
     VolumeOverrides overrides;
   };
   auto args = std::make_shared<Args>();
-  cmd->add_option("VOLUME", args->volume, "stack: TIFF/BigTIFF, HDF5 (.h5), BigDataViewer (.xml), Imaris (.ims)")->required();
+  cmd->add_option("VOLUME", args->volume, kStackHelp)->required();
   cmd->add_option("-o,--output", args->out, "output folder")->required();
   cmd->add_option("--optimizers", args->optimizers,
                   "comma-separated subset of adam,brick-lm,lm-cgnr,lbfgs,lm,dogleg (default the first four) and of "

@@ -18,7 +18,7 @@ void add_fit_command(CLI::App& app, GlobalOptions& global) {
     VolumeOverrides overrides;
   };
   auto args = std::make_shared<Args>();
-  cmd->add_option("VOLUME", args->volume, "stack: TIFF/BigTIFF, HDF5 (.h5), BigDataViewer (.xml), Imaris (.ims)")->required();
+  cmd->add_option("VOLUME", args->volume, kStackHelp)->required();
   cmd->add_option("-o,--output", args->out, "output checkpoint (.ply)")->required();
   cmd->add_option("--optimizer", args->optimizer, "adam | brick-lm | lm | lm-cgnr | dogleg | lbfgs (gmf.optimizer)");
   cmd->add_option("--aggregation", args->aggregation,

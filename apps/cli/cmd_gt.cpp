@@ -26,7 +26,7 @@ struct GtArgs {
 void add_gt_command(CLI::App& app, GlobalOptions& global) {
   auto* cmd = app.add_subcommand("gt", "ray-march ground-truth MIPs (cameras.json, mips.tif, previews, meta.json)");
   auto args = std::make_shared<GtArgs>();
-  cmd->add_option("VOLUME", args->volume, "stack: TIFF/BigTIFF, HDF5 (.h5), BigDataViewer (.xml), Imaris (.ims)")->required();
+  cmd->add_option("VOLUME", args->volume, kStackHelp)->required();
   cmd->add_option("-o,--output", args->out, "output folder")->required();
   cmd->add_option("--orbit", args->orbit, "train (106 views) | eval (30) | both (DIR/train, DIR/eval) | custom");
   cmd->add_option("--cameras", args->cameras, "render the views of this cameras.json instead of an orbit");

@@ -21,7 +21,7 @@ void add_run_command(CLI::App& app, GlobalOptions& global) {
     StackReadingOverrides reading;
   };
   auto args = std::make_shared<Args>();
-  cmd->add_option("VOLUME", args->volume, "stack: TIFF/BigTIFF, HDF5 (.h5), BigDataViewer (.xml), Imaris (.ims)")->required();
+  cmd->add_option("VOLUME", args->volume, kStackHelp)->required();
   cmd->add_option("-o,--output", args->out, "run folder (reused stages are skipped)")->required();
   cmd->add_option("--backend", args->backend, "auto | cpu | cuda");
   cmd->add_flag("--force", args->force, "redo every stage, even those finished earlier");

@@ -17,7 +17,7 @@ void add_vdb_command(CLI::App& app, GlobalOptions& global) {
     VolumeOverrides overrides;
   };
   auto args = std::make_shared<Args>();
-  cmd->add_option("VOLUME", args->volume, "stack: TIFF/BigTIFF, HDF5 (.h5), BigDataViewer (.xml), Imaris (.ims)")->required();
+  cmd->add_option("VOLUME", args->volume, kStackHelp)->required();
   cmd->add_option("-o,--output", args->out, "output .vdb path")->required();
   cmd->add_option("--threshold", args->threshold, "normalized foreground level (sparse_grid.threshold)");
   cmd->add_option("--band", args->band, "dilation in voxels (sparse_grid.band_voxels)");

@@ -99,17 +99,20 @@ int port_of(const sockaddr_storage& addr) {
 // The open client sockets and how many each remote address holds.
 class ConnectionTable {
  public:
-  // Registers `sock`; false (nothing registered) when `client` holds `limit` already.
-  bool open(int sock, const std::string& client, int limit) {
+  enum class Opened { kYes, kClientFull, kServerFull };
+  // Registers `sock` unless `client` holds `per_client` connections already or the
+  // server holds `total` (nothing registered then).
+  Opened open(int sock, const std::string& client, int per_client, int total) {
     const std::lock_guard lock(mutex_);
+    if (static_cast<int>(sockets_.size()) >= total) return Opened::kServerFull;
     int& held = per_client_[client];
-    if (held >= limit) {
+    if (held >= per_client) {
       if (held == 0) per_client_.erase(client);
-      return false;
+      return Opened::kClientFull;
     }
     ++held;
     sockets_.insert(sock);
-    return true;
+    return Opened::kYes;
   }
   void close(int sock, const std::string& client) {
     const std::lock_guard lock(mutex_);
@@ -255,7 +258,10 @@ class ClientStream final : public httplib::Stream {
 class GuardedServer final : public httplib::Server {
  public:
   explicit GuardedServer(const ViewerServerLimits& limits) : limits_(limits) {
-    const auto threads = static_cast<std::size_t>(std::max(1, limits.threads));
+    // A worker per connection the table allows, and spare ones: a connection beyond
+    // the limits is answered 503 at once, never queued behind connections that hold
+    // their workers (slow clients from many addresses starved everyone else).
+    const auto threads = static_cast<std::size_t>(std::max(limits.threads, limits.connections_total + 4));
     new_task_queue = [threads] { return new httplib::ThreadPool(threads); };
     // Exclusive: SO_REUSEADDR only (a restart right after a stop binds again), never
     // httplib's default SO_REUSEPORT, which let a second server share the port.
@@ -281,13 +287,20 @@ class GuardedServer final : public httplib::Server {
       ::close(sock);
       return true;
     }
-    if (!table_.open(sock, client, limits_.connections_per_client)) {
-      static constexpr char kBusy[] =
+    const ConnectionTable::Opened opened =
+        table_.open(sock, client, limits_.connections_per_client, limits_.connections_total);
+    if (opened != ConnectionTable::Opened::kYes) {
+      const bool client_full = opened == ConnectionTable::Opened::kClientFull;
+      const std::string body = client_full ? "too many connections from this address; retry\n"
+                                           : "too many connections to this server; retry\n";
+      const std::string reply =
           "HTTP/1.1 503 Service Unavailable\r\nConnection: close\r\nRetry-After: 1\r\nContent-Type: text/plain\r\n"
-          "Content-Length: 47\r\n\r\ntoo many connections from this address; retry\n";
-      (void)!::send(sock, kBusy, sizeof kBusy - 1, MSG_NOSIGNAL | MSG_DONTWAIT);
-      log_limit(client, "more than " + std::to_string(limits_.connections_per_client) +
-                            " connections at once; answered 503");
+          "Content-Length: " + std::to_string(body.size()) + "\r\n\r\n" + body;
+      (void)!::send(sock, reply.data(), reply.size(), MSG_NOSIGNAL | MSG_DONTWAIT);
+      log_limit(client, client_full ? "more than " + std::to_string(limits_.connections_per_client) +
+                                          " connections at once; answered 503"
+                                    : "the server holds " + std::to_string(limits_.connections_total) +
+                                          " connections (every address together); answered 503");
       ::shutdown(sock, SHUT_RDWR);
       ::close(sock);
       return true;

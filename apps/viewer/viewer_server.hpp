@@ -19,9 +19,12 @@ namespace hisnegs::apps {
 // viewer's server". Every bound is checked by the server itself, not by cpp-httplib's
 // compiled-in defaults (Debian builds those into its shared library).
 struct ViewerServerLimits {
-  int threads = 16;                 // requests served at once (the worker pool)
   int connections_per_client = 6;   // open connections per remote address (a browser uses up to 6);
                                     // more are answered 503 and closed at once
+  int connections_total = 48;       // open connections on the listening socket, whatever their
+                                    // addresses (all of 127.0.0.0/8 is one machine); more: 503
+  int threads = 52;                 // the worker pool: one per open connection allowed, and spare
+                                    // ones that answer 503 at once (at least connections_total + 4)
   double head_timeout_s = 10.0;     // a request's line and headers must all arrive within this
   double io_timeout_s = 5.0;        // one read or write waits at most this
   double idle_timeout_s = 5.0;      // a kept-alive connection with no new request is closed after this

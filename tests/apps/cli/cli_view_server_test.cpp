@@ -237,6 +237,52 @@ TEST_F(ViewServer, TricklingClientsNeitherStarveOthersNorHoldCtrlC) {
   EXPECT_NE(out.find("request not complete within 10 s"), std::string::npos) << out;
 }
 
+// Slow clients from many loopback addresses (each within its 6) must not starve
+// another client: 24 trickling connections from 127.0.0.2-5 once held every worker
+// and delayed 127.0.0.1 by up to 9 s. Beyond the server's total (48, every address
+// together), a connection is answered 503 at once, never queued.
+TEST_F(ViewServer, TricklingClientsFromManyAddressesNeitherStarveOthersNorQueue) {
+  auto view = start();
+  ASSERT_GT(port_, 0);
+  std::vector<int> trickles;
+  const auto trickle_from = [&](int first, int last) {
+    for (int a = first; a <= last; ++a) {
+      const std::string from = "127.0.0." + std::to_string(a);
+      for (int i = 0; i < 6; ++i) {
+        const int sock = connect_from(from.c_str(), port_);
+        ASSERT_GE(sock, 0);
+        ASSERT_TRUE(send_all(sock, "GET / HTTP/1.1\r\nHost: x\r\n"));
+        trickles.push_back(sock);
+      }
+    }
+  };
+  const auto served_at_once = [&](const char* expect) {
+    const Clock::time_point t = Clock::now();
+    const int sock = connect_from("127.0.0.1", port_);
+    ASSERT_GE(sock, 0);
+    ASSERT_TRUE(send_all(sock, "GET / HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n"));
+    EXPECT_NE(read_reply(sock).find(expect), std::string::npos);
+    EXPECT_LT(seconds_since(t), 1.5);
+    ::close(sock);
+  };
+  ASSERT_NO_FATAL_FAILURE(trickle_from(2, 5));  // 24 connections, each address at its 6
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  ASSERT_NO_FATAL_FAILURE(served_at_once("HTTP/1.1 200"));
+  ASSERT_NO_FATAL_FAILURE(trickle_from(6, 10));  // 30 more: 54 in all, 6 over the server's 48
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  int busy = 0;
+  for (const int sock : trickles) {
+    char buf[256];
+    const ssize_t n = ::recv(sock, buf, sizeof buf - 1, MSG_DONTWAIT);
+    if (n > 0 && std::string(buf, static_cast<std::size_t>(n)).find("to this server") != std::string::npos) ++busy;
+  }
+  EXPECT_EQ(busy, 6);
+  ASSERT_NO_FATAL_FAILURE(served_at_once("HTTP/1.1 503"));  // the server is full: said at once, not queued
+  for (const int sock : trickles) ::close(sock);
+  const std::string out = view->read_until("connections (every address together); answered 503", 5.0);
+  EXPECT_NE(out.find("the server holds 48 connections"), std::string::npos) << out;
+}
+
 // Item 7: a flood of header lines and a large body cost the server bounded memory:
 // each request is cut off after 64 KiB or 100 header lines, a body is answered 413.
 TEST_F(ViewServer, HeaderFloodsAndBodiesCostBoundedMemory) {
