@@ -362,6 +362,7 @@ def zarr_seeds():
         "v2_u8.zarr": v2(None, raw[:32], dtype="|u1"),
         "v2_f4_big.zarr": v2(None, raw * 2, dtype=">f4"),
         "v2_slash.zarr": v2(None, raw, dimension_separator="/"),
+        "v2_order_list.zarr": v2(None, raw, order=[2, 4, 4]),  # a type_error escaped here once
         "v3_bytes.zarr": v3(le, raw),
         "v3_gzip_crc.zarr": v3(le + [{"name": "gzip", "configuration": {"level": 1}}, {"name": "crc32c"}],
                                gzip.compress(raw, mtime=0) + struct.pack("<I", crc32c(gzip.compress(raw, mtime=0)))),

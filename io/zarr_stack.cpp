@@ -606,8 +606,25 @@ void set_spacing(ZarrStackInfo& info, const Located& at, const ZarrReadOptions& 
 
 }  // namespace
 
+namespace {
+ZarrStackInfo inspect_checked(const fs::path& path, const ZarrReadOptions& options);
+}  // namespace
+
 ZarrStackInfo inspect_zarr_stack(const fs::path& path, const ZarrReadOptions& options) {
   if (!is_zarr_stack(path)) fail_input(path, "is not a Zarr folder (no .zarray, .zgroup, .zattrs or zarr.json)");
+  // Every field is checked where it is read; a value of an unexpected JSON type met
+  // anywhere else (an "order" that is a list, a dataset that is a number) is the
+  // metadata's fault too, said in one line.
+  try {
+    return inspect_checked(path, options);
+  } catch (const json::exception& e) {
+    fail_input(path, std::string("has malformed metadata: ") + e.what());
+  }
+}
+
+namespace {
+
+ZarrStackInfo inspect_checked(const fs::path& path, const ZarrReadOptions& options) {
   ZarrStackInfo info;
   info.named = path;
   Located at = locate(path, options, info);
@@ -625,6 +642,8 @@ ZarrStackInfo inspect_zarr_stack(const fs::path& path, const ZarrReadOptions& op
   info.plan = std::make_shared<const Array>(std::move(*at.array));
   return info;
 }
+
+}  // namespace
 
 std::string ZarrStackInfo::describe() const {
   std::string s = ome_version.empty() ? "Zarr v" + std::to_string(zarr_format) + " array"

@@ -318,6 +318,8 @@ with open("bad-long.zarr/1.1.1", "ab") as f:
 refuse("bad-long.zarr", "bad-long.zarr", "holds 66 bytes, the chunk 64")
 v2_meta("bad-sep.zarr", dimension_separator="\\")
 refuse("bad-sep.zarr", "bad-sep.zarr", "dimension_separator")
+v2_meta("bad-order-type.zarr", order=[2, 4, 4])  # a field of the wrong JSON type (found by fuzz_zarr)
+refuse("bad-order-type.zarr", "bad-order-type.zarr", "has malformed metadata")
 v2_meta("bad-zstd.zarr", compressor={"id": "zstd", "level": 1})
 refuse("bad-zstd.zarr", "bad-zstd.zarr", "zstd: ")
 write_v3("bad-shard-past.zarr", stack((8, 16, 16), "uint16"), (8, 16, 16), None, shard_inner=(4, 8, 8),
