@@ -10,7 +10,9 @@
 #include <gtest/gtest.h>
 #include <sys/stat.h>
 
+#include <atomic>
 #include <cstdlib>
+#include <thread>
 #include <fstream>
 #include <nlohmann/json.hpp>
 #include <random>
@@ -123,6 +125,42 @@ TEST(ZarrStack, EveryFixtureReadsWholeAndByRegionWithItsSpacing) {
     ++read;
   }
   EXPECT_GT(read, 50);
+}
+
+// Four threads reading random boxes of one source at once (a sharded v3 array and a
+// v2 array): each box equals the same part of the whole read.
+TEST(ZarrStack, ConcurrentRegionReadsAgreeWithTheWholeRead) {
+  REQUIRE_ZARR_PYTHON();
+  for (const char* name : {"v3-shard-start.zarr", "v2-blosc-zstd-1-slash.zarr"}) {
+    SCOPED_TRACE(name);
+    const auto source = open_volume_source(zarr_fixtures() / name);
+    const Volume whole = read_stack(zarr_fixtures() / name);
+    std::atomic<int> wrong{0};
+    std::vector<std::thread> threads;
+    for (int t = 0; t < 4; ++t) {
+      threads.emplace_back([&, t] {
+        std::mt19937 rng(static_cast<unsigned>(t));
+        const std::array<int, 3> n{source->nx, source->ny, source->nz};
+        for (int k = 0; k < 50; ++k) {
+          VoxelBox box;
+          for (int a = 0; a < 3; ++a) {
+            box.lo[a] = std::uniform_int_distribution<int>(0, n[a] - 1)(rng);
+            box.hi[a] = std::uniform_int_distribution<int>(box.lo[a] + 1, n[a])(rng);
+          }
+          std::vector<float> part(box.voxels());
+          source->read(box, part.data());
+          std::size_t i = 0;
+          for (int z = box.lo[2]; z < box.hi[2]; ++z) {
+            for (int y = box.lo[1]; y < box.hi[1]; ++y) {
+              for (int x = box.lo[0]; x < box.hi[0]; ++x, ++i) wrong += part[i] != whole.voxels[whole.index(x, y, z)] ? 1 : 0;
+            }
+          }
+        }
+      });
+    }
+    for (std::thread& t : threads) t.join();
+    EXPECT_EQ(wrong.load(), 0);
+  }
 }
 
 TEST(ZarrStack, DescribesTheFormatLevelAndCodecs) {

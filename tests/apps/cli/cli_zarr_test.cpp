@@ -53,6 +53,10 @@ TEST(CliZarr, EveryStackCommandReadsAnOmeZarrCopy) {
   const auto gt = run_hisnegs({"-q", "gt", dir / "s.ome.zarr", "-o", dir / "gt_zarr", "--orbit", "eval", "--size", "48"});
   ASSERT_EQ(gt.exit_code, 0) << gt.err;
   EXPECT_EQ(testing::read_bytes(dir / "gt_zarr" / "mips.tif"), testing::read_bytes(dir / "gt_tif" / "mips.tif"));
+  const auto bricked = run_hisnegs({"-q", "gt", dir / "s.ome.zarr", "-o", dir / "gt_bricks", "--orbit", "eval", "--size",
+                                    "48", "--brick-voxels", "32"});
+  ASSERT_EQ(bricked.exit_code, 0) << bricked.err;
+  EXPECT_EQ(testing::read_bytes(dir / "gt_bricks" / "mips.tif"), testing::read_bytes(dir / "gt_tif" / "mips.tif"));
   // A fixed-schedule fit, in memory and in bricks: the same checkpoint but for the source line.
   testing::write_text(dir / "fixed.yaml", "gmf: {gaussians: 40, rounds: 2, iterations_per_round: 5, time_budget_s: 0}\n");
   for (const bool bricks : {false, true}) {
