@@ -137,6 +137,7 @@ TEST(ZarrStack, ConcurrentRegionReadsAgreeWithTheWholeRead) {
     const Volume whole = read_stack(zarr_fixtures() / name);
     std::atomic<int> wrong{0};
     std::vector<std::thread> threads;
+    threads.reserve(4);
     for (int t = 0; t < 4; ++t) {
       threads.emplace_back([&, t] {
         std::mt19937 rng(static_cast<unsigned>(t));
