@@ -688,39 +688,66 @@ long long product(const std::vector<long long>& v) {
   return std::accumulate(v.begin(), v.end(), 1LL, std::multiplies<>());
 }
 
-// bytes -> values (float, C order of `shape` after the transposes) -> the decoded
-// chunk in C order of `shape`.
-std::vector<float> decode_chunk(const Chain& chain, std::vector<std::uint8_t> bytes, const std::vector<long long>& shape,
-                                const Array& a, const fs::path& file) {
-  const long long n = product(shape);
-  std::size_t expected = static_cast<std::size_t>(n) * static_cast<std::size_t>(a.size);
-  try {
-    for (auto c = chain.bytes.rbegin(); c != chain.bytes.rend(); ++c) {
-      const bool last_compressor = std::none_of(std::next(c), chain.bytes.rend(), [](const ByteCodec& b) { return b.kind != ByteCodec::Kind::kCrc32c; });
-      const std::size_t want = c->kind == ByteCodec::Kind::kCrc32c ? bytes.size() - std::min<std::size_t>(4, bytes.size()) : (last_compressor ? expected : bytes.size());
-      bytes = zarr::decode(*c, bytes, want);
-    }
-  } catch (const std::runtime_error& e) {
-    fail_input(file, e.what());
-  }
-  if (bytes.size() != expected) fail_input(file, "holds " + std::to_string(bytes.size()) + " bytes, the chunk " + std::to_string(expected));
-  std::vector<float> values(static_cast<std::size_t>(n));
-  const bool swap = chain.big_endian && a.size > 1;
-  for (std::size_t i = 0; i < values.size(); ++i) {
-    std::uint8_t b[4];
-    std::memcpy(b, bytes.data() + i * static_cast<std::size_t>(a.size), static_cast<std::size_t>(a.size));
-    if (swap) std::reverse(b, b + a.size);
-    if (a.kind == 'f') {
-      std::memcpy(&values[i], b, 4);
-    } else if (a.size == 1) {
-      values[i] = b[0];
+// A decoded chunk: its values as stored (native byte order), or as floats when a
+// transpose had to reorder them; nothing at all for a chunk never written.
+struct BlockValues {
+  std::vector<std::uint8_t> bytes;
+  std::vector<float> floats;
+  char kind = 'u';
+  int size = 2;
+  float fill = 0.0f;
+  bool empty = true;
+
+  // Values [src, src + n) of the chunk (C order) into dst[0], dst[stride], ...
+  void run(long long src, long long n, float* dst, long long stride) const {
+    const auto put = [&](auto value_at) {
+      if (stride == 1) {
+        for (long long i = 0; i < n; ++i) dst[i] = value_at(src + i);
+      } else {
+        for (long long i = 0; i < n; ++i) dst[i * stride] = value_at(src + i);
+      }
+    };
+    const std::uint8_t* p = bytes.data();
+    if (empty) {
+      put([&](long long) { return fill; });
+    } else if (!floats.empty()) {
+      put([&](long long i) { return floats[static_cast<std::size_t>(i)]; });
+    } else if (size == 1) {
+      put([&](long long i) { return static_cast<float>(p[i]); });
+    } else if (size == 2 && kind == 'u') {
+      put([&](long long i) {
+        std::uint16_t v = 0;
+        std::memcpy(&v, p + 2 * i, 2);
+        return static_cast<float>(v);
+      });
+    } else if (size == 2) {
+      put([&](long long i) {
+        std::int16_t v = 0;
+        std::memcpy(&v, p + 2 * i, 2);
+        return static_cast<float>(v);
+      });
     } else {
-      std::uint16_t u = 0;
-      std::memcpy(&u, b, 2);
-      values[i] = a.kind == 'i' ? static_cast<float>(static_cast<std::int16_t>(u)) : static_cast<float>(u);
+      put([&](long long i) {
+        float v = 0;
+        std::memcpy(&v, p + 4 * i, 4);
+        return v;
+      });
     }
   }
-  // Undo the transposes, last first: the encoded array's dim k is the decoded dim order[k].
+};
+
+BlockValues fill_block(const Array& a) {
+  BlockValues v;
+  v.fill = a.fill;
+  return v;
+}
+
+// The values of the transposed chunk `v` (bytes) as floats in the decoded order.
+void undo_transposes(const Chain& chain, const std::vector<long long>& shape, BlockValues& v) {
+  const std::size_t count = static_cast<std::size_t>(product(shape));
+  std::vector<float> values(count);
+  v.run(0, static_cast<long long>(count), values.data(), 1);
+  // The encoded array's dim k is the decoded dim order[k]; undone last first.
   std::vector<std::vector<long long>> shapes{shape};
   for (const auto& order : chain.transposes) {
     std::vector<long long> e(order.size());
@@ -748,7 +775,44 @@ std::vector<float> decode_chunk(const Chain& chain, std::vector<std::uint8_t> by
     }
     values.swap(out);
   }
-  return values;
+  v.floats = std::move(values);
+  v.bytes.clear();
+}
+
+// bytes -> the chunk's values (C order of `shape`): the byte codecs undone, the
+// byte order made native, the transposes undone.
+BlockValues decode_chunk(const Chain& chain, std::vector<std::uint8_t> bytes, const std::vector<long long>& shape,
+                         const Array& a, const fs::path& file) {
+  const long long n = product(shape);
+  const std::size_t expected = static_cast<std::size_t>(n) * static_cast<std::size_t>(a.size);
+  try {
+    for (auto c = chain.bytes.rbegin(); c != chain.bytes.rend(); ++c) {
+      const bool last_compressor = std::none_of(std::next(c), chain.bytes.rend(), [](const ByteCodec& b) {
+        return b.kind != ByteCodec::Kind::kCrc32c;
+      });
+      const std::size_t want = c->kind == ByteCodec::Kind::kCrc32c ? bytes.size() - std::min<std::size_t>(4, bytes.size())
+                                                                   : (last_compressor ? expected : bytes.size());
+      bytes = zarr::decode(*c, bytes, want);
+    }
+  } catch (const std::runtime_error& e) {
+    fail_input(file, e.what());
+  }
+  if (bytes.size() != expected) {
+    fail_input(file, "holds " + std::to_string(bytes.size()) + " bytes, the chunk " + std::to_string(expected));
+  }
+  if (chain.big_endian && a.size > 1) {
+    for (std::size_t i = 0; i < bytes.size(); i += static_cast<std::size_t>(a.size)) {
+      std::reverse(bytes.begin() + static_cast<std::ptrdiff_t>(i), bytes.begin() + static_cast<std::ptrdiff_t>(i) + a.size);
+    }
+  }
+  BlockValues v;
+  v.bytes = std::move(bytes);
+  v.kind = a.kind;
+  v.size = a.size;
+  v.fill = a.fill;
+  v.empty = false;
+  if (!chain.transposes.empty()) undo_transposes(chain, shape, v);
+  return v;
 }
 
 // Where the region lies in array coordinates, and each array axis' stride in `out`.
@@ -775,9 +839,8 @@ Region region_of(const ZarrStackInfo& info, const std::array<int, 3>& lo, const 
   return r;
 }
 
-// Copies the part of a block (origin, shape, C order; nullptr: the fill value)
-// inside the region into `out`.
-void copy_block(const float* data, float fill, const std::vector<long long>& origin, const std::vector<long long>& shape,
+// Copies the part of a block (origin, shape, C order) inside the region into `out`.
+void copy_block(const BlockValues& values, const std::vector<long long>& origin, const std::vector<long long>& shape,
                 const Region& r, float* out) {
   const std::size_t nd = shape.size();
   std::vector<long long> a(nd), b(nd), stride(nd, 1);
@@ -795,10 +858,9 @@ void copy_block(const float* data, float fill, const std::vector<long long>& ori
       src += (idx[d] - origin[d]) * stride[d];
       dst += (idx[d] - r.lo[d]) * r.out_stride[d];
     }
-    const long long x0 = a[last], x1 = b[last];
-    src += x0 - origin[last];
-    dst += (x0 - r.lo[last]) * r.out_stride[last];
-    for (long long x = x0; x < x1; ++x, ++src, dst += r.out_stride[last]) out[dst] = data ? data[src] : fill;
+    src += a[last] - origin[last];
+    dst += (a[last] - r.lo[last]) * r.out_stride[last];
+    values.run(src, b[last] - a[last], out + dst, r.out_stride[last]);
     std::size_t d = last;
     while (d-- > 0) {
       if (++idx[d] < b[d]) break;
@@ -868,14 +930,15 @@ void read_shard(const Array& a, const fs::path& file, const std::vector<long lon
     for (std::size_t d = 0; d < nd; ++d) linear = linear * per[d] + idx[d];
     const std::uint64_t offset = u64(2 * static_cast<std::size_t>(linear)), nbytes = u64(2 * static_cast<std::size_t>(linear) + 1);
     if (offset == ~0ULL && nbytes == ~0ULL) {
-      copy_block(nullptr, a.fill, at, s.inner, r, out);
+      copy_block(fill_block(a), at, s.inner, r, out);
       return;
     }
     if (offset > static_cast<std::uint64_t>(st.st_size) || nbytes > static_cast<std::uint64_t>(st.st_size) - offset) {
       fail_input(file, "shard index entry " + std::to_string(linear) + " lies past the file's end");
     }
-    const std::vector<float> v = decode_chunk(s.chain, read_bytes(file, static_cast<long long>(offset), static_cast<long long>(nbytes)), s.inner, a, file);
-    copy_block(v.data(), a.fill, at, s.inner, r, out);
+    copy_block(decode_chunk(s.chain, read_bytes(file, static_cast<long long>(offset), static_cast<long long>(nbytes)),
+                            s.inner, a, file),
+               at, s.inner, r, out);
   });
 }
 
@@ -888,12 +951,11 @@ void read_zarr_region(const ZarrStackInfo& info, const std::array<int, 3>& lo, c
   for_blocks(r.lo, r.hi, zero, a.chunk, [&](const std::vector<long long>& idx, const std::vector<long long>& at) {
     const fs::path file = a.chunk_path(idx);
     if (!exists_entry(file)) {
-      copy_block(nullptr, a.fill, at, a.chunk, r, out);
+      copy_block(fill_block(a), at, a.chunk, r, out);
     } else if (a.chain.sharding) {
       read_shard(a, file, at, r, r.hi, out);
     } else {
-      const std::vector<float> v = decode_chunk(a.chain, read_bytes(file, 0, -1), a.chunk, a, file);
-      copy_block(v.data(), a.fill, at, a.chunk, r, out);
+      copy_block(decode_chunk(a.chain, read_bytes(file, 0, -1), a.chunk, a, file), at, a.chunk, r, out);
     }
   });
 }
