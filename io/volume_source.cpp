@@ -73,29 +73,21 @@ class TiffSource final : public VolumeSource {
   mutable std::shared_ptr<const TiffPageIndex> index_;
 };
 
-class Hdf5Source final : public VolumeSource {
+// A source whose reader works from the header it inspected (HDF5, Zarr).
+template <class Info, void (*kRead)(const Info&, const std::array<int, 3>&, const std::array<int, 3>&, float*)>
+class InspectedSource final : public VolumeSource {
  public:
-  explicit Hdf5Source(Hdf5StackInfo info) : info_(std::move(info)) {}
+  explicit InspectedSource(Info info) : info_(std::move(info)) {}
   void read(const VoxelBox& box, float* out) const override {
     check_box(box);
-    read_hdf5_region(info_, box.lo, box.hi, out);
+    kRead(info_, box.lo, box.hi, out);
   }
 
  private:
-  Hdf5StackInfo info_;
+  Info info_;
 };
-
-class ZarrSource final : public VolumeSource {
- public:
-  explicit ZarrSource(ZarrStackInfo info) : info_(std::move(info)) {}
-  void read(const VoxelBox& box, float* out) const override {
-    check_box(box);
-    read_zarr_region(info_, box.lo, box.hi, out);
-  }
-
- private:
-  ZarrStackInfo info_;
-};
+using Hdf5Source = InspectedSource<Hdf5StackInfo, read_hdf5_region>;
+using ZarrSource = InspectedSource<ZarrStackInfo, read_zarr_region>;
 
 }  // namespace
 
