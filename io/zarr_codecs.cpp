@@ -7,6 +7,8 @@
 #include <zstd.h>
 
 #include <array>
+#include <cctype>
+#include <cstdlib>
 #include <limits>
 #include <stdexcept>
 
@@ -24,16 +26,22 @@ Bytes decode_blosc(std::span<const std::uint8_t> in, std::size_t expected) {
     throw std::runtime_error("blosc: holds " + std::to_string(nbytes) + " bytes, the chunk " +
                              std::to_string(expected));
   }
-  const char* compressor = nullptr;
-  const int format = (in[2] >> 5) & 0x7;  // the header's flags: the codec's format code
-  if (blosc_compcode_to_compname(format, &compressor) < 0) {
-    throw std::runtime_error("blosc: inner codec " + std::to_string(format) + " is not in this libblosc");
-  }
+  // The library the stream names ("BloscLZ", "LZ4", "Snappy", "Zlib", "Zstd"); one
+  // this libblosc was built without fails to decompress and is named.
+  const char* library = blosc_cbuffer_complib(in.data());
+  char* name = nullptr;
+  char* version = nullptr;
+  std::string compname = library != nullptr ? library : "";  // "Zstd" -> "zstd", "BloscLZ" -> "blosclz"
+  for (char& ch : compname) ch = static_cast<char>(std::tolower(static_cast<unsigned char>(ch)));
+  const bool known = !compname.empty() && blosc_get_complib_info(compname.c_str(), &name, &version) >= 0;
+  std::free(name);
+  std::free(version);
+  if (!known) throw std::runtime_error(std::string("blosc: inner codec ") + (library ? library : "?") + " is not in this libblosc");
   Bytes out(expected);
   if (expected == 0) return out;
   const int n = blosc_decompress_ctx(in.data(), out.data(), out.size(), 1);
   if (n < 0 || static_cast<std::size_t>(n) != expected) {
-    throw std::runtime_error(std::string("blosc (") + (compressor ? compressor : "?") + "): corrupt stream");
+    throw std::runtime_error(std::string("blosc (") + library + "): corrupt stream");
   }
   return out;
 }

@@ -13,6 +13,7 @@
 #include <cstring>
 #include <fstream>
 #include <functional>
+#include <tuple>
 #include <limits>
 #include <nlohmann/json.hpp>
 #include <numeric>
@@ -97,9 +98,33 @@ std::string joined_extents(const std::vector<long long>& v) {
   return s;
 }
 
+constexpr std::size_t kMaxMetadataBytes = std::size_t{16} << 20;
+constexpr int kMaxJsonDepth = 64;
+
+// Metadata as JSON: at most 16 MiB, nested at most 64 deep (copies and dump() of
+// nlohmann's values recurse: a file of a million '[' would overflow the stack).
 json read_json(const fs::path& file) {
+  std::error_code ec;
+  const auto bytes = fs::file_size(file, ec);
+  if (!ec && bytes > kMaxMetadataBytes) fail_input(file, "is over 16 MiB; not Zarr metadata");
+  const std::string text = read_file(file);
+  int depth = 0;
+  bool in_string = false, escaped = false;
+  for (const char c : text) {
+    if (in_string) {
+      if (escaped) escaped = false;
+      else if (c == '\\') escaped = true;
+      else if (c == '"') in_string = false;
+    } else if (c == '"') {
+      in_string = true;
+    } else if (c == '[' || c == '{') {
+      if (++depth > kMaxJsonDepth) fail_input(file, "nests JSON deeper than 64 levels; not Zarr metadata");
+    } else if (c == ']' || c == '}') {
+      --depth;
+    }
+  }
   try {
-    return json::parse(read_file(file));
+    return json::parse(text);
   } catch (const json::exception& e) {
     fail_input(file, std::string("is not valid JSON: ") + e.what());
   }
@@ -169,6 +194,12 @@ float fill_of(const json& v, const fs::path& file) {
     if (s == "NaN") return std::numeric_limits<float>::quiet_NaN();
     if (s == "Infinity") return std::numeric_limits<float>::infinity();
     if (s == "-Infinity") return -std::numeric_limits<float>::infinity();
+    if (s.size() == 10 && s.rfind("0x", 0) == 0 && s.find_first_not_of("0123456789abcdefABCDEF", 2) == std::string::npos) {
+      const auto bits = static_cast<std::uint32_t>(std::stoul(s.substr(2), nullptr, 16));  // v3: a float's bits
+      float f = 0;
+      std::memcpy(&f, &bits, 4);
+      return f;
+    }
   }
   fail_input(file, "fill_value = " + v.dump() + " is not read");
 }
@@ -248,9 +279,9 @@ void v3_codec(const json& c, Chain& chain, bool& have_bytes, const fs::path& fil
     }
     std::vector<int> sorted = order;
     std::sort(sorted.begin(), sorted.end());
-    for (std::size_t k = 0; k < sorted.size(); ++k) {
-      if (sorted.size() != ndim || sorted[k] != static_cast<int>(k)) fail_input(file, "transpose order " + conf.dump() + " is not a permutation of the axes");
-    }
+    bool permutation = sorted.size() == ndim;
+    for (std::size_t k = 0; permutation && k < sorted.size(); ++k) permutation = sorted[k] == static_cast<int>(k);
+    if (!permutation) fail_input(file, "transpose order " + conf.dump() + " is not a permutation of the axes");
     chain.transposes.push_back(order);
   } else if (name == "bytes" || name == "endian") {
     if (have_bytes) fail_input(file, "two array-to-bytes codecs");
@@ -265,7 +296,10 @@ void v3_codec(const json& c, Chain& chain, bool& have_bytes, const fs::path& fil
     s->chain = v3_chain(field<json>(conf, "codecs", file), file, ndim, size);
     s->index = v3_chain(conf.contains("index_codecs") ? conf["index_codecs"] : json::array({json{{"name", "bytes"}}}),
                         file, 1, 8);
-    s->index_at_end = conf.value("index_location", std::string("end")) == "end";
+    const json location = conf.contains("index_location") ? conf["index_location"] : json("end");
+    if (location != "end" && location != "start") fail_input(file, "index_location " + location.dump() + " is not end or start");
+    s->index_at_end = location == "end";
+    if (s->chain.sharding) fail_input(file, "sharding_indexed inside sharding_indexed is not read");
     chain.sharding = s;
   } else if (name == "blosc" || name == "gzip" || name == "zstd" || name == "crc32c") {
     if (!have_bytes) fail_input(file, "codec " + name + " before the bytes codec");
@@ -287,6 +321,9 @@ Chain v3_chain(const json& codecs, const fs::path& file, std::size_t ndim, int s
   bool have_bytes = false;
   for (const json& c : codecs) v3_codec(c, chain, have_bytes, file, ndim, size);
   if (!have_bytes && size > 1) fail_input(file, "codecs name no bytes codec");
+  if (chain.sharding && (!chain.transposes.empty() || !chain.bytes.empty())) {
+    fail_input(file, "codecs around sharding_indexed (a transpose before it, a byte codec after it) are not read");
+  }
   int compressors = 0;
   for (const ByteCodec& b : chain.bytes) compressors += b.kind != ByteCodec::Kind::kCrc32c ? 1 : 0;
   if (compressors > 1) fail_input(file, "codecs hold two compressors in a row; one is read");
@@ -305,6 +342,9 @@ Array v3_array(const fs::path& folder, const json& j) {
   a.chunk = extents(field<json>(grid, "configuration", file), "chunk_shape", file, kMaxExtent);
   if (a.chunk.size() != a.shape.size()) fail_input(file, "chunk_shape and shape have different numbers of axes");
   check_values(a, file);
+  if (j.contains("storage_transformers") && !j["storage_transformers"].empty()) {
+    fail_input(file, "storage_transformers " + j["storage_transformers"].dump() + " are not read");
+  }
   a.chain = v3_chain(field<json>(j, "codecs", file), file, a.shape.size(), a.size);
   a.fill = fill_of(j.contains("fill_value") ? j["fill_value"] : json(), file);
   const json keys = j.contains("chunk_key_encoding") ? j["chunk_key_encoding"] : json{{"name", "default"}};
@@ -328,6 +368,12 @@ Array v3_array(const fs::path& folder, const json& j) {
     if (inner > static_cast<double>(kMaxInnerChunks)) fail_input(file, "a shard holds " + number_text(inner) + " chunks; at most 2^22 are read");
   }
   return a;
+}
+
+// Whether `folder` holds an array's metadata (without reading it).
+bool array_in_folder(const fs::path& folder) {
+  return exists_entry(folder / ".zarray") || (exists_entry(folder / "zarr.json") && !exists_entry(folder / ".zgroup") &&
+                                              read_file(folder / "zarr.json").find("\"array\"") != std::string::npos);
 }
 
 bool is_v3_array(const json& j) { return j.value("node_type", std::string()) == "array"; }
@@ -501,8 +547,19 @@ struct Located {  // NOLINT(bugprone-exception-escape)
   json ms;           // the OME multiscales entry (null: none)
   fs::path ms_file;  // the file it came from
   std::string level_path;
-  bool group = false;  // the folder named is the multiscale group
+  bool group = false;  // the folder named is the multiscale group (or holds it, bioformats2raw)
+  fs::path group_folder;  // the multiscale group's folder
 };
+
+// bioformats2raw's layout: a group marked "bioformats2raw.layout" whose image 0
+// (folder "0") is the multiscale group.
+bool is_bioformats2raw(const fs::path& folder) {
+  if (!exists_entry(folder / ".zattrs") && !exists_entry(folder / "zarr.json")) return false;
+  json attrs = read_json(exists_entry(folder / ".zattrs") ? folder / ".zattrs" : folder / "zarr.json");
+  if (attrs.contains("attributes") && attrs["attributes"].is_object()) attrs = attrs["attributes"];
+  if (attrs.contains("ome") && attrs["ome"].is_object()) attrs = attrs["ome"];
+  return attrs.is_object() && attrs.contains("bioformats2raw.layout");
+}
 
 Located locate(const fs::path& path, const ZarrReadOptions& options, ZarrStackInfo& info) {
   Located at;
@@ -529,11 +586,17 @@ Located locate(const fs::path& path, const ZarrReadOptions& options, ZarrStackIn
     }
     return at;
   }
-  auto [pms, version] = multiscales_of(path);
+  fs::path group = path;
+  auto [pms, version] = multiscales_of(group);
+  if (!pms.is_object() && is_bioformats2raw(path) && exists_entry(path / "0")) {
+    group = path / "0";
+    std::tie(pms, version) = multiscales_of(group);
+  }
   if (!pms.is_object()) fail_input(path, "is a Zarr group without OME multiscales metadata; name the array folder to read");
   at.ms = pms;
-  at.ms_file = metadata_file(path);
+  at.ms_file = metadata_file(group);
   at.group = true;
+  at.group_folder = group;
   info.ome_version = version;
   const json datasets = field<json>(at.ms, "datasets", at.ms_file);
   if (!datasets.is_array() || datasets.empty()) fail_input(at.ms_file, "multiscales lists no datasets");
@@ -545,8 +608,8 @@ Located locate(const fs::path& path, const ZarrReadOptions& options, ZarrStackIn
   info.level = options.level;
   for (const json& d : datasets) check_dataset_path(field<std::string>(d, "path", at.ms_file), at.ms_file);
   at.level_path = field<std::string>(datasets[static_cast<std::size_t>(options.level)], "path", at.ms_file);
-  at.array = array_in(path / at.level_path);
-  if (!at.array) fail_input(path / at.level_path, "holds no Zarr array (.zarray or zarr.json)");
+  at.array = array_in(group / at.level_path);
+  if (!at.array) fail_input(group / at.level_path, "holds no Zarr array (.zarray or zarr.json)");
   return at;
 }
 
@@ -578,10 +641,10 @@ void read_pyramid(ZarrStackInfo& info, const Located& at, const fs::path& path) 
     const std::string p = d.value("path", std::string());
     if (p == at.level_path) {
       info.pyramid.push_back(level_of(*at.array, p, spatial(d)));
-    } else if (const std::optional<Array> other = array_in(path / p)) {
+    } else if (const std::optional<Array> other = array_in(at.group_folder / p)) {
       info.pyramid.push_back(level_of(*other, p, spatial(d)));
     } else {
-      fail_input(path / p, "holds no Zarr array (.zarray or zarr.json), a level its multiscales lists");
+      fail_input(at.group_folder / p, "holds no Zarr array (.zarray or zarr.json), a level its multiscales lists");
     }
   }
 }
@@ -661,11 +724,28 @@ std::string ZarrStackInfo::describe() const {
 namespace {
 
 // The bytes [offset, offset + count) of a chunk or shard file (count -1: all).
-std::vector<std::uint8_t> read_bytes(const fs::path& file, long long offset, long long count) {
+// The largest encoded size of a chunk of `expected` bytes through `chain`: what the
+// compressors' own bounds allow (blosc, zstd and deflate store incompressible data
+// with a small overhead) and 4 bytes per CRC-32C; a longer file is refused before
+// anything is allocated for it.
+long long encoded_bound(const Chain& chain, std::size_t expected) {
+  long long bound = static_cast<long long>(expected);
+  for (const ByteCodec& c : chain.bytes) {
+    bound += c.kind == ByteCodec::Kind::kCrc32c ? 4 : static_cast<long long>(expected / 8) + (64 << 10);
+  }
+  return bound;
+}
+
+std::vector<std::uint8_t> read_bytes(const fs::path& file, long long offset, long long count, long long bound) {
   const int fd = open_regular_file(file);
   struct stat st {};
   ::fstat(fd, &st);
   if (count < 0) count = st.st_size - offset;
+  if (count > bound) {
+    ::close(fd);
+    fail_input(file, "holds " + std::to_string(count) + " bytes for a chunk; at most " + std::to_string(bound) +
+                         " can encode it");
+  }
   if (offset < 0 || count < 0 || offset + count > st.st_size) {
     ::close(fd);
     fail_input(file, "bytes " + std::to_string(offset) + ".." + std::to_string(offset + count) + " lie past its end (" + std::to_string(st.st_size) + " bytes)");
@@ -787,11 +867,13 @@ BlockValues decode_chunk(const Chain& chain, std::vector<std::uint8_t> bytes, co
   const std::size_t expected = static_cast<std::size_t>(n) * static_cast<std::size_t>(a.size);
   try {
     for (auto c = chain.bytes.rbegin(); c != chain.bytes.rend(); ++c) {
-      const bool last_compressor = std::none_of(std::next(c), chain.bytes.rend(), [](const ByteCodec& b) {
-        return b.kind != ByteCodec::Kind::kCrc32c;
+      // A compressor (there is at most one) gives the chunk plus the checksums of
+      // the codecs still to undo after it.
+      const auto checksums_inside = std::count_if(std::next(c), chain.bytes.rend(), [](const ByteCodec& b) {
+        return b.kind == ByteCodec::Kind::kCrc32c;
       });
       const std::size_t want = c->kind == ByteCodec::Kind::kCrc32c ? bytes.size() - std::min<std::size_t>(4, bytes.size())
-                                                                   : (last_compressor ? expected : bytes.size());
+                                                                   : expected + 4 * static_cast<std::size_t>(checksums_inside);
       bytes = zarr::decode(*c, bytes, want);
     }
   } catch (const std::runtime_error& e) {
@@ -909,7 +991,7 @@ void read_shard(const Array& a, const fs::path& file, const std::vector<long lon
   }
   struct stat st {};
   if (::stat(file.c_str(), &st) != 0 || st.st_size < index_bytes) fail_input(file, "is shorter than its shard index (" + std::to_string(index_bytes) + " bytes)");
-  std::vector<std::uint8_t> raw = read_bytes(file, s.index_at_end ? st.st_size - index_bytes : 0, index_bytes);
+  std::vector<std::uint8_t> raw = read_bytes(file, s.index_at_end ? st.st_size - index_bytes : 0, index_bytes, index_bytes);
   try {
     for (auto c = s.index.bytes.rbegin(); c != s.index.bytes.rend(); ++c) raw = zarr::decode(*c, raw, raw.size() - 4);
   } catch (const std::runtime_error& e) {
@@ -936,7 +1018,8 @@ void read_shard(const Array& a, const fs::path& file, const std::vector<long lon
     if (offset > static_cast<std::uint64_t>(st.st_size) || nbytes > static_cast<std::uint64_t>(st.st_size) - offset) {
       fail_input(file, "shard index entry " + std::to_string(linear) + " lies past the file's end");
     }
-    copy_block(decode_chunk(s.chain, read_bytes(file, static_cast<long long>(offset), static_cast<long long>(nbytes)),
+    copy_block(decode_chunk(s.chain, read_bytes(file, static_cast<long long>(offset), static_cast<long long>(nbytes),
+                                       encoded_bound(s.chain, static_cast<std::size_t>(product(s.inner)) * static_cast<std::size_t>(a.size))),
                             s.inner, a, file),
                at, s.inner, r, out);
   });
@@ -955,12 +1038,38 @@ void read_zarr_region(const ZarrStackInfo& info, const std::array<int, 3>& lo, c
     } else if (a.chain.sharding) {
       read_shard(a, file, at, r, r.hi, out);
     } else {
-      copy_block(decode_chunk(a.chain, read_bytes(file, 0, -1), a.chunk, a, file), at, a.chunk, r, out);
+      copy_block(decode_chunk(a.chain,
+                              read_bytes(file, 0, -1,
+                                         encoded_bound(a.chain, static_cast<std::size_t>(product(a.chunk)) *
+                                                                    static_cast<std::size_t>(a.size))),
+                              a.chunk, a, file), at, a.chunk, r, out);
     }
   });
 }
 
-std::vector<fs::path> zarr_stack_files(const fs::path& path) { return {path}; }
+namespace {
+
+// A level named alone takes its axes and scale from the group above it: that
+// group's metadata file is part of what the stack is.
+void add_group_metadata(const fs::path& path, std::vector<fs::path>& files) {
+  const fs::path self = path.has_filename() ? path : path.parent_path();
+  if (!array_in_folder(self)) return;
+  for (const char* name : {".zattrs", "zarr.json"}) {
+    const fs::path above = self.parent_path() / name;
+    if (exists_entry(above)) files.push_back(above);
+  }
+}
+
+}  // namespace
+
+std::vector<fs::path> zarr_stack_files(const fs::path& path) {
+  std::vector<fs::path> files{path};
+  try {
+    add_group_metadata(path, files);
+  } catch (const std::exception&) {  // never throws: the reader reports what is wrong
+  }
+  return files;
+}
 
 }  // namespace hisnegs::io
 

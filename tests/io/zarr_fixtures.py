@@ -162,7 +162,7 @@ def grid(shape, chunk):
 
 
 def write_v3(folder, v, chunk, codecs, keys="default", shard_inner=None, inner_codecs=None, index_at="end",
-             skip=(), attributes=None, dtype_name=None):
+             skip=(), attributes=None, dtype_name=None, fill=0, around=None):
     os.makedirs(folder, exist_ok=True)
     outer = codecs
     if shard_inner is not None:
@@ -170,10 +170,12 @@ def write_v3(folder, v, chunk, codecs, keys="default", shard_inner=None, inner_c
             "chunk_shape": list(shard_inner), "codecs": inner_codecs,
             "index_codecs": [{"name": "bytes", "configuration": {"endian": "little"}}, {"name": "crc32c"}],
             "index_location": index_at}}]
+        if around:  # codecs placed around the sharding codec (refused by hisnegs)
+            outer = around[0] + outer + around[1]
     meta = {"zarr_format": 3, "node_type": "array", "shape": list(v.shape), "data_type": dtype_name or str(v.dtype),
             "chunk_grid": {"name": "regular", "configuration": {"chunk_shape": list(chunk)}},
             "chunk_key_encoding": {"name": keys, "configuration": {"separator": "/" if keys == "default" else "."}},
-            "fill_value": 0, "codecs": outer, "attributes": attributes or {}}
+            "fill_value": fill, "codecs": outer, "attributes": attributes or {}}
     with open(os.path.join(folder, "zarr.json"), "w") as f:
         json.dump(meta, f)
     for idx in grid(v.shape, chunk):
@@ -315,7 +317,7 @@ refuse("bad-short.zarr", "bad-short.zarr", "holds 10 bytes, the chunk 64")
 v2_meta("bad-long.zarr")
 with open("bad-long.zarr/1.1.1", "ab") as f:
     f.write(b"xx")
-refuse("bad-long.zarr", "bad-long.zarr", "holds 66 bytes, the chunk 64")
+refuse("bad-long.zarr", "bad-long.zarr", "holds 66 bytes for a chunk; at most 64 can encode it")
 v2_meta("bad-sep.zarr", dimension_separator="\\")
 refuse("bad-sep.zarr", "bad-sep.zarr", "dimension_separator")
 v2_meta("bad-order-type.zarr", order=[2, 4, 4])  # a field of the wrong JSON type (found by fuzz_zarr)
@@ -333,6 +335,56 @@ with open("bad-shard-past.zarr/c/0/0/0", "r+b") as f:
     f.seek(0)
     f.write(data)
 refuse("bad-shard-past.zarr", "bad-shard-past.zarr", "lies past the file's end")
+
+# Found by review: a checksum inside a compressor, a float fill value as its bits,
+# bioformats2raw's layout (the multiscale image in series 0).
+folder = "v3-crc-then-zstd.zarr"
+expect(folder, folder, write_v3(folder, v.copy(), (4, 8, 8), bytes_le + [{"name": "crc32c"},
+                                                                       {"name": "zstd", "configuration": {"level": 1}}]))
+f32 = stack((6, 16, 16), "float32")
+folder = "v3-hexfill.zarr"
+write_v3(folder, f32.copy(), (3, 8, 8), bytes_le, fill="0x42f60000", skip={(1, 1, 1)})
+f32[3:6, 8:16, 8:16] = 123.0
+expect(folder, folder, f32)
+os.makedirs("b2r.zarr", exist_ok=True)
+with open("b2r.zarr/.zgroup", "w") as f:
+    json.dump({"zarr_format": 2}, f)
+with open("b2r.zarr/.zattrs", "w") as f:
+    json.dump({"bioformats2raw.layout": 3}, f)
+g = zarr.open_group("b2r.zarr/0", mode="w")
+b2r = stack((5, 16, 16), "<u2")
+g.create_dataset("0", data=b2r, chunks=(2, 8, 8))
+g.attrs["multiscales"] = [{"version": "0.4", "axes": ["z", "y", "x"], "datasets": [
+    {"path": "0", "coordinateTransformations": [{"type": "scale", "scale": [2.0, 0.5, 0.5]}]}]}]
+expect("b2r.zarr", "b2r.zarr", b2r, (0.5, 0.5, 2.0))
+
+# Refused by review: codecs around the sharding codec, an empty transpose, metadata
+# nested a million deep, a chunk file far longer than its chunk, a bad index_location.
+write_v3("bad-around-shard.zarr", v.copy(), (8, 16, 16), None, shard_inner=(4, 8, 8), inner_codecs=bytes_le,
+         around=([{"name": "transpose", "configuration": {"order": [2, 1, 0]}}], []))
+refuse("bad-around-shard.zarr", "bad-around-shard.zarr", "codecs around sharding_indexed")
+write_v3("bad-empty-transpose.zarr", v.copy(), (4, 8, 8), bytes_le)
+with open("bad-empty-transpose.zarr/zarr.json") as f:
+    meta = json.load(f)
+meta["codecs"] = [{"name": "transpose", "configuration": {"order": []}}] + bytes_le
+with open("bad-empty-transpose.zarr/zarr.json", "w") as f:
+    json.dump(meta, f)
+refuse("bad-empty-transpose.zarr", "bad-empty-transpose.zarr", "is not a permutation of the axes")
+os.makedirs("bad-deep.zarr", exist_ok=True)
+with open("bad-deep.zarr/.zarray", "w") as f:
+    f.write('{"zarr_format": 2, "fill_value": ' + "[" * 1000000 + "]" * 1000000 + "}")
+refuse("bad-deep.zarr", "bad-deep.zarr", "nests JSON deeper than 64 levels")
+v2_meta("bad-huge-chunk.zarr")
+with open("bad-huge-chunk.zarr/0.0.0", "wb") as f:
+    f.truncate(1 << 20)
+refuse("bad-huge-chunk.zarr", "bad-huge-chunk.zarr", "can encode it")
+write_v3("bad-index-location.zarr", v.copy(), (8, 16, 16), None, shard_inner=(4, 8, 8), inner_codecs=bytes_le)
+with open("bad-index-location.zarr/zarr.json") as f:
+    meta = json.load(f)
+meta["codecs"][0]["configuration"]["index_location"] = "middle"
+with open("bad-index-location.zarr/zarr.json", "w") as f:
+    json.dump(meta, f)
+refuse("bad-index-location.zarr", "bad-index-location.zarr", "index_location")
 
 with open("manifest.json", "w") as f:
     json.dump(manifest, f, indent=1)
