@@ -9,6 +9,7 @@
 
 #include <gtest/gtest.h>
 #include <sys/stat.h>
+#include <unistd.h>
 
 #include <atomic>
 #include <cstdlib>
@@ -38,9 +39,30 @@ bool have_zarr_python() { return std::system("/usr/bin/python3 -c 'import zarr, 
     }                                                                                                  \
   } while (0)
 
-// The fixtures, written once per test binary into one scratch folder.
+// A folder of this process for the fixtures, apart from every test's ScratchDir
+// (which is named after the running test: under ctest, one test per process, the
+// first test's ScratchDir would be this very folder and wipe it).
+class FixtureDir {
+ public:
+  FixtureDir() : path_(fs::temp_directory_path() / ("hisnegs-zarr-fixtures-" + std::to_string(::getpid()))) {
+    fs::remove_all(path_);
+    fs::create_directories(path_);
+  }
+  ~FixtureDir() {
+    std::error_code ec;
+    fs::remove_all(path_, ec);
+  }
+  FixtureDir(const FixtureDir&) = delete;
+  FixtureDir& operator=(const FixtureDir&) = delete;
+  [[nodiscard]] const fs::path& path() const { return path_; }
+
+ private:
+  fs::path path_;
+};
+
+// The fixtures, written once per test binary.
 const fs::path& zarr_fixtures() {
-  static ScratchDir dir;
+  static FixtureDir dir;
   static const bool made = [] {
     const auto r = hisnegs::testing::run_shell(
         "/usr/bin/python3 " + hisnegs::testing::shell_quoted(hisnegs::testing::source_dir() / "tests/io/zarr_fixtures.py") +
