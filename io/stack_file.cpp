@@ -21,21 +21,39 @@ void refuse_hdf5_options(const std::filesystem::path& path, const StackReadOptio
   if (options.timepoint) fail_input(path, "--timepoint is for HDF5 and OME-Zarr stacks; this is a TIFF stack");
 }
 
-void refuse_level(const std::filesystem::path& path, const StackReadOptions& options) {
-  if (options.level != 0) fail_input(path, "--level is for OME-Zarr stacks (multiscale); this file has one level");
-}
-
-StackHeader header_of(const ZarrStackInfo& info) {
+// The fields every reader's inspected header has in common.
+template <class Info>
+StackHeader common_header(const Info& info) {
   StackHeader h;
   h.nx = info.nx, h.ny = info.ny, h.nz = info.nz;
   h.type = info.type;
   h.spacing = info.spacing;
   h.channels = info.channels;
-  h.format = info.describe();
   return h;
 }
 
 }  // namespace
+
+void refuse_level(const std::filesystem::path& path, const StackReadOptions& options) {
+  if (options.level != 0) fail_input(path, "--level is for OME-Zarr stacks (multiscale); this file has one level");
+}
+
+StackHeader header_of(const Hdf5StackInfo& info) {
+  StackHeader h = common_header(info);
+  h.format = info.describe();
+  return h;
+}
+
+StackHeader header_of(const ZarrStackInfo& info) {
+  StackHeader h = common_header(info);
+  h.format = info.describe();
+  return h;
+}
+
+ZarrStackInfo inspect_zarr_for(const std::filesystem::path& path, const StackReadOptions& options) {
+  if (!options.dataset.empty()) fail_input(path, "--dataset is for HDF5 files; name the Zarr array folder instead");
+  return inspect_zarr_stack(path, options.zarr());
+}
 
 Hdf5ReadOptions StackReadOptions::hdf5() const {
   Hdf5ReadOptions h;
@@ -60,27 +78,12 @@ void require_stack_path(const std::filesystem::path& path) {
 }
 
 StackHeader inspect_stack(const std::filesystem::path& path, const StackReadOptions& options) {
-  StackHeader h;
-  if (is_zarr_stack(path)) {
-    if (!options.dataset.empty()) fail_input(path, "--dataset is for HDF5 files; name the Zarr array folder instead");
-    return header_of(inspect_zarr_stack(path, options.zarr()));
-  }
+  if (is_zarr_stack(path)) return header_of(inspect_zarr_for(path, options));
   refuse_level(path, options);
-  if (is_hdf5_stack(path)) {
-    const Hdf5StackInfo info = inspect_hdf5_stack(path, options.hdf5());
-    h.nx = info.nx, h.ny = info.ny, h.nz = info.nz;
-    h.type = info.type;
-    h.spacing = info.spacing;
-    h.channels = info.channels;
-    h.format = info.describe();
-    return h;
-  }
+  if (is_hdf5_stack(path)) return header_of(inspect_hdf5_stack(path, options.hdf5()));
   refuse_hdf5_options(path, options);
   const TiffStackInfo info = inspect_tiff_stack(path, options.tiff);
-  h.nx = info.nx, h.ny = info.ny, h.nz = info.nz;
-  h.type = info.type;
-  h.spacing = info.spacing;
-  h.channels = info.channels;
+  StackHeader h = common_header(info);
   h.format = std::string("TIFF") + (info.bigtiff ? " (BigTIFF)" : "") + ", " + std::to_string(info.pages) + " pages, " +
              std::string(to_string(info.type)) + ", " + info.compression + ", " + (info.tiled ? "tiled" : "striped") +
              (info.channels > 1 ? ", " + std::to_string(info.channels) + " channels" : "");
@@ -89,8 +92,7 @@ StackHeader inspect_stack(const std::filesystem::path& path, const StackReadOpti
 
 Volume read_stack(const std::filesystem::path& path, const StackReadOptions& options) {
   if (is_zarr_stack(path)) {
-    if (!options.dataset.empty()) fail_input(path, "--dataset is for HDF5 files; name the Zarr array folder instead");
-    const ZarrStackInfo info = inspect_zarr_stack(path, options.zarr());
+    const ZarrStackInfo info = inspect_zarr_for(path, options);
     check_allocation(path, 4.0 * info.nx * info.ny * static_cast<double>(info.nz), "the stack as float32");
     Volume v;
     v.nx = info.nx, v.ny = info.ny, v.nz = info.nz;

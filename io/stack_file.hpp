@@ -40,6 +40,15 @@ struct StackHeader {
 // file (throws InputError as require_regular_file otherwise; the reader checks the rest).
 void require_stack_path(const std::filesystem::path& path);
 
+// The header an HDF5 or Zarr reader inspected, as inspect_stack gives it.
+[[nodiscard]] StackHeader header_of(const Hdf5StackInfo& info);
+[[nodiscard]] StackHeader header_of(const ZarrStackInfo& info);
+// A Zarr stack as every stack command reads it: --dataset refused, then
+// inspect_zarr_stack with the options' level, channel, time point and spacing.
+[[nodiscard]] ZarrStackInfo inspect_zarr_for(const std::filesystem::path& path, const StackReadOptions& options);
+// --level refused (one line) for a stack of one level (TIFF, HDF5).
+void refuse_level(const std::filesystem::path& path, const StackReadOptions& options);
+
 [[nodiscard]] StackHeader inspect_stack(const std::filesystem::path& path, const StackReadOptions& options = {});
 
 // The whole stack (raw values, normalization kNone). A TIFF refuses --dataset and

@@ -102,36 +102,29 @@ void VolumeSource::check_box(const VoxelBox& box) const {
 
 std::unique_ptr<VolumeSource> open_volume_source(const std::filesystem::path& path, const StackReadOptions& options) {
   std::unique_ptr<VolumeSource> s;
+  StackHeader header;
   if (is_zarr_stack(path)) {
-    if (!options.dataset.empty()) fail_input(path, "--dataset is for HDF5 files; name the Zarr array folder instead");
-    const ZarrStackInfo info = inspect_zarr_stack(path, options.zarr());
+    const ZarrStackInfo info = inspect_zarr_for(path, options);
+    header = header_of(info);
     s = std::make_unique<ZarrSource>(info);
-    s->nx = info.nx, s->ny = info.ny, s->nz = info.nz;
-    s->stored_as = info.type;
-    s->spacing = info.spacing;
-    s->format = info.describe();
-  } else if (options.level != 0) {
-    fail_input(path, "--level is for OME-Zarr stacks (multiscale); this file has one level");
   } else if (is_hdf5_stack(path)) {
+    refuse_level(path, options);
     const Hdf5StackInfo info = inspect_hdf5_stack(path, options.hdf5());
+    header = header_of(info);
     s = std::make_unique<Hdf5Source>(info);
-    s->nx = info.nx, s->ny = info.ny, s->nz = info.nz;
-    s->stored_as = info.type;
-    s->spacing = info.spacing;
-    s->format = info.describe();
   } else {
-    const StackHeader header = inspect_stack(path, options);
+    header = inspect_stack(path, options);  // refuses --level too
     if (header.channels > 1 && !options.tiff.channel) {
       fail_input(path, "has " + std::to_string(header.channels) + " channels; choose one with --channel (0.." +
                            std::to_string(header.channels - 1) + ")");
     }
     if (header.nz < 2) fail_input(path, "has a single Z slice; expected a 3D stack");
     s = std::make_unique<TiffSource>(path, options.tiff);
-    s->nx = header.nx, s->ny = header.ny, s->nz = header.nz;
-    s->stored_as = header.type;
-    s->spacing = header.spacing;
-    s->format = header.format;
   }
+  s->nx = header.nx, s->ny = header.ny, s->nz = header.nz;
+  s->stored_as = header.type;
+  s->spacing = header.spacing;
+  s->format = header.format;
   s->source = path.string();
   s->identity = stack_identity(path);
   return s;

@@ -371,12 +371,12 @@ Array v3_array(const fs::path& folder, const json& j) {
 }
 
 // Whether `folder` holds an array's metadata (without reading it).
-bool array_in_folder(const fs::path& folder) {
-  return exists_entry(folder / ".zarray") || (exists_entry(folder / "zarr.json") && !exists_entry(folder / ".zgroup") &&
-                                              read_file(folder / "zarr.json").find("\"array\"") != std::string::npos);
-}
-
 bool is_v3_array(const json& j) { return j.value("node_type", std::string()) == "array"; }
+
+bool array_in_folder(const fs::path& folder) {
+  return exists_entry(folder / ".zarray") ||
+         (exists_entry(folder / "zarr.json") && is_v3_array(read_json(folder / "zarr.json")));
+}
 
 // The array in `folder` (v2 .zarray or v3 zarr.json), or nullopt when it is a group.
 std::optional<Array> array_in(const fs::path& folder) {

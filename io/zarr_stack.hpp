@@ -40,7 +40,6 @@ struct ZarrLevel {
   std::vector<long long> chunks;    // the chunk (v3 sharded: the inner chunk), slowest first
   std::string codecs;               // "blosc(zstd)", "sharding(512x512x512; blosc(zstd))", "none"
   std::array<double, 3> scale_um{1, 1, 1};  // x, y, z
-  long long bytes_on_disk = -1;     // the files under its folder (-1: not counted)
 };
 
 struct ZarrStackInfo {
