@@ -265,11 +265,21 @@ class GuardedServer final : public httplib::Server {
     new_task_queue = [threads] { return new httplib::ThreadPool(threads); };
     // Exclusive: SO_REUSEADDR only (a restart right after a stop binds again), never
     // httplib's default SO_REUSEPORT, which let a second server share the port.
-    set_socket_options([](socket_t sock) {
+    set_socket_options([this](socket_t sock) {
       const int yes = 1;
       ::setsockopt(sock, SOL_SOCKET, SO_REUSEADDR, &yes, sizeof yes);
+      listening_ = sock;
     });
     set_payload_max_length(0);  // no route takes a body: one is answered 413
+  }
+
+  // Once bound: the kernel's queue of connections not yet accepted as long as the
+  // system allows. httplib listens with a backlog of 5, and a burst of connections
+  // (a browser opens 6 at once, a page of tiles more) beyond it had its SYNs dropped
+  // and waited 1-3 s for the retransmission. Linux takes a second listen() on a
+  // listening socket as a new backlog.
+  void widen_backlog() const {
+    if (listening_ >= 0) (void)::listen(listening_, SOMAXCONN);
   }
 
   // Stops accepting, and shuts every open connection down so that no worker stays
@@ -324,6 +334,7 @@ class GuardedServer final : public httplib::Server {
   const ViewerServerLimits limits_;
   std::atomic<bool> stopping_{false};
   ConnectionTable table_;
+  socket_t listening_ = -1;
 };
 
 void send(const ViewerReply& reply, httplib::Response& res) {
@@ -387,6 +398,7 @@ std::string bind_server(GuardedServer& server, const ViewerServerOptions& option
     throw io::InputError("view: cannot listen on " + io::printable(options.host, 200) + ":" +
                          std::to_string(options.port) + " (in use, or not an address of this machine)");
   }
+  server.widen_backlog();
   const bool v6 = options.host.find(':') != std::string::npos;
   return "http://" + (v6 ? "[" + options.host + "]" : options.host) + ":" + std::to_string(port) + "/";
 }
