@@ -117,6 +117,34 @@ GaussianMixture initialize_mixture(const io::Volume& volume, const io::WorldFram
   return m;
 }
 
+GaussianMixture warm_start_mixture(const GaussianMixture& model, const io::WorldFrame& frame,
+                                   const GmfOptions& options) {
+  const Eigen::Vector3d& a = frame.aspect();
+  std::vector<GaussianParams> inside;
+  for (const GaussianParams& g : model) {
+    if (std::abs(g.mean[0]) <= a.x() && std::abs(g.mean[1]) <= a.y() && std::abs(g.mean[2]) <= a.z()) {
+      inside.push_back(g);
+    }
+  }
+  const auto budget = static_cast<std::size_t>(std::max(1, options.gaussians));
+  if (inside.size() > budget) {  // the brightest; ties in the model's order
+    std::stable_sort(inside.begin(), inside.end(), [](const GaussianParams& l, const GaussianParams& r) {
+      return l.intensity_logit > r.intensity_logit;
+    });
+    inside.resize(budget);
+  }
+  const auto largest = static_cast<float>(
+      std::log(options.largest_scale(frame.voxel_size().minCoeff(), frame.voxel_size().maxCoeff())));
+  GaussianMixture m;
+  m.reserve(inside.size());
+  for (GaussianParams g : inside) {
+    for (float& s : g.log_scale) s = std::min(s, largest);
+    m.push_back(g);
+  }
+  (void)bound_axis_ratio(flat_params(m), options.max_axis_ratio);
+  return m;
+}
+
 GaussianMixture initialize_at_maxima(const io::Volume& volume, const io::WorldFrame& frame, double threshold,
                                      int budget, InitReport* report) {
   // Local maxima: foreground voxels no 26-neighbour exceeds (ties: the first in

@@ -42,4 +42,13 @@ GaussianMixture initialize_at_maxima(const io::Volume& volume, const io::WorldFr
 GaussianMixture initialize_mixture(const io::Volume& volume, const io::WorldFrame& frame, double threshold,
                                    const GmfOptions& options, InitReport* report = nullptr);
 
+// The fit's start from another fit of the same stack: a coarser level of its
+// multiscale pyramid (the same world box, CONVENTIONS' aspect of a level is the
+// stack's) or an earlier fit. `model` is in `frame`'s world coordinates; the
+// Gaussians centred inside the frame's box are kept, the brightest
+// options.gaussians of them, each scale within the fit's largest and each axis
+// ratio within options.max_axis_ratio. Empty when none is centred inside.
+GaussianMixture warm_start_mixture(const GaussianMixture& model, const io::WorldFrame& frame,
+                                   const GmfOptions& options);
+
 }  // namespace hisnegs::gmf

@@ -10,7 +10,7 @@ void add_fit_command(CLI::App& app, GlobalOptions& global) {
   auto* cmd =
       app.add_subcommand("fit", "fit a Gaussian Mixture Field to a stack with Ceres (writes a .ply checkpoint)");
   struct Args {
-    std::string volume, out, optimizer, aggregation, log;
+    std::string volume, out, optimizer, aggregation, log, init;
     std::optional<int> gaussians;
     std::optional<double> time_budget;
     std::optional<std::string> max_memory;
@@ -30,6 +30,9 @@ void add_fit_command(CLI::App& app, GlobalOptions& global) {
                   "does not fit is fitted in bricks");
   cmd->add_option("--brick-voxels", args->brick_voxels,
                   "fit in bricks of this core edge (voxels) even when the stack fits (gmf.stream_brick_voxels)");
+  cmd->add_option("--init", args->init,
+                  "start from this model of the same stack (a coarser --level's fit, or an earlier fit) instead of "
+                  "gmf.init: its Gaussians inside the stack, the brightest gmf.gaussians, beta from gmf.beta_end");
   cmd->add_option("--log", args->log, "CSV of iteration, seconds, loss, foreground and 3D PSNR, K, round, beta");
   args->overrides.add_to(cmd);
   cmd->callback([args, &global] {
@@ -44,7 +47,7 @@ void add_fit_command(CLI::App& app, GlobalOptions& global) {
     if (args->max_memory) config.gmf.max_memory = *args->max_memory;
     if (args->brick_voxels) config.gmf.stream_brick_voxels = *args->brick_voxels;
     config.gmf.validate();
-    fit_to_checkpoint(args->volume, FitConfig(config), args->out, args->log, global.progress());
+    fit_to_checkpoint(args->volume, FitConfig(config), args->out, args->log, global.progress(), args->init);
   });
 }
 

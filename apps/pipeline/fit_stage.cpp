@@ -109,6 +109,28 @@ void append_fit_log_csv(std::ostringstream& s, std::span<const gmf::FitIteration
   }
 }
 
+FitStart FitStart::load(const std::filesystem::path& path, const io::WorldFrame& frame) {
+  io::require_regular_file(path);
+  gmf::Checkpoint model = gmf::load_checkpoint(path);
+  const Eigen::Vector3d& a = frame.aspect();
+  if (model.meta.aspect) {
+    const std::array<double, 3>& m = *model.meta.aspect;
+    for (int i = 0; i < 3; ++i) {
+      if (std::abs(m[static_cast<std::size_t>(i)] - a[i]) > 0.02 * a[i]) {
+        io::fail_input(path.string(), strf("is a model of the world box a = (%.4g, %.4g, %.4g), the stack's is (%.4g, "
+                                           "%.4g, %.4g): not a fit of this stack (or of another --spacing/--aspect)",
+                                           m[0], m[1], m[2], a.x(), a.y(), a.z()));
+      }
+    }
+  }
+  FitStart start;
+  start.path = path;
+  const std::span<const float> p = gmf::flat_params(model.mixture);
+  start.identity = hash_hex(std::string(reinterpret_cast<const char*>(p.data()), p.size_bytes()));
+  start.model = std::move(model.mixture);
+  return start;
+}
+
 FitSetup prepare_fit(const std::string& volume_path, const FitConfig& config, const char* label,
                      const Progress& progress) {
   return prepare_fit(io::load_volume(volume_path, config.get<&AppConfig::volume>()), volume_path, config, label,
@@ -116,7 +138,7 @@ FitSetup prepare_fit(const std::string& volume_path, const FitConfig& config, co
 }
 
 FitSetup prepare_fit(io::LoadedVolume loaded, const std::string& name, const FitConfig& config, const char* label,
-                     const Progress& progress) {
+                     const Progress& progress, const FitStart& start) {
   const gmf::GmfOptions& gmf = config.get<&AppConfig::gmf>();
   const io::SparseGridOptions& sparse_grid = config.get<&AppConfig::sparse_grid>();
   io::Stopwatch watch;
@@ -128,6 +150,15 @@ FitSetup prepare_fit(io::LoadedVolume loaded, const std::string& name, const Fit
     const io::SparseGrid grid = io::build_sparse_grid(setup.loaded.volume, setup.loaded.frame.aspect(), sparse);
     setup.samples = gmf::fit_samples(grid, gmf);
     setup.active_voxels = grid.active_voxels();
+  }
+  if (!start.empty()) {
+    setup.mixture = gmf::warm_start_mixture(start.model, setup.loaded.frame, gmf);
+    if (setup.mixture.empty()) io::fail_input(start.path.string(), "has no Gaussian inside the stack's box");
+    progress.say("%s: %s: %lld samples (%lld active voxels), %zu Gaussians from %s (of its %zu; budget %d), %s", label,
+                 name.c_str(), static_cast<long long>(setup.samples.size()),
+                 static_cast<long long>(setup.active_voxels), setup.mixture.size(), start.path.c_str(),
+                 start.model.size(), gmf.gaussians, format_seconds(watch.elapsed()).c_str());
+    return setup;
   }
   gmf::InitReport init_report;
   setup.mixture =
@@ -161,7 +192,7 @@ namespace {
 // The fingerprint of what decides the bricks: the stack (path, and the identity of
 // every file behind it), its shape, the fit's config sections and the plan.
 std::string fingerprint_of(const std::string& path, const io::VolumeSource& source, const FitConfig& config,
-                           const gmf::BrickPlan& plan) {
+                           const gmf::BrickPlan& plan, const FitStart& start) {
   AppConfig slice;
   slice.volume = config.get<&AppConfig::volume>();
   slice.background = config.get<&AppConfig::background>();
@@ -171,13 +202,14 @@ std::string fingerprint_of(const std::string& path, const io::VolumeSource& sour
   s << std::filesystem::absolute(path).lexically_normal().string() << "\n";
   s << source.identity.content() << "\n";  // a BigDataViewer .xml: its .h5 too
   s << source.nx << " " << source.ny << " " << source.nz << "\n" << plan.describe() << "\n" << dump_app_config(slice);
+  if (!start.empty()) s << "init " << start.identity << "\n";
   return hash_hex(s.str());
 }
 
 // What the fit of the stack opened as `source` is told, and the opening lines.
 gmf::BrickedFitSetup open_stream(const std::string& volume, const FitConfig& config,
                                  const gmf::FitPlanChoice& choice, const io::VolumeSource* source,
-                                 const Progress& progress) {
+                                 const FitStart& start, const Progress& progress) {
   const io::VolumeOptions& vo = config.get<&AppConfig::volume>();
   gmf::BrickedFitSetup s;
   s.path = volume;
@@ -191,11 +223,19 @@ gmf::BrickedFitSetup open_stream(const std::string& volume, const FitConfig& con
   s.plan = choice.plan;
   s.regions = gmf::BackgroundRegions::of({source->nx, source->ny, source->nz}, s.background.region_voxels);
   s.max_memory = choice.max_memory;
+  if (!start.empty()) {
+    s.start = &start.model;
+    s.gmf.beta_start = s.gmf.beta_end;  // the model was annealed already
+  }
   progress.say("fit: %s: %d x %d x %d %s (%s as float32), %s; in-memory fit would need %s of %s: bricked: %s",
                volume.c_str(), source->nx, source->ny, source->nz,
                std::string(io::to_string(source->stored_as)).c_str(),
                io::gib_text(4.0 * static_cast<double>(source->whole().voxels())).c_str(), source->format.c_str(),
                io::gib_text(choice.whole_need).c_str(), choice.memory_source.c_str(), s.plan.describe().c_str());
+  if (!start.empty()) {
+    progress.say("fit: each brick starts from the Gaussians of %s centred in it (%zu in all; beta %g from the start)",
+                 start.path.c_str(), start.model.size(), s.gmf.beta_end);
+  }
   if (choice.for_ranks) {
     progress.say(
         "fit: %d MPI ranks: bricks of core %d voxels, two or more per rank (the same fit as "
@@ -254,12 +294,12 @@ void write_outputs(const gmf::BrickedFitSetup& s, const gmf::BrickStore& store, 
 }
 
 FitOutcome run_streamed(const std::string& volume, const io::VolumeSource& source, const FitConfig& config,
-                        const gmf::FitPlanChoice& choice, const std::filesystem::path& out,
+                        const gmf::FitPlanChoice& choice, const FitStart& start, const std::filesystem::path& out,
                         const std::filesystem::path& log_csv, const Progress& progress) {
   io::Stopwatch watch;
-  const gmf::BrickedFitSetup setup = open_stream(volume, config, choice, &source, progress);
-  const gmf::BrickStore store(gmf::brick_folder(out), fingerprint_of(volume, source, config, setup.plan), setup.frame,
-                              setup.regions.count());
+  const gmf::BrickedFitSetup setup = open_stream(volume, config, choice, &source, start, progress);
+  const gmf::BrickStore store(gmf::brick_folder(out), fingerprint_of(volume, source, config, setup.plan, start),
+                              setup.frame, setup.regions.count());
   const Job& ranks = job();
   // Rank 0 (the only one alone) holds the folder.
   std::optional<OutputFolderLock> lock;  // and the run folder's, for a run's fit
@@ -285,12 +325,12 @@ FitOutcome run_streamed(const std::string& volume, const io::VolumeSource& sourc
 // gmf::choose_fit_plan (bricked). Same lines, checkpoint metadata and outcome as
 // the in-memory fit.
 FitOutcome fit_streamed(const std::string& volume, const io::VolumeSource& source, const FitConfig& config,
-                        const gmf::FitPlanChoice& choice, const std::filesystem::path& out,
+                        const gmf::FitPlanChoice& choice, const FitStart& start, const std::filesystem::path& out,
                         const std::filesystem::path& log_csv, const Progress& progress) {
   const std::filesystem::path folder = gmf::brick_folder(out);
   const bool created = !std::filesystem::exists(folder);
   try {
-    return run_streamed(volume, source, config, choice, out, log_csv, progress);
+    return run_streamed(volume, source, config, choice, start, out, log_csv, progress);
   } catch (...) {
     if (!job().root()) throw;  // rank 0 made the folder: only it may remove it
     // A fit that fails before any brick finished leaves no folder it made (a killed
@@ -308,10 +348,12 @@ FitOutcome fit_streamed(const std::string& volume, const io::VolumeSource& sourc
 }  // namespace
 
 FitOutcome fit_to_checkpoint(const std::string& volume, const FitConfig& config, const std::filesystem::path& out,
-                             const std::filesystem::path& log_csv, const Progress& progress) {
+                             const std::filesystem::path& log_csv, const Progress& progress,
+                             const std::filesystem::path& start_path) {
   io::Stopwatch watch;  // the command's clock: gmf.time_budget_s bounds all of it
   const gmf::GmfOptions& gmf = config.get<&AppConfig::gmf>();
   gmf.validate();
+  FitStart start;
   {  // a stack larger than gmf.max_memory (or asked to) is fitted in bricks
     const io::VolumeOptions& vo = config.get<&AppConfig::volume>();
     vo.validate();
@@ -320,12 +362,13 @@ FitOutcome fit_to_checkpoint(const std::string& volume, const FitConfig& config,
     std::unique_ptr<io::VolumeSource> source;
     open_on_every_rank(job(), [&] { source = io::open_volume_source(volume, io::stack_read_options(vo)); });
     const io::WorldFrame frame = io::stack_frame(source->nx, source->ny, source->nz, source->spacing, vo.aspect, volume);
+    if (!start_path.empty()) start = FitStart::load(start_path, frame);
     const gmf::FitPlanChoice choice =
         gmf::choose_fit_plan({source->nx, source->ny, source->nz}, frame, gmf, {}, job().size());
-    if (choice.bricked) return fit_streamed(volume, *source, config, choice, out, log_csv, progress);
+    if (choice.bricked) return fit_streamed(volume, *source, config, choice, start, out, log_csv, progress);
   }
   const FittedModel fitted =
-      fit_loaded(io::load_volume(volume, config.get<&AppConfig::volume>()), volume, config, progress, &watch);
+      fit_loaded(io::load_volume(volume, config.get<&AppConfig::volume>()), volume, config, progress, &watch, start);
   const gmf::GaussianMixture& mixture = fitted.checkpoint.mixture;
   const gmf::FitResult& result = fitted.result;
   gmf::save_checkpoint(out, mixture, fitted.checkpoint.meta);
@@ -343,12 +386,13 @@ FitOutcome fit_to_checkpoint(const std::string& volume, const FitConfig& config,
 }
 
 FittedModel fit_loaded(io::LoadedVolume loaded, const std::string& source, const FitConfig& config,
-                       const Progress& progress, const io::Stopwatch* command) {
+                       const Progress& progress, const io::Stopwatch* command, const FitStart& start) {
   io::Stopwatch own;
   const io::Stopwatch& since = command != nullptr ? *command : own;
-  const gmf::GmfOptions& gmf = config.get<&AppConfig::gmf>();
-  gmf.validate();
-  FitSetup setup = prepare_fit(std::move(loaded), source, config, "fit", progress);
+  config.get<&AppConfig::gmf>().validate();
+  gmf::GmfOptions gmf = config.get<&AppConfig::gmf>();
+  if (!start.empty()) gmf.beta_start = gmf.beta_end;  // the model was annealed already
+  FitSetup setup = prepare_fit(std::move(loaded), source, config, "fit", progress, start);
   const bool sum = gmf.aggregation == gmf::Aggregation::kSum;
   const std::string jitter_source =
       gmf.sample_jitter ? "" : strf("auto for the %s: ", gmf::describe_aggregation(gmf.aggregation));

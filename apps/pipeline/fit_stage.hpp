@@ -23,6 +23,22 @@ namespace hisnegs::apps {
 using FitConfig = ConfigSlice<&AppConfig::volume, &AppConfig::background, &AppConfig::sparse_grid, &AppConfig::gmf,
                               &AppConfig::raymarch>;
 
+// Another fit of the same stack that a fit starts from (`fit --init`): a coarser
+// level of its multiscale pyramid (each level fills the same world box) or an
+// earlier fit. Its Gaussians replace gmf.init's (warm_start_mixture: those inside
+// the box or brick, the brightest gmf.gaussians), and its β schedule starts at
+// gmf.beta_end (the model was annealed already).
+struct FitStart {
+  std::filesystem::path path;  // empty: no warm start
+  gmf::GaussianMixture model;  // in the stack's world coordinates
+  std::string identity;        // a hash of the model, for a brick folder's fingerprint
+  [[nodiscard]] bool empty() const { return path.empty(); }
+  // Loads `path` and checks that it is a model of a stack of `frame`'s world box
+  // (its aspect within 2 %: a pyramid level's rounding of odd shapes); io::InputError
+  // naming the file otherwise.
+  static FitStart load(const std::filesystem::path& path, const io::WorldFrame& frame);
+};
+
 // What the GMF fit starts from: the normalized volume, its samples (from the
 // sparse grid with the fit's background share, gmf.background_fraction; the grid
 // itself is dropped once they are taken) and the mixture initialized on the
@@ -38,7 +54,7 @@ FitSetup prepare_fit(const std::string& volume_path, const FitConfig& config, co
                      const Progress& progress);
 // The same for a volume already loaded (`name` says what it is in the line).
 FitSetup prepare_fit(io::LoadedVolume loaded, const std::string& name, const FitConfig& config, const char* label,
-                     const Progress& progress);
+                     const Progress& progress, const FitStart& start = {});
 
 // The fit log as CSV rows: fit_log_csv_header() names the columns
 // (iteration,seconds,loss,psnr_fg,psnr_3d,gaussians,round,beta; a PSNR is empty
@@ -71,7 +87,8 @@ struct FitOutcome {
   std::string stop_reason;
 };
 FitOutcome fit_to_checkpoint(const std::string& volume, const FitConfig& config, const std::filesystem::path& out,
-                             const std::filesystem::path& log_csv, const Progress& progress);
+                             const std::filesystem::path& log_csv, const Progress& progress,
+                             const std::filesystem::path& start = {});
 
 // The in-memory fit of fit_to_checkpoint without the files: the model with its
 // checkpoint metadata (source `source`) and the fit's result (its log). What `fit`
@@ -83,7 +100,7 @@ struct FittedModel {
 // gmf.time_budget_s counts from `command` (the command's clock, started before the
 // volume was loaded) when given, else from the call.
 FittedModel fit_loaded(io::LoadedVolume loaded, const std::string& source, const FitConfig& config,
-                       const Progress& progress, const io::Stopwatch* command = nullptr);
+                       const Progress& progress, const io::Stopwatch* command = nullptr, const FitStart& start = {});
 
 // In a run folder: DIR/gmf.ply and DIR/fit_log.csv; reports {gaussians, psnr_3d,
 // stop} as run.json's "fit".

@@ -46,6 +46,10 @@ struct BrickedFitSetup {
   BrickPlan plan;
   BackgroundRegions regions;  // of the stack's background (background.region_voxels); the store's records use it
   double max_memory = 0;      // bytes: the scans' slabs are a share of what the plan leaves
+  // A warm start (world coordinates of the stack): each brick starts from its
+  // Gaussians centred in the brick's region (warm_start_mixture) instead of
+  // gmf.init's; null: gmf.init.
+  const GaussianMixture* start = nullptr;
 };
 
 // What a rank does when it is stopped from outside, and how ranks watch each other

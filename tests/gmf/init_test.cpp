@@ -162,5 +162,50 @@ TEST(GmfInit, StartsWithinTheFitsLargestScale) {
   }
 }
 
+// A warm start keeps the model's Gaussians centred inside the frame's box, the
+// brightest `gaussians` of them (in the model's order), with every scale within the
+// fit's largest and every axis ratio within max_axis_ratio.
+TEST(GmfInit, AWarmStartKeepsTheBrightestInsideWithinTheFitsBounds) {
+  const io::WorldFrame frame(32, 32, 16, Eigen::Vector3d(1.0, 1.0, 0.5));
+  GaussianMixture model;
+  const auto add = [&](float x, float y, float z, float logit, float log_scale) {
+    GaussianParams g;
+    g.mean = {x, y, z};
+    g.log_scale = {log_scale, log_scale, log_scale};
+    g.intensity_logit = logit;
+    model.push_back(g);
+  };
+  add(0.0f, 0.0f, 0.0f, -1.0f, -3.0f);
+  add(0.5f, -0.5f, 0.4f, 2.0f, -3.0f);
+  add(0.0f, 0.0f, 0.6f, 5.0f, -3.0f);  // outside: |z| > 0.5
+  add(-1.1f, 0.0f, 0.0f, 5.0f, -3.0f); // outside: |x| > 1
+  add(-0.9f, 0.9f, -0.5f, 1.0f, 2.0f); // inside, on the face; σ e^2 beyond the largest
+  add(0.2f, 0.2f, 0.2f, 0.5f, -3.0f);
+  GmfOptions o;
+  o.gaussians = 3;
+  const GaussianMixture m = warm_start_mixture(model, frame, o);
+  ASSERT_EQ(m.size(), 3u);
+  EXPECT_EQ(m[0].intensity_logit, 2.0f);
+  EXPECT_EQ(m[1].intensity_logit, 1.0f);
+  EXPECT_EQ(m[2].intensity_logit, 0.5f);
+  const double largest = o.largest_scale(frame.voxel_size().minCoeff(), frame.voxel_size().maxCoeff());
+  for (const float s : m[1].log_scale) EXPECT_NEAR(std::exp(s), largest, 1e-6 * largest);
+  EXPECT_EQ(m[0].log_scale[0], -3.0f);
+  o.gaussians = 100;
+  EXPECT_EQ(warm_start_mixture(model, frame, o).size(), 4u);
+  // An axis ratio beyond the bound is brought within it.
+  model[0].log_scale = {0.0f, -8.0f, -3.0f};
+  o.max_axis_ratio = 4.0;
+  const GaussianMixture bounded = warm_start_mixture(model, frame, o);
+  for (const GaussianParams& g : bounded) {
+    const auto [lo, hi] = std::minmax_element(g.log_scale.begin(), g.log_scale.end());
+    EXPECT_LE(std::exp(*hi - *lo), 4.0 * (1 + 1e-5));
+  }
+  // Nothing inside: empty.
+  GaussianMixture far;
+  far.push_back(model[3]);
+  EXPECT_TRUE(warm_start_mixture(far, frame, o).empty());
+}
+
 }  // namespace
 }  // namespace hisnegs::gmf

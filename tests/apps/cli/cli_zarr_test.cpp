@@ -145,5 +145,51 @@ TEST(CliZarr, BadZarrInputIsOneLineExitTwoAndWritesNothing) {
   EXPECT_NE(level.err.find("--level is for OME-Zarr stacks"), std::string::npos) << level.err;
 }
 
+double psnr_said(const std::string& out) {
+  const auto at = out.find("3D PSNR ");
+  return at == std::string::npos ? -1.0 : std::stod(out.substr(at + 8));
+}
+
+// `fit --init`: a fit of level 0 starts from a fit of level 1 (the same world box),
+// in memory and in bricks, and with the same short schedule ends closer to the stack
+// than a fit from gmf.init; a model of another box is refused in one line, exit 2,
+// nothing written; the brick folder's fingerprint names the start.
+TEST(CliZarr, AFitStartsFromACoarserLevelsFit) {
+  testing::ScratchDir dir;
+  ASSERT_NO_FATAL_FAILURE(make_stacks(dir));
+  testing::write_text(dir / "short.yaml", "gmf: {gaussians: 60, rounds: 2, iterations_per_round: 10, time_budget_s: 0}\n");
+  const auto fit = [&](std::vector<std::string> more) {
+    std::vector<std::string> args{"--config", (dir / "short.yaml").string(), "fit", (dir / "s.ome.zarr").string()};
+    args.insert(args.end(), more.begin(), more.end());
+    return run_hisnegs(args);
+  };
+  const auto coarse = fit({"--level", "1", "-o", (dir / "l1.ply").string()});
+  ASSERT_EQ(coarse.exit_code, 0) << coarse.err;
+  const auto cold = fit({"-o", (dir / "cold.ply").string()});
+  ASSERT_EQ(cold.exit_code, 0) << cold.err;
+  const auto warm = fit({"--init", (dir / "l1.ply").string(), "-o", (dir / "warm.ply").string()});
+  ASSERT_EQ(warm.exit_code, 0) << warm.err;
+  EXPECT_NE(warm.out.find("Gaussians from " + (dir / "l1.ply").string()), std::string::npos) << warm.out;
+  EXPECT_NE(warm.out.find("beta 64 -> 64"), std::string::npos) << warm.out;
+  EXPECT_GT(psnr_said(warm.out), psnr_said(cold.out)) << warm.out << cold.out;
+  const auto bricks = fit({"--init", (dir / "l1.ply").string(), "-o", (dir / "wb.ply").string(), "--brick-voxels", "48"});
+  ASSERT_EQ(bricks.exit_code, 0) << bricks.err;
+  EXPECT_NE(bricks.out.find("each brick starts from the Gaussians of"), std::string::npos) << bricks.out;
+  EXPECT_GT(psnr_said(bricks.out), 0.0) << bricks.out;
+  // A model of another stack's box.
+  ASSERT_EQ(run_hisnegs({"-q", "synth", "-o", dir / "other.tif", "--shape", "16,80,40"}).exit_code, 0);
+  const auto other = run_hisnegs({"-q", "--config", dir / "short.yaml", "fit", dir / "other.tif", "-o", dir / "o.ply"});
+  ASSERT_EQ(other.exit_code, 0) << other.err;
+  const auto refused = fit({"--init", (dir / "o.ply").string(), "-o", (dir / "x.ply").string()});
+  EXPECT_EQ(refused.exit_code, 2);
+  EXPECT_EQ(testing::count_lines(refused.err), 1) << refused.err;
+  EXPECT_NE(refused.err.find("o.ply: is a model of the world box"), std::string::npos) << refused.err;
+  EXPECT_FALSE(fs::exists(dir / "x.ply"));
+  // The start is an input: never the output.
+  const auto over = fit({"--init", (dir / "l1.ply").string(), "-o", (dir / "l1.ply").string()});
+  EXPECT_EQ(over.exit_code, 2);
+  EXPECT_NE(over.err.find("is also an input (--init)"), std::string::npos) << over.err;
+}
+
 }  // namespace
 }  // namespace hisnegs
