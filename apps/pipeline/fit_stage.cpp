@@ -111,23 +111,26 @@ void append_fit_log_csv(std::ostringstream& s, std::span<const gmf::FitIteration
 
 FitStart FitStart::load(const std::filesystem::path& path, const io::WorldFrame& frame) {
   io::require_regular_file(path);
-  gmf::Checkpoint model = gmf::load_checkpoint(path);
+  return of(gmf::load_checkpoint(path), frame, path);
+}
+
+FitStart FitStart::of(const gmf::Checkpoint& model, const io::WorldFrame& frame, const std::filesystem::path& name) {
   const Eigen::Vector3d& a = frame.aspect();
   if (model.meta.aspect) {
     const std::array<double, 3>& m = *model.meta.aspect;
     for (int i = 0; i < 3; ++i) {
       if (std::abs(m[static_cast<std::size_t>(i)] - a[i]) > 0.02 * a[i]) {
-        io::fail_input(path.string(), strf("is a model of the world box a = (%.4g, %.4g, %.4g), the stack's is (%.4g, "
+        io::fail_input(name.string(), strf("is a model of the world box a = (%.4g, %.4g, %.4g), the stack's is (%.4g, "
                                            "%.4g, %.4g): not a fit of this stack (or of another --spacing/--aspect)",
                                            m[0], m[1], m[2], a.x(), a.y(), a.z()));
       }
     }
   }
   FitStart start;
-  start.path = path;
+  start.path = name;
   const std::span<const float> p = gmf::flat_params(model.mixture);
   start.identity = hash_hex(std::string(reinterpret_cast<const char*>(p.data()), p.size_bytes()));
-  start.model = std::move(model.mixture);
+  start.model = model.mixture;
   return start;
 }
 

@@ -37,6 +37,8 @@ struct FitStart {
   // (its aspect within 2 %: a pyramid level's rounding of odd shapes); io::InputError
   // naming the file otherwise.
   static FitStart load(const std::filesystem::path& path, const io::WorldFrame& frame);
+  // The same check for a model in memory, named `name` in messages.
+  static FitStart of(const gmf::Checkpoint& model, const io::WorldFrame& frame, const std::filesystem::path& name);
 };
 
 // What the GMF fit starts from: the normalized volume, its samples (from the

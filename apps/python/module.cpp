@@ -209,14 +209,20 @@ py::array rasterize_model(const Model& m, const std::optional<std::vector<int>>&
 }
 
 std::shared_ptr<Model> fit(const Volume& volume, const std::string& config_text,
-                           const std::optional<py::function>& progress) {
+                           const std::optional<py::function>& progress, const Model* init) {
   const AppConfig config = config_of(config_text, "hisnegs.fit() options");
+  apps::FitStart start;
+  if (init != nullptr) {
+    require_finite(*init, "hisnegs.fit(init=...)");
+    start = apps::FitStart::of(init->checkpoint, volume.loaded.frame, "init");
+  }
   auto m = std::make_shared<Model>();
   const apps::Progress sink = python_progress(progress);
   {
     py::gil_scoped_release release;
-    m->checkpoint =
-        apps::fit_loaded(volume.loaded, volume.loaded.volume.source, apps::FitConfig(config), sink).checkpoint;
+    m->checkpoint = apps::fit_loaded(volume.loaded, volume.loaded.volume.source, apps::FitConfig(config), sink,
+                                     nullptr, start)
+                        .checkpoint;
   }
   return m;
 }
@@ -511,7 +517,7 @@ PYBIND11_MODULE(_hisnegs, m) {
       .def_property_readonly("beta", [](const Model& model) { return model.checkpoint.meta.beta; })
       .def("_render", &render_model)
       .def("_rasterize", &rasterize_model);
-  m.def("_fit", &fit);
+  m.def("_fit", &fit, py::arg("volume"), py::arg("config_text"), py::arg("progress"), py::arg("init").none(true));
   m.def("_info", &file_info);
   m.def("_export_vdb", &export_vdb);
   m.def("_export_volume", &export_volume);

@@ -135,6 +135,20 @@ def test_fit_matches_the_cli_and_params_are_a_view(work):
     assert model.aggregation in ("sum", "softmax", "max")  # max: the fit ended on its hard share
 
 
+def test_fit_from_a_model_matches_the_cli_init(work, tmp_path):
+    start = hisnegs.Model.load(work / "m.ply")
+    lines = []
+    model = hisnegs.fit(hisnegs.load_volume(work / "s.tif"), progress=lines.append, init=start, **FIT)
+    assert any("Gaussians from init" in line for line in lines), lines
+    done = run_cli("-q", "--config", work / "fit.yaml", "fit", work / "s.tif", "--init", work / "m.ply",
+                   "-o", tmp_path / "w.ply", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert np.array_equal(model.params, hisnegs.Model.load(tmp_path / "w.ply").params), "the same as `fit --init`"
+    assert run_cli("-q", "synth", "-o", tmp_path / "o.tif", "--shape", "16,48,112", cwd=tmp_path).returncode == 0
+    with pytest.raises(ValueError, match="init: is a model of the world box"):
+        hisnegs.fit(hisnegs.load_volume(tmp_path / "o.tif"), init=start, **FIT)
+
+
 def test_model_save_and_load_round_trip(work, tmp_path):
     model = hisnegs.Model.load(work / "m.ply")
     model.save(tmp_path / "copy.ply")

@@ -90,13 +90,14 @@ box's half extents (x, y, z) of CONVENTIONS.md; ``normalization``: the map that
 was applied; ``source``: the file or "numpy array"."""
 
 
-def fit(volume, progress=None, **gmf_options):
+def fit(volume, progress=None, init=None, **gmf_options):
     """Fits a Gaussian mixture to ``volume`` (stage 1), as ``hisnegs fit`` does for a
     stack in memory: the config's ``gmf`` section as keyword options (``gaussians``,
     ``time_budget_s``, ``optimizer``, ``aggregation``, ``seed``, ...). Returns a
     :class:`Model` with its checkpoint metadata (frame, normalization, background).
-    ``progress``: a callable taking each line."""
-    return _hisnegs._fit(volume, _sections(gmf=gmf_options), progress)
+    ``progress``: a callable taking each line. ``init``: a :class:`Model` of the same
+    stack to start from (``fit --init``: a coarser level's fit, or an earlier one)."""
+    return _hisnegs._fit(volume, _sections(gmf=gmf_options), progress, init)
 
 
 def train(model, images, cameras, progress=None, backend="auto", splat_options=None, **train_options):
