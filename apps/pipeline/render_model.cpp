@@ -8,6 +8,7 @@
 #include "apps/pipeline/distributed.hpp"
 #include "apps/pipeline/ground_truth_stage.hpp"
 #include "gmf/core/checkpoint.hpp"
+#include "gmf/core/hierarchy.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
 #include "splat/render_views.hpp"
@@ -72,7 +73,20 @@ void render_model(const RenderRequest& request, const RenderConfig& config, cons
   meta["background"] = floors.none() ? "none" : "the model's floor";
   if (!request.cameras.empty()) {
     const splat::CameraSet cameras = splat::read_cameras_json(request.cameras);
-    const splat::RenderedViews r = splat::render_views(*renderer, params, cameras, settings, {}, floors, shares);
+    splat::RenderedViews r;
+    if (request.lod) {
+      if (ranks.distributed()) throw io::InputError("render: --lod runs in one process (not on MPI ranks)");
+      const gmf::Hierarchy h = gmf::build_hierarchy(checkpoint.mixture);
+      std::vector<std::size_t> drawn;
+      r = splat::render_views_lod(*renderer, h, cameras, settings, *request.lod, floors, &drawn);
+      meta["lod"] = {{"pixels", request.lod->pixels}, {"budget", request.lod->budget}, {"nodes", h.nodes.size()},
+                     {"levels", h.depth() + 1}, {"gaussians_per_view", drawn}};
+      progress.say("render: level of detail: %zu nodes on %d levels (%zu Gaussians in all); view 0 draws %zu of "
+                   "the model's %zu", h.nodes.size(), h.depth() + 1, h.gaussians.size(),
+                   drawn.empty() ? std::size_t{0} : drawn[0], checkpoint.mixture.size());
+    } else {
+      r = splat::render_views(*renderer, params, cameras, settings, {}, floors, shares);
+    }
     const splat::MipStack& s = r.stack;
     if (ranks.root()) write_image_stack(dir, "render.tif", s);
     meta["cameras"] = io::printable(request.cameras.string(), 500);

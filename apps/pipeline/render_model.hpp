@@ -9,6 +9,7 @@
 #include "apps/pipeline/orbit_stage.hpp"
 #include "apps/pipeline/progress.hpp"
 #include "splat/backend.hpp"
+#include "splat/lod.hpp"
 
 namespace hisnegs::apps {
 
@@ -20,6 +21,9 @@ struct RenderRequest {
   std::filesystem::path dir;          // output folder
   std::optional<OrbitOptions> orbit;  // also DIR/orbit.gif
   splat::Backend backend = splat::Backend::kCpu;
+  // The cameras' views drawn from the model's hierarchy (gmf/core/hierarchy.hpp) as
+  // the viewer selects it; render.json records each view's Gaussian count.
+  std::optional<splat::LodOptions> lod;
 };
 
 // Writes DIR/render.tif (float32, one page per view, cameras-file order) with

@@ -99,6 +99,17 @@ TEST(CliRender, WritesStackPreviewsMetaAndOrbit) {
   const io::GifInfo gif = io::inspect_gif(dir / "r" / "orbit.gif");
   EXPECT_EQ(gif.frames, 6);
   EXPECT_EQ(gif.width, 24);
+  // --lod: a model of one page is its own hierarchy's root: the same images, and
+  // render.json says what each view drew; without --cameras it is refused.
+  const auto lod = run_hisnegs({"render", "--model", dir / "m.ply", "--cameras", dir / "gt" / "cameras.json", "-o",
+                                dir / "l", "--backend", "cpu", "--mode", "hard", "--lod", "1"});
+  ASSERT_EQ(lod.exit_code, 0) << lod.err;
+  EXPECT_NE(lod.out.find("level of detail: 1 nodes on 1 levels"), std::string::npos) << lod.out;
+  EXPECT_EQ(testing::read_bytes(dir / "l" / "render.tif"), testing::read_bytes(dir / "r" / "render.tif"));
+  EXPECT_NE(testing::read_bytes(dir / "l" / "render.json").find("\"gaussians_per_view\""), std::string::npos);
+  const auto orbit_only = run_hisnegs({"render", "--model", dir / "m.ply", "-o", dir / "o", "--orbit", "4", "--lod", "1"});
+  EXPECT_EQ(orbit_only.exit_code, 2);
+  EXPECT_NE(orbit_only.err.find("--lod draws the views of --cameras"), std::string::npos) << orbit_only.err;
 }
 
 TEST(CliEval, WritesMetricsAndComparisonImages) {
