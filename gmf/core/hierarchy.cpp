@@ -72,7 +72,17 @@ struct Builder {
       out.gaussians.push_back(merge_for_mip(group, options));
     }
     node.count = keys.size();
-    node.feature = edge / static_cast<double>(n);
+    // The detail it leaves out: what a typical merged Gaussian spreads a peak over
+    // (twice the median longest σ), at least the cell it merged.
+    std::vector<float> longest;
+    longest.reserve(node.count);
+    for (std::size_t k = node.first; k < out.gaussians.size(); ++k) {
+      const GaussianParams& g = out.gaussians[k];
+      longest.push_back(std::max({g.log_scale[0], g.log_scale[1], g.log_scale[2]}));
+    }
+    std::nth_element(longest.begin(), longest.begin() + static_cast<std::ptrdiff_t>(longest.size() / 2), longest.end());
+    node.feature = std::max(edge / static_cast<double>(n),
+                            2.0 * std::exp(static_cast<double>(longest[longest.size() / 2])));
   }
 
   // Builds the node `index` (its cell set) over `members`.

@@ -36,8 +36,9 @@ struct HierarchyNode {
   int level = 0;                     // 0: the root
   std::array<std::int32_t, 8> children{-1, -1, -1, -1, -1, -1, -1, -1};  // node indices, -1: none
   std::size_t first = 0, count = 0;  // its Gaussians: Hierarchy::gaussians[first, first + count)
-  // World size of the detail the node's own mixture leaves out: the edge of the
-  // cells its subtree was merged in (0 for a leaf, which is the model itself).
+  // World size of the detail the node's own mixture leaves out: twice the median
+  // longest σ of its merged Gaussians, at least the edge of the cells its subtree
+  // was merged in (0 for a leaf, which is the model itself).
   double feature = 0.0;
   [[nodiscard]] bool leaf() const { return children[0] < 0 && children[1] < 0 && children[2] < 0 &&
                                            children[3] < 0 && children[4] < 0 && children[5] < 0 &&
