@@ -8,6 +8,7 @@
 #include <sstream>
 
 #include "apps/pipeline/halo_measure.hpp"
+#include "gmf/core/hierarchy.hpp"
 #include "gmf/core/checkpoint.hpp"
 #include "gmf/core/psnr.hpp"
 #include "io/atomic_file.hpp"
@@ -15,6 +16,7 @@
 #include "io/memory_limit.hpp"
 #include "io/stack_file.hpp"
 #include "io/png.hpp"
+#include "splat/lod.hpp"
 #include "splat/render_views.hpp"
 #include "splat/trainer.hpp"
 
@@ -79,11 +81,27 @@ ModeFigures mode_figures(const splat::TrainingData& truth, const splat::Rendered
   return f;
 }
 
+// The two "eval:" lines: the configured mode's figures, then both modes'.
+void say_outcome(const EvalOutcome& outcome, const splat::TrainingData& truth, std::size_t gaussians,
+                 const std::string& mode, const std::filesystem::path& dir, const ModeFigures& soft,
+                 const ModeFigures& hard, const Progress& progress) {
+  const splat::MetricSummary &p = outcome.psnr, &a = outcome.mae, &s = outcome.ssim;
+  progress.say("eval: %d views of %dx%d, K %zu, %s MIP: PSNR %.2f ± %.2f dB (min %.2f), MAE %.5f, SSIM %.4f -> %s",
+               truth.count(), truth.intrinsics.width, truth.intrinsics.height, gaussians, mode.c_str(), p.mean, p.std,
+               p.min, a.mean, s.mean, (dir / "metrics.json").c_str());
+  auto mean = [](const std::vector<double>& v) { return splat::summarize(v).mean; };
+  progress.say("eval: soft MIP %.2f dB (foreground %.2f dB), hard MIP %.2f dB (foreground %.2f dB, background "
+               "%.2f dB, %.0f%% of its error in the background; foreground: truth >= %g)",
+               mean(soft.psnr), mean(soft.psnr_fg), mean(hard.psnr), mean(hard.psnr_fg), mean(hard.psnr_bg),
+               100 * mean(hard.bg_share), splat::kForegroundLevel);
+}
+
 }  // namespace
 
 EvalOutcome evaluate_model(const std::filesystem::path& model, const std::filesystem::path& set,
                            const std::filesystem::path& dir, const EvalConfig& config, splat::Backend backend,
-                           const Progress& progress, const std::filesystem::path& stack) {
+                           const Progress& progress, const std::filesystem::path& stack,
+                           const std::optional<splat::LodOptions>& lod) {
   config.get<&AppConfig::splat>().validate();
   const splat::TrainingData truth = splat::load_training_data(set);
   const gmf::Checkpoint checkpoint = gmf::load_checkpoint(model.string());
@@ -92,8 +110,15 @@ EvalOutcome evaluate_model(const std::filesystem::path& model, const std::filesy
   const splat::CameraSet cameras{truth.intrinsics, truth.views};
   const splat::BackgroundFloors floors =
       splat::floors_of(checkpoint.meta, model.string(), config.get<&AppConfig::splat>().background);
-  const splat::RenderedViews r =
-      splat::render_views(*renderer, splat::flat_params(checkpoint.mixture), cameras, settings, {}, floors);
+  std::optional<gmf::Hierarchy> hierarchy;
+  std::vector<std::size_t> drawn;
+  if (lod) hierarchy = gmf::build_hierarchy(checkpoint.mixture);
+  const auto render = [&](const splat::SplatSettings& s) {
+    if (!hierarchy) return splat::render_views(*renderer, splat::flat_params(checkpoint.mixture), cameras, s, {}, floors);
+    drawn.clear();
+    return splat::render_views_lod(*renderer, *hierarchy, cameras, s, *lod, floors, &drawn);
+  };
+  const splat::RenderedViews r = render(settings);
   ViewMeasurements m;
   measure_views(truth, r, dir, m);
   EvalOutcome outcome;
@@ -105,8 +130,7 @@ EvalOutcome evaluate_model(const std::filesystem::path& model, const std::filesy
   // at β): both, each whole, on the foreground and on the background.
   splat::SplatSettings other = settings;
   other.mode = settings.soft() ? splat::MipMode::kMax : splat::MipMode::kSoftmax;
-  const splat::RenderedViews r_other =
-      splat::render_views(*renderer, splat::flat_params(checkpoint.mixture), cameras, other, {}, floors);
+  const splat::RenderedViews r_other = render(other);
   const ModeFigures mine = mode_figures(truth, r), theirs = mode_figures(truth, r_other);
   const ModeFigures& soft = settings.soft() ? mine : theirs;
   const ModeFigures& hard = settings.soft() ? theirs : mine;
@@ -134,22 +158,22 @@ EvalOutcome evaluate_model(const std::filesystem::path& model, const std::filesy
     meta["halos"] = Json{{"count", halos->halos}, {"share", halos->share()}, {"noise", halos->noise},
                          {"stack", io::printable(stack.string(), 500)}};
   }
+  if (lod) {
+    meta["lod"] = Json{{"pixels", lod->pixels}, {"budget", lod->budget}, {"nodes", hierarchy->nodes.size()},
+                       {"gaussians_per_view", drawn}};
+  }
   meta["per_view"] = m.views;
   const std::string json = meta.dump(2) + "\n", table = m.csv.str();
   io::write_file_atomic(dir / "metrics.csv", table.data(), table.size());
   io::write_file_atomic(dir / "metrics.json", json.data(), json.size());
-  const splat::MetricSummary &p = outcome.psnr, &a = outcome.mae, &s = outcome.ssim;
-  progress.say("eval: %d views of %dx%d, K %zu, %s MIP: PSNR %.2f ± %.2f dB (min %.2f), MAE %.5f, SSIM %.4f -> %s",
-               truth.count(), truth.intrinsics.width, truth.intrinsics.height, checkpoint.mixture.size(),
-               meta["mode"].get<std::string>().c_str(), p.mean, p.std, p.min, a.mean, s.mean,
-               (dir / "metrics.json").c_str());
-  auto mean = [](const std::vector<double>& v) { return splat::summarize(v).mean; };
-  progress.say("eval: soft MIP %.2f dB (foreground %.2f dB), hard MIP %.2f dB (foreground %.2f dB, background "
-               "%.2f dB, %.0f%% of its error in the background; foreground: truth >= %g)",
-               mean(soft.psnr), mean(soft.psnr_fg), mean(hard.psnr), mean(hard.psnr_fg), mean(hard.psnr_bg),
-               100 * mean(hard.bg_share), splat::kForegroundLevel);
+  say_outcome(outcome, truth, checkpoint.mixture.size(), meta["mode"].get<std::string>(), dir, soft, hard, progress);
   if (halos) {
     progress.say("eval: halos: %s", halo_text(*halos).c_str());
+  }
+  if (lod && !drawn.empty()) {
+    const auto [fewest, most] = std::minmax_element(drawn.begin(), drawn.end());
+    progress.say("eval: level of detail at %g px: %zu nodes; the views draw %zu to %zu of the model's %zu Gaussians",
+                 lod->pixels, hierarchy->nodes.size(), *fewest, *most, checkpoint.mixture.size());
   }
   return outcome;
 }

@@ -4,11 +4,13 @@
 #pragma once
 
 #include <filesystem>
+#include <optional>
 
 #include "apps/pipeline/config_slice.hpp"
 #include "apps/pipeline/progress.hpp"
 #include "apps/pipeline/run_stage.hpp"
 #include "apps/pipeline/stage_folder.hpp"
+#include "splat/lod.hpp"
 #include "splat/backend.hpp"
 #include "splat/metrics.hpp"
 
@@ -19,7 +21,9 @@ using EvalConfig = ConfigSlice<&AppConfig::splat, &AppConfig::volume>;
 // Renders `model` at the views of the ground-truth set `set` (cameras.json + mips.tif)
 // and writes DIR/metrics.json, DIR/metrics.csv, DIR/compare/NNN.png; one "eval: ..." line.
 // With `stack` (the model's own stack, read with the volume options) also the
-// model's halos (apps/pipeline/halo_measure.hpp), "halos" in metrics.json.
+// model's halos (apps/pipeline/halo_measure.hpp), "halos" in metrics.json. With
+// `lod`, each view drawn from the model's hierarchy as `render --lod` draws it
+// ("lod" in metrics.json: each view's Gaussian count).
 struct EvalOutcome {
   int views = 0;
   splat::MetricSummary psnr, mae, ssim;  // of the configured mode (splat.mode)
@@ -29,7 +33,8 @@ struct EvalOutcome {
 };
 EvalOutcome evaluate_model(const std::filesystem::path& model, const std::filesystem::path& set,
                            const std::filesystem::path& dir, const EvalConfig& config, splat::Backend backend,
-                           const Progress& progress, const std::filesystem::path& stack = {});
+                           const Progress& progress, const std::filesystem::path& stack = {},
+                           const std::optional<splat::LodOptions>& lod = std::nullopt);
 
 // In a run folder: DIR/eval from DIR/train/final.ply on DIR/gt/eval (DIR/eval cleared first).
 struct EvalStage {

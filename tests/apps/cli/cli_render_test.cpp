@@ -125,6 +125,12 @@ TEST(CliEval, WritesMetricsAndComparisonImages) {
   EXPECT_NE(text.find("\"psnr\""), std::string::npos);
   EXPECT_NE(text.find("\"ssim\""), std::string::npos);
   EXPECT_TRUE(fs::is_regular_file(dir / "ev" / "compare" / "029.png"));
+  // --lod on a model of one page: the same figures, and what each view drew.
+  const auto lod = run_hisnegs(
+      {"eval", "--model", dir / "m.ply", "--data", dir / "gt", "-o", dir / "lod", "--backend", "cpu", "--lod", "1"});
+  ASSERT_EQ(lod.exit_code, 0) << lod.err;
+  EXPECT_EQ(testing::read_bytes(dir / "lod" / "metrics.csv"), testing::read_bytes(dir / "ev" / "metrics.csv"));
+  EXPECT_NE(lod.out.find("eval: level of detail at 1 px: 1 nodes"), std::string::npos) << lod.out;
   const auto bad = run_hisnegs({"eval", "--model", dir / "m.ply", "--data", dir / "nowhere", "-o", dir / "ev2"});
   EXPECT_EQ(bad.exit_code, 2) << bad.err;
   EXPECT_FALSE(fs::exists(dir / "ev2"));
