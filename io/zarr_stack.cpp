@@ -22,6 +22,7 @@
 
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
+#include "io/json_depth.hpp"
 #include "io/zarr_codecs.hpp"
 
 namespace hisnegs::io {
@@ -108,21 +109,7 @@ json read_json(const fs::path& file) {
   const auto bytes = fs::file_size(file, ec);
   if (!ec && bytes > kMaxMetadataBytes) fail_input(file, "is over 16 MiB; not Zarr metadata");
   const std::string text = read_file(file);
-  int depth = 0;
-  bool in_string = false, escaped = false;
-  for (const char c : text) {
-    if (in_string) {
-      if (escaped) escaped = false;
-      else if (c == '\\') escaped = true;
-      else if (c == '"') in_string = false;
-    } else if (c == '"') {
-      in_string = true;
-    } else if (c == '[' || c == '{') {
-      if (++depth > kMaxJsonDepth) fail_input(file, "nests JSON deeper than 64 levels; not Zarr metadata");
-    } else if (c == ']' || c == '}') {
-      --depth;
-    }
-  }
+  if (!json_nests_within(text, kMaxJsonDepth)) fail_input(file, "nests JSON deeper than 64 levels; not Zarr metadata");
   try {
     return json::parse(text);
   } catch (const json::exception& e) {

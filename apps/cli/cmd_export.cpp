@@ -14,6 +14,8 @@
 #include "gmf/core/checkpoint.hpp"
 #include "gmf/core/compact_checkpoint.hpp"
 #include "gmf/core/export_formats.hpp"
+#include "gmf/core/hierarchy.hpp"
+#include "gmf/core/hierarchy_file.hpp"
 #include "gmf/export_vdb.hpp"
 #include "io/error.hpp"
 #include "io/timer.hpp"
@@ -142,6 +144,30 @@ void run_export_compact(const CompactArgs& args, GlobalOptions& global) {
       args.model.c_str(), format_bytes(in_bytes).c_str(), k > 0 ? in_bytes / k : 0.0, in_bytes / out_bytes,
       h.bits.position_bits, h.bits.scale_bits, h.bits.rotation_bits, h.bits.intensity_bits, max3(b.position),
       max3(b.log_scale), b.rotation, b.intensity, format_seconds(t_load).c_str(), format_seconds(t_write).c_str());
+}
+
+struct HierarchyArgs {
+  std::string model, out;
+  gmf::HierarchyOptions hierarchy;
+  gmf::CompactOptions pages;
+};
+
+// export hierarchy: the model's level-of-detail hierarchy as a .hgw file.
+void run_export_hierarchy(const HierarchyArgs& args, GlobalOptions& global) {
+  args.hierarchy.validate();
+  args.pages.validate();
+  io::Stopwatch watch;
+  const gmf::Checkpoint checkpoint = gmf::load_checkpoint(args.model);
+  const gmf::Hierarchy h = gmf::build_hierarchy(checkpoint.mixture, args.hierarchy);
+  const double t_build = watch.lap();
+  const std::uint64_t bytes = gmf::save_hierarchy_file(args.out, h, checkpoint.meta, args.pages);
+  if (global.quiet) return;
+  const double k = static_cast<double>(std::max<std::size_t>(1, checkpoint.mixture.size()));
+  std::printf("export hierarchy: wrote %s: %zu nodes on %d levels, %zu Gaussians in all for the model's %zu, %s "
+              "(%.2f B per model Gaussian); load and build %s, encode and write %s\n",
+              args.out.c_str(), h.nodes.size(), h.nodes.empty() ? 0 : h.depth() + 1, h.gaussians.size(),
+              checkpoint.mixture.size(), format_bytes(static_cast<double>(bytes)).c_str(),
+              static_cast<double>(bytes) / k, format_seconds(t_build).c_str(), format_seconds(watch.lap()).c_str());
 }
 
 struct HtmlArgs {
@@ -276,6 +302,20 @@ void add_export_compact(CLI::App* cmd, GlobalOptions& global) {
   compact->callback([compact_args, &global] { run_export_compact(*compact_args, global); });
 }
 
+// export hierarchy: the level-of-detail file a streaming reader fetches by ranges.
+void add_export_hierarchy(CLI::App* cmd, GlobalOptions& global) {
+  auto* sub = cmd->add_subcommand(
+      "hierarchy", "the model's level-of-detail hierarchy (.hgw: an index and a compact page per node), which "
+                   "every command reads as the model");
+  auto args = std::make_shared<HierarchyArgs>();
+  sub->add_option("--model", args->model, "checkpoint (.ply, .hgs or .hgw)")->required();
+  sub->add_option("-o,--output", args->out, "output .hgw")->required();
+  sub->add_option("--page", args->hierarchy.page, "most Gaussians a node holds")
+      ->check(CLI::Range(64, 1000000))
+      ->capture_default_str();
+  sub->callback([args, &global] { run_export_hierarchy(*args, global); });
+}
+
 // export html: the self-contained viewer page.
 void add_export_html(CLI::App* cmd, GlobalOptions& global) {
   auto* html = cmd->add_subcommand(
@@ -295,12 +335,14 @@ void add_export_html(CLI::App* cmd, GlobalOptions& global) {
 void add_export_command(CLI::App& app, GlobalOptions& global) {
   auto* cmd = app.add_subcommand(
       "export",
-      "convert a checkpoint: OpenVDB grids, splat-viewer PLY, dense TIFF stack, compact checkpoint, HTML viewer");
+      "convert a checkpoint: OpenVDB grids, splat-viewer PLY, dense TIFF stack, compact checkpoint, LOD hierarchy, "
+      "HTML viewer");
   cmd->require_subcommand(1);
   add_export_vdb(cmd, global);
   add_export_splat_ply(cmd, global);
   add_export_volume(cmd, global);
   add_export_compact(cmd, global);
+  add_export_hierarchy(cmd, global);
   add_export_html(cmd, global);
 }
 

@@ -12,6 +12,7 @@
 #include "apps/pipeline/halo_measure.hpp"
 #include "gmf/core/checkpoint.hpp"
 #include "gmf/core/compact_checkpoint.hpp"
+#include "gmf/core/hierarchy_file.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
 #include "io/sparse_grid.hpp"
@@ -22,7 +23,7 @@
 namespace hisnegs::apps {
 namespace {
 
-enum class FileKind { kStack, kVdb, kPly, kCompact };
+enum class FileKind { kStack, kVdb, kPly, kCompact, kHierarchy };
 
 FileKind detect_kind(const std::filesystem::path& path) {
   if (io::is_zarr_stack(path)) return FileKind::kStack;  // a folder: OME-Zarr or a Zarr array
@@ -37,11 +38,12 @@ FileKind detect_kind(const std::filesystem::path& path) {
   if (magic[0] == 'p' && magic[1] == 'l' && magic[2] == 'y') return FileKind::kPly;
   if (io::is_hdf5_stack(path)) return FileKind::kStack;  // TIFF or HDF5: io::read_stack tells them apart
   if (gmf::has_compact_magic(std::string_view(reinterpret_cast<const char*>(magic), 8))) return FileKind::kCompact;
+  if (gmf::has_hierarchy_magic(std::string_view(reinterpret_cast<const char*>(magic), 8))) return FileKind::kHierarchy;
   // OpenVDB files start with the int32 magic 0x56444220 (" BDV" little-endian).
   if (magic[0] == 0x20 && magic[1] == 0x42 && magic[2] == 0x44 && magic[3] == 0x56) return FileKind::kVdb;
   io::fail_input(path,
                  "unrecognized file type (expected a TIFF or HDF5 stack, an OME-Zarr folder, an OpenVDB .vdb, a .ply "
-                 "or a compact .hgs checkpoint)");
+                 "or a compact .hgs checkpoint, or a .hgw hierarchy)");
 }
 
 // The bytes of every file under `folder`.
@@ -188,12 +190,30 @@ void background_rows(const gmf::BackgroundField& field, Sheet& sheet) {
   }
 }
 
-void info_checkpoint(const std::filesystem::path& path, bool compact, const std::filesystem::path& stack,
+// The hierarchy's own line: nodes, levels, pages and their size.
+std::string hierarchy_text(const std::filesystem::path& path) {
+  const std::string bytes = io::read_file(path);
+  const gmf::HierarchyIndex index = gmf::read_hierarchy_index(bytes, bytes.size(), path);
+  std::size_t all = 0;
+  for (std::size_t i = 0; i < index.tree.nodes.size(); ++i) {  // every page decoded and checked
+    all += gmf::read_hierarchy_page(bytes, index, i, path).mixture.size();
+  }
+  const double k = static_cast<double>(std::max<std::size_t>(1, index.tree.model_gaussians));
+  return strf("hisnegs hierarchy (.hgw) version %u: %zu nodes on %d levels, %zu Gaussians in all pages for the "
+             "model's %zu (its leaves), %s, %.2f B per model Gaussian; every page's CRC-32 matches",
+             gmf::kHierarchyFormatVersion, index.tree.nodes.size(), index.tree.depth() + 1, all,
+             static_cast<std::size_t>(index.tree.model_gaussians), format_bytes(static_cast<double>(bytes.size())).c_str(),
+             static_cast<double>(bytes.size()) / k);
+}
+
+void info_checkpoint(const std::filesystem::path& path, FileKind kind, const std::filesystem::path& stack,
                      const io::VolumeOptions& options, Sheet& sheet) {
   const gmf::Checkpoint ckpt = gmf::load_checkpoint(path);
   const gmf::MixtureStats st = gmf::compute_stats(ckpt.mixture);
   sheet.row("file", path.string());
-  if (compact) {
+  if (kind == FileKind::kHierarchy) {
+    sheet.row("format", hierarchy_text(path));
+  } else if (kind == FileKind::kCompact) {
     // load_checkpoint has read and checked the whole file; this reads its header again.
     const gmf::CompactHeader h = gmf::read_compact_header(io::read_file(path), path);
     const gmf::CompactBounds b = gmf::compact_bounds(h);
@@ -271,8 +291,9 @@ FileInfo describe_file(const std::filesystem::path& path, const io::VolumeOption
   FileInfo info;
   Sheet sheet(info);
   const FileKind kind = detect_kind(path);
-  if (!stack.empty() && kind != FileKind::kPly && kind != FileKind::kCompact) {
-    io::fail_input(path, "is not a checkpoint: --volume (the stack to count halos against) is for a .ply or .hgs");
+  if (!stack.empty() && kind != FileKind::kPly && kind != FileKind::kCompact && kind != FileKind::kHierarchy) {
+    io::fail_input(path,
+                   "is not a checkpoint: --volume (the stack to count halos against) is for a .ply, .hgs or .hgw");
   }
   switch (kind) {
     case FileKind::kStack:
@@ -285,11 +306,15 @@ FileInfo describe_file(const std::filesystem::path& path, const io::VolumeOption
       break;
     case FileKind::kPly:
       info.kind = "checkpoint";
-      info_checkpoint(path, false, stack, volume, sheet);
+      info_checkpoint(path, kind, stack, volume, sheet);
       break;
     case FileKind::kCompact:
       info.kind = "compact checkpoint";
-      info_checkpoint(path, true, stack, volume, sheet);
+      info_checkpoint(path, kind, stack, volume, sheet);
+      break;
+    case FileKind::kHierarchy:
+      info.kind = "hierarchy";
+      info_checkpoint(path, kind, stack, volume, sheet);
       break;
   }
   return info;

@@ -25,6 +25,19 @@
 namespace hisnegs::gmf {
 namespace fs = std::filesystem;
 
+// CRC-32 (zlib's: ISO 3309 / ITU-T V.42, the one of gzip and PNG) of `bytes`: it
+// catches every error of up to 3 bits and every burst of up to 32 bits in a file
+// of this size, and all but 2^-32 of the rest.
+std::uint32_t crc32_of(std::string_view bytes) {
+  uLong crc = ::crc32(0L, Z_NULL, 0);
+  for (std::size_t at = 0; at < bytes.size();) {  // zlib takes uInt lengths
+    const auto n = static_cast<uInt>(std::min<std::size_t>(bytes.size() - at, std::size_t{1} << 30));
+    crc = ::crc32(crc, reinterpret_cast<const Bytef*>(bytes.data() + at), n);
+    at += n;
+  }
+  return static_cast<std::uint32_t>(crc);
+}
+
 namespace {
 
 // Header layout (docs/file-formats.md): magic 8, version u32, K u64, four u8 bit
@@ -114,18 +127,6 @@ std::uint64_t compact3(std::uint64_t v) {
   return v;
 }
 
-// CRC-32 (zlib's: ISO 3309 / ITU-T V.42, the one of gzip and PNG) of `bytes`: it
-// catches every error of up to 3 bits and every burst of up to 32 bits in a file
-// of this size, and all but 2^-32 of the rest.
-std::uint32_t crc32_of(std::string_view bytes) {
-  uLong crc = ::crc32(0L, Z_NULL, 0);
-  for (std::size_t at = 0; at < bytes.size();) {  // zlib takes uInt lengths
-    const auto n = static_cast<uInt>(std::min<std::size_t>(bytes.size() - at, std::size_t{1} << 30));
-    crc = ::crc32(crc, reinterpret_cast<const Bytef*>(bytes.data() + at), n);
-    at += n;
-  }
-  return static_cast<std::uint32_t>(crc);
-}
 
 // One column of K values, `planes` bytes each, least significant plane first:
 // value k's byte b is at column[b × K + k]. Planes of like bytes compress far

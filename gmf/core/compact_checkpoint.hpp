@@ -92,6 +92,9 @@ struct CompactBounds {
                                                     const CompactOptions& options = {},
                                                     std::vector<std::size_t>* order = nullptr);
 
+// CRC-32 (zlib's: ISO 3309 / ITU-T V.42, the one of gzip and PNG) of `bytes`: what
+// a compact file (version >= 2) and a hierarchy file end with.
+[[nodiscard]] std::uint32_t crc32_of(std::string_view bytes);
 // Whether `bytes` starts with kCompactMagic.
 [[nodiscard]] bool has_compact_magic(std::string_view bytes);
 

@@ -1,8 +1,9 @@
 // SPDX-License-Identifier: Apache-2.0
-// load_checkpoint (declared in gmf/core/checkpoint.hpp): the one reader of both
-// checkpoint formats, the PLY (gmf/core/checkpoint.hpp) and the compact .hgs
-// (gmf/core/compact_checkpoint.hpp), told apart by content. Its own file so that
-// the compact format builds on the PLY one and not the other way round.
+// load_checkpoint (declared in gmf/core/checkpoint.hpp): the one reader of every
+// checkpoint format, the PLY (gmf/core/checkpoint.hpp), the compact .hgs
+// (gmf/core/compact_checkpoint.hpp) and the hierarchy .hgw's model
+// (gmf/core/hierarchy_file.hpp), told apart by content. Its own file so that the
+// compact format builds on the PLY one and not the other way round.
 #include <unistd.h>
 
 #include <cerrno>
@@ -10,6 +11,7 @@
 
 #include "gmf/core/checkpoint.hpp"
 #include "gmf/core/compact_checkpoint.hpp"
+#include "gmf/core/hierarchy_file.hpp"
 #include "io/error.hpp"
 
 namespace hisnegs::gmf {
@@ -31,6 +33,9 @@ Checkpoint load_checkpoint(const fs::path& path) {
       got += static_cast<std::size_t>(n);
     }
     ::close(fd);
+  }
+  if (got == kHierarchyMagic.size() && std::memcmp(head, kHierarchyMagic.data(), got) == 0) {
+    return load_hierarchy_model(path);
   }
   if (got > 0 && std::memcmp(head, kCompactMagic.data(), got) == 0) return load_compact_checkpoint(path);
   return checkpoint_from_ply(io::read_ply(path), path);

@@ -5,9 +5,13 @@
 // children inside their parent, inner nodes coarser than the model).
 #include "gmf/core/hierarchy.hpp"
 
+#include "gmf/core/hierarchy_file.hpp"
+#include "io/error.hpp"
+
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cstring>
 #include <map>
 #include <random>
 #include <tuple>
@@ -108,6 +112,67 @@ TEST(Hierarchy, EveryGaussianIsInOneLeafAndNodesHoldAPageAtMost) {
   EXPECT_TRUE(build_hierarchy(GaussianMixture{}, o).nodes.empty());
   o.page = 10;
   EXPECT_THROW((void)build_hierarchy(small, o), std::invalid_argument);
+}
+
+GaussianMixture spread(int count) {
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  GaussianMixture model;
+  for (int k = 0; k < count; ++k) model.push_back(gaussian(u(rng), u(rng), 0.3 * u(rng), 0.02, 0.5 + 0.4 * u(rng)));
+  return model;
+}
+
+// The .hgw file: its index gives back the tree, each page its node's Gaussians
+// within the compact bounds, the model (its leaves) reads back through
+// load_hierarchy_model with the root page's metadata; damage is one line.
+TEST(HierarchyFile, RoundTripsTheTreeAndEveryPage) {
+  HierarchyOptions o;
+  o.page = 100;
+  const Hierarchy h = build_hierarchy(spread(700), o);
+  ASSERT_GE(h.depth(), 1);
+  CheckpointMeta meta;
+  meta.extra.emplace_back("source", "a test");
+  const std::string bytes = encode_hierarchy_file(h, meta);
+  ASSERT_TRUE(has_hierarchy_magic(bytes));
+  const HierarchyIndex index = read_hierarchy_index(bytes, bytes.size(), "t.hgw");
+  ASSERT_EQ(index.tree.nodes.size(), h.nodes.size());
+  EXPECT_EQ(index.tree.model_gaussians, 700u);
+  for (std::size_t i = 0; i < h.nodes.size(); ++i) {
+    const HierarchyNode &a = h.nodes[i], &b = index.tree.nodes[i];
+    EXPECT_EQ(a.children, b.children);
+    EXPECT_EQ(a.count, b.count);
+    EXPECT_EQ(a.level, b.level);
+    EXPECT_EQ(a.lo, b.lo);
+    EXPECT_EQ(a.feature, b.feature);
+    const Checkpoint page = read_hierarchy_page(bytes, index, i, "t.hgw");
+    ASSERT_EQ(page.mixture.size(), a.count);
+    // Stored in Morton order: every centre has its original within the position bound.
+    for (const GaussianParams& g : page.mixture) {
+      double nearest = 1e9;
+      for (std::size_t k = a.first; k < a.first + a.count; ++k) {
+        const GaussianParams& o2 = h.gaussians[k];
+        nearest = std::min<double>(nearest, std::abs(g.mean[0] - o2.mean[0]) + std::abs(g.mean[1] - o2.mean[1]) +
+                                        std::abs(g.mean[2] - o2.mean[2]));
+      }
+      EXPECT_LT(nearest, 1e-3);
+    }
+  }
+  // Damage: the index's CRC, a page's byte, a child before its parent.
+  std::string broken = bytes;
+  broken[kHierarchyHeadBytes + 5] ^= 0x01;
+  EXPECT_THROW((void)read_hierarchy_index(broken, broken.size(), "t.hgw"), io::InputError);
+  broken = bytes;
+  broken[index.offset[1] + 40] ^= 0x01;
+  const HierarchyIndex again = read_hierarchy_index(broken, broken.size(), "t.hgw");
+  EXPECT_THROW((void)read_hierarchy_page(broken, again, 1, "t.hgw"), io::InputError);
+  EXPECT_THROW((void)read_hierarchy_index(bytes.substr(0, 20), bytes.size(), "t.hgw"), io::InputError);
+  EXPECT_THROW((void)read_hierarchy_index(bytes, index.index_end - 1, "t.hgw"), io::InputError);
+  try {
+    (void)read_hierarchy_index(bytes, bytes.size() - 10, "t.hgw");  // the last page runs past it
+    ADD_FAILURE() << "a file shorter than its index said";
+  } catch (const io::InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("t.hgw: hierarchy:"), std::string::npos) << e.what();
+  }
 }
 
 }  // namespace

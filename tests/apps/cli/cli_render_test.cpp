@@ -107,6 +107,22 @@ TEST(CliRender, WritesStackPreviewsMetaAndOrbit) {
   EXPECT_NE(lod.out.find("level of detail: 1 nodes on 1 levels"), std::string::npos) << lod.out;
   EXPECT_EQ(testing::read_bytes(dir / "l" / "render.tif"), testing::read_bytes(dir / "r" / "render.tif"));
   EXPECT_NE(testing::read_bytes(dir / "l" / "render.json").find("\"gaussians_per_view\""), std::string::npos);
+  // The hierarchy as a file: every command reads its model (the leaves); info shows the tree.
+  const auto hgw = run_hisnegs({"export", "hierarchy", "--model", dir / "m.ply", "-o", dir / "m.hgw", "--page", "64"});
+  ASSERT_EQ(hgw.exit_code, 0) << hgw.err;
+  EXPECT_NE(hgw.out.find("nodes on 2 levels"), std::string::npos) << hgw.out;
+  const auto shown = run_hisnegs({"info", dir / "m.hgw"});
+  ASSERT_EQ(shown.exit_code, 0) << shown.err;
+  EXPECT_NE(shown.out.find("hisnegs hierarchy (.hgw) version 1"), std::string::npos) << shown.out;
+  EXPECT_NE(shown.out.find("gaussians    80"), std::string::npos) << shown.out;
+  const auto from_file = run_hisnegs({"render", "--model", dir / "m.hgw", "--cameras", dir / "gt" / "cameras.json",
+                                      "-o", dir / "h", "--backend", "cpu", "--mode", "hard", "--lod", "1"});
+  ASSERT_EQ(from_file.exit_code, 0) << from_file.err;
+  testing::write_text(dir / "bad.hgw", std::string("\x89HGW\r\n\x1a\n", 8) + std::string(40, '\0'));
+  const auto bad = run_hisnegs({"info", dir / "bad.hgw"});
+  EXPECT_EQ(bad.exit_code, 2);
+  EXPECT_EQ(testing::count_lines(bad.err), 1) << bad.err;
+  EXPECT_NE(bad.err.find("bad.hgw: hierarchy:"), std::string::npos) << bad.err;
   const auto orbit_only = run_hisnegs({"render", "--model", dir / "m.ply", "-o", dir / "o", "--orbit", "4", "--lod", "1"});
   EXPECT_EQ(orbit_only.exit_code, 2);
   EXPECT_NE(orbit_only.err.find("--lod draws the views of --cameras"), std::string::npos) << orbit_only.err;
