@@ -9,6 +9,7 @@ the Objective's gradient against finite differences, Ctrl-C. Run by ctest
 import os
 import signal
 import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -147,6 +148,41 @@ def test_fit_from_a_model_matches_the_cli_init(work, tmp_path):
     assert run_cli("-q", "synth", "-o", tmp_path / "o.tif", "--shape", "16,48,112", cwd=tmp_path).returncode == 0
     with pytest.raises(ValueError, match="init: is a model of the world box"):
         hisnegs.fit(hisnegs.load_volume(tmp_path / "o.tif"), init=start, **FIT)
+
+
+def test_big_model_script_places_rotated_copies_of_real_fits(work, tmp_path):
+    """scripts/big_model.py (the whole-brain stand-in of docs/benchmarks.md), small:
+    every copy is the model turned and moved (its covariances turned alike)."""
+    script = os.path.join(os.path.dirname(__file__), "..", "..", "scripts", "big_model.py")
+    done = subprocess.run([sys.executable, script, str(tmp_path / "big.ply"), str(work / "m.ply"), "--copies", "5",
+                           "--seed", "3"], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    one, big = hisnegs.Model.load(work / "m.ply"), hisnegs.Model.load(tmp_path / "big.ply")
+    k = len(one)
+    assert len(big) == 5 * k
+    p = one.params.astype(np.float64)
+
+    def covariances(params):
+        q = params[:, 6:10] / np.linalg.norm(params[:, 6:10], axis=1, keepdims=True)
+        w, x, y, z = q.T
+        r = np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+                      2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+                      2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=1).reshape(-1, 3, 3)
+        s = np.exp(params[:, 3:6])
+        return r @ (s[:, :, None] ** 2 * np.transpose(r, (0, 2, 1)))
+
+    for c in range(5):
+        copy = big.params[c * k:(c + 1) * k].astype(np.float64)
+        assert np.array_equal(copy[:, 3:6], p[:, 3:6]) and np.array_equal(copy[:, 10], p[:, 10])
+        a, b = p[:, :3] - p[:, :3].mean(axis=0), copy[:, :3] - copy[:, :3].mean(axis=0)
+        u, _, vt = np.linalg.svd(a.T @ b)
+        rot = (u @ vt).T
+        assert np.linalg.det(rot) > 0 and np.abs(a @ rot.T - b).max() < 1e-5
+        assert np.abs(covariances(copy) - rot @ covariances(p) @ rot.T).max() < 1e-6 * np.abs(covariances(p)).max() + 1e-12
+    done = run_cli("export", "hierarchy", "--model", tmp_path / "big.ply", "-o", tmp_path / "big.hgw", "--page", "64",
+                   cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert len(hisnegs.Model.load(tmp_path / "big.hgw")) == 5 * k
 
 
 def test_model_save_and_load_round_trip(work, tmp_path):
