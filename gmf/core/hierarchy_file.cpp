@@ -98,12 +98,28 @@ HierarchyNode parse_node(const nlohmann::json& j, std::size_t i, std::size_t nod
 std::string encode_hierarchy_file(const Hierarchy& h, const CheckpointMeta& meta, const CompactOptions& options) {
   std::vector<std::string> pages;
   pages.reserve(h.nodes.size());
+  // Positions as fine as a whole-model .hgs of `options` would hold them (a step of
+  // the root cell over 2^position_bits), in as few bits as each page's smaller box needs.
+  const double step = h.nodes.empty() ? 1.0 : (h.nodes[0].hi[0] - h.nodes[0].lo[0]) / std::ldexp(1.0, options.position_bits);
   for (std::size_t i = 0; i < h.nodes.size(); ++i) {
     const HierarchyNode& n = h.nodes[i];
     GaussianMixture page;
     page.reserve(n.count);
-    for (std::size_t k = n.first; k < n.first + n.count; ++k) page.push_back(h.gaussians[k]);
-    pages.push_back(encode_compact_checkpoint(page, i == 0 ? meta : CheckpointMeta{}, options));
+    double extent = 0.0;
+    std::array<float, 3> lo{1e30f, 1e30f, 1e30f}, hi{-1e30f, -1e30f, -1e30f};
+    for (std::size_t k = n.first; k < n.first + n.count; ++k) {
+      const GaussianParams& g = h.gaussians[k];
+      for (std::size_t a = 0; a < 3; ++a) {
+        lo[a] = std::min(lo[a], g.mean[a]);
+        hi[a] = std::max(hi[a], g.mean[a]);
+      }
+      page.push_back(g);
+    }
+    for (std::size_t a = 0; a < 3; ++a) extent = std::max(extent, static_cast<double>(hi[a]) - lo[a]);
+    CompactOptions own = options;
+    own.position_bits = std::clamp(static_cast<int>(std::ceil(std::log2(std::max(extent, step) / step))), 8,
+                                   options.position_bits);
+    pages.push_back(encode_compact_checkpoint(page, i == 0 ? meta : CheckpointMeta{}, own));
   }
   // The index's size depends on the offsets it holds: laid out twice (the second
   // time with the first's size, which only grows the offsets' digits as it must).

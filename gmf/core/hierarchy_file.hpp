@@ -33,7 +33,9 @@ struct HierarchyIndex {
 };
 
 // The file of `h` with the model's metadata `meta` (on the root's page; the other
-// pages carry none) and `options` for every page.
+// pages carry none) and `options` for every page, but for the position bits: each
+// page takes as few as keep its centres' step at most a whole-model file's (the
+// root cell over 2^position_bits), and at least 8.
 [[nodiscard]] std::string encode_hierarchy_file(const Hierarchy& h, const CheckpointMeta& meta,
                                                 const CompactOptions& options = {});
 // Writes it atomically (temp file + rename); returns the file's size.
