@@ -9,6 +9,7 @@
 
 #include "apps/pipeline/halo_measure.hpp"
 #include "gmf/core/hierarchy.hpp"
+#include "gmf/core/hierarchy_file.hpp"
 #include "gmf/core/checkpoint.hpp"
 #include "gmf/core/psnr.hpp"
 #include "io/atomic_file.hpp"
@@ -112,7 +113,7 @@ EvalOutcome evaluate_model(const std::filesystem::path& model, const std::filesy
       splat::floors_of(checkpoint.meta, model.string(), config.get<&AppConfig::splat>().background);
   std::optional<gmf::Hierarchy> hierarchy;
   std::vector<std::size_t> drawn;
-  if (lod) hierarchy = gmf::build_hierarchy(checkpoint.mixture);
+  if (lod) hierarchy = gmf::hierarchy_of(model, checkpoint);
   const auto render = [&](const splat::SplatSettings& s) {
     if (!hierarchy) return splat::render_views(*renderer, splat::flat_params(checkpoint.mixture), cameras, s, {}, floors);
     drawn.clear();

@@ -9,6 +9,7 @@
 #include "apps/pipeline/ground_truth_stage.hpp"
 #include "gmf/core/checkpoint.hpp"
 #include "gmf/core/hierarchy.hpp"
+#include "gmf/core/hierarchy_file.hpp"
 #include "io/atomic_file.hpp"
 #include "io/error.hpp"
 #include "splat/render_views.hpp"
@@ -76,7 +77,7 @@ void render_model(const RenderRequest& request, const RenderConfig& config, cons
     splat::RenderedViews r;
     if (request.lod) {
       if (ranks.distributed()) throw io::InputError("render: --lod runs in one process (not on MPI ranks)");
-      const gmf::Hierarchy h = gmf::build_hierarchy(checkpoint.mixture);
+      const gmf::Hierarchy h = gmf::hierarchy_of(request.model, checkpoint);
       std::vector<std::size_t> drawn;
       r = splat::render_views_lod(*renderer, h, cameras, settings, *request.lod, floors, &drawn);
       meta["lod"] = {{"pixels", request.lod->pixels}, {"budget", request.lod->budget}, {"nodes", h.nodes.size()},

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <fstream>
 #include <nlohmann/json.hpp>
 
 #include "io/atomic_file.hpp"
@@ -214,6 +215,28 @@ Checkpoint read_hierarchy_page(std::string_view bytes, const HierarchyIndex& ind
                      " Gaussians, its index entry says " + std::to_string(index.tree.nodes[node].count));
   }
   return page;
+}
+
+Hierarchy load_hierarchy_file(const std::filesystem::path& path) {
+  const std::string bytes = io::read_file(path);
+  const HierarchyIndex index = read_hierarchy_index(bytes, bytes.size(), path);
+  Hierarchy h = index.tree;  // nodes only: their Gaussians follow, page by page
+  for (std::size_t i = 0; i < h.nodes.size(); ++i) {
+    const Checkpoint page = read_hierarchy_page(bytes, index, i, path);
+    h.nodes[i].first = h.gaussians.size();
+    for (const GaussianParams& g : page.mixture) h.gaussians.push_back(g);
+  }
+  return h;
+}
+
+Hierarchy hierarchy_of(const std::filesystem::path& path, const Checkpoint& model, const HierarchyOptions& options) {
+  char head[kHierarchyMagic.size()] = {};
+  {
+    std::ifstream in(path, std::ios::binary);
+    in.read(head, sizeof head);
+  }
+  if (has_hierarchy_magic(std::string_view(head, sizeof head))) return load_hierarchy_file(path);
+  return build_hierarchy(model.mixture, options);
 }
 
 Checkpoint load_hierarchy_model(const std::filesystem::path& path) {

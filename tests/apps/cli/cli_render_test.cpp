@@ -118,6 +118,7 @@ TEST(CliRender, WritesStackPreviewsMetaAndOrbit) {
   const auto from_file = run_hisnegs({"render", "--model", dir / "m.hgw", "--cameras", dir / "gt" / "cameras.json",
                                       "-o", dir / "h", "--backend", "cpu", "--mode", "hard", "--lod", "1"});
   ASSERT_EQ(from_file.exit_code, 0) << from_file.err;
+  EXPECT_NE(from_file.out.find("nodes on 2 levels"), std::string::npos) << "the file's own tree: " << from_file.out;
   testing::write_text(dir / "bad.hgw", std::string("\x89HGW\r\n\x1a\n", 8) + std::string(40, '\0'));
   const auto bad = run_hisnegs({"info", dir / "bad.hgw"});
   EXPECT_EQ(bad.exit_code, 2);
