@@ -16,7 +16,7 @@
 namespace hisnegs::gmf {
 namespace {
 
-constexpr std::uint64_t kMostIndexBytes = std::uint64_t{256} << 20;
+constexpr std::uint64_t kMostIndexBytes = std::uint64_t{64} << 20;  // ~300,000 nodes: 10^9 Gaussians in pages of 4096
 constexpr std::size_t kMostNodes = std::size_t{1} << 24;
 constexpr std::uint64_t kMostPageGaussians = 1000000;  // HierarchyOptions::page's bound
 
@@ -193,8 +193,18 @@ HierarchyIndex read_hierarchy_index(std::string_view head, std::uint64_t file_by
   const nlohmann::json& nodes = j["nodes"];
   if (nodes.empty() || nodes.size() > kMostNodes) fail(source, std::to_string(nodes.size()) + " nodes");
   std::uint64_t leaves = 0;
+  std::vector<std::int64_t> parent(nodes.size(), -1);  // a tree: every node but the root has one
   for (std::size_t i = 0; i < nodes.size(); ++i) {
     HierarchyNode n = parse_node(nodes[i], i, nodes.size(), file_bytes, index, source);
+    const int expected = i == 0 ? 0 : parent[i] < 0 ? -1 : index.tree.nodes[static_cast<std::size_t>(parent[i])].level + 1;
+    if (i > 0 && parent[i] < 0) fail(source, "node " + std::to_string(i) + " is no node's child");
+    if (n.level != expected) fail(source, "node " + std::to_string(i) + ": level " + std::to_string(n.level) +
+                                              ", its place in the tree says " + std::to_string(expected));
+    for (const std::int32_t c : n.children) {
+      if (c < 0) continue;
+      if (parent[static_cast<std::size_t>(c)] >= 0) fail(source, "node " + std::to_string(c) + " has two parents");
+      parent[static_cast<std::size_t>(c)] = static_cast<std::int64_t>(i);
+    }
     if (n.leaf()) leaves += n.count;
     index.tree.nodes.push_back(n);
   }

@@ -46,8 +46,9 @@ std::uint64_t save_hierarchy_file(const std::filesystem::path& path, const Hiera
 [[nodiscard]] bool has_hierarchy_magic(std::string_view bytes);
 // The index of a file whose first bytes are `head` (the whole file, or at least
 // kHierarchyHeadBytes + its index + 4) and whose size is `file_bytes`: magic,
-// version, the index's size (at most 256 MiB and within the file), its CRC-32,
-// then every node (children after their parent, in range; counts at most a page;
+// version, the index's size (at most 64 MiB and within the file), its CRC-32,
+// then every node (a tree: children after their parent, in range, one parent each,
+// levels one below it; counts at most 10^6;
 // boxes finite; page ranges after the index and within the file; the leaves' counts
 // adding up to the model's). Throws io::InputError "SOURCE: hierarchy: problem".
 [[nodiscard]] HierarchyIndex read_hierarchy_index(std::string_view head, std::uint64_t file_bytes,

@@ -165,6 +165,35 @@ TEST(HierarchyFile, RoundTripsTheTreeAndEveryPage) {
   broken[index.offset[1] + 40] ^= 0x01;
   const HierarchyIndex again = read_hierarchy_index(broken, broken.size(), "t.hgw");
   EXPECT_THROW((void)read_hierarchy_page(broken, again, 1, "t.hgw"), io::InputError);
+  // A tree: the root naming its first child twice (its second child then has no parent).
+  {
+    std::string twice = bytes;
+    const std::size_t list = twice.find("\"children\":[") + 12;
+    const std::size_t end = twice.find(']', list);
+    std::vector<std::string> ids;
+    for (std::size_t at = list; at < end;) {
+      const std::size_t comma = std::min(twice.find(',', at), end);
+      ids.push_back(twice.substr(at, comma - at));
+      at = comma + 1;
+    }
+    std::vector<std::string> real;
+    for (const std::string& id : ids) {
+      if (id != "-1") real.push_back(id);
+    }
+    ASSERT_GE(real.size(), 2u);
+    ASSERT_EQ(real[0].size(), real[1].size());
+    std::string replaced;
+    for (std::size_t c = 0; c < ids.size(); ++c) replaced += (c ? "," : "") + (ids[c] == real[1] ? real[0] : ids[c]);
+    twice.replace(list, end - list, replaced);
+    const std::uint32_t crc = crc32_of(std::string_view(twice).substr(0, index.index_end - 4));
+    std::memcpy(twice.data() + index.index_end - 4, &crc, 4);
+    try {
+      (void)read_hierarchy_index(twice, twice.size(), "t.hgw");
+      ADD_FAILURE() << "a node with two parents was read";
+    } catch (const io::InputError& e) {
+      EXPECT_NE(std::string(e.what()).find("has two parents"), std::string::npos) << e.what();
+    }
+  }
   EXPECT_THROW((void)read_hierarchy_index(bytes.substr(0, 20), bytes.size(), "t.hgw"), io::InputError);
   EXPECT_THROW((void)read_hierarchy_index(bytes, index.index_end - 1, "t.hgw"), io::InputError);
   try {
