@@ -118,13 +118,16 @@ GaussianMixture initialize_mixture(const io::Volume& volume, const io::WorldFram
 }
 
 GaussianMixture warm_start_mixture(const GaussianMixture& model, const io::WorldFrame& frame,
-                                   const GmfOptions& options) {
+                                   const GmfOptions& options, const Eigen::Vector3d& origin) {
   const Eigen::Vector3d& a = frame.aspect();
   std::vector<GaussianParams> inside;
-  for (const GaussianParams& g : model) {
-    if (std::abs(g.mean[0]) <= a.x() && std::abs(g.mean[1]) <= a.y() && std::abs(g.mean[2]) <= a.z()) {
-      inside.push_back(g);
+  for (GaussianParams g : model) {
+    bool within = true;
+    for (int i = 0; i < 3; ++i) {
+      g.mean[i] = static_cast<float>(static_cast<double>(g.mean[i]) - origin[i]);
+      within = within && std::abs(g.mean[i]) <= a[i];
     }
+    if (within) inside.push_back(g);
   }
   const auto budget = static_cast<std::size_t>(std::max(1, options.gaussians));
   if (inside.size() > budget) {  // the brightest; ties in the model's order

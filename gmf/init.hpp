@@ -44,11 +44,14 @@ GaussianMixture initialize_mixture(const io::Volume& volume, const io::WorldFram
 
 // The fit's start from another fit of the same stack: a coarser level of its
 // multiscale pyramid (the same world box, CONVENTIONS' aspect of a level is the
-// stack's) or an earlier fit. `model` is in `frame`'s world coordinates; the
-// Gaussians centred inside the frame's box are kept, the brightest
-// options.gaussians of them, each scale within the fit's largest and each axis
-// ratio within options.max_axis_ratio. Empty when none is centred inside.
+// stack's) or an earlier fit. `model` is in world coordinates where `frame`'s
+// origin lies at `origin` (a brick's region frame: its shift; a whole stack: 0);
+// the Gaussians centred inside the frame's box are kept, moved into its
+// coordinates, the brightest options.gaussians of them, each scale within the
+// fit's largest and each axis ratio within options.max_axis_ratio. Empty when none
+// is centred inside.
 GaussianMixture warm_start_mixture(const GaussianMixture& model, const io::WorldFrame& frame,
-                                   const GmfOptions& options);
+                                   const GmfOptions& options,
+                                   const Eigen::Vector3d& origin = Eigen::Vector3d::Zero());
 
 }  // namespace hisnegs::gmf

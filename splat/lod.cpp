@@ -6,8 +6,9 @@
 #include <algorithm>
 #include <cmath>
 #include <queue>
-#include <stdexcept>
 #include <utility>
+
+#include "io/error.hpp"
 
 namespace hisnegs::splat {
 namespace {
@@ -28,7 +29,9 @@ double projected(const gmf::HierarchyNode& node, const Eigen::Vector3d& centre, 
 }  // namespace
 
 void LodOptions::validate() const {
-  if (!(pixels > 0) || !std::isfinite(pixels)) throw std::invalid_argument("--lod: the pixels must be a number > 0");
+  if (!(pixels > 0) || !std::isfinite(pixels)) {
+    throw io::InputError("--lod = " + io::number_text(pixels) + ": the pixels must be a finite number > 0");
+  }
 }
 
 LodSelection select_lod(const gmf::Hierarchy& h, const Intrinsics& k, const CameraView& view,

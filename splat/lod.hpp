@@ -19,7 +19,7 @@ namespace hisnegs::splat {
 struct LodOptions {
   double pixels = 1.0;      // the most a left-out detail may project to, > 0
   std::size_t budget = 0;   // the most Gaussians drawn per view; 0: no limit
-  void validate() const;
+  void validate() const;    // io::InputError naming --lod and its value
 };
 
 struct LodSelection {

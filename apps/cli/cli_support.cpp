@@ -83,6 +83,21 @@ void BackgroundOverride::apply(splat::SplatOptions& options) const {
   options.background = value == "model";
 }
 
+void LodOverride::add_to(CLI::App* command) {
+  command->add_option("--lod", pixels,
+                      "draw each view from the model's level-of-detail hierarchy as the viewer would: a node's "
+                      "coarser mixture wherever the detail it leaves out spans at most this many pixels (e.g. 1)");
+  command->add_option("--lod-budget", budget, "with --lod: the most Gaussians a view draws (0: no limit)")
+      ->capture_default_str();
+}
+
+std::optional<splat::LodOptions> LodOverride::options() const {
+  if (!pixels) return std::nullopt;
+  const splat::LodOptions lod{*pixels, budget};
+  lod.validate();
+  return lod;
+}
+
 CLI::Validator finite_number() {
   return CLI::Validator(
       [](std::string& text) -> std::string {

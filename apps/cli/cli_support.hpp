@@ -13,6 +13,7 @@
 #include "apps/pipeline/app_config.hpp"
 #include "apps/pipeline/progress.hpp"
 #include "apps/pipeline/stack_reading.hpp"
+#include "splat/lod.hpp"
 
 namespace hisnegs::apps {
 
@@ -64,6 +65,16 @@ struct BackgroundOverride {
   void add_to(CLI::App* command);
   // Applies the flag to `options`; throws io::InputError for another word.
   void apply(splat::SplatOptions& options) const;
+};
+
+// --lod PIXELS and --lod-budget K of `render` and `eval`: each view drawn from the
+// model's level-of-detail hierarchy (splat/lod.hpp).
+struct LodOverride {
+  std::optional<double> pixels;
+  std::size_t budget = 0;
+  void add_to(CLI::App* command);
+  // The options when --lod was given (validated: io::InputError otherwise), else none.
+  [[nodiscard]] std::optional<splat::LodOptions> options() const;
 };
 
 // Each registers one subcommand whose callback does the work.

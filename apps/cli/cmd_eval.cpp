@@ -13,9 +13,9 @@ void add_eval_command(CLI::App& app, GlobalOptions& global) {
       "eval", "measure a model on the evaluation views: PSNR, MAE, SSIM per view (metrics.json/csv)");
   struct Args {
     std::string model, data, out, mode, backend = "auto", volume;
-    std::optional<double> beta, lod;
-    std::size_t lod_budget = 0;
+    std::optional<double> beta;
     BackgroundOverride background;
+    LodOverride lod;
   };
   auto args = std::make_shared<Args>();
   cmd->add_option("--model", args->model, "checkpoint (.ply or .hgs)")->required();
@@ -28,21 +28,14 @@ void add_eval_command(CLI::App& app, GlobalOptions& global) {
                   "the model's stack: also count its halos, the Gaussians brighter than the stack at their centre by "
                   "more than its noise");
   args->background.add_to(cmd);
-  cmd->add_option("--lod", args->lod,
-                  "draw each view from the model's level-of-detail hierarchy as `render --lod` does (pixels)");
-  cmd->add_option("--lod-budget", args->lod_budget, "with --lod: the most Gaussians a view draws (0: no limit)")
-      ->capture_default_str();
+  args->lod.add_to(cmd);
   cmd->callback([args, &global] {
     AppConfig config = global.config();
     if (!args->mode.empty()) io::set_enum_field(config.splat, "mode", args->mode, "--mode");
     if (args->beta) config.splat.beta = *args->beta;
     args->background.apply(config.splat);
     config.splat.validate();
-    std::optional<splat::LodOptions> lod;
-    if (args->lod) {
-      lod = splat::LodOptions{*args->lod, args->lod_budget};
-      lod->validate();
-    }
+    const std::optional<splat::LodOptions> lod = args->lod.options();  // before the back end is looked for
     evaluate_model(args->model, ground_truth_set_dir(args->data, "eval"), args->out, EvalConfig(config),
                    splat::resolve_backend(splat::parse_backend_request(args->backend)), global.progress(),
                    args->volume, lod);

@@ -15,8 +15,7 @@ void add_render_command(CLI::App& app, GlobalOptions& global) {
     std::optional<double> beta;
     BackgroundOverride background;
     std::optional<int> orbit, size;
-    std::optional<double> lod;
-    std::size_t lod_budget = 0;
+    LodOverride lod;
     double elevation = 20.0;
     int delay_ms = 50;
   };
@@ -32,11 +31,7 @@ void add_render_command(CLI::App& app, GlobalOptions& global) {
   cmd->add_option("--elevation", args->elevation, "orbit elevation in degrees")->capture_default_str();
   cmd->add_option("--size", args->size, "orbit image width = height (default camera.width/height)");
   cmd->add_option("--frame-ms", args->delay_ms, "orbit GIF frame time in ms")->capture_default_str();
-  cmd->add_option("--lod", args->lod,
-                  "draw each view from the model's level-of-detail hierarchy as the viewer would: a node's "
-                  "coarser mixture wherever the detail it leaves out spans at most this many pixels (e.g. 1)");
-  cmd->add_option("--lod-budget", args->lod_budget, "with --lod: the most Gaussians a view draws (0: no limit)")
-      ->capture_default_str();
+  args->lod.add_to(cmd);
   cmd->callback([args, &global] {
     AppConfig config = global.config();
     if (!args->mode.empty()) io::set_enum_field(config.splat, "mode", args->mode, "--mode");
@@ -50,13 +45,12 @@ void add_render_command(CLI::App& app, GlobalOptions& global) {
     request.model = args->model;
     request.cameras = args->cameras;
     request.dir = args->out;
+    request.lod = args->lod.options();  // options checked before the back end is looked for
+    if (request.lod && args->cameras.empty()) {
+      throw io::InputError("render: --lod draws the views of --cameras (not the orbit)");
+    }
     request.backend = splat::resolve_backend(splat::parse_backend_request(args->backend));
     if (args->orbit) request.orbit = OrbitOptions{*args->orbit, args->elevation, args->delay_ms};
-    if (args->lod) {
-      if (args->cameras.empty()) throw io::InputError("render: --lod draws the views of --cameras (not the orbit)");
-      request.lod = splat::LodOptions{*args->lod, args->lod_budget};
-      request.lod->validate();
-    }
     render_model(request, RenderConfig(config), global.progress());
   });
 }

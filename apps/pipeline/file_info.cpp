@@ -190,20 +190,17 @@ void background_rows(const gmf::BackgroundField& field, Sheet& sheet) {
   }
 }
 
-// The hierarchy's own line: nodes, levels, pages and their size.
-std::string hierarchy_text(const std::filesystem::path& path) {
-  const std::string bytes = io::read_file(path);
-  const gmf::HierarchyIndex index = gmf::read_hierarchy_index(bytes, bytes.size(), path);
-  std::size_t all = 0;
-  for (std::size_t i = 0; i < index.tree.nodes.size(); ++i) {  // every page decoded and checked
-    all += gmf::read_hierarchy_page(bytes, index, i, path).mixture.size();
-  }
-  const double k = static_cast<double>(std::max<std::size_t>(1, index.tree.model_gaussians));
+// The hierarchy's own line: nodes, levels, pages and their size. `model` is what
+// load_checkpoint read from the file (its leaf pages, checked); the other pages are
+// decoded and checked here.
+std::string hierarchy_text(const std::filesystem::path& path, const gmf::GaussianMixture& model) {
+  const gmf::Hierarchy h = gmf::load_hierarchy_file(path, &model);
+  const auto bytes = static_cast<double>(std::filesystem::file_size(path));
+  const double k = static_cast<double>(std::max<std::size_t>(1, h.model_gaussians));
   return strf("hisnegs hierarchy (.hgw) version %u: %zu nodes on %d levels, %zu Gaussians in all pages for the "
-             "model's %zu (its leaves), %s, %.2f B per model Gaussian; every page's CRC-32 matches",
-             gmf::kHierarchyFormatVersion, index.tree.nodes.size(), index.tree.depth() + 1, all,
-             static_cast<std::size_t>(index.tree.model_gaussians), format_bytes(static_cast<double>(bytes.size())).c_str(),
-             static_cast<double>(bytes.size()) / k);
+              "model's %zu (its leaves), %s, %.2f B per model Gaussian; every page's CRC-32 matches",
+              gmf::kHierarchyFormatVersion, h.nodes.size(), h.depth() + 1, h.gaussians.size(), h.model_gaussians,
+              format_bytes(bytes).c_str(), bytes / k);
 }
 
 void info_checkpoint(const std::filesystem::path& path, FileKind kind, const std::filesystem::path& stack,
@@ -212,7 +209,7 @@ void info_checkpoint(const std::filesystem::path& path, FileKind kind, const std
   const gmf::MixtureStats st = gmf::compute_stats(ckpt.mixture);
   sheet.row("file", path.string());
   if (kind == FileKind::kHierarchy) {
-    sheet.row("format", hierarchy_text(path));
+    sheet.row("format", hierarchy_text(path, ckpt.mixture));
   } else if (kind == FileKind::kCompact) {
     // load_checkpoint has read and checked the whole file; this reads its header again.
     const gmf::CompactHeader h = gmf::read_compact_header(io::read_file(path), path);

@@ -110,11 +110,10 @@ void append_fit_log_csv(std::ostringstream& s, std::span<const gmf::FitIteration
 }
 
 FitStart FitStart::load(const std::filesystem::path& path, const io::WorldFrame& frame) {
-  io::require_regular_file(path);
-  return of(gmf::load_checkpoint(path), frame, path);
+  return of(gmf::load_checkpoint(path), frame, path);  // a regular file only, as every checkpoint
 }
 
-FitStart FitStart::of(const gmf::Checkpoint& model, const io::WorldFrame& frame, const std::filesystem::path& name) {
+FitStart FitStart::of(gmf::Checkpoint model, const io::WorldFrame& frame, const std::filesystem::path& name) {
   const Eigen::Vector3d& a = frame.aspect();
   if (model.meta.aspect) {
     const std::array<double, 3>& m = *model.meta.aspect;
@@ -130,7 +129,7 @@ FitStart FitStart::of(const gmf::Checkpoint& model, const io::WorldFrame& frame,
   start.path = name;
   const std::span<const float> p = gmf::flat_params(model.mixture);
   start.identity = hash_hex(std::string(reinterpret_cast<const char*>(p.data()), p.size_bytes()));
-  start.model = model.mixture;
+  start.model = std::move(model.mixture);
   return start;
 }
 

@@ -38,7 +38,7 @@ struct FitStart {
   // naming the file otherwise.
   static FitStart load(const std::filesystem::path& path, const io::WorldFrame& frame);
   // The same check for a model in memory, named `name` in messages.
-  static FitStart of(const gmf::Checkpoint& model, const io::WorldFrame& frame, const std::filesystem::path& name);
+  static FitStart of(gmf::Checkpoint model, const io::WorldFrame& frame, const std::filesystem::path& name);
 };
 
 // What the GMF fit starts from: the normalized volume, its samples (from the

@@ -168,22 +168,6 @@ std::uint64_t brick_seed(const GmfOptions& gmf, int id) {
   return io::splitmix64(gmf.seed ^ (0x9e3779b97f4a7c15ull * static_cast<std::uint64_t>(id + 1)));
 }
 
-// The warm start's Gaussians for a brick's region: those of `model` (the stack's
-// world coordinates) centred in it, in the region's frame.
-GaussianMixture warm_start(const GaussianMixture& model, const RegionFrame& rf, const GmfOptions& options) {
-  const Eigen::Vector3d& a = rf.frame.aspect();
-  GaussianMixture local;
-  for (GaussianParams g : model) {
-    bool inside = true;
-    for (int i = 0; i < 3; ++i) {
-      g.mean[i] = static_cast<float>(static_cast<double>(g.mean[i]) - rf.shift[i]);
-      inside = inside && std::abs(g.mean[i]) <= a[i];
-    }
-    if (inside) local.push_back(g);
-  }
-  return warm_start_mixture(local, rf.frame, options);
-}
-
 // One brick: read, count, sample, initialize with its share of K, fit, keep the
 // core's. Its time: `left` shared by its core's foreground among `rest` still to fit.
 BrickRecord fit_brick(const StreamContext& c, const StreamBrick& b, double left, std::int64_t rest) {
@@ -221,7 +205,7 @@ BrickRecord fit_brick(const StreamContext& c, const StreamBrick& b, double left,
   }
   const SampleSet samples = region_samples(c, v, rf, options);
   r.samples = static_cast<std::int64_t>(samples.size());
-  GaussianMixture mixture = c.start != nullptr ? warm_start(*c.start, rf, options)
+  GaussianMixture mixture = c.start != nullptr ? warm_start_mixture(*c.start, rf.frame, options, rf.shift)
                                                : initialize_mixture(v, rf.frame, threshold, options);
   if (mixture.empty()) mixture = initialize_mixture(v, rf.frame, threshold, options);  // nothing of the model here
   const FitResult fit = fit_mixture(v, samples, rf.frame, mixture, options);

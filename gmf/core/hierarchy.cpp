@@ -13,6 +13,8 @@
 #include <string>
 #include <unordered_map>
 
+#include "gmf/core/density_ops.hpp"
+
 namespace hisnegs::gmf {
 namespace {
 
@@ -78,7 +80,7 @@ struct Builder {
     longest.reserve(node.count);
     for (std::size_t k = node.first; k < out.gaussians.size(); ++k) {
       const GaussianParams& g = out.gaussians[k];
-      longest.push_back(std::max({g.log_scale[0], g.log_scale[1], g.log_scale[2]}));
+      longest.push_back(g.log_scale[static_cast<std::size_t>(longest_axis(g))]);
     }
     std::nth_element(longest.begin(), longest.begin() + static_cast<std::ptrdiff_t>(longest.size() / 2), longest.end());
     node.feature = std::max(edge / static_cast<double>(n),

@@ -229,13 +229,20 @@ Checkpoint read_hierarchy_page(std::string_view bytes, const HierarchyIndex& ind
   return page;
 }
 
-Hierarchy load_hierarchy_file(const std::filesystem::path& path) {
+Hierarchy load_hierarchy_file(const std::filesystem::path& path, const GaussianMixture* leaves) {
   const std::string bytes = io::read_file(path);
   const HierarchyIndex index = read_hierarchy_index(bytes, bytes.size(), path);
   Hierarchy h = index.tree;  // nodes only: their Gaussians follow, page by page
+  // The leaves as load_hierarchy_model laid them out (leaf after leaf, in node order).
+  const bool reuse = leaves != nullptr && leaves->size() == h.model_gaussians;
+  std::size_t next_leaf = 0;
   for (std::size_t i = 0; i < h.nodes.size(); ++i) {
-    const Checkpoint page = read_hierarchy_page(bytes, index, i, path);
     h.nodes[i].first = h.gaussians.size();
+    if (reuse && h.nodes[i].leaf()) {
+      for (std::size_t k = 0; k < h.nodes[i].count; ++k) h.gaussians.push_back((*leaves)[next_leaf++]);
+      continue;
+    }
+    const Checkpoint page = read_hierarchy_page(bytes, index, i, path);
     for (const GaussianParams& g : page.mixture) h.gaussians.push_back(g);
   }
   return h;
@@ -247,7 +254,7 @@ Hierarchy hierarchy_of(const std::filesystem::path& path, const Checkpoint& mode
     std::ifstream in(path, std::ios::binary);
     in.read(head, sizeof head);
   }
-  if (has_hierarchy_magic(std::string_view(head, sizeof head))) return load_hierarchy_file(path);
+  if (has_hierarchy_magic(std::string_view(head, sizeof head))) return load_hierarchy_file(path, &model.mixture);
   return build_hierarchy(model.mixture, options);
 }
 

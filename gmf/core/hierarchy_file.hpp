@@ -57,11 +57,15 @@ std::uint64_t save_hierarchy_file(const std::filesystem::path& path, const Hiera
 // the count the index says).
 [[nodiscard]] Checkpoint read_hierarchy_page(std::string_view bytes, const HierarchyIndex& index, std::size_t node,
                                              const std::filesystem::path& source);
-// The whole hierarchy a file holds, every page decoded (Hierarchy::gaussians node
-// after node, in the index's order).
-[[nodiscard]] Hierarchy load_hierarchy_file(const std::filesystem::path& path);
-// The hierarchy of the checkpoint at `path`: the file's own for a `.hgw`, else
-// build_hierarchy of its model with `options`.
+// The whole hierarchy a file holds (Hierarchy::gaussians node after node, in the
+// index's order), every page decoded and checked; but with `leaves`, the model
+// load_hierarchy_model read from this file (leaf after leaf), the leaf pages are
+// taken from it instead of being decoded a second time.
+[[nodiscard]] Hierarchy load_hierarchy_file(const std::filesystem::path& path,
+                                            const GaussianMixture* leaves = nullptr);
+// The hierarchy of the checkpoint `model` loaded from `path`: the file's own for a
+// `.hgw` (its leaves taken from `model`), else build_hierarchy of the model with
+// `options`.
 [[nodiscard]] Hierarchy hierarchy_of(const std::filesystem::path& path, const Checkpoint& model,
                                      const HierarchyOptions& options = {});
 // The model a hierarchy file holds: its leaves' Gaussians, leaf after leaf, and the

@@ -7,6 +7,8 @@
 
 #include <random>
 
+#include "io/error.hpp"
+
 namespace hisnegs::splat {
 namespace {
 
@@ -74,7 +76,7 @@ TEST(Lod, FarViewsDrawTheRootAndCloseOnesTheModel) {
   EXPECT_LE(capped.gaussians, 1000u);
   EXPECT_GT(capped.gaussians, h.nodes[0].count);
   expect_a_cover(h, capped);
-  EXPECT_THROW((void)select_lod(h, k, orbit_view(20, 30, 2.5, "x"), {0.0, 0}), std::invalid_argument);
+  EXPECT_THROW((void)select_lod(h, k, orbit_view(20, 30, 2.5, "x"), {0.0, 0}), io::InputError);
 }
 
 }  // namespace

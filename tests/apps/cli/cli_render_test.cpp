@@ -124,6 +124,14 @@ TEST(CliRender, WritesStackPreviewsMetaAndOrbit) {
   EXPECT_EQ(bad.exit_code, 2);
   EXPECT_EQ(testing::count_lines(bad.err), 1) << bad.err;
   EXPECT_NE(bad.err.find("bad.hgw: hierarchy:"), std::string::npos) << bad.err;
+  for (const char* bad : {"0", "nan", "-2"}) {
+    const auto r = run_hisnegs({"render", "--model", dir / "m.ply", "--cameras", dir / "gt" / "cameras.json", "-o",
+                                dir / "bad_lod", "--lod", bad});
+    EXPECT_EQ(r.exit_code, 2) << bad;
+    EXPECT_EQ(testing::count_lines(r.err), 1) << r.err;
+    EXPECT_NE(r.err.find("--lod = "), std::string::npos) << r.err;
+    EXPECT_FALSE(fs::exists(dir / "bad_lod"));
+  }
   const auto orbit_only = run_hisnegs({"render", "--model", dir / "m.ply", "-o", dir / "o", "--orbit", "4", "--lod", "1"});
   EXPECT_EQ(orbit_only.exit_code, 2);
   EXPECT_NE(orbit_only.err.find("--lod draws the views of --cameras"), std::string::npos) << orbit_only.err;
