@@ -72,6 +72,22 @@ def compose(q, r):
                      w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2], axis=1)
 
 
+def write_copies(path, header, models, picks, quats, side, a, rng):
+    """The PLY: the header, then every copy turned and placed."""
+    with open(path, "wb") as f:
+        f.write(("\n".join(header) + "\n").encode("ascii"))
+        for c in range(a.copies):
+            params = models[picks[c]][0]
+            cell = np.array([c % side, (c // side) % side, c // (side * side)], dtype=np.float64)
+            centre = (cell - (side - 1) / 2) * a.spacing + rng.uniform(-0.1, 0.1, 3) * a.spacing
+            r = rotation_matrix(quats[c])
+            out = params.astype(np.float64)
+            box_mid = (params[:, :3].min(axis=0) + params[:, :3].max(axis=0)) / 2
+            out[:, :3] = (params[:, :3] - box_mid) @ r.T + centre
+            out[:, 6:10] = compose(quats[c], params[:, 6:10].astype(np.float64))
+            f.write(out.astype("<f4").tobytes())
+
+
 def main():
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("out")
@@ -87,28 +103,23 @@ def main():
     models = [read_checkpoint(m) for m in a.models]
     rng = np.random.default_rng(a.seed)
     side = math.ceil(a.copies ** (1 / 3))
-    total = 0
     picks = rng.integers(0, len(models), a.copies)
     total = sum(models[i][0].shape[0] for i in picks)
     tmp = a.out + ".partial"
+    if os.path.exists(tmp):
+        sys.exit(f"big_model.py: {tmp} exists (an interrupted run's? remove it); not overwritten")
     header = ["ply", "format binary_little_endian 1.0", "comment hisnegs format_version 1"]
     if models[0][1]:
         header.append(models[0][1])
     header += [f"comment hisnegs source big_model.py: {a.copies} copies of {len(models)} models",
                f"element vertex {total}"] + [f"property float {n}" for n in NAMES] + ["end_header"]
     quats = random_quaternions(rng, a.copies)
-    with open(tmp, "wb") as f:
-        f.write(("\n".join(header) + "\n").encode("ascii"))
-        for c in range(a.copies):
-            params = models[picks[c]][0]
-            cell = np.array([c % side, (c // side) % side, c // (side * side)], dtype=np.float64)
-            centre = (cell - (side - 1) / 2) * a.spacing + rng.uniform(-0.1, 0.1, 3) * a.spacing
-            r = rotation_matrix(quats[c])
-            out = params.astype(np.float64)
-            box_mid = (params[:, :3].min(axis=0) + params[:, :3].max(axis=0)) / 2
-            out[:, :3] = (params[:, :3] - box_mid) @ r.T + centre
-            out[:, 6:10] = compose(quats[c], params[:, 6:10].astype(np.float64))
-            f.write(out.astype("<f4").tobytes())
+    try:
+        write_copies(tmp, header, models, picks, quats, side, a, rng)
+    except BaseException:  # a full disk or Ctrl-C: no partial file left behind
+        if os.path.exists(tmp):
+            os.remove(tmp)
+        raise
     os.replace(tmp, a.out)
     print(f"big_model.py: wrote {a.out}: {total} Gaussians in {a.copies} copies on a {side}^3 grid "
           f"(spacing {a.spacing}), {os.path.getsize(a.out) / 2**20:.1f} MiB", file=sys.stderr)

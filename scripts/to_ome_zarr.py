@@ -59,21 +59,8 @@ def halve(block):
     return m.astype(block.dtype)
 
 
-def main():
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("stack")
-    p.add_argument("out")
-    p.add_argument("--chunk", type=int, default=128)
-    p.add_argument("--levels", type=int, default=3)
-    p.add_argument("--spacing", help="Z,Y,X in µm (default: the TIFF's, else 1)")
-    p.add_argument("--clevel", type=int, default=5)
-    a = p.parse_args()
-    if a.chunk < 8 or a.levels < 1:
-        sys.exit("to_ome_zarr.py: --chunk must be >= 8 and --levels >= 1")
-    if os.path.exists(a.out):
-        sys.exit(f"to_ome_zarr.py: {a.out} exists; not overwritten")
-    tmp = a.out.rstrip("/") + ".partial"
-    shutil.rmtree(tmp, ignore_errors=True)
+def write_pyramid(a, tmp):
+    """The pyramid into the folder `tmp`; returns (levels, spacing)."""
     with tifffile.TiffFile(a.stack) as tif:
         series = tif.series[0]
         shape, dtype = series.shape, series.dtype
@@ -108,8 +95,32 @@ def main():
         "version": "0.4", "name": os.path.basename(a.stack),
         "axes": [{"name": n, "type": "space", "unit": "micrometer"} for n in "zyx"],
         "datasets": datasets}]
+    return len(arrays), spacing
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("stack")
+    p.add_argument("out")
+    p.add_argument("--chunk", type=int, default=128)
+    p.add_argument("--levels", type=int, default=3)
+    p.add_argument("--spacing", help="Z,Y,X in µm (default: the TIFF's, else 1)")
+    p.add_argument("--clevel", type=int, default=5)
+    a = p.parse_args()
+    if a.chunk < 8 or a.levels < 1:
+        sys.exit("to_ome_zarr.py: --chunk must be >= 8 and --levels >= 1")
+    if os.path.exists(a.out):
+        sys.exit(f"to_ome_zarr.py: {a.out} exists; not overwritten")
+    tmp = a.out.rstrip("/") + ".partial"
+    if os.path.exists(tmp):
+        sys.exit(f"to_ome_zarr.py: {tmp} exists (an interrupted run's? remove it); not overwritten")
+    try:
+        levels, spacing = write_pyramid(a, tmp)
+    except BaseException:  # a full disk, a bad stack or Ctrl-C: no partial folder left behind
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
     os.rename(tmp, a.out)
-    print(f"to_ome_zarr.py: wrote {a.out}: {len(arrays)} levels, spacing {spacing} µm", file=sys.stderr)
+    print(f"to_ome_zarr.py: wrote {a.out}: {levels} levels, spacing {spacing} µm", file=sys.stderr)
 
 
 if __name__ == "__main__":
